@@ -1,0 +1,1 @@
+//! Sans-IO codecs: bytes in, typed frames out, and the reverse.

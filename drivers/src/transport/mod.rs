@@ -1,0 +1,1 @@
+//! Thin async transports that move bytes between a device and a codec.

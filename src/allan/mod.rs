@@ -1,0 +1,1 @@
+//! Allan-family deviations, confidence intervals, noise-term fit and reports.

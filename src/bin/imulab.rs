@@ -1,0 +1,2 @@
+//! `imulab`: the offline analyser.
+fn main() {}

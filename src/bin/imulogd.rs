@@ -1,0 +1,2 @@
+//! `imulogd`: the acquisition daemon.
+fn main() {}

@@ -1,0 +1,1 @@
+//! The `imulab` subcommands, one module each.

@@ -1,0 +1,1 @@
+//! imulogd: the acquisition daemon.

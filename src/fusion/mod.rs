@@ -1,0 +1,1 @@
+//! Strapdown INS, error-state Kalman filter, replay and sensor-grade studies.

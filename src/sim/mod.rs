@@ -1,0 +1,1 @@
+//! Sensor simulator: IMU and GNSS error models, scenes, presets, byte-stream serving.
