@@ -3,4 +3,4 @@
 
 pub mod records;
 
-pub use records::{EventKind, EventRecord, GnssRecord, ImuRecord};
+pub use records::{EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};

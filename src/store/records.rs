@@ -79,3 +79,31 @@ pub struct EventRecord {
     /// Free text: counts, durations, error messages.
     pub detail: String,
 }
+
+/// One epoch of the true trajectory (simulated sessions only), in `/truth/nav`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TruthNavRecord {
+    /// Host-equivalent monotonic time of this epoch, ns (same clock as the IMU rows).
+    pub t_mono_ns: i64,
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Height above the WGS-84 ellipsoid, m.
+    pub height_m: f64,
+    /// Velocity north/east/down, m/s.
+    pub vel_ned: [f64; 3],
+    /// Attitude body→NED as a unit quaternion, scalar first (w, x, y, z).
+    pub quat_nb: [f64; 4],
+}
+
+/// The true error state of one simulated IMU at one epoch, in `/truth/imu/<name>`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TruthImuRecord {
+    pub t_mono_ns: i64,
+    /// Total gyro bias (constant + turn-on + instability + random walk + temperature), rad/s.
+    pub gyro_bias: [f64; 3],
+    /// Total accel bias, m/s².
+    pub accel_bias: [f64; 3],
+    /// Error-free angular rate and specific force in the sensor frame.
+    pub gyro_true: [f64; 3],
+    pub accel_true: [f64; 3],
+}
