@@ -1,2 +1,26 @@
-//! `imulab`: the offline analyser.
-fn main() {}
+//! `imulab`: the offline analyser. Each subcommand lives in `imulab::cli::<name>`.
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "imulab", version, about = "Bench characterisation of inertial sensors")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {}
+
+fn main() -> std::process::ExitCode {
+    imulab::cli::init_logging();
+    let cli = Cli::parse();
+    let result: anyhow::Result<()> = match cli.command {};
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("imulab: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
