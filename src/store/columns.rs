@@ -851,6 +851,17 @@ impl Block for RawIndexBlock {
     }
 }
 
+/// Only the time column of a table (for gap scans).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct TimeBlock(pub Vec<i64>);
+
+impl Block for TimeBlock {
+    const COLUMNS: &'static [Column] = &[T_MONO];
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(TimeBlock(get_1d(&ds[0], r)?))
+    }
+}
+
 pub(crate) fn read_bytes(ds: &Dataset, r: Range<usize>) -> hdf5::Result<Vec<u8>> {
     get_1d(ds, r)
 }
