@@ -10,6 +10,8 @@
 //! [`JsonDecoder`]. Adding a protocol means adding a module, a [`Protocol`] variant and one
 //! table line.
 
+pub mod nmea;
+
 use std::path::PathBuf;
 
 use crate::types::DecoderStats;
@@ -122,8 +124,12 @@ pub struct OpenError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Protocol {
-    /// NMEA 0183 sentences only (codec lands in the next commit).
+    /// NMEA 0183 sentences only.
     Nmea,
+    /// u-blox UBX binary messages only.
+    Ubx,
+    /// NMEA and UBX interleaved on one port, merged into navigation epochs.
+    Gnss,
 }
 
 /// One row of the protocol table.
@@ -143,6 +149,7 @@ pub struct ProtocolEntry {
 /// the earlier line on a tie.
 #[rustfmt::skip]
 pub const PROTOCOLS: &[ProtocolEntry] = &[
+    ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", detect: nmea::detect_score, open: |_| Ok(Box::new(nmea::NmeaDecoder::new())) },
 ];
 
 /// A protocol name that is not in [`PROTOCOLS`].
@@ -256,8 +263,9 @@ mod tests {
             assert_eq!(Protocol::from_name(entry.name), Ok(entry.protocol));
             assert_eq!(entry.protocol.name(), entry.name);
         }
+        assert!(Protocol::from_name("NMEA").is_ok());
         let err = Protocol::from_name("foo").unwrap_err();
-        assert!(err.to_string().contains("foo"), "{err}");
+        assert!(err.to_string().contains("nmea"), "{err}");
     }
 
     #[test]
