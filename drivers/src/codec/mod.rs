@@ -10,7 +10,9 @@
 //! [`JsonDecoder`]. Adding a protocol means adding a module, a [`Protocol`] variant and one
 //! table line.
 
+pub mod gnss;
 pub mod nmea;
+pub mod ubx;
 
 use std::path::PathBuf;
 
@@ -29,6 +31,12 @@ pub trait Decoder {
     fn poll(&mut self) -> Option<Self::Frame>;
     /// Counters since construction.
     fn stats(&self) -> DecoderStats;
+
+    /// Called once the input has ended: returns frames the decoder held back (e.g. a merged
+    /// epoch waiting for its cycle to close). Call until `None`. Partial frames are dropped.
+    fn finish(&mut self) -> Option<Self::Frame> {
+        None
+    }
 
     /// Pushes `bytes` and hands every frame they complete to `sink`.
     fn decode(&mut self, bytes: &[u8], mut sink: impl FnMut(Self::Frame))
@@ -72,6 +80,8 @@ pub trait JsonDecoder: Send {
     fn push(&mut self, bytes: &[u8]);
     /// Writes the next frame as one JSON object (no newline) into `out`; `false` when none.
     fn next_json(&mut self, out: &mut Vec<u8>) -> bool;
+    /// Like [`next_json`](JsonDecoder::next_json) for frames held back until the input ended.
+    fn finish_json(&mut self, out: &mut Vec<u8>) -> bool;
     fn stats(&self) -> DecoderStats;
 }
 
@@ -85,21 +95,31 @@ where
     }
 
     fn next_json(&mut self, out: &mut Vec<u8>) -> bool {
-        match Decoder::poll(self) {
-            Some(frame) => {
-                // Serialising our own frame types into a Vec cannot fail (no maps with
-                // non-string keys, no I/O); keep going rather than panic if it ever did.
-                if serde_json::to_writer(&mut *out, &frame).is_err() {
-                    out.extend_from_slice(b"{\"error\":\"frame not serialisable\"}");
-                }
-                true
-            }
-            None => false,
-        }
+        let frame = Decoder::poll(self);
+        write_json(frame, out)
+    }
+
+    fn finish_json(&mut self, out: &mut Vec<u8>) -> bool {
+        let frame = Decoder::finish(self);
+        write_json(frame, out)
     }
 
     fn stats(&self) -> DecoderStats {
         Decoder::stats(self)
+    }
+}
+
+fn write_json<F: serde::Serialize>(frame: Option<F>, out: &mut Vec<u8>) -> bool {
+    match frame {
+        Some(frame) => {
+            // Serialising our own frame types into a Vec cannot fail (no maps with non-string
+            // keys, no I/O); keep going rather than panic if it ever did.
+            if serde_json::to_writer(&mut *out, &frame).is_err() {
+                out.extend_from_slice(b"{\"error\":\"frame not serialisable\"}");
+            }
+            true
+        }
+        None => false,
     }
 }
 
@@ -149,7 +169,9 @@ pub struct ProtocolEntry {
 /// the earlier line on a tie.
 #[rustfmt::skip]
 pub const PROTOCOLS: &[ProtocolEntry] = &[
+    ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", detect: gnss::detect_score, open: |_| Ok(Box::new(gnss::GnssDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", detect: nmea::detect_score, open: |_| Ok(Box::new(nmea::NmeaDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", detect: ubx::detect_score, open: |_| Ok(Box::new(ubx::UbxDecoder::new())) },
 ];
 
 /// A protocol name that is not in [`PROTOCOLS`].
@@ -207,6 +229,38 @@ pub fn detect(sample: &[u8]) -> Option<Protocol> {
         }
     }
     best.map(|(_, protocol)| protocol)
+}
+
+/// What scanning the bytes at a frame start found.
+#[derive(Debug)]
+pub(crate) enum Scan<F> {
+    /// Not enough bytes yet.
+    Incomplete,
+    /// A frame of `len` bytes.
+    Frame { len: usize, frame: F },
+    /// Drop `len` bytes (≥ 1) and count `reject`.
+    Reject { len: usize, reject: Reject },
+}
+
+/// Why bytes were rejected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Reject {
+    Checksum,
+    TooLong,
+    Malformed,
+    /// Not a frame start after all (e.g. 0xB5 not followed by 0x62): plain garbage.
+    NoSync,
+}
+
+impl Reject {
+    pub(crate) fn count(self, stats: &mut DecoderStats) {
+        match self {
+            Reject::Checksum => stats.checksum_errors += 1,
+            Reject::TooLong => stats.frames_too_long += 1,
+            Reject::Malformed => stats.frames_malformed += 1,
+            Reject::NoSync => {}
+        }
+    }
 }
 
 /// The byte buffer behind a streaming decoder: appended at the back, consumed at the front,

@@ -21,7 +21,7 @@ use std::io::Write as _;
 
 use serde::{Serialize, Serializer};
 
-use super::{Decoder, EncodeError, Encoder, StreamBuffer};
+use super::{Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Longest talker sentence accepted, from `$` to the last checksum digit. The standard says
@@ -96,7 +96,8 @@ impl Decimal {
 
     /// Writes the decimal with at least `min_int_digits` integer digits (zero padded).
     fn write_padded(self, min_int_digits: usize, out: &mut Vec<u8>) {
-        let scale = u32::from(self.scale);
+        // A scale above 18 cannot come from parsing; clamp rather than overflow.
+        let scale = u32::from(self.scale.min(18));
         let abs = self.mantissa.unsigned_abs();
         let divisor = 10u64.pow(scale);
         if self.mantissa < 0 {
@@ -136,10 +137,12 @@ pub struct Coordinate {
 impl Coordinate {
     /// Signed degrees (S and W negative).
     pub fn degrees(self) -> f64 {
-        let unit = 100 * 10i64.pow(u32::from(self.ddmm.scale.min(16)));
-        let abs = self.ddmm.mantissa.unsigned_abs() as i64;
+        let scale = u32::from(self.ddmm.scale.min(18));
+        // i128: 100 × 10^18 does not fit i64.
+        let unit = 100 * 10i128.pow(scale);
+        let abs = i128::from(self.ddmm.mantissa.unsigned_abs());
         let whole_degrees = (abs / unit) as f64;
-        let minutes = (abs % unit) as f64 / POW10[usize::from(self.ddmm.scale.min(16))];
+        let minutes = (abs % unit) as f64 / POW10[scale as usize];
         let magnitude = whole_degrees + minutes / 60.0;
         let sign = if self.ddmm.mantissa < 0 { -1.0 } else { 1.0 };
         match self.hemisphere {
@@ -442,35 +445,6 @@ impl Vtg {
         self.speed_knots
             .map(|k| k.to_f64() * KNOT_MPS)
             .or(self.speed_kmh.map(|k| k.to_f64() / 3.6))
-    }
-}
-
-/// What scanning the bytes at a frame start found.
-#[derive(Debug)]
-pub(crate) enum Scan<F> {
-    /// Not enough bytes yet.
-    Incomplete,
-    /// A frame of `len` bytes.
-    Frame { len: usize, frame: F },
-    /// Drop `len` bytes (≥ 1) and count `reject`.
-    Reject { len: usize, reject: Reject },
-}
-
-/// Why bytes were rejected.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Reject {
-    Checksum,
-    TooLong,
-    Malformed,
-}
-
-impl Reject {
-    pub(crate) fn count(self, stats: &mut DecoderStats) {
-        match self {
-            Reject::Checksum => stats.checksum_errors += 1,
-            Reject::TooLong => stats.frames_too_long += 1,
-            Reject::Malformed => stats.frames_malformed += 1,
-        }
     }
 }
 
