@@ -17,8 +17,6 @@ use super::ubx::{self, UbxMessage};
 use super::{Decoder, Reject, Scan, StreamBuffer};
 use crate::types::{DecoderStats, FixType, GnssFix};
 
-const KNOT_MPS: f64 = 1852.0 / 3600.0;
-
 /// Which protocol an epoch was merged from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -562,6 +560,7 @@ pub fn detect_score(sample: &[u8]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::codec::nmea::KNOT_MPS;
 
     #[test]
     fn civil_days_known_values() {

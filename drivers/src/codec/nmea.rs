@@ -35,7 +35,7 @@ const POW10: [f64; 19] = [
     1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
     1e17, 1e18,
 ];
-const KNOT_MPS: f64 = 1852.0 / 3600.0;
+pub(crate) const KNOT_MPS: f64 = 1852.0 / 3600.0;
 
 /// An exact decimal as written in a sentence: `mantissa / 10^scale`. Serialises as a number.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

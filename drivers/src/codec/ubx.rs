@@ -593,7 +593,7 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
             pull_h: r.u32(52),
             pull_l: r.u32(56),
         }),
-        (0x10, 0x03) if n >= 4 && (n - 4) % 8 == 0 => UbxMessage::EsfRaw(EsfRaw {
+        (0x10, 0x03) if n >= 4 && (n - 4).is_multiple_of(8) => UbxMessage::EsfRaw(EsfRaw {
             samples: (0..(n - 4) / 8)
                 .map(|i| EsfRawSample {
                     data: EsfData::from_word(r.u32(4 + 8 * i)),
