@@ -2,8 +2,9 @@
 //! receivers emit by default). Yields every message, plus one merged [`EpochFix`] per
 //! reporting cycle, the way gpsd merges a cycle into one TPV report.
 //!
-//! Epochs: NMEA sentences are grouped by their UTC time of day (GGA, RMC, GNS, GST, ZDA carry
-//! one; GSA, VTG and HDT join the epoch in progress); UBX messages by iTOW, closed early by
+//! Epochs: NMEA sentences are grouped by their UTC time of day (GGA, RMC, GNS, GLL, GST, ZDA
+//! carry one; GSA, VTG and HDT join the epoch in progress); within an epoch the latest
+//! sentence's value wins, as in gpsd; UBX messages by iTOW, closed early by
 //! UBX-NAV-EOE. NMEA and UBX epochs are kept apart (`source`), since a receiver sending both
 //! reports the same solution twice. An epoch is emitted when the next one starts, on NAV-EOE,
 //! or by [`Decoder::finish`] at the end of the input.
@@ -127,6 +128,11 @@ impl NmeaEpoch {
                 f.track_deg = s.track_deg.map(|t| t.to_f64()).or(f.track_deg);
                 self.set_position(s.lat, s.lon);
             }
+            NmeaSentence::Gll(s) => {
+                if s.status != Some('V') {
+                    self.set_position(s.lat, s.lon);
+                }
+            }
             NmeaSentence::Gsa(s) => {
                 if s.fix_mode.is_some() {
                     self.gsa_mode = s.fix_mode;
@@ -136,8 +142,8 @@ impl NmeaEpoch {
                 f.vdop = s.vdop.map(|d| d.to_f64()).or(f.vdop);
             }
             NmeaSentence::Vtg(s) => {
-                f.speed_mps = f.speed_mps.or(s.speed_mps());
-                f.track_deg = f.track_deg.or(s.track_true_deg.map(|t| t.to_f64()));
+                f.speed_mps = s.speed_mps().or(f.speed_mps);
+                f.track_deg = s.track_true_deg.map(|t| t.to_f64()).or(f.track_deg);
             }
             NmeaSentence::Gst(s) => {
                 if let (Some(lat), Some(lon)) = (s.lat_sigma_m, s.lon_sigma_m) {
@@ -157,22 +163,24 @@ impl NmeaEpoch {
         }
     }
 
-    /// Fix type from the strongest evidence: GSA mode, then GGA quality, GNS mode, RMC status.
+    /// Fix type as gpsd judges a cycle: GGA (or GNS) quality and altitude first (quality 0
+    /// is no fix, otherwise 3D with an altitude and 2D without), then the GSA mode, then the
+    /// RMC status.
     fn fix_type(&self) -> FixType {
         let has_alt = self.fix.height_msl_m.is_some();
         let base = match (
-            self.gsa_mode,
             self.gga_quality,
             self.gns_no_fix,
+            self.gsa_mode,
             self.rmc_status,
         ) {
-            (_, Some(0), _, _) | (_, _, Some(true), _) => FixType::NoFix,
-            (Some(3), _, _, _) => FixType::Fix3D,
-            (Some(2), _, _, _) => FixType::Fix2D,
-            (Some(_), _, _, _) => FixType::NoFix,
-            (None, Some(6), _, _) => FixType::DeadReckoning,
-            (None, Some(_), _, _) | (None, None, Some(false), _) if has_alt => FixType::Fix3D,
-            (None, Some(_), _, _) | (None, None, Some(false), _) => FixType::Fix2D,
+            (Some(0), _, _, _) | (None, Some(true), _, _) => FixType::NoFix,
+            (Some(6), _, _, _) => FixType::DeadReckoning,
+            (Some(_), _, _, _) | (None, Some(false), _, _) if has_alt => FixType::Fix3D,
+            (Some(_), _, _, _) | (None, Some(false), _, _) => FixType::Fix2D,
+            (None, None, Some(3), _) => FixType::Fix3D,
+            (None, None, Some(2), _) => FixType::Fix2D,
+            (None, None, Some(_), _) => FixType::NoFix,
             (None, None, None, Some('A' | 'D')) => FixType::Fix2D,
             _ => FixType::NoFix,
         };
@@ -216,6 +224,7 @@ fn sentence_time(sentence: &NmeaSentence) -> Option<TimeOfDay> {
         NmeaSentence::Gns(s) => s.time,
         NmeaSentence::Gst(s) => s.time,
         NmeaSentence::Zda(s) => s.time,
+        NmeaSentence::Gll(s) => s.time,
         _ => None,
     }
 }
@@ -283,7 +292,7 @@ impl UbxEpoch {
             }
             UbxMessage::NavStatus(m) => {
                 if f.fix == FixType::NoFix {
-                    f.fix = pvt_fix_type(m.gps_fix, m.flags & 0x01);
+                    f.fix = pvt_fix_type(m.gps_fix, m.flags & 0x02);
                 }
             }
             UbxMessage::NavTimeutc(m) => {
@@ -326,12 +335,9 @@ impl UbxEpoch {
     }
 }
 
-/// Fix type from NAV-PVT/NAV-STATUS `fixType` and flags (bit 0 gnssFixOK, bit 1 diffSoln,
-/// bits 6–7 carrier solution). A fix the receiver marks not OK is reported as no fix.
+/// Fix type from NAV-PVT/NAV-STATUS `fixType` and flags (bit 1 diffSoln, bits 6–7 carrier
+/// solution). Like gpsd, the fix type is reported even when gnssFixOK (bit 0) is clear.
 fn pvt_fix_type(fix_type: u8, flags: u8) -> FixType {
-    if flags & 0x01 == 0 && fix_type != 5 {
-        return FixType::NoFix;
-    }
     let base = match fix_type {
         1 => FixType::DeadReckoning,
         2 => FixType::Fix2D,

@@ -1,4 +1,4 @@
-//! NMEA 0183 (up to 4.11) sentence codec: GGA, RMC, GSA, GSV, VTG, ZDA, GST, GNS and HDT from
+//! NMEA 0183 (up to 4.11) sentence codec: GGA, RMC, GSA, GSV, VTG, ZDA, GST, GNS, HDT and GLL from
 //! any talker; proprietary `$P…` and every other sentence kept raw.
 //!
 //! Numbers are kept as exact decimals ([`Decimal`]) so the text a receiver sent is recoverable
@@ -14,7 +14,8 @@
 //! - Longer than [`MAX_SENTENCE_LEN`] (talker sentences) or [`MAX_PROPRIETARY_LEN`] (`$P…`)
 //!   bytes from `$` to the checksum: rejected as too long; decoding resumes after the `$`.
 //! - Bad checksum: counted, skipped through the checksum.
-//! - Checksum fine but a known sentence's field is unparsable: counted as malformed, dropped.
+//! - Checksum fine but a known sentence's field is unparsable: counted as malformed, dropped
+//!   (exception: an invalid RMC date becomes `None`, keeping the fix).
 
 use std::fmt;
 use std::io::Write as _;
@@ -292,8 +293,8 @@ pub struct Gsa {
     pub pdop: Option<Decimal>,
     pub hdop: Option<Decimal>,
     pub vdop: Option<Decimal>,
-    /// NMEA 4.1 GNSS system id.
-    pub system_id: Option<u8>,
+    /// NMEA 4.1 GNSS system id (some receivers write a decimal here).
+    pub system_id: Option<Decimal>,
 }
 
 /// One satellite in a GSV sentence.
@@ -313,8 +314,8 @@ pub struct Gsv {
     pub msg_num: u8,
     pub sats_in_view: Option<u16>,
     pub sats: [Option<SatInView>; 4],
-    /// NMEA 4.1 signal id.
-    pub signal_id: Option<Decimal>,
+    /// NMEA 4.1 signal id (one hex digit).
+    pub signal_id: Option<char>,
 }
 
 /// VTG: track and ground speed.
@@ -390,6 +391,19 @@ pub struct Gns {
     pub nav_status: Option<char>,
 }
 
+/// GLL: geographic position, time and status.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Gll {
+    pub talker: Talker,
+    pub lat: Option<Coordinate>,
+    pub lon: Option<Coordinate>,
+    pub time: Option<TimeOfDay>,
+    /// `A` valid, `V` invalid.
+    pub status: Option<char>,
+    /// NMEA 2.3 mode indicator.
+    pub mode: Option<char>,
+}
+
 /// HDT: true heading.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Hdt {
@@ -428,6 +442,8 @@ pub enum NmeaSentence {
     Gns(Gns),
     #[serde(rename = "HDT")]
     Hdt(Hdt),
+    #[serde(rename = "GLL")]
+    Gll(Gll),
     #[serde(rename = "proprietary")]
     Proprietary(RawSentence),
     #[serde(rename = "other")]
@@ -651,6 +667,7 @@ fn parse_body(start: u8, body: &[u8]) -> Option<NmeaSentence> {
         b"ZDA" => parse_zda(talker, &mut f).map(NmeaSentence::Zda),
         b"GST" => parse_gst(talker, &mut f).map(NmeaSentence::Gst),
         b"GNS" => parse_gns(talker, &mut f).map(NmeaSentence::Gns),
+        b"GLL" => parse_gll(talker, &mut f).map(NmeaSentence::Gll),
         b"HDT" => Ok(NmeaSentence::Hdt(Hdt {
             talker,
             heading_deg: f.decimal().ok()?,
@@ -658,6 +675,17 @@ fn parse_body(start: u8, body: &[u8]) -> Option<NmeaSentence> {
         _ => Ok(NmeaSentence::Other(raw())),
     };
     parsed.ok()
+}
+
+fn parse_gll(talker: Talker, f: &mut Fields) -> Result<Gll, ()> {
+    Ok(Gll {
+        talker,
+        lat: f.coordinate(b'N', b'S')?,
+        lon: f.coordinate(b'E', b'W')?,
+        time: f.time()?,
+        status: f.character()?,
+        mode: f.character()?,
+    })
 }
 
 fn parse_gga(talker: Talker, f: &mut Fields) -> Result<Gga, ()> {
@@ -695,8 +723,9 @@ fn parse_rmc(talker: Talker, f: &mut Fields) -> Result<Rmc, ()> {
     let lon = f.coordinate(b'E', b'W')?;
     let speed_knots = f.decimal()?;
     let track_deg = f.decimal()?;
+    // A date field that is not a valid ddmmyy is dropped (None) rather than rejecting the
+    // sentence: receivers with a week-rollover bug send e.g. "2208-1" next to a good fix.
     let date = match f.next() {
-        [] => None,
         d if d.len() == 6 && d.iter().all(u8::is_ascii_digit) => {
             let two = |i: usize| (d[i] - b'0') * 10 + (d[i + 1] - b'0');
             let yy = u16::from(two(4));
@@ -705,12 +734,9 @@ fn parse_rmc(talker: Talker, f: &mut Fields) -> Result<Rmc, ()> {
                 month: two(2),
                 year: if yy < 80 { 2000 + yy } else { 1900 + yy },
             };
-            if !(1..=31).contains(&date.day) || !(1..=12).contains(&date.month) {
-                return Err(());
-            }
-            Some(date)
+            ((1..=31).contains(&date.day) && (1..=12).contains(&date.month)).then_some(date)
         }
-        _ => return Err(()),
+        _ => None,
     };
     let mag_var_deg = f.decimal()?;
     let mag_var_dir = f.character()?;
@@ -747,7 +773,7 @@ fn parse_gsa(talker: Talker, f: &mut Fields) -> Result<Gsa, ()> {
         pdop: f.decimal()?,
         hdop: f.decimal()?,
         vdop: f.decimal()?,
-        system_id: f.integer()?,
+        system_id: f.decimal()?,
     })
 }
 
@@ -770,12 +796,13 @@ fn parse_gsv(talker: Talker, f: &mut Fields) -> Result<Gsv, ()> {
                 azimuth_deg,
                 snr_dbhz,
             }),
-            None if elevation_deg.is_none() && azimuth_deg.is_none() && snr_dbhz.is_none() => None,
-            None => return Err(()),
+            // A group without a PRN cannot be attributed to a satellite (some Quectel
+            // firmware sends ",,56,279,"); it is dropped rather than rejecting the sentence.
+            None => None,
         };
     }
     let signal_id = if remaining % 4 == 1 && remaining / 4 <= 4 {
-        f.decimal()?
+        f.character()?
     } else {
         None
     };
@@ -1088,7 +1115,7 @@ impl NmeaEncoder {
                 put_opt_decimal(out, s.hdop);
                 put_opt_decimal(out, s.vdop);
                 if s.system_id.is_some() {
-                    put_opt_int(out, s.system_id, 1);
+                    put_opt_decimal(out, s.system_id);
                 }
             }
             NmeaSentence::Gsv(s) => {
@@ -1113,7 +1140,7 @@ impl NmeaEncoder {
                     }
                 }
                 if s.signal_id.is_some() {
-                    put_opt_decimal(out, s.signal_id);
+                    put_opt_char(out, s.signal_id, "signal_id")?;
                 }
             }
             NmeaSentence::Vtg(s) => {
@@ -1175,6 +1202,14 @@ impl NmeaEncoder {
                 if s.nav_status.is_some() {
                     put_opt_char(out, s.nav_status, "nav_status")?;
                 }
+            }
+            NmeaSentence::Gll(s) => {
+                put_talker(out, s.talker, b"GLL")?;
+                put_coordinate(out, s.lat, 4, "lat")?;
+                put_coordinate(out, s.lon, 5, "lon")?;
+                put_opt_time(out, s.time);
+                put_opt_char(out, s.status, "status")?;
+                put_opt_char(out, s.mode, "mode")?;
             }
             NmeaSentence::Hdt(s) => {
                 put_talker(out, s.talker, b"HDT")?;
@@ -1293,11 +1328,23 @@ mod tests {
         NmeaEncoder.encode(&raw, &mut out).unwrap();
         let (frames, _) = decode_all(&out);
         assert_eq!(frames, vec![raw]);
-        let (frames, _) = decode_all(b"$GPGLL,4916.45,N,12311.12,W,225444,A*31\r\n");
+        let (frames, _) = decode_all(b"$GPTXT,01,01,02,ANTSTATUS=OK*3B\r\n");
         assert!(
-            matches!(&frames[0], NmeaSentence::Other(r) if r.body.starts_with("GPGLL")),
+            matches!(&frames[0], NmeaSentence::Other(r) if r.body.starts_with("GPTXT")),
             "{frames:?}"
         );
+    }
+
+    #[test]
+    fn gsv_group_without_prn_is_dropped() {
+        let (frames, stats) =
+            decode_all(b"$GLGSV,2,2,08,81,11,130,17,68,38,195,16,70,10,331,,,56,279,,1*7A\r\n");
+        assert_eq!(stats.frames_ok, 1, "{stats:?}");
+        let NmeaSentence::Gsv(gsv) = &frames[0] else {
+            panic!()
+        };
+        assert_eq!(gsv.sats[3], None);
+        assert_eq!(gsv.signal_id, Some('1'));
     }
 
     #[test]
@@ -1319,6 +1366,6 @@ mod tests {
         };
         assert_eq!(gsv.sats_in_view, Some(11));
         assert_eq!(gsv.sats[3].map(|s| s.prn), Some(13));
-        assert_eq!(gsv.signal_id, Some(Decimal::new(1, 0)));
+        assert_eq!(gsv.signal_id, Some('1'));
     }
 }
