@@ -789,17 +789,14 @@ fn parse_gsv(talker: Talker, f: &mut Fields) -> Result<Gsv, ()> {
         let elevation_deg = f.decimal()?;
         let azimuth_deg = f.decimal()?;
         let snr_dbhz = f.decimal()?;
-        *slot = match prn {
-            Some(prn) => Some(SatInView {
-                prn,
-                elevation_deg,
-                azimuth_deg,
-                snr_dbhz,
-            }),
-            // A group without a PRN cannot be attributed to a satellite (some Quectel
-            // firmware sends ",,56,279,"); it is dropped rather than rejecting the sentence.
-            None => None,
-        };
+        // A group without a PRN cannot be attributed to a satellite (some Quectel firmware
+        // sends ",,56,279,"); it is dropped rather than rejecting the sentence.
+        *slot = prn.map(|prn| SatInView {
+            prn,
+            elevation_deg,
+            azimuth_deg,
+            snr_dbhz,
+        });
     }
     let signal_id = if remaining % 4 == 1 && remaining / 4 <= 4 {
         f.character()?
