@@ -393,6 +393,11 @@ pub struct GnssDecoder {
 }
 
 impl GnssDecoder {
+    /// Bytes held waiting for the rest of a frame (bounded by the longest frame).
+    pub fn buffered_len(&self) -> usize {
+        self.buffer.len()
+    }
+
     pub fn new() -> Self {
         GnssDecoder {
             ready: VecDeque::with_capacity(4),

@@ -894,6 +894,11 @@ pub struct NmeaDecoder {
 }
 
 impl NmeaDecoder {
+    /// Bytes held waiting for the rest of a frame (bounded by the longest frame).
+    pub fn buffered_len(&self) -> usize {
+        self.buffer.len()
+    }
+
     pub fn new() -> Self {
         NmeaDecoder {
             in_sync: true,

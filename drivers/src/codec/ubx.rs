@@ -639,6 +639,11 @@ pub struct UbxDecoder {
 }
 
 impl UbxDecoder {
+    /// Bytes held waiting for the rest of a frame (bounded by the longest frame).
+    pub fn buffered_len(&self) -> usize {
+        self.buffer.len()
+    }
+
     pub fn new() -> Self {
         Self::default()
     }
