@@ -14,12 +14,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
+    Decode(imulab::cli::decode::DecodeArgs),
+}
 
 fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Decode(args) => imulab::cli::decode::run(args),
+    };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -93,7 +93,14 @@ impl NmeaEpoch {
     }
 
     fn apply(&mut self, sentence: &NmeaSentence, date: &mut Option<Date>) {
-        self.has_data = true;
+        // Satellite lists, heading and raw sentences alone do not make a fix epoch.
+        self.has_data |= !matches!(
+            sentence,
+            NmeaSentence::Gsv(_)
+                | NmeaSentence::Hdt(_)
+                | NmeaSentence::Proprietary(_)
+                | NmeaSentence::Other(_)
+        );
         let f = &mut self.fix;
         match sentence {
             NmeaSentence::Gga(s) => {
@@ -196,7 +203,8 @@ impl NmeaEpoch {
     }
 
     fn take(&mut self, date: Option<Date>) -> Option<EpochFix> {
-        if !self.has_data {
+        if !self.has_data || (self.key_ms.is_none() && self.fix.lat_deg.is_none()) {
+            *self = NmeaEpoch::default();
             return None;
         }
         let mut fix = self.fix;
@@ -557,15 +565,11 @@ impl Decoder for GnssDecoder {
     }
 }
 
-/// Auto-detection score: valid frames found, but only when both NMEA and UBX occur (a pure
-/// stream is left to its own protocol's row).
+/// Auto-detection score: NMEA sentences plus UBX frames found. This row comes first in the
+/// table, so `auto` picks the mixed decoder (which also yields merged fixes) for pure NMEA
+/// and pure UBX streams too.
 pub fn detect_score(sample: &[u8]) -> u32 {
-    let (n_nmea, n_ubx) = (nmea::detect_score(sample), ubx::detect_score(sample));
-    if n_nmea > 0 && n_ubx > 0 {
-        n_nmea + n_ubx
-    } else {
-        0
-    }
+    nmea::detect_score(sample) + ubx::detect_score(sample)
 }
 
 #[cfg(test)]

@@ -270,7 +270,19 @@ pub struct Ack {
 pub struct RawMessage {
     pub class: u8,
     pub id: u8,
+    /// Serialised as a lower-case hex string.
+    #[serde(serialize_with = "hex_string")]
     pub payload: Vec<u8>,
+}
+
+fn hex_string<S: serde::Serializer>(bytes: &[u8], s: S) -> Result<S::Ok, S::Error> {
+    const DIGITS: &[u8; 16] = b"0123456789abcdef";
+    let text: String = bytes
+        .iter()
+        .flat_map(|b| [DIGITS[usize::from(b >> 4)], DIGITS[usize::from(b & 0x0F)]])
+        .map(char::from)
+        .collect();
+    s.serialize_str(&text)
 }
 
 /// One decoded UBX message.
