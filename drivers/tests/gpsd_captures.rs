@@ -10,7 +10,7 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use imulab_drivers::codec::gnss::{EpochFix, GnssDecoder, GnssFrame};
+use imulab_drivers::codec::gnss::{EpochFix, FixSource, GnssDecoder, GnssFrame};
 use imulab_drivers::codec::nmea::NmeaDecoder;
 use imulab_drivers::codec::Decoder;
 use imulab_drivers::types::FixType;
@@ -83,7 +83,7 @@ struct Tpv {
 }
 
 /// Why our fix differs from gpsd's, or `None` when it matches.
-fn mismatch(ours: &EpochFix, tpv: &Tpv) -> Option<String> {
+fn mismatch(ours: &EpochFix, tpv: &Tpv, log_reports_speed: bool) -> Option<String> {
     let mode = gpsd_mode(ours.fix.fix);
     if mode != tpv.mode {
         return Some(format!("mode {mode} vs gpsd {}", tpv.mode));
@@ -100,13 +100,25 @@ fn mismatch(ours: &EpochFix, tpv: &Tpv) -> Option<String> {
             ours.fix.lat_deg, ours.fix.lon_deg, tpv.lat, tpv.lon
         ));
     }
-    if !close(ours.fix.speed_mps, tpv.speed, 1.5e-3) {
+    // A receiver that never sends speed (no RMC/VTG/UBX) gets one from gpsd's position
+    // differences; we report only what the receiver said.
+    if !log_reports_speed {
+        return None;
+    }
+    // gpsd's speed for u-blox binary is |(velN, velE)|, not gSpeed; and where a cycle
+    // carries no speed at all (ours is None) gpsd derives one from position differences.
+    let speed = match (ours.source, ours.fix.vel_ned) {
+        (FixSource::Ubx, Some([n, e, _])) => Some(n.hypot(e)),
+        _ => ours.fix.speed_mps,
+    };
+    let close_if_sent = |a: Option<f64>, b: Option<f64>, tol: f64| a.is_none() || close(a, b, tol);
+    if !close_if_sent(speed, tpv.speed, 1.5e-3) {
         return Some(format!(
             "speed {:?} vs gpsd {:?}",
             ours.fix.speed_mps, tpv.speed
         ));
     }
-    if !close(ours.fix.track_deg, tpv.track, 1.5e-4) {
+    if !close_if_sent(ours.fix.track_deg, tpv.track, 1.5e-4) {
         return Some(format!(
             "track {:?} vs gpsd {:?}",
             ours.fix.track_deg, tpv.track
@@ -210,6 +222,8 @@ fn check_file(log: &Path) -> FileResult {
             None => last_tpv.push((time_ms, v)),
         }
     }
+    let contains = |needle: &[u8]| bytes.windows(needle.len()).any(|w| w == needle);
+    let log_reports_speed = contains(b"RMC,") || contains(b"VTG,") || contains(&[0xB5, 0x62]);
     let mut epochs_compared = 0;
     let mut unmatched_unlisted = 0;
     if foreign {
@@ -245,7 +259,10 @@ fn check_file(log: &Path) -> FileResult {
                     || (tpv.tow_ms.is_some() && f.itow_ms.map(i64::from) == tpv.tow_ms)
             })
             .collect();
-        if candidates.is_empty() {
+        // With NAV-SOL in the log, gpsd takes positions from it; an epoch of ours with no
+        // position (only NAV-STATUS/TIMEUTC) is then not comparable.
+        let no_position = candidates.iter().all(|f| f.fix.lat_deg.is_none());
+        if candidates.is_empty() || (has_unlisted_nav && no_position) {
             if has_unlisted_nav {
                 unmatched_unlisted += 1;
             } else {
@@ -255,7 +272,7 @@ fn check_file(log: &Path) -> FileResult {
         }
         let reasons: Vec<String> = candidates
             .iter()
-            .filter_map(|f| mismatch(f, &tpv))
+            .filter_map(|f| mismatch(f, &tpv, log_reports_speed))
             .collect();
         if reasons.len() == candidates.len() {
             failures.push(format!("{name} {}: {}", v["time"], reasons.join("; ")));
@@ -327,7 +344,7 @@ fn gpsd_real_captures_decode_like_gpsd() {
     );
     let fix_failures = failures.len() - rejected.len();
     assert!(
-        fix_failures * 100 <= epochs * 6,
-        "{fix_failures} of {epochs} fix epochs disagree with gpsd (more than 6%)"
+        fix_failures * 100 <= epochs * 3,
+        "{fix_failures} of {epochs} fix epochs disagree with gpsd (more than 3%)"
     );
 }

@@ -81,6 +81,7 @@ struct NmeaEpoch {
     gsa_mode: Option<u8>,
     gga_quality: Option<u8>,
     rmc_status: Option<char>,
+    gll_status: Option<char>,
     gns_no_fix: Option<bool>,
 }
 
@@ -136,6 +137,7 @@ impl NmeaEpoch {
                 self.set_position(s.lat, s.lon);
             }
             NmeaSentence::Gll(s) => {
+                self.gll_status = s.status;
                 if s.status != Some('V') {
                     self.set_position(s.lat, s.lon);
                 }
@@ -171,27 +173,25 @@ impl NmeaEpoch {
     }
 
     /// Fix type as gpsd judges a cycle: GGA (or GNS) quality and altitude first (quality 0
-    /// is no fix, otherwise 3D with an altitude and 2D without), then the GSA mode, then the
-    /// RMC status.
-    fn fix_type(&self) -> FixType {
+    /// is no fix, otherwise 3D with an altitude and 2D without), then the GSA mode. A cycle
+    /// with only a valid RMC or GLL keeps the previous cycle's dimension (2D at least).
+    /// DGNSS/RTK qualities refine a 3D fix.
+    fn fix_type(&self, previous: FixType) -> FixType {
         let has_alt = self.fix.height_msl_m.is_some();
-        let base = match (
-            self.gga_quality,
-            self.gns_no_fix,
-            self.gsa_mode,
-            self.rmc_status,
-        ) {
-            (Some(0), _, _, _) | (None, Some(true), _, _) => FixType::NoFix,
-            (Some(6), _, _, _) => FixType::DeadReckoning,
-            (Some(_), _, _, _) | (None, Some(false), _, _) if has_alt => FixType::Fix3D,
-            (Some(_), _, _, _) | (None, Some(false), _, _) => FixType::Fix2D,
-            (None, None, Some(3), _) => FixType::Fix3D,
-            (None, None, Some(2), _) => FixType::Fix2D,
-            (None, None, Some(_), _) => FixType::NoFix,
-            (None, None, None, Some('A' | 'D')) => FixType::Fix2D,
-            _ => FixType::NoFix,
+        let weak_valid = matches!(self.rmc_status, Some('A' | 'D'))
+            || matches!(self.gll_status, Some('A' | 'D'));
+        let base = match (self.gga_quality, self.gns_no_fix, self.gsa_mode) {
+            (Some(0), _, _) | (None, Some(true), _) => FixType::NoFix,
+            (Some(6), _, _) => FixType::DeadReckoning,
+            (Some(_), _, _) | (None, Some(false), _) if has_alt => FixType::Fix3D,
+            (Some(_), _, _) | (None, Some(false), _) => FixType::Fix2D,
+            (None, None, Some(3)) => FixType::Fix3D,
+            (None, None, Some(2)) => FixType::Fix2D,
+            (None, None, Some(_)) => FixType::NoFix,
+            (None, None, None) if weak_valid => previous.max(FixType::Fix2D),
+            (None, None, None) => FixType::NoFix,
         };
-        if base >= FixType::Fix2D {
+        if base >= FixType::Fix3D {
             match self.gga_quality {
                 Some(2) => return FixType::Dgnss,
                 Some(4) => return FixType::RtkFixed,
@@ -202,13 +202,14 @@ impl NmeaEpoch {
         base
     }
 
-    fn take(&mut self, date: Option<Date>) -> Option<EpochFix> {
+    fn take(&mut self, date: Option<Date>, previous: &mut FixType) -> Option<EpochFix> {
         if !self.has_data || (self.key_ms.is_none() && self.fix.lat_deg.is_none()) {
             *self = NmeaEpoch::default();
             return None;
         }
         let mut fix = self.fix;
-        fix.fix = self.fix_type();
+        fix.fix = self.fix_type(*previous);
+        *previous = fix.fix;
         fix.utc_ns = match (date, self.key_ms) {
             (Some(d), Some(ms)) => utc_ns(d, ms),
             _ => None,
@@ -395,6 +396,8 @@ pub struct GnssDecoder {
     ready: VecDeque<GnssFrame>,
     nmea_epoch: NmeaEpoch,
     nmea_date: Option<Date>,
+    /// Fix type of the last NMEA epoch (a cycle with only RMC/GLL keeps it, as gpsd does).
+    nmea_last_fix: FixType,
     ubx_epoch: UbxEpoch,
     ubx_week: Option<u16>,
     finished: bool,
@@ -446,7 +449,10 @@ impl GnssDecoder {
             let key = time.millis_of_day();
             match self.nmea_epoch.key_ms {
                 Some(current) if current != key => {
-                    if let Some(fix) = self.nmea_epoch.take(self.nmea_date) {
+                    if let Some(fix) = self
+                        .nmea_epoch
+                        .take(self.nmea_date, &mut self.nmea_last_fix)
+                    {
                         self.ready.push_back(GnssFrame::Fix(fix));
                     }
                     self.nmea_epoch.key_ms = Some(key);
@@ -551,7 +557,10 @@ impl Decoder for GnssDecoder {
             return None;
         }
         self.finished = true;
-        if let Some(fix) = self.nmea_epoch.take(self.nmea_date) {
+        if let Some(fix) = self
+            .nmea_epoch
+            .take(self.nmea_date, &mut self.nmea_last_fix)
+        {
             self.ready.push_back(GnssFrame::Fix(fix));
         }
         if let Some(fix) = self.ubx_epoch.take(self.ubx_week) {
