@@ -87,3 +87,79 @@ fn unknown_protocol_and_undecodable_input_fail_clearly() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no known protocol"));
 }
+
+/// Pty loopback: the encoders write into the master side, `imulab decode` reads the slave
+/// side as a serial port, and every frame arrives intact.
+#[cfg(target_os = "linux")]
+#[test]
+fn decodes_a_live_pty_port() {
+    use std::io::{Read, Write};
+    use std::os::fd::AsRawFd;
+
+    use nix::pty::openpty;
+    use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
+
+    let pty = openpty(None, None).expect("openpty");
+    let mut attrs = tcgetattr(&pty.slave).expect("tcgetattr");
+    cfmakeraw(&mut attrs);
+    tcsetattr(&pty.slave, SetArg::TCSANOW, &attrs).expect("raw mode");
+    let slave_path =
+        std::fs::read_link(format!("/proc/self/fd/{}", pty.slave.as_raw_fd())).expect("slave path");
+
+    let mut child = imulab()
+        .args(["decode", "--baud", "115200", "--duration", "3"])
+        .arg(&slave_path)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn imulab");
+
+    let mut bytes = Vec::new();
+    for i in 0..5u32 {
+        let mut posllh = vec![0u8; 28];
+        posllh[..4].copy_from_slice(&(1000 * i).to_le_bytes());
+        UbxEncoder
+            .encode(&parse_message(0x01, 0x02, &posllh), &mut bytes)
+            .expect("encode ubx");
+        let hdt = NmeaSentence::Hdt(Hdt {
+            talker: Talker(*b"GN"),
+            heading_deg: Some(Decimal::new(i64::from(i), 1)),
+        });
+        NmeaEncoder.encode(&hdt, &mut bytes).expect("encode nmea");
+    }
+    let mut master = std::fs::File::from(pty.master);
+    master.write_all(&bytes).expect("write to pty");
+    master.flush().expect("flush");
+
+    let mut stdout = String::new();
+    child
+        .stdout
+        .take()
+        .expect("stdout")
+        .read_to_string(&mut stdout)
+        .expect("read stdout");
+    let status = child.wait().expect("wait");
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .expect("stderr")
+        .read_to_string(&mut stderr)
+        .ok();
+    assert!(status.success(), "{stderr}");
+    let kinds: Vec<String> = stdout
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("JSON")["kind"].to_string())
+        .collect();
+    assert_eq!(
+        kinds.iter().filter(|k| *k == "\"ubx\"").count(),
+        5,
+        "{stdout}"
+    );
+    assert_eq!(
+        kinds.iter().filter(|k| *k == "\"nmea\"").count(),
+        5,
+        "{stdout}"
+    );
+    assert!(stderr.contains("\"checksum_errors\":0"), "{stderr}");
+}

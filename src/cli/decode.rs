@@ -81,7 +81,12 @@ impl Source {
             Source::Port(p) => match p.read(buf) {
                 Ok(n) => Ok(Some(n)),
                 Err(e) if e.kind() == io::ErrorKind::TimedOut => Ok(None),
-                Err(e) => Err(e),
+                // The device went away (pty closed, USB unplugged): end of input, not a
+                // failure of the decode itself.
+                Err(e) => {
+                    eprintln!("imulab decode: port closed ({e}); stopping");
+                    Ok(Some(0))
+                }
             },
         }
     }
@@ -121,7 +126,16 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
             }
             match source.read(&mut chunk).context("reading input")? {
                 Some(0) => ended = true,
-                Some(n) => pending.extend_from_slice(&chunk[..n]),
+                Some(n) => {
+                    pending.extend_from_slice(&chunk[..n]);
+                    // A live port need not fill the whole sample once a protocol is clear.
+                    if source.is_live()
+                        && pending.len() >= 1024
+                        && codec::detect(&pending).is_some()
+                    {
+                        break;
+                    }
+                }
                 None => {}
             }
         }
