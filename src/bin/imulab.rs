@@ -21,6 +21,8 @@ enum Command {
     Export(imulab::cli::export::ExportArgs),
     /// Make the partial chunk file of a killed writer readable.
     Recover(imulab::cli::recover::RecoverArgs),
+    /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
+    Decode(imulab::cli::decode::DecodeArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -30,6 +32,7 @@ fn main() -> std::process::ExitCode {
         Command::Inspect(args) => imulab::cli::inspect::run(args),
         Command::Export(args) => imulab::cli::export::run(args),
         Command::Recover(args) => imulab::cli::recover::run(args),
+        Command::Decode(args) => imulab::cli::decode::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -13,3 +13,4 @@ pub fn init_logging() {
 pub mod export;
 pub mod inspect;
 pub mod recover;
+pub mod decode;
