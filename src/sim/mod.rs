@@ -1,1 +1,2 @@
 //! Sensor simulator: IMU and GNSS error models, scenes, presets, byte-stream serving.
+pub mod motion;
