@@ -14,12 +14,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Simulate IMUs and GNSS receivers from a scene file.
+    Sim(imulab::cli::sim::SimArgs),
+}
 
 fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Sim(args) => imulab::cli::sim::run(args),
+    };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -58,10 +58,7 @@ impl FlickerDesign {
                 }
             })
             .collect();
-        let unit = FlickerDesign {
-            taus_s,
-            sigma: 1.0,
-        };
+        let unit = FlickerDesign { taus_s, sigma: 1.0 };
         let gm = unit.geometric_mean_adev(band_s);
         FlickerDesign {
             sigma: if gm > 0.0 { floor / gm } else { 0.0 },

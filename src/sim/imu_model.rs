@@ -6,10 +6,10 @@
 //!
 //! y = sat_q( Σ_j M_ij (1 + k_s ΔT δ_ij) x_j + b_i(t) + [G a]_i + w_i )
 //!
-//! with M = I + diag(scale factor) + misalignment, b = constant + turn-on + instability
-//! (sum of Gauss-Markov processes, see [`super::flicker`]) + rate random walk + rate ramp
-//! + temperature coefficient × ΔT, G the gyro g-sensitivity (gyros only), w white noise,
-//! then saturation at ±range and rounding to the LSB.
+//! with M = I + diag(scale factor) + misalignment; b the sum of constant, turn-on,
+//! instability (Gauss-Markov processes, see [`super::flicker`]), rate random walk, rate
+//! ramp and temperature coefficient × ΔT; G the gyro g-sensitivity (gyros only); w white
+//! noise; then saturation at ±range and rounding to the LSB.
 
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -76,9 +76,9 @@ pub struct GyroSpec {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AccelSpec {
-    /// Velocity random walk in the bench study's "mg/√h": 1 mg/√h = 9.80665e-3 m/s/√h, i.e.
-    /// the Allan deviation at τ = 1 h is this many mg·s... see docs/simulator.md. Alternative
-    /// to `noise_density_ug_rthz`.
+    /// Velocity random walk in the bench study's "mg/√h", read as 1 mg/√h = 9.80665e-3
+    /// m/s/√h (so 6 mg/√h is a white noise density of 100 µg/√Hz; see docs/simulator.md).
+    /// Alternative to `noise_density_ug_rthz`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vrw_mg_rth: Option<[f64; 3]>,
     /// White noise density, µg/√Hz.
@@ -328,7 +328,7 @@ impl TriadErrors {
                 "bias_instability_band_s must be [lo, hi] with 0 < lo < hi, got [{lo}, {hi}]"
             ));
         }
-        if !(self.range > 0.0) {
+        if self.range.is_nan() || self.range <= 0.0 {
             return Err(format!("range must be > 0, got {}", self.range));
         }
         if !(self.lsb.is_finite() && self.lsb >= 0.0) {
@@ -345,7 +345,10 @@ impl ImuSpec {
         self.accel.to_si().map_err(|e| format!("accel: {e}"))?;
         let t = &self.timing;
         if !(t.jitter_us.is_finite() && t.jitter_us >= 0.0) {
-            return Err(format!("timing.jitter_us must be >= 0, got {}", t.jitter_us));
+            return Err(format!(
+                "timing.jitter_us must be >= 0, got {}",
+                t.jitter_us
+            ));
         }
         if !(0.0..1.0).contains(&t.drop_probability) {
             return Err(format!(
@@ -387,7 +390,8 @@ const AXES: [&str; 3] = ["x", "y", "z"];
 
 impl TriadSim {
     fn new(e: &TriadErrors, seed: u64, prefix: &str, dt: f64) -> Self {
-        let stream = |axis: usize, term: &str| Stream::new(seed, &format!("{prefix}/{}/{term}", AXES[axis]));
+        let stream =
+            |axis: usize, term: &str| Stream::new(seed, &format!("{prefix}/{}/{term}", AXES[axis]));
         let white = [0, 1, 2].map(|i| stream(i, "white"));
         let slow = [0, 1, 2].map(|i| {
             let mut procs = Vec::new();
@@ -423,9 +427,15 @@ impl TriadSim {
         let m = e.misalignment;
         let s = e.scale_factor;
         let misalign_scale = Matrix3::new(
-            1.0 + s[0], m[0], m[1], //
-            m[2], 1.0 + s[1], m[3], //
-            m[4], m[5], 1.0 + s[2],
+            1.0 + s[0],
+            m[0],
+            m[1], //
+            m[2],
+            1.0 + s[1],
+            m[3], //
+            m[4],
+            m[5],
+            1.0 + s[2],
         );
         TriadSim {
             white_sigma: e.white_density.map(|d| d / dt.sqrt()),
@@ -525,17 +535,31 @@ impl ImuSimulator {
         }
         let dt = 1.0 / rate_hz;
         let gyro = if channels.gyro {
-            Some(TriadSim::new(&spec.gyro.to_si()?, seed, &format!("imu/{name}/gyro"), dt))
+            Some(TriadSim::new(
+                &spec.gyro.to_si()?,
+                seed,
+                &format!("imu/{name}/gyro"),
+                dt,
+            ))
         } else {
             None
         };
         let accel = if channels.accel {
-            Some(TriadSim::new(&spec.accel.to_si()?, seed, &format!("imu/{name}/accel"), dt))
+            Some(TriadSim::new(
+                &spec.accel.to_si()?,
+                seed,
+                &format!("imu/{name}/accel"),
+                dt,
+            ))
         } else {
             None
         };
         Ok(ImuSimulator {
-            g_sensitivity: if channels.gyro { spec.gyro.g_sensitivity_si() } else { None },
+            g_sensitivity: if channels.gyro {
+                spec.gyro.g_sensitivity_si()
+            } else {
+                None
+            },
             gyro,
             accel,
             reference_temp_c: spec.reference_temp_c,
@@ -608,8 +632,16 @@ impl ImuSimulator {
             t_mono_ns: start_mono_ns + t_ns,
             gyro_bias,
             accel_bias,
-            gyro_true: if self.gyro.is_some() { (*gyro_true).into() } else { nan3 },
-            accel_true: if self.accel.is_some() { (*accel_true).into() } else { nan3 },
+            gyro_true: if self.gyro.is_some() {
+                (*gyro_true).into()
+            } else {
+                nan3
+            },
+            accel_true: if self.accel.is_some() {
+                (*accel_true).into()
+            } else {
+                nan3
+            },
         };
         let record = (!dropped).then(|| ImuRecord {
             t_mono_ns: start_mono_ns + t_ns + jitter_ns,
@@ -679,7 +711,10 @@ mod tests {
         s.accel.bias_tempco_mg_per_c = [1.0, 0.0, 0.0];
         s.accel.range_g = Some(2.0);
         s.accel.lsb_mg = Some(1.0);
-        let both = Channels { gyro: true, accel: true };
+        let both = Channels {
+            gyro: true,
+            accel: true,
+        };
         let mut sim = ImuSimulator::new(&s, "t", 1, 100.0, both).unwrap();
         let w = Vector3::new(1.0, 2.0, 0.0);
         let f = Vector3::new(0.0, 0.00049, 30.0);
@@ -700,8 +735,17 @@ mod tests {
     fn gyro_only_leaves_accel_nan_and_counter_wraps() {
         let mut s = quiet();
         s.timing.counter_modulo = 3;
-        let mut sim =
-            ImuSimulator::new(&s, "t", 1, 10.0, Channels { gyro: true, accel: false }).unwrap();
+        let mut sim = ImuSimulator::new(
+            &s,
+            "t",
+            1,
+            10.0,
+            Channels {
+                gyro: true,
+                accel: false,
+            },
+        )
+        .unwrap();
         let z = Vector3::zeros();
         let counters: Vec<f64> = (0..5)
             .map(|_| {
@@ -718,8 +762,17 @@ mod tests {
         let mut s = quiet();
         s.timing.drop_probability = 0.1;
         s.timing.jitter_us = 100.0;
-        let mut sim =
-            ImuSimulator::new(&s, "t", 9, 100.0, Channels { gyro: true, accel: false }).unwrap();
+        let mut sim = ImuSimulator::new(
+            &s,
+            "t",
+            9,
+            100.0,
+            Channels {
+                gyro: true,
+                accel: false,
+            },
+        )
+        .unwrap();
         let z = Vector3::zeros();
         let n = 20_000;
         let mut dropped = 0;

@@ -171,7 +171,9 @@ mod tests {
     fn every_preset_is_valid_and_named_once() {
         let names = imu_preset_names();
         for (i, p) in IMU_PRESETS.iter().enumerate() {
-            (p.spec)().validate().unwrap_or_else(|e| panic!("{}: {e}", p.name));
+            (p.spec)()
+                .validate()
+                .unwrap_or_else(|e| panic!("{}: {e}", p.name));
             assert!(!names[..i].contains(&p.name), "duplicate {}", p.name);
         }
         assert!(imu_preset("nope").is_none());

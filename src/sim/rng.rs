@@ -58,22 +58,30 @@ mod tests {
 
     #[test]
     fn same_label_same_stream_other_label_other_stream() {
-        let a: Vec<f64> = (0..8).map({
-            let mut s = Stream::new(7, "imu/a/gyro/x/white");
-            move |_| s.normal()
-        }).collect();
-        let b: Vec<f64> = (0..8).map({
-            let mut s = Stream::new(7, "imu/a/gyro/x/white");
-            move |_| s.normal()
-        }).collect();
-        let c: Vec<f64> = (0..8).map({
-            let mut s = Stream::new(7, "imu/a/gyro/y/white");
-            move |_| s.normal()
-        }).collect();
-        let d: Vec<f64> = (0..8).map({
-            let mut s = Stream::new(8, "imu/a/gyro/x/white");
-            move |_| s.normal()
-        }).collect();
+        let a: Vec<f64> = (0..8)
+            .map({
+                let mut s = Stream::new(7, "imu/a/gyro/x/white");
+                move |_| s.normal()
+            })
+            .collect();
+        let b: Vec<f64> = (0..8)
+            .map({
+                let mut s = Stream::new(7, "imu/a/gyro/x/white");
+                move |_| s.normal()
+            })
+            .collect();
+        let c: Vec<f64> = (0..8)
+            .map({
+                let mut s = Stream::new(7, "imu/a/gyro/y/white");
+                move |_| s.normal()
+            })
+            .collect();
+        let d: Vec<f64> = (0..8)
+            .map({
+                let mut s = Stream::new(8, "imu/a/gyro/x/white");
+                move |_| s.normal()
+            })
+            .collect();
         assert_eq!(a, b);
         assert_ne!(a, c);
         assert_ne!(a, d);

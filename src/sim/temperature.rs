@@ -149,7 +149,9 @@ mod tests {
             points: vec![[0.0, 25.0], [0.0, 30.0]],
         };
         assert!(p.validate().unwrap_err().contains("points[1]"));
-        assert!(TemperatureProfile::Points { points: vec![] }.validate().is_err());
+        assert!(TemperatureProfile::Points { points: vec![] }
+            .validate()
+            .is_err());
         let r = TemperatureProfile::Constant { celsius: f64::NAN };
         assert!(r.validate().is_err());
     }
