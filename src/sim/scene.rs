@@ -338,9 +338,20 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
     };
     let mut table = toml::Table::try_from(&base).context("internal: preset to TOML")?;
     merge(&mut table, &overrides);
-    let spec: ImuSpec = toml::Value::Table(table)
-        .try_into()
-        .map_err(|e| anyhow!("{}", one_line(&e)))?;
+    // Each part is read on its own so an error names the table it is in.
+    let mut spec = base;
+    for (key, value) in table {
+        let at = |e: toml::de::Error| anyhow!("{key}: {}", one_line(&e));
+        match key.as_str() {
+            "gyro" => spec.gyro = value.try_into().map_err(at)?,
+            "accel" => spec.accel = value.try_into().map_err(at)?,
+            "timing" => spec.timing = value.try_into().map_err(at)?,
+            "reference_temp_c" => spec.reference_temp_c = value.try_into().map_err(at)?,
+            _ => bail!(
+                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `gyro`, `accel`, `timing`, `reference_temp_c`"
+            ),
+        }
+    }
     spec.validate().map_err(|e| anyhow!("{e}"))?;
     Ok(ImuEntry {
         name: entry.name.clone(),
@@ -437,7 +448,12 @@ mod tests {
     #[test]
     fn unknown_keys_say_where() {
         let e = err(&MINIMAL.replace("bias_dph", "bias_dhp"));
-        assert!(e.contains("imu[0] (a)") && e.contains("bias_dhp"), "{e}");
+        assert!(
+            e.contains("imu[0] (a): gyro: unknown field `bias_dhp`"),
+            "{e}"
+        );
+        let e = err(&MINIMAL.replace("[imu.gyro]", "[imu.gyros]"));
+        assert!(e.contains("imu[0] (a): unknown key `gyros`"), "{e}");
         let e = err(&MINIMAL.replace("seed = 5", "seed = 5\nsede = 6"));
         assert!(e.contains("sede") && e.contains("line"), "{e}");
         let e = err(&MINIMAL.replace("periodic_outage", "periodic_outages"));
