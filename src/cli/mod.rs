@@ -1,7 +1,5 @@
 //! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
 
-pub mod sim;
-
 /// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
@@ -11,3 +9,8 @@ pub fn init_logging() {
         .with_writer(std::io::stderr)
         .try_init();
 }
+
+pub mod export;
+pub mod inspect;
+pub mod recover;
+pub mod sim;
