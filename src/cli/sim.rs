@@ -1,6 +1,5 @@
-//! `imulab sim`: runs a scene file through the simulator and reports what it produced.
-//! Writing a session (`-o`) is an adapter onto the session writer; serving byte streams
-//! (`--serve`) is an adapter onto the drivers' encoders.
+//! `imulab sim`: runs a scene file through the simulator, optionally writing a session
+//! (`-o`, the daemon's HDF5 format plus `/truth`), and reports what it produced.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -8,19 +7,24 @@ use std::time::Instant;
 use anyhow::Result;
 
 use crate::sim::gnss_model::GNSS_PRESETS;
-use crate::sim::outputs::SummarySink;
+use crate::sim::outputs::{SessionSink, SummarySink, Tee};
 use crate::sim::presets::IMU_PRESETS;
 use crate::sim::runner::run as run_scene;
 use crate::sim::scene::Scene;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Example: imulab sim fixtures/scenes/chamber_6h.toml --seed 7")]
+#[command(
+    after_help = "Example: imulab sim fixtures/scenes/chamber_6h.toml -o /data/sim-chamber --seed 7"
+)]
 pub struct SimArgs {
     /// The scene file (TOML; see docs/simulator.md).
     #[arg(required_unless_present = "list_presets")]
     pub scene: Option<PathBuf>,
+    /// Write the session into this directory (must not exist or be empty).
+    #[arg(short = 'o', long = "output")]
+    pub output: Option<PathBuf>,
     /// Override the scene's seed.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(0..=i64::MAX as u64))]
     pub seed: Option<u64>,
     /// List the IMU and GNSS presets with their sources, and exit.
     #[arg(long)]
@@ -44,11 +48,20 @@ pub fn run(args: SimArgs) -> Result<()> {
     };
     let mut scene = Scene::load(&path)?;
     if let Some(seed) = args.seed {
-        scene.seed = seed;
+        scene.set_seed(seed);
     }
     let mut sink = SummarySink::default();
     let started = Instant::now();
-    let stats = run_scene(&scene, &mut sink)?;
+    let stats = match &args.output {
+        None => run_scene(&scene, &mut sink)?,
+        Some(dir) => {
+            let mut session = SessionSink::create(dir, &scene)?;
+            let stats = run_scene(&scene, &mut Tee(&mut session, &mut sink))?;
+            let dir = session.close()?;
+            println!("session written to {}", dir.display());
+            stats
+        }
+    };
     let secs = started.elapsed().as_secs_f64();
     println!(
         "{}: {} samples at {} Hz ({} s simulated) in {secs:.3} s, seed {}",

@@ -1,12 +1,18 @@
 //! Where simulated data goes: the [`SimSink`] trait the runner emits into, an in-memory
 //! sink for tests and studies, and a summary sink that keeps only counts and moments.
-//! The session writer (HDF5) and the byte-stream server are further sinks.
+//! [`SessionSink`] writes a session in the daemon's HDF5 format plus `/truth`; a
+//! byte-stream server would be one more sink.
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 
-use crate::store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
+use super::scene::Scene;
+use crate::store::{
+    DeviceInfo, DeviceKind, EventRecord, GnssRecord, ImuRecord, Manifest, SessionWriter,
+    TruthImuRecord, TruthNavRecord, WriterOptions,
+};
 
 /// Receives simulated records block by block, in a deterministic order: per block, first
 /// truth/nav, then each IMU (records, then its truth) in scene order, then each GNSS.
@@ -133,5 +139,125 @@ impl SimSink for SummarySink {
     }
     fn event(&mut self, _event: &EventRecord) -> Result<()> {
         Ok(())
+    }
+}
+
+/// Writes the simulated records as a session (same format as the daemon's, plus `/truth`).
+pub struct SessionSink {
+    writer: SessionWriter,
+}
+
+impl SessionSink {
+    /// Creates the session directory `dir` for `scene` (it must not exist or be empty).
+    pub fn create(dir: &Path, scene: &Scene) -> Result<Self> {
+        let manifest = session_manifest(scene)?;
+        // A simulation has no crash to survive: skip the per-second fsync of a live writer.
+        let opts = WriterOptions {
+            fsync_on_flush: false,
+            ..WriterOptions::default()
+        };
+        let writer = SessionWriter::create(dir, manifest, opts)
+            .with_context(|| format!("cannot create session {}", dir.display()))?;
+        Ok(SessionSink { writer })
+    }
+
+    /// Writes what is buffered and finalises the session; returns its directory.
+    pub fn close(self) -> Result<std::path::PathBuf> {
+        Ok(self.writer.close()?)
+    }
+}
+
+/// The manifest of a simulated session: one device per sensor, the scene's start time, the
+/// truth rate when truth is wanted, and the scene file itself as the configuration.
+pub fn session_manifest(scene: &Scene) -> Result<Manifest> {
+    let mut devices = Vec::new();
+    for imu in &scene.imus {
+        let preset = scene
+            .source
+            .get("imu")
+            .and_then(|v| v.as_array())
+            .and_then(|a| {
+                a.iter()
+                    .find(|t| t.get("name").and_then(|n| n.as_str()) == Some(imu.name.as_str()))
+            })
+            .and_then(|t| t.get("preset"))
+            .and_then(|p| p.as_str())
+            .unwrap_or("custom");
+        devices.push(DeviceInfo {
+            name: imu.name.clone(),
+            kind: DeviceKind::Imu,
+            model: format!("simulated {preset}"),
+            serial: String::new(),
+            port: "sim".into(),
+            protocol: "sim".into(),
+            rate_hz: scene.rate_hz,
+            axis_frame: "FRD".into(),
+            extra: BTreeMap::new(),
+        });
+    }
+    for rx in &scene.gnss {
+        devices.push(DeviceInfo {
+            name: rx.name.clone(),
+            kind: DeviceKind::Gnss,
+            model: "simulated GNSS".into(),
+            serial: String::new(),
+            port: "sim".into(),
+            protocol: "sim".into(),
+            rate_hz: rx.spec.rate_hz,
+            axis_frame: "NED".into(),
+            extra: BTreeMap::new(),
+        });
+    }
+    let mut manifest = Manifest::new(devices, scene.source.clone());
+    let start = chrono::DateTime::from_timestamp_nanos(scene.start_wall_ns);
+    manifest.start_time = start;
+    manifest.id = format!("sim-{}-seed{}", start.format("%Y%m%dT%H%M%SZ"), scene.seed);
+    if scene.outputs.truth_nav || scene.outputs.truth_imu {
+        manifest.truth_nav_rate_hz = Some(scene.rate_hz / f64::from(scene.outputs.truth_every));
+    }
+    Ok(manifest)
+}
+
+impl SimSink for SessionSink {
+    fn imu(&mut self, device: &str, records: &[ImuRecord]) -> Result<()> {
+        Ok(self.writer.append_imu(device, records)?)
+    }
+    fn gnss(&mut self, device: &str, records: &[GnssRecord]) -> Result<()> {
+        Ok(self.writer.append_gnss(device, records)?)
+    }
+    fn truth_nav(&mut self, records: &[TruthNavRecord]) -> Result<()> {
+        Ok(self.writer.append_truth_nav(records)?)
+    }
+    fn truth_imu(&mut self, device: &str, records: &[TruthImuRecord]) -> Result<()> {
+        Ok(self.writer.append_truth_imu(device, records)?)
+    }
+    fn event(&mut self, event: &EventRecord) -> Result<()> {
+        Ok(self.writer.append_event(event)?)
+    }
+}
+
+/// Hands every record to two sinks, first `.0` then `.1` (e.g. a session and a summary).
+pub struct Tee<'a>(pub &'a mut dyn SimSink, pub &'a mut dyn SimSink);
+
+impl SimSink for Tee<'_> {
+    fn imu(&mut self, device: &str, records: &[ImuRecord]) -> Result<()> {
+        self.0.imu(device, records)?;
+        self.1.imu(device, records)
+    }
+    fn gnss(&mut self, device: &str, records: &[GnssRecord]) -> Result<()> {
+        self.0.gnss(device, records)?;
+        self.1.gnss(device, records)
+    }
+    fn truth_nav(&mut self, records: &[TruthNavRecord]) -> Result<()> {
+        self.0.truth_nav(records)?;
+        self.1.truth_nav(records)
+    }
+    fn truth_imu(&mut self, device: &str, records: &[TruthImuRecord]) -> Result<()> {
+        self.0.truth_imu(device, records)?;
+        self.1.truth_imu(device, records)
+    }
+    fn event(&mut self, event: &EventRecord) -> Result<()> {
+        self.0.event(event)?;
+        self.1.event(event)
     }
 }

@@ -145,6 +145,8 @@ pub struct Scene {
     pub imus: Vec<ImuEntry>,
     pub gnss: Vec<GnssEntry>,
     pub outputs: Outputs,
+    /// The scene file as written (kept in the session manifest).
+    pub source: toml::Table,
 }
 
 /// Alternative ways to give one quantity: an override in one form removes the preset's
@@ -167,6 +169,7 @@ impl Scene {
     /// Parses and checks scene text; `base_dir` resolves relative paths.
     pub fn parse(text: &str, base_dir: &Path) -> Result<Scene> {
         let file: SceneFile = toml::from_str(text).map_err(|e| anyhow!("{e}"))?;
+        let source: toml::Table = toml::from_str(text).map_err(|e| anyhow!("{e}"))?;
         if !(file.rate_hz.is_finite() && file.rate_hz > 0.0 && file.rate_hz <= 100_000.0) {
             bail!("rate_hz must be in (0, 100000], got {}", file.rate_hz);
         }
@@ -256,7 +259,17 @@ impl Scene {
             imus,
             gnss,
             outputs: file.outputs,
+            source,
         })
+    }
+
+    /// Sets the seed (also in `source`, so a session records the seed actually used).
+    pub fn set_seed(&mut self, seed: u64) {
+        self.seed = seed;
+        // TOML integers are i64: seeds above i64::MAX cannot be written back.
+        let as_toml =
+            i64::try_from(seed).map_or(toml::Value::String(seed.to_string()), toml::Value::Integer);
+        self.source.insert("seed".into(), as_toml);
     }
 
     /// Number of truth/IMU samples the scene runs.
@@ -267,11 +280,12 @@ impl Scene {
 
 fn check_name(name: &str, taken: &[&str]) -> Result<()> {
     if name.is_empty()
+        || name.len() > 63
         || !name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
     {
-        bail!("name must be non-empty ASCII letters, digits, '_' or '-', got {name:?}");
+        bail!("name must be 1-63 ASCII letters, digits, '_' or '-', got {name:?}");
     }
     if taken.contains(&name) {
         bail!("name {name:?} is used twice");
