@@ -23,6 +23,8 @@ enum Command {
     Recover(imulab::cli::recover::RecoverArgs),
     /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
     Decode(imulab::cli::decode::DecodeArgs),
+    /// Simulate IMUs and GNSS receivers from a scene file.
+    Sim(imulab::cli::sim::SimArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -33,6 +35,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(args) => imulab::cli::export::run(args),
         Command::Recover(args) => imulab::cli::recover::run(args),
         Command::Decode(args) => imulab::cli::decode::run(args),
+        Command::Sim(args) => imulab::cli::sim::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -14,3 +14,4 @@ pub mod export;
 pub mod inspect;
 pub mod recover;
 pub mod decode;
+pub mod sim;
