@@ -14,12 +14,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Print imulogd's status file as a table.
+    Status(imulab::cli::status::StatusArgs),
+}
 
 fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Status(args) => imulab::cli::status::run(args),
+    };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
