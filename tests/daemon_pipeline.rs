@@ -76,7 +76,11 @@ impl Running {
         let _ = self.stop.send(true);
         let t = Instant::now();
         let outcome = self.handle.await.expect("daemon task");
-        assert!(t.elapsed() < Duration::from_secs(2), "stop took {:?}", t.elapsed());
+        assert!(
+            t.elapsed() < Duration::from_secs(2),
+            "stop took {:?}",
+            t.elapsed()
+        );
         let status = read_status_file(&self.status_path).expect("status file");
         (outcome, status)
     }
@@ -158,7 +162,11 @@ async fn frames_arrive_once_with_values_and_garbage_becomes_events() {
     assert!(store.flushes >= 2, "flushes {}", store.flushes);
     let rows = &store.imu["imu"];
     let seqs: Vec<u64> = rows.iter().map(|r| r.t_sensor as u64).collect();
-    assert_eq!(seqs, (0..120).collect::<Vec<_>>(), "every frame exactly once, in order");
+    assert_eq!(
+        seqs,
+        (0..120).collect::<Vec<_>>(),
+        "every frame exactly once, in order"
+    );
     for r in rows {
         let seq = r.t_sensor as u64;
         assert_eq!(r.gyro, gyro_of(seq));
@@ -166,7 +174,9 @@ async fn frames_arrive_once_with_values_and_garbage_becomes_events() {
         assert!(r.temp.is_nan());
     }
     assert!(rows.windows(2).all(|w| w[0].t_mono_ns <= w[1].t_mono_ns));
-    assert!(rows.windows(2).all(|w| w[0].t_wall_ns <= w[1].t_wall_ns + 1_000_000));
+    assert!(rows
+        .windows(2)
+        .all(|w| w[0].t_wall_ns <= w[1].t_wall_ns + 1_000_000));
     let span_s = (rows[119].t_mono_ns - rows[0].t_mono_ns) as f64 * 1e-9;
     let rate = 119.0 / span_s;
     assert!((rate - 150.0).abs() < 15.0, "rate {rate}");
@@ -186,7 +196,11 @@ async fn frames_arrive_once_with_values_and_garbage_becomes_events() {
     let checksums = events(&store, EventKind::ChecksumError);
     assert!(!resyncs.is_empty(), "{:?}", store.events);
     assert_eq!(checksums.len(), 3, "{checksums:?}");
-    assert!(events(&store, EventKind::Gap).is_empty(), "{:?}", events(&store, EventKind::Gap));
+    assert!(
+        events(&store, EventKind::Gap).is_empty(),
+        "{:?}",
+        events(&store, EventKind::Gap)
+    );
 
     assert_eq!(status.state, "stopped");
     let imu_status = &status.devices[0];
@@ -223,7 +237,10 @@ async fn vanished_device_reconnects_into_the_same_session() {
     let disconnects = events(&store, EventKind::Disconnect);
     let reconnects = events(&store, EventKind::Reconnect);
     assert_eq!(disconnects.len(), 1, "{:?}", store.events);
-    assert!(disconnects[0].contains("vanished: end of stream"), "{disconnects:?}");
+    assert!(
+        disconnects[0].contains("vanished: end of stream"),
+        "{disconnects:?}"
+    );
     assert_eq!(reconnects.len(), 1, "{:?}", store.events);
     assert!(reconnects[0].contains("s down"), "{reconnects:?}");
     // Back-off 20, 40, 80, 160 ms: in 400 ms about 4 to 5 attempts, not hundreds.
@@ -246,7 +263,12 @@ async fn a_device_that_never_appears_is_an_error_in_the_status_not_a_crash() {
     let ghost = QueueConnector::default();
     let mut port = imu.plug();
     let sink = MemorySink::new();
-    let running = start(config, sink.clone(), vec![imu, ghost.clone()], plenty_of_space());
+    let running = start(
+        config,
+        sink.clone(),
+        vec![imu, ghost.clone()],
+        plenty_of_space(),
+    );
     send_imu(&mut port, 0..120, 100.0, &[], b"").await;
     let live = read_status_file(&running.status_path).expect("status written while running");
     assert_eq!(live.state, "running");
@@ -267,7 +289,10 @@ async fn a_device_that_never_appears_is_an_error_in_the_status_not_a_crash() {
     assert_eq!(store.imu["imu"].len(), 120);
     let info = events(&store, EventKind::Info);
     assert_eq!(info.len(), 1, "said once, not per retry: {info:?}");
-    assert!(info[0].starts_with("[ghost] cannot open memory"), "{info:?}");
+    assert!(
+        info[0].starts_with("[ghost] cannot open memory"),
+        "{info:?}"
+    );
     assert!(ghost.attempt_count() >= 5);
 }
 
@@ -313,7 +338,11 @@ async fn a_slow_writer_drops_are_counted_and_logged_never_silent() {
     let written = store.imu["imu"].len() as u64;
     let dropped = status.devices[0].dropped_rows;
     assert!(dropped > 0, "the test must overload the writer");
-    assert_eq!(written + dropped, 400, "written {written} + dropped {dropped}");
+    assert_eq!(
+        written + dropped,
+        400,
+        "written {written} + dropped {dropped}"
+    );
     let overflow = events(&store, EventKind::QueueOverflow);
     assert!(!overflow.is_empty());
     let logged: u64 = overflow
@@ -326,7 +355,10 @@ async fn a_slow_writer_drops_are_counted_and_logged_never_silent() {
                 .unwrap()
         })
         .sum();
-    assert_eq!(logged, dropped, "every dropped row is in an event: {overflow:?}");
+    assert_eq!(
+        logged, dropped,
+        "every dropped row is in an event: {overflow:?}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -352,7 +384,11 @@ async fn disk_reserve_closes_the_session_and_exits_non_zero() {
         .unwrap();
     sender.abort();
     // 18, 14, 10 MiB are >= the reserve; 6 MiB at the 4th check (t ≈ 3 s) is not.
-    assert!(t.elapsed() > Duration::from_millis(2500), "{:?}", t.elapsed());
+    assert!(
+        t.elapsed() > Duration::from_millis(2500),
+        "{:?}",
+        t.elapsed()
+    );
     match &outcome {
         Outcome::DiskReserve {
             free_bytes,

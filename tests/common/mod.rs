@@ -42,15 +42,15 @@ impl LineDecoder {
     fn parse(body: &str) -> Option<Frame> {
         let fields: Vec<&str> = body.split(',').collect();
         let num = |i: usize| fields.get(i).and_then(|s| s.parse::<f64>().ok());
-        match fields.first()? {
-            &"I" if fields.len() == 8 => Some(Frame::Imu(ImuSample {
+        match *fields.first()? {
+            "I" if fields.len() == 8 => Some(Frame::Imu(ImuSample {
                 sensor_time: num(1),
                 gyro: Some([num(2)?, num(3)?, num(4)?]),
                 accel: Some([num(5)?, num(6)?, num(7)?]),
                 temp_c: None,
                 status: 0,
             })),
-            &"G" if fields.len() == 5 => Some(Frame::Gnss(GnssFix {
+            "G" if fields.len() == 5 => Some(Frame::Gnss(GnssFix {
                 week: fields[1].parse().ok(),
                 tow_s: num(2),
                 lat_deg: num(3),
@@ -155,7 +155,10 @@ impl QueueConnector {
 impl Connector for QueueConnector {
     fn connect(&self) -> BoxFuture<'_, io::Result<ByteStream>> {
         Box::pin(async move {
-            self.attempts.lock().unwrap().push(std::time::Instant::now());
+            self.attempts
+                .lock()
+                .unwrap()
+                .push(std::time::Instant::now());
             match self.streams.lock().unwrap().pop_front() {
                 Some(s) => Ok(Box::new(s) as ByteStream),
                 None => Err(io::Error::new(io::ErrorKind::NotFound, "no such device")),
