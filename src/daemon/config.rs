@@ -137,8 +137,8 @@ pub enum Protocol {
     Nmea,
     /// u-blox UBX binary.
     Ubx,
-    /// NMEA and UBX interleaved on one port (u-blox default output).
-    Auto,
+    /// NMEA and UBX interleaved on one port (u-blox default output), merged into epochs.
+    Gnss,
     /// WitMotion 0x55 frames.
     Wit,
     /// Xsens MTi Xbus MTData2.
@@ -154,7 +154,7 @@ impl Protocol {
         match self {
             Protocol::Nmea => "nmea",
             Protocol::Ubx => "ubx",
-            Protocol::Auto => "auto",
+            Protocol::Gnss => "gnss",
             Protocol::Wit => "wit",
             Protocol::Xbus => "xbus",
             Protocol::Csv => "csv",

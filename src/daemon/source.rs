@@ -107,7 +107,7 @@ pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
     match device.protocol {
         Protocol::Nmea
         | Protocol::Ubx
-        | Protocol::Auto
+        | Protocol::Gnss
         | Protocol::Wit
         | Protocol::Xbus
         | Protocol::Csv
