@@ -27,8 +27,13 @@ fn config(dir: &std::path::Path, session_extra: &str, devices: &[(&str, f64)]) -
         dir.display()
     );
     for (name, rate) in devices {
+        let protocol = if name.starts_with("gnss") {
+            "gnss"
+        } else {
+            "csv"
+        };
         text.push_str(&format!(
-            "[[device]]\nname = \"{name}\"\nprotocol = \"csv\"\nrate_hz = {rate}\nretry_initial_ms = 20\nretry_max_ms = 160\nserial = {{ port = \"/dev/test-{name}\" }}\n"
+            "[[device]]\nname = \"{name}\"\nprotocol = \"{protocol}\"\nrate_hz = {rate}\ngap_factor = 10\nretry_initial_ms = 20\nretry_max_ms = 160\nserial = {{ port = \"/dev/test-{name}\" }}\n"
         ));
     }
     parse(&text, "test").unwrap_or_else(|e| panic!("{e}"))
@@ -310,7 +315,7 @@ async fn pause_longer_than_the_gap_factor_is_a_gap_event() {
     let (_, status) = running.finish().await;
     let gaps = events(&sink.snapshot(), EventKind::Gap);
     assert_eq!(gaps.len(), 1, "{gaps:?}");
-    // About 300 ms at 100 Hz: ~30 missing (scheduling adds a few ms).
+    // About 300 ms at 100 Hz (threshold 10 periods): ~30 missing (scheduling adds a few ms).
     let missing: u64 = gaps[0]
         .split("about ")
         .nth(1)

@@ -122,7 +122,7 @@ fn check_config(path: &Path) -> ExitCode {
 
 fn run(config: &config::CheckedConfig) -> anyhow::Result<u8> {
     let session_dir = daemon::session::session_dir(config, chrono::Utc::now());
-    let sink = daemon::session::open_session_sink(config, &session_dir)?;
+    let sink = Box::new(daemon::session::open_session_sink(config, &session_dir)?);
     let mut connectors = Vec::new();
     let mut decoders = Vec::new();
     for d in &config.devices {

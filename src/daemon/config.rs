@@ -11,6 +11,8 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Matrix3;
+
+use crate::store::manifest::MAX_DEVICE_NAME_LEN;
 use serde::{Deserialize, Serialize};
 
 /// A rejected configuration: where, what, and how to fix it.
@@ -165,6 +167,11 @@ impl Protocol {
     /// True for protocols that arrive on a CAN bus (SocketCAN or slcan) rather than a byte stream.
     pub fn is_can(self) -> bool {
         matches!(self, Protocol::CanDbc)
+    }
+
+    /// True for receivers (their frames are GNSS fixes); false for IMUs.
+    pub fn is_gnss(self) -> bool {
+        matches!(self, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
     }
 }
 
@@ -385,8 +392,8 @@ pub struct DeviceSpec {
 pub struct CheckedConfig {
     pub session: SessionConfig,
     pub devices: Vec<DeviceSpec>,
-    /// The file as parsed, for the session manifest.
-    pub raw: Config,
+    /// The file as written (all keys, defaults not filled in), for the session manifest.
+    pub table: toml::Table,
 }
 
 impl CheckedConfig {
@@ -443,7 +450,10 @@ pub fn parse(text: &str, source_name: &str) -> Result<CheckedConfig, ConfigError
             hint,
         }])
     })?;
-    config.validate().map_err(fail)
+    let mut checked = config.validate().map_err(fail)?;
+    // The text parsed above as a Config, so it is a valid table too.
+    checked.table = toml::from_str(text).unwrap_or_default();
+    Ok(checked)
 }
 
 /// Turns serde's "unknown field `x`, expected one of `a`, `b`" into a "did you mean" hint.
@@ -528,7 +538,7 @@ impl Config {
             Ok(CheckedConfig {
                 session: self.session.clone(),
                 devices,
-                raw: self.clone(),
+                table: toml::Table::new(),
             })
         } else {
             Err(issues.0)
@@ -617,7 +627,7 @@ fn check_placeholders(name: &str) -> Result<(), String> {
 fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<DeviceSpec> {
     let before = issues.0.len();
     if d.name.is_empty()
-        || d.name.len() > 64
+        || d.name.len() > MAX_DEVICE_NAME_LEN
         || !d
             .name
             .chars()
@@ -626,7 +636,7 @@ fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<
         issues.add(
             format!("{path}.name"),
             format!("`{}` is not a valid device name", d.name),
-            "use 1 to 64 letters, digits, - or _",
+            "use 1 to 63 letters, digits, - or _",
         );
     }
     if !d.rate_hz.is_finite() || d.rate_hz <= 0.0 || d.rate_hz > 100_000.0 {

@@ -268,7 +268,13 @@ impl DeviceTask {
         }
         decoding.decoder.push(bytes);
         let mut new_gaps: Vec<Gap> = Vec::new();
+        let mut ignored = 0u64;
+        let gnss_device = self.spec.protocol.is_gnss();
         while let Some(frame) = decoding.decoder.poll() {
+            if matches!(frame, Frame::Gnss(_)) != gnss_device {
+                ignored += 1;
+                continue;
+            }
             if let Some(gap) = gaps.observe(at.mono_ns) {
                 new_gaps.push(gap);
             }
@@ -338,6 +344,7 @@ impl DeviceTask {
         c.frames_bad = total.checksum_errors + total.frames_malformed + total.frames_too_long;
         c.resyncs = total.resyncs;
         c.gaps += new_gaps.len() as u64;
+        c.ignored_frames += ignored;
         c.imu_rows += batch.imu.len() as u64;
         c.gnss_rows += batch.gnss.len() as u64;
         if !batch.imu.is_empty() || !batch.gnss.is_empty() {

@@ -1,4 +1,9 @@
-//! Gap detection: a pause between samples longer than `gap_factor` nominal periods.
+//! Gap detection: a pause between samples longer than `gap_factor` nominal periods, and
+//! never shorter than [`MIN_GAP_NS`] (USB-serial adapters deliver in bursts: an FTDI chip's
+//! latency timer alone holds bytes for up to 16 ms, so arrival times jitter by that much).
+
+/// The shortest pause reported as a gap, ns.
+pub const MIN_GAP_NS: i64 = 50_000_000;
 
 /// A detected gap between two consecutive samples of one device.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -31,7 +36,7 @@ impl GapDetector {
         let period_ns = 1e9 / rate_hz;
         GapDetector {
             period_ns,
-            threshold_ns: (period_ns * gap_factor).round() as i64,
+            threshold_ns: ((period_ns * gap_factor).round() as i64).max(MIN_GAP_NS),
             last_mono_ns: None,
         }
     }
@@ -65,13 +70,14 @@ mod tests {
 
     #[test]
     fn steady_stream_has_no_gap_and_a_pause_is_one() {
-        let mut d = GapDetector::new(100.0, 3.0); // 10 ms period, 30 ms threshold
+        let mut d = GapDetector::new(100.0, 3.0); // 10 ms period, 50 ms threshold (floor)
         let ms = 1_000_000;
         for k in 0..10 {
             assert_eq!(d.observe(k * 10 * ms), None);
         }
         // Jitter below the threshold is not a gap.
         assert_eq!(d.observe(90 * ms + 29 * ms), None);
+        assert_eq!(d.observe(119 * ms), None);
         // 200 ms pause at 100 Hz: 19 samples missing.
         let gap = d.observe(119 * ms + 200 * ms).expect("gap");
         assert_eq!(gap.missing_estimate, 19);

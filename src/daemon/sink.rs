@@ -15,9 +15,10 @@ pub trait RecordSink: Send {
     fn append_gnss(&mut self, device: &str, rows: &[GnssRecord]) -> anyhow::Result<()>;
     fn append_event(&mut self, event: &EventRecord) -> anyhow::Result<()>;
     fn append_raw(&mut self, device: &str, t_mono_ns: i64, bytes: &[u8]) -> anyhow::Result<()>;
-    /// Makes everything appended so far durable.
+    /// Called every flush interval: afterwards, rows older than one flush interval are
+    /// durable (a sink that writes on chunk boundaries may keep younger rows buffered).
     fn flush(&mut self) -> anyhow::Result<()>;
-    /// Closes the current chunk file and starts the next one.
+    /// Closes the current chunk file and starts the next one, recording a `rotation` event.
     fn rotate(&mut self) -> anyhow::Result<()>;
     /// Flushes, closes and renames the last chunk file. Called once.
     fn close(&mut self) -> anyhow::Result<()>;
@@ -119,7 +120,17 @@ impl RecordSink for MemorySink {
     }
 
     fn rotate(&mut self) -> anyhow::Result<()> {
-        self.lock().rotations += 1;
+        let mut s = self.lock();
+        s.rotations += 1;
+        let now = super::clock::now();
+        let detail = format!("memory-{:05} started", s.rotations);
+        s.events.push(EventRecord {
+            t_mono_ns: now.mono_ns,
+            t_wall_ns: now.wall_ns,
+            device: String::new(),
+            kind: crate::store::EventKind::Rotation,
+            detail,
+        });
         Ok(())
     }
 

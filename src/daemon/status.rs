@@ -37,6 +37,9 @@ pub struct DeviceCounters {
     pub gaps: u64,
     pub imu_rows: u64,
     pub gnss_rows: u64,
+    /// Frames of the other kind than the device's (e.g. IMU data from a GNSS receiver), not
+    /// written because the session has no table for them.
+    pub ignored_frames: u64,
     /// Batches the writer queue had no room for, and the rows/events in them.
     pub dropped_batches: u64,
     pub dropped_rows: u64,
@@ -136,6 +139,8 @@ pub struct DeviceStatus {
     pub reconnects: u64,
     pub gaps: u64,
     pub dropped_rows: u64,
+    #[serde(default)]
+    pub ignored_frames: u64,
     pub last_error: Option<String>,
 }
 
@@ -201,6 +206,7 @@ impl StatusTracker {
                 reconnects: c.reconnects,
                 gaps: c.gaps,
                 dropped_rows: c.dropped_rows,
+                ignored_frames: c.ignored_frames,
                 last_error: c.last_error.clone(),
             })
             .collect();

@@ -243,11 +243,11 @@ impl WriterState {
             }
             if control.rotate.swap(false, Ordering::SeqCst) {
                 self.report_drops(sink)?;
-                sink.rotate()?;
                 sink.append_event(&session_event(
-                    EventKind::Rotation,
+                    EventKind::Info,
                     "rotation requested (SIGHUP)".to_string(),
                 ))?;
+                sink.rotate()?;
                 let mut w = self.shared.counters();
                 w.rotations += 1;
                 w.current_file = sink.current_file();
