@@ -25,6 +25,8 @@ enum Command {
     Decode(imulab::cli::decode::DecodeArgs),
     /// Simulate IMUs and GNSS receivers from a scene file.
     Sim(imulab::cli::sim::SimArgs),
+    /// Print imulogd's status file as a table.
+    Status(imulab::cli::status::StatusArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +38,7 @@ fn main() -> std::process::ExitCode {
         Command::Recover(args) => imulab::cli::recover::run(args),
         Command::Decode(args) => imulab::cli::decode::run(args),
         Command::Sim(args) => imulab::cli::sim::run(args),
+        Command::Status(args) => imulab::cli::status::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
