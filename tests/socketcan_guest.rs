@@ -9,8 +9,9 @@
 
 use std::collections::HashMap;
 use std::io;
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use socketcan::dump::Reader as SocketcanDumpReader;
@@ -519,7 +520,11 @@ fn wait_with_limit(child: &mut Child, what: &str) {
     loop {
         match child.try_wait() {
             Ok(Some(status)) => {
-                assert!(status.success(), "{what} failed: {status}");
+                let mut stderr = String::new();
+                if let Some(pipe) = child.stderr.as_mut() {
+                    let _ = pipe.read_to_string(&mut stderr);
+                }
+                assert!(status.success(), "{what} failed: {status}: {stderr}");
                 return;
             }
             Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
@@ -568,6 +573,8 @@ fn candump_log_from_can_utils_parses_line_by_line() {
         .args(["-l", "-n", &frames.len().to_string()])
         .arg(format!("{},0:0,#FFFFFFFF", iface.name))
         .current_dir(log_dir.path())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
         .spawn()
         .unwrap_or_else(|e| panic!("starting candump (can-utils on PATH in the guest): {e}"));
     wait_for_listener(iface.name, &mut candump);

@@ -354,8 +354,9 @@ trap 'rm -rf "$job_dir"' EXIT
   command_words=()
   emit_command() {
     printf 'echo "vcan-guest: run %s"\n' "$(printf '%q ' "${command_words[@]}" | sed 's/["$`\\]/\\&/g')"
-    printf '%q ' "${command_words[@]}"
-    printf '\ncode=$?\n'
+    # Through a pipe, so stdout is not the console tty (no colours, output as under CI).
+    printf '{ %s; } 2>&1 | cat\n' "$(printf '%q ' "${command_words[@]}")"
+    printf 'code=${PIPESTATUS[0]}\n'
     echo 'echo "vcan-guest: exit code $code"'
     echo '[ "$first_failure" -eq 0 ] && first_failure=$code'
   }
