@@ -163,8 +163,9 @@ module_depends() {
   esac | tr '\0' '\n' | LC_ALL=C grep -a '^depends=' | head -n 1 | cut -d= -f2 | tr ',' ' '
 }
 
-# Appends NAME and (first) its dependencies to the global load order, each once. The kernel package
-# has no modules.dep, so the dependencies come from each module's own .modinfo section.
+# Appends NAME and (first) its dependencies to the global load order, each once, writing each module
+# as a plain .ko into $module_out. The kernel package has no modules.dep, so the dependencies come
+# from each module's own .modinfo section.
 declare -a load_order=()
 add_module_with_deps() {
   local name=$1 modroot=$2 file dep known
@@ -179,12 +180,12 @@ add_module_with_deps() {
     *.ko.zst) zstd -dc "$file" ;;
     *.ko.gz) gzip -dc "$file" ;;
     *) cat "$file" ;;
-  esac >"$staging/lib/modules/$name.ko.signed"
+  esac >"$module_out/$name.ko.signed"
   # Debian signs its modules; checking a signature under software emulation costs ~0.2 s per module
   # at boot. objcopy rewrites the ELF without the appended signature (the kernel then only notes
   # "tainted: unsigned module", which is harmless in a throw-away test VM).
-  objcopy "$staging/lib/modules/$name.ko.signed" "$staging/lib/modules/$name.ko"
-  rm "$staging/lib/modules/$name.ko.signed"
+  objcopy "$module_out/$name.ko.signed" "$module_out/$name.ko"
+  rm "$module_out/$name.ko.signed"
 }
 
 # The guest's /init. Loads CAN and 9p modules, brings vcan0 up, mounts the host's root read-only and
@@ -247,11 +248,13 @@ INIT
 }
 
 kernel_file="$kernel_dir/kernel"
-modroot_marker="$kernel_dir/.kernel-ready"
-if [ ! -e "$modroot_marker" ]; then
+kernel_marker="$kernel_dir/.kernel-ready"
+# The CAN stack, and virtio + 9p for the host share; their dependencies are added from .modinfo.
+wanted_modules="can-dev vcan can can-raw virtio_pci 9pnet_virtio 9p"
+if [ "$(cat "$kernel_marker" 2>/dev/null)" != "$wanted_modules" ]; then
   [ -n "${kernel_pkg:-}" ] || die "kernel cache $kernel_dir is incomplete and apt cannot resolve a kernel"
   say "fetching $kernel_pkg=$kernel_version (cached in $kernel_dir)"
-  rm -rf "$kernel_dir/unpacked" "$kernel_dir"/*.deb
+  rm -rf "$kernel_dir/unpacked" "$kernel_dir/modules" "$kernel_dir"/*.deb "$kernel_dir"/initramfs-*
   download_deb "$kernel_pkg=$kernel_version" "$kernel_dir"
   dpkg-deb -x "$kernel_dir"/*.deb "$kernel_dir/unpacked"
   vmlinuz=$(ls "$kernel_dir"/unpacked/boot/vmlinuz-* 2>/dev/null | head -n 1)
@@ -267,10 +270,20 @@ if [ ! -e "$modroot_marker" ]; then
     cp "$vmlinuz" "$kernel_file"
     echo "vmlinuz" >"$kernel_dir/kernel-kind"
   fi
-  # Keep only the modules (the image and the .deb are large and no longer needed).
-  mv "$kernel_dir"/unpacked/lib/modules "$kernel_dir/modules"
+  # Keep only the modules the guest loads (the whole tree is ~360 MB), with their load order.
+  module_out="$kernel_dir/modules"
+  mkdir -p "$module_out"
+  modroot=$(ls -d "$kernel_dir"/unpacked/lib/modules/*/ | head -n 1)
+  for wanted in $wanted_modules; do add_module_with_deps "$wanted" "$modroot"; done
+  printf '%s\n' "${load_order[@]}" >"$module_out/load-order"
   rm -rf "$kernel_dir/unpacked" "$kernel_dir"/*.deb
-  touch "$modroot_marker"
+  echo "$wanted_modules" >"$kernel_marker"
+  # Older kernel versions are dead weight now; remove those no other run is using.
+  for old_dir in "$cache_root"/linux-image-*/; do
+    old_dir=${old_dir%/}
+    [ "$old_dir" = "$kernel_dir" ] && continue
+    if (exec 8>"$old_dir/.lock" && flock -n 8); then rm -rf "$old_dir"; fi
+  done
 fi
 
 # can-utils, from the same Debian archive (version resolved at run time).
@@ -307,11 +320,7 @@ if [ ! -e "$initramfs" ]; then
   cp "$busybox_bin" "$staging/bin/busybox"
   printf '%s\n' "$init_text" >"$staging/init"
   chmod 755 "$staging/init"
-  modroot=$(ls -d "$kernel_dir"/modules/*/ | head -n 1)
-  for wanted in can-dev vcan can can-raw virtio_pci 9pnet_virtio 9p; do
-    add_module_with_deps "$wanted" "$modroot"
-  done
-  printf '%s\n' "${load_order[@]}" >"$staging/lib/modules/load-order"
+  cp "$kernel_dir"/modules/* "$staging/lib/modules/"
   for tool in candump cansend cangen canplayer; do
     cp "$can_utils_dir/unpacked/usr/bin/$tool" "$staging/opt/can-utils/bin/"
     # Their shared libraries as the host's loader resolves them (same Debian release).
