@@ -222,9 +222,20 @@ done
 ip link set lo up
 ip link add dev vcan0 type vcan || fail "ip link add vcan0"
 ip link set vcan0 up || fail "ip link set vcan0 up"
-mkdir -p /host
-mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=262144 hostroot /host || fail "mount host root"
-for fs in proc:proc sysfs:sys devtmpfs:dev tmpfs:tmp tmpfs:run; do
+mkdir -p /host /hostro /scratch
+mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=262144 hostroot /hostro || fail "mount host root"
+# The host's files, writable in the guest: an overlay whose upper layer is guest RAM. Writes never
+# reach the host, and a checkout or target directory under the host's /tmp stays visible.
+mount -t tmpfs tmpfs /scratch
+mkdir -p /scratch/upper /scratch/work
+if mount -t overlay overlay -o lowerdir=/hostro,upperdir=/scratch/upper,workdir=/scratch/work /host; then
+  writable_tmp=""
+else
+  echo "vcan-guest: overlay mount failed; host root read-only, empty tmpfs on /tmp"
+  mount --move /hostro /host || fail "move host root"
+  writable_tmp=tmpfs:tmp
+fi
+for fs in proc:proc sysfs:sys devtmpfs:dev tmpfs:run $writable_tmp; do
   mount -t "${fs%%:*}" "${fs%%:*}" "/host/${fs#*:}" || fail "mount /host/${fs#*:}"
 done
 mkdir -p /host/dev/pts /host/dev/shm /host/run/imulab-vcan/job /host/run/imulab-vcan/bin
@@ -249,8 +260,9 @@ INIT
 
 kernel_file="$kernel_dir/kernel"
 kernel_marker="$kernel_dir/.kernel-ready"
-# The CAN stack, and virtio + 9p for the host share; their dependencies are added from .modinfo.
-wanted_modules="can-dev vcan can can-raw virtio_pci 9pnet_virtio 9p"
+# The CAN stack, virtio + 9p for the host share, overlay to make it writable in guest RAM; their
+# dependencies are added from .modinfo.
+wanted_modules="can-dev vcan can can-raw virtio_pci 9pnet_virtio 9p overlay"
 if [ "$(cat "$kernel_marker" 2>/dev/null)" != "$wanted_modules" ]; then
   [ -n "${kernel_pkg:-}" ] || die "kernel cache $kernel_dir is incomplete and apt cannot resolve a kernel"
   say "fetching $kernel_pkg=$kernel_version (cached in $kernel_dir)"
