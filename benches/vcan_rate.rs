@@ -7,6 +7,8 @@
 //! Prints one table row per (receive buffer, offered rate): frames sent, received, lost, and the
 //! rate actually achieved.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use socketcan::{CanDataFrame, CanFrame, CanInterface, EmbeddedFrame, Socket, SocketOptions};
@@ -15,8 +17,9 @@ use socketcan::{Id, StandardId};
 const INTERFACE: &str = "imuv_bench";
 /// How long each rate is offered.
 const RUN_TIME: Duration = Duration::from_secs(2);
-/// A reader that sees nothing for this long has got everything it will get.
-const QUIET_TIME: Duration = Duration::from_millis(500);
+/// Once the sender is done, a reader that sees nothing for this long has got everything it will get
+/// (vcan delivers in the sender's own system call, so nothing is in flight by then).
+const QUIET_TIME: Duration = Duration::from_millis(300);
 
 struct RunResult {
     sent: u64,
@@ -41,12 +44,18 @@ fn run_once(
         }
         Ok::<_, String>(socket)
     })?;
+    let sender_done = Arc::new(AtomicBool::new(false));
+    let reader_sees_done = Arc::clone(&sender_done);
     let reader = runtime.spawn(async move {
         let mut received = 0u64;
-        while let Ok(Ok(_)) = tokio::time::timeout(QUIET_TIME, receiver.read_frame()).await {
-            received += 1;
+        loop {
+            match tokio::time::timeout(QUIET_TIME, receiver.read_frame()).await {
+                Ok(Ok(_)) => received += 1,
+                Ok(Err(e)) => return Err(format!("read error after {received} frames: {e}")),
+                Err(_) if reader_sees_done.load(Ordering::Acquire) => return Ok(received),
+                Err(_) => {}
+            }
         }
-        received
     });
 
     let sender =
@@ -73,9 +82,10 @@ fn run_once(
         sent += 1;
     }
     let send_seconds = started.elapsed().as_secs_f64();
+    sender_done.store(true, Ordering::Release);
     let received = runtime
         .block_on(reader)
-        .map_err(|e| format!("reader task: {e}"))?;
+        .map_err(|e| format!("reader task: {e}"))??;
     Ok(RunResult {
         sent,
         received,
