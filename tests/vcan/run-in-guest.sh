@@ -60,7 +60,7 @@ mkdir -p "$cache_root"
 # run time, so a point release is picked up; apt-cache takes seconds on a busy machine, so the answer
 # is remembered until the lists change (apt-get update).
 resolve_packages() {
-  local pkg version cu_version
+  local pkg
   pkg=$(apt-cache depends linux-image-amd64 2>/dev/null |
     awk '$1 == "Depends:" && $2 ~ /^linux-image-[0-9].*-amd64$/ && $2 !~ /cloud/ { print $2; exit }')
   [ -n "$pkg" ] || return 1
@@ -94,7 +94,13 @@ if [ -n "${kernel_pkg:-}" ]; then
   kernel_key="${kernel_pkg}_${kernel_version}"
 else
   # Offline and apt knows nothing: fall back to the newest kernel already in the cache.
-  kernel_key=$(ls -1t "$cache_root" 2>/dev/null | grep '^linux-image-' | head -n 1 || true)
+  kernel_key=""
+  for candidate in "$cache_root"/linux-image-*/; do
+    [ -e "$candidate/.kernel-ready" ] || continue
+    if [ -z "$kernel_key" ] || [ "$candidate" -nt "$cache_root/$kernel_key" ]; then
+      kernel_key=$(basename "$candidate")
+    fi
+  done
   [ -n "$kernel_key" ] || die "cannot resolve linux-image-amd64 (apt-get update?) and nothing is cached in $cache_root"
   say "apt cannot resolve linux-image-amd64; using cached $kernel_key"
 fi
@@ -205,7 +211,8 @@ report() {
   [ "$code" -gt 127 ] && code=127
   echo "vcan-guest: exit $1"
   sync
-  # isa-debug-exit: QEMU exits with (value << 1) | 1.
+  # isa-debug-exit: QEMU exits with (value << 1) | 1. The format is the octal escape of the byte.
+  # shellcheck disable=SC2059
   printf "\\$(printf %03o "$code")" | dd of=/dev/port bs=1 seek=244 count=1 2>/dev/null
   sleep 5
   echo "vcan-guest: isa-debug-exit did not stop the VM"
@@ -269,7 +276,7 @@ if [ "$(cat "$kernel_marker" 2>/dev/null)" != "$wanted_modules" ]; then
   rm -rf "$kernel_dir/unpacked" "$kernel_dir/modules" "$kernel_dir"/*.deb "$kernel_dir"/initramfs-*
   download_deb "$kernel_pkg=$kernel_version" "$kernel_dir"
   dpkg-deb -x "$kernel_dir"/*.deb "$kernel_dir/unpacked"
-  vmlinuz=$(ls "$kernel_dir"/unpacked/boot/vmlinuz-* 2>/dev/null | head -n 1)
+  vmlinuz=$(find "$kernel_dir/unpacked/boot" -name 'vmlinuz-*' -print -quit 2>/dev/null || true)
   [ -n "$vmlinuz" ] || die "no /boot/vmlinuz-* in $kernel_pkg"
   # A decompressed ELF with a PVH entry note boots directly (~4 s faster under TCG than vmlinuz,
   # which decompresses itself in the guest); fall back to vmlinuz otherwise.
@@ -285,7 +292,8 @@ if [ "$(cat "$kernel_marker" 2>/dev/null)" != "$wanted_modules" ]; then
   # Keep only the modules the guest loads (the whole tree is ~360 MB), with their load order.
   module_out="$kernel_dir/modules"
   mkdir -p "$module_out"
-  modroot=$(ls -d "$kernel_dir"/unpacked/lib/modules/*/ | head -n 1)
+  modroot=$(find "$kernel_dir/unpacked/lib/modules" -mindepth 1 -maxdepth 1 -type d -print -quit)
+  [ -n "$modroot" ] || die "no /lib/modules/<version> in $kernel_pkg"
   for wanted in $wanted_modules; do add_module_with_deps "$wanted" "$modroot"; done
   printf '%s\n' "${load_order[@]}" >"$module_out/load-order"
   rm -rf "$kernel_dir/unpacked" "$kernel_dir"/*.deb
@@ -300,7 +308,10 @@ fi
 
 # can-utils, from the same Debian archive (version resolved at run time).
 if [ -z "${can_utils_version:-}" ]; then
-  can_utils_dir=$(ls -1dt "$cache_root"/can-utils_* 2>/dev/null | head -n 1 || true)
+  can_utils_dir=""
+  for candidate in "$cache_root"/can-utils_*; do
+    [ -e "$candidate/.ready" ] && can_utils_dir=$candidate
+  done
   [ -n "$can_utils_dir" ] || die "apt cannot resolve can-utils and none is cached"
 else
   can_utils_dir="$cache_root/can-utils_$can_utils_version"
@@ -363,6 +374,7 @@ trap 'rm -rf "$job_dir"' EXIT
   echo '#!/bin/sh'
   echo 'exec /bin/bash /run/imulab-vcan/job/job.bash'
 } >"$job_dir/job.sh"
+# shellcheck disable=SC2016 # the single-quoted $ expressions are for the job script, not here
 {
   echo 'set -u'
   printf 'export PATH=%q\n' "/run/imulab-vcan/bin:$PATH"
@@ -393,6 +405,7 @@ trap 'rm -rf "$job_dir"' EXIT
   echo 'exit "$first_failure"'
 } >"$job_dir/job.bash"
 
+# shellcheck disable=SC2054 # the commas are QEMU's option syntax
 qemu_args=(
   -accel tcg # /dev/kvm exists on our machines but does not work: always software emulation
   -m "$mem_mib" -smp 1
