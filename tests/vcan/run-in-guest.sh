@@ -6,10 +6,11 @@
 # Usage: tests/vcan/run-in-guest.sh [--timeout SECS] [--mem MIB] [--prepare-only]
 #                                   [--] CMD [ARGS...] [--next CMD [ARGS...]]...
 #
-# Several commands (separated by --next) run one after another in ONE boot; each runs in the caller's
-# working directory, inside a read-only view of the host's root file system (so host-built binaries
-# and their shared libraries, fixtures and the cargo tree are all there), with fresh tmpfs on /tmp and
-# /run, and with can-utils (candump, cansend, cangen, canplayer) and busybox `ip` on PATH.
+# Several commands (separated by --next) run one after another in ONE boot, as root; each runs in the
+# caller's working directory, in the host's root file system shared read-only over 9p with a RAM
+# overlay on top (host-built binaries, their shared libraries, fixtures and the cargo tree are all
+# there; writes stay in the guest), and with can-utils (candump, cansend, cangen, canplayer) and
+# busybox `ip` on PATH.
 # The exit code is the first non-zero exit code of the commands (0 when all pass); 124 when the outer
 # timeout hit; 125 when the harness itself failed (no QEMU, kernel not found, guest crashed).
 #
@@ -34,7 +35,7 @@ while [ $# -gt 0 ]; do
     --timeout) timeout_secs=${2:?--timeout needs seconds}; shift 2 ;;
     --mem) mem_mib=${2:?--mem needs MiB}; shift 2 ;;
     --prepare-only) prepare_only=true; shift ;;
-    -h | --help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
