@@ -35,7 +35,7 @@ while [ $# -gt 0 ]; do
     --timeout) timeout_secs=${2:?--timeout needs seconds}; shift 2 ;;
     --mem) mem_mib=${2:?--mem needs MiB}; shift 2 ;;
     --prepare-only) prepare_only=true; shift ;;
-    -h | --help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h | --help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     --) shift; break ;;
     -*) die "unknown option $1 (see --help)" ;;
     *) break ;;
