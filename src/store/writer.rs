@@ -431,6 +431,7 @@ impl SessionWriter {
             )));
         }
         manifest.save(dir)?;
+        keep_freed_heap();
         let lock = try_writer_lock(dir)?.ok_or_else(|| {
             StoreError::Invalid(format!(
                 "{}: another writer holds the session lock",
@@ -782,6 +783,25 @@ fn table_of<'a, R>(
             device: device.into(),
             msg: "no group for it in the current chunk file".into(),
         })
+}
+
+/// HDF5's deflate filter sets up a fresh zlib stream (about 256 KiB, partly zeroed) for
+/// every chunk. With glibc's default trim threshold each free shrinks the heap and the next
+/// chunk faults the pages back in: measured, that churn was half the writer's CPU time
+/// (docs/bench/store.md). Keeping up to 64 MiB of freed heap stops it. Process-wide and
+/// harmless for other code; done once.
+fn keep_freed_heap() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        static ONCE: std::sync::Once = std::sync::Once::new();
+        ONCE.call_once(|| {
+            // SAFETY: mallopt only changes allocator tuning parameters; any value is valid.
+            unsafe {
+                libc::mallopt(libc::M_TRIM_THRESHOLD, 64 << 20);
+                libc::mallopt(libc::M_TOP_PAD, 16 << 20);
+            }
+        });
+    }
 }
 
 fn wall_clock_ns() -> i64 {
