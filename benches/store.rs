@@ -210,7 +210,8 @@ fn main() {
         .position(|a| a == "--only")
         .and_then(|i| args.get(i + 1))
         .map(|l| l.split(',').filter_map(|x| x.parse().ok()).collect());
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-store");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("target/bench-store-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     std::fs::create_dir_all(&root).expect("bench dir");
     let pools = [imu_pool(1), imu_pool(2)];
@@ -302,4 +303,5 @@ fn main() {
         }
         let _ = std::fs::remove_dir_all(&dir);
     }
+    let _ = std::fs::remove_dir_all(&root);
 }

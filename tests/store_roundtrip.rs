@@ -198,3 +198,92 @@ fn rotation_by_size_and_a_slow_device_still_read_back_in_order() {
     let sum = s.stream_summary(&layout::imu_path("imu_a"));
     assert_eq!(sum.rows, 800);
 }
+
+#[test]
+fn raw_journal_and_truth_read_back_through_the_session() {
+    use imulab::store::{SessionWriter, TruthImuRecord, TruthNavRecord, WriterOptions};
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s6");
+    let mut m = manifest();
+    m.truth_nav_rate_hz = Some(10.0);
+    let opts = WriterOptions {
+        raw_journal: true,
+        rotate_after: std::time::Duration::from_secs(3),
+        ..fast_opts()
+    };
+    let mut w = SessionWriter::create(&dir, m, opts).unwrap();
+    let read_of = |i: usize| -> Vec<u8> { (0..(i % 5 + 1)).map(|k| (i + k) as u8).collect() };
+    for i in 0..800 {
+        let r = imu_row(0, i);
+        w.append_raw("imu_a", r.t_mono_ns, &read_of(i)).unwrap();
+        w.append_imu("imu_a", &[r]).unwrap();
+        w.append_truth_imu(
+            "imu_a",
+            &[TruthImuRecord {
+                t_mono_ns: r.t_mono_ns,
+                gyro_bias: [i as f64, 0.0, 0.0],
+                accel_bias: [0.0; 3],
+                gyro_true: [0.0; 3],
+                accel_true: [0.0, 0.0, i as f64],
+            }],
+        )
+        .unwrap();
+        if i % 10 == 0 {
+            w.append_truth_nav(&[TruthNavRecord {
+                t_mono_ns: r.t_mono_ns,
+                lat_deg: i as f64,
+                lon_deg: 0.0,
+                height_m: 0.0,
+                vel_ned: [0.0; 3],
+                quat_nb: [1.0, 0.0, 0.0, 0.0],
+            }])
+            .unwrap();
+        }
+    }
+    w.close().unwrap();
+    let s = Session::open(&dir).unwrap();
+    assert!(s.files().len() >= 3);
+    let mut i = 0;
+    for b in s.raw_blocks("imu_a", TimeRange::all(), 64).unwrap() {
+        let b = b.unwrap();
+        let mut at = 0;
+        for k in 0..b.t_mono_ns.len() {
+            assert_eq!(b.t_mono_ns[k], imu_row(0, i).t_mono_ns);
+            let len = b.len[k] as usize;
+            assert_eq!(&b.bytes[at..at + len], read_of(i).as_slice(), "read {i}");
+            at += len;
+            i += 1;
+        }
+        assert_eq!(at, b.bytes.len());
+    }
+    assert_eq!(i, 800);
+    // Every device has a raw group; one that received no bytes reads as empty.
+    assert_eq!(
+        s.raw_blocks("gps", TimeRange::all(), 64)
+            .unwrap()
+            .map(|b| b.unwrap().t_mono_ns.len())
+            .sum::<usize>(),
+        0
+    );
+    let nav: Vec<f64> = s
+        .truth_nav_blocks(TimeRange::all(), 7)
+        .unwrap()
+        .flat_map(|b| b.unwrap().lat_deg)
+        .collect();
+    assert_eq!(nav, (0..80).map(|k| (k * 10) as f64).collect::<Vec<_>>());
+    let acc: Vec<f64> = s
+        .truth_imu_blocks("imu_a", TimeRange::all(), 100)
+        .unwrap()
+        .flat_map(|b| b.unwrap().accel_true.into_iter().map(|a| a[2]))
+        .collect();
+    assert_eq!(acc, (0..800).map(|k| k as f64).collect::<Vec<_>>());
+    // Sessions without truth say so.
+    let plain = tmp.path().join("s7");
+    write_session(&plain, 1, 50, fast_opts());
+    let e = Session::open(&plain)
+        .unwrap()
+        .truth_nav_blocks(TimeRange::all(), 10)
+        .err()
+        .unwrap();
+    assert!(e.to_string().contains("not a simulated session"));
+}
