@@ -204,7 +204,7 @@ pub struct MonHw {
 }
 
 /// One 32-bit ESF data word: 24-bit value and 6-bit data type.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct EsfData {
     /// Data type (5 gyro z, 12 gyro temperature, 13 gyro y, 14 gyro x, 16/17/18 accel x/y/z,
     /// 6–11 wheel/speed ticks, …).
@@ -248,13 +248,56 @@ pub struct EsfRaw {
     pub samples: Vec<EsfRawSample>,
 }
 
+/// The data words of one ESF-MEAS, stored inline (numMeas is 5 bits, so at most 31) so the
+/// IMU hot path allocates nothing per message. Unused slots stay at their default.
+#[derive(Clone, Copy, PartialEq)]
+pub struct EsfWords {
+    len: u8,
+    words: [EsfData; 31],
+}
+
+impl EsfWords {
+    /// Builds from at most 31 words (`None` if more).
+    pub fn from_slice(words: &[EsfData]) -> Option<EsfWords> {
+        let mut out = EsfWords {
+            len: u8::try_from(words.len()).ok().filter(|&n| n <= 31)?,
+            words: [EsfData::default(); 31],
+        };
+        out.words[..words.len()].copy_from_slice(words);
+        Some(out)
+    }
+
+    pub fn as_slice(&self) -> &[EsfData] {
+        &self.words[..usize::from(self.len.min(31))]
+    }
+}
+
+impl std::ops::Deref for EsfWords {
+    type Target = [EsfData];
+    fn deref(&self) -> &[EsfData] {
+        self.as_slice()
+    }
+}
+
+impl std::fmt::Debug for EsfWords {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list().entries(self.as_slice()).finish()
+    }
+}
+
+impl Serialize for EsfWords {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.as_slice())
+    }
+}
+
 /// ESF-MEAS (0x10 0x02): external sensor fusion measurements.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EsfMeas {
     pub time_tag: u32,
     pub flags: u16,
     pub id: u16,
-    pub data: Vec<EsfData>,
+    pub data: EsfWords,
     pub calib_ttag: Option<u32>,
 }
 
@@ -615,6 +658,7 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
         }),
         (0x10, 0x02) if n >= 8 => {
             let flags = r.u16(4);
+            // numMeas is 5 bits, so it always fits EsfWords.
             let num_meas = usize::from((flags >> 11) & 0x1F);
             let has_calib = flags & 0x08 != 0;
             if n != 8 + 4 * num_meas + if has_calib { 4 } else { 0 } {
@@ -624,9 +668,14 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
                 time_tag: r.u32(0),
                 flags,
                 id: r.u16(6),
-                data: (0..num_meas)
-                    .map(|i| EsfData::from_word(r.u32(8 + 4 * i)))
-                    .collect(),
+                data: {
+                    let mut words = EsfWords::from_slice(&[])?;
+                    for i in 0..num_meas {
+                        words.words[i] = EsfData::from_word(r.u32(8 + 4 * i));
+                    }
+                    words.len = num_meas as u8;
+                    words
+                },
                 calib_ttag: has_calib.then(|| r.u32(8 + 4 * num_meas)),
             })
         }
@@ -971,7 +1020,7 @@ fn write_payload(msg: &UbxMessage, w: &mut Put) -> Result<(), EncodeError> {
             w.u32(m.time_tag);
             w.u16(m.flags);
             w.u16(m.id);
-            for d in &m.data {
+            for d in m.data.iter() {
                 w.u32(d.word());
             }
             if let Some(t) = m.calib_ttag {
@@ -1071,10 +1120,11 @@ mod tests {
             time_tag: 7,
             flags: 2 << 11,
             id: 0,
-            data: vec![
+            data: EsfWords::from_slice(&[
                 EsfData::from_word((14 << 24) | 4096), // 1 deg/s about x
                 EsfData::from_word((16 << 24) | (0x00FF_FFFF & (-1024i32 as u32))), // −1 m/s²
-            ],
+            ])
+            .unwrap(),
             calib_ttag: None,
         });
         let UbxMessage::EsfMeas(m) = &msg else {
