@@ -41,6 +41,9 @@ pub struct EpochFix {
 }
 
 /// One item of a mixed stream.
+// ESF-MEAS keeps its words inline (the IMU hot path must not allocate), which makes this
+// enum large; moving ~0.8 kB per message is far cheaper than an allocation.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum GnssFrame {

@@ -329,6 +329,9 @@ fn hex_string<S: serde::Serializer>(bytes: &[u8], s: S) -> Result<S::Ok, S::Erro
 }
 
 /// One decoded UBX message.
+// ESF-MEAS keeps its words inline (the IMU hot path must not allocate), which makes this
+// enum large; moving ~0.8 kB per message is far cheaper than an allocation.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "msg")]
 pub enum UbxMessage {
