@@ -500,6 +500,7 @@ impl Decoder for GnssDecoder {
     type Frame = GnssFrame;
 
     fn push(&mut self, bytes: &[u8]) {
+        self.finished = false;
         self.buffer.push(bytes);
     }
 
