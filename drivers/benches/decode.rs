@@ -138,14 +138,15 @@ fn main() {
     run("ubx (GnssDecoder, fixes)", &ubx, GnssDecoder::new());
     run("nmea+ubx (GnssDecoder)", &mixed, GnssDecoder::new());
 
-    let gpsd = ["/work/shared/external/gpsd"]
-        .iter()
-        .map(std::path::PathBuf::from)
-        .chain(
-            std::env::var("IMULAB_EXTERNAL")
-                .ok()
-                .map(|p| std::path::Path::new(&p).join("gpsd")),
-        )
+    // Same search order as the gpsd capture test.
+    let gpsd = std::env::var("IMULAB_EXTERNAL")
+        .ok()
+        .map(|p| std::path::Path::new(&p).join("gpsd"))
+        .into_iter()
+        .chain([
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/external/gpsd"),
+            std::path::PathBuf::from("/work/shared/external/gpsd"),
+        ])
         .find(|p| p.is_dir());
     if let Some(dir) = gpsd {
         let mut all = Vec::new();
