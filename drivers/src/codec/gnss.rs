@@ -41,8 +41,8 @@ pub struct EpochFix {
 }
 
 /// One item of a mixed stream.
-// ESF-MEAS keeps its words inline (the IMU hot path must not allocate), which makes this
-// enum large; moving ~0.8 kB per message is far cheaper than an allocation.
+// Fixed-size messages (NAV-PVT, inline ESF-MEAS words) make this enum a few hundred bytes;
+// moving that is cheaper than boxing, which would allocate per message.
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
