@@ -28,9 +28,11 @@ fn captures_dir() -> Option<PathBuf> {
 /// gpsd's `mode` for one of our fix types.
 fn gpsd_mode(fix: FixType) -> u8 {
     match fix {
-        FixType::NoFix | FixType::TimeOnly | FixType::DeadReckoning => 1,
+        FixType::NoFix | FixType::DeadReckoning => 1,
         FixType::Fix2D => 2,
-        FixType::Fix3D
+        // gpsd reports a timing receiver's time-only fix (surveyed position) as mode 3.
+        FixType::TimeOnly
+        | FixType::Fix3D
         | FixType::GnssDeadReckoning
         | FixType::Dgnss
         | FixType::RtkFloat
@@ -164,7 +166,8 @@ fn check_file(log: &Path) -> FileResult {
         .filter(|l| l.first() == Some(&b'#'))
         .map(|l| l.len() + 1)
         .sum();
-    let foreign = skipped > 0.5 * bytes.len().saturating_sub(comment_bytes) as f64;
+    let payload_bytes = bytes.len().saturating_sub(comment_bytes) as f64;
+    let foreign = skipped - comment_bytes as f64 > 0.5 * payload_bytes && fixes.is_empty();
     // UBX messages gpsd builds fixes from that are outside this codec's list (NAV-SOL,
     // HNR-PVT): gpsd epochs we have no fix for are then reported, not failed.
     let has_unlisted_nav = [[0x01u8, 0x06u8], [0x28, 0x00]].iter().any(|class_id| {

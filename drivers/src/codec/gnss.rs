@@ -41,6 +41,9 @@ pub struct EpochFix {
 }
 
 /// One item of a mixed stream.
+// Fixed-size messages (NAV-PVT, inline ESF-MEAS words) make this enum a few hundred bytes;
+// moving that is cheaper than boxing, which would allocate per message.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum GnssFrame {
@@ -497,6 +500,7 @@ impl Decoder for GnssDecoder {
     type Frame = GnssFrame;
 
     fn push(&mut self, bytes: &[u8]) {
+        self.finished = false;
         self.buffer.push(bytes);
     }
 

@@ -481,68 +481,64 @@ pub(crate) fn scan_sentence(buf: &[u8]) -> Scan<NmeaSentence> {
     } else {
         MAX_SENTENCE_LEN
     };
-    let mut checksum = 0u8;
     // The checksum star may sit at most at limit − 3 (star plus two hex digits).
-    let search_end = buf.len().min(limit - 2);
-    for i in 1..search_end {
-        let b = buf[i];
-        match b {
-            b'*' => {
-                if buf.len() < i + 3 {
-                    return Scan::Incomplete;
-                }
-                let len = i + 3;
-                let given = match (hex_value(buf[i + 1]), hex_value(buf[i + 2])) {
-                    (Some(h), Some(l)) => (h << 4) | l,
-                    _ => {
-                        return Scan::Reject {
-                            len: i + 1,
-                            reject: Reject::Malformed,
-                        }
-                    }
-                };
-                if given != checksum {
-                    return Scan::Reject {
-                        len,
-                        reject: Reject::Checksum,
-                    };
-                }
-                return match parse_body(buf[0], &buf[1..i]) {
-                    Some(frame) => Scan::Frame { len, frame },
-                    None => Scan::Reject {
-                        len,
-                        reject: Reject::Malformed,
-                    },
-                };
-            }
-            b'\r' | b'\n' => {
-                return Scan::Reject {
-                    len: i + 1,
-                    reject: Reject::Malformed,
-                }
-            }
-            b'$' | b'!' => {
-                return Scan::Reject {
-                    len: i,
-                    reject: Reject::Malformed,
-                }
-            }
-            0x20..=0x7e => checksum ^= b,
-            _ => {
-                return Scan::Reject {
-                    len: i,
-                    reject: Reject::Malformed,
-                }
-            }
-        }
+    let region = buf.get(1..buf.len().min(limit - 2)).unwrap_or(&[]);
+    let stop = memchr::memchr3(b'*', b'\r', b'\n', region);
+    let body = &region[..stop.unwrap_or(region.len())];
+    // Non-printable bytes or a new start character before the stop: binary noise. The
+    // branch-free fold vectorises; the exact position is only looked up when needed.
+    let is_noise = |b: u8| b.wrapping_sub(0x20) > 0x5e || b == b'$' || b == b'!';
+    if body.iter().fold(false, |acc, &b| acc | is_noise(b)) {
+        let at = body.iter().position(|&b| is_noise(b)).unwrap_or(0);
+        return Scan::Reject {
+            len: 1 + at,
+            reject: Reject::Malformed,
+        };
     }
-    if buf.len() < limit - 2 {
-        Scan::Incomplete
-    } else {
-        Scan::Reject {
-            len: 1,
-            reject: Reject::TooLong,
+    let Some(stop) = stop else {
+        return if buf.len() < limit - 2 {
+            Scan::Incomplete
+        } else {
+            Scan::Reject {
+                len: 1,
+                reject: Reject::TooLong,
+            }
+        };
+    };
+    let i = 1 + stop;
+    if buf[i] != b'*' {
+        // CR or LF before any checksum.
+        return Scan::Reject {
+            len: i + 1,
+            reject: Reject::Malformed,
+        };
+    }
+    if buf.len() < i + 3 {
+        return Scan::Incomplete;
+    }
+    let len = i + 3;
+    let given = match (hex_value(buf[i + 1]), hex_value(buf[i + 2])) {
+        (Some(h), Some(l)) => (h << 4) | l,
+        _ => {
+            return Scan::Reject {
+                len: i + 1,
+                reject: Reject::Malformed,
+            }
         }
+    };
+    let checksum = body.iter().fold(0u8, |acc, &b| acc ^ b);
+    if given != checksum {
+        return Scan::Reject {
+            len,
+            reject: Reject::Checksum,
+        };
+    }
+    match parse_body(buf[0], body) {
+        Some(frame) => Scan::Frame { len, frame },
+        None => Scan::Reject {
+            len,
+            reject: Reject::Malformed,
+        },
     }
 }
 
@@ -560,7 +556,8 @@ impl<'a> Fields<'a> {
         let Some(rest) = self.rest else {
             return &[];
         };
-        match memchr::memchr(b',', rest) {
+        // Fields are a few bytes long: a plain scan beats memchr's set-up cost here.
+        match rest.iter().position(|&b| b == b',') {
             Some(pos) => {
                 self.rest = Some(&rest[pos + 1..]);
                 &rest[..pos]

@@ -204,7 +204,7 @@ pub struct MonHw {
 }
 
 /// One 32-bit ESF data word: 24-bit value and 6-bit data type.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct EsfData {
     /// Data type (5 gyro z, 12 gyro temperature, 13 gyro y, 14 gyro x, 16/17/18 accel x/y/z,
     /// 6–11 wheel/speed ticks, …).
@@ -248,13 +248,69 @@ pub struct EsfRaw {
     pub samples: Vec<EsfRawSample>,
 }
 
+/// The data words of one ESF-MEAS, stored inline as sent (numMeas is 5 bits, so at most 31)
+/// so the IMU hot path allocates nothing per message; [`EsfData`] (type, raw, SI) is derived
+/// on access and in JSON. Unused slots stay zero.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct EsfWords {
+    len: u8,
+    words: [u32; 31],
+}
+
+impl EsfWords {
+    /// Builds from at most 31 data words (`None` if more).
+    pub fn from_data(data: &[EsfData]) -> Option<EsfWords> {
+        let mut out = EsfWords {
+            len: u8::try_from(data.len()).ok().filter(|&n| n <= 31)?,
+            words: [0; 31],
+        };
+        for (slot, d) in out.words.iter_mut().zip(data) {
+            *slot = d.word();
+        }
+        Some(out)
+    }
+
+    pub fn len(&self) -> usize {
+        usize::from(self.len.min(31))
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn get(&self, i: usize) -> Option<EsfData> {
+        self.raw_words().get(i).map(|&w| EsfData::from_word(w))
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = EsfData> + '_ {
+        self.raw_words().iter().map(|&w| EsfData::from_word(w))
+    }
+
+    /// The 32-bit words as sent (type in bits 24–29, value in bits 0–23).
+    pub fn raw_words(&self) -> &[u32] {
+        &self.words[..self.len()]
+    }
+}
+
+impl std::fmt::Debug for EsfWords {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list().entries(self.iter()).finish()
+    }
+}
+
+impl Serialize for EsfWords {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.iter())
+    }
+}
+
 /// ESF-MEAS (0x10 0x02): external sensor fusion measurements.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EsfMeas {
     pub time_tag: u32,
     pub flags: u16,
     pub id: u16,
-    pub data: Vec<EsfData>,
+    pub data: EsfWords,
     pub calib_ttag: Option<u32>,
 }
 
@@ -286,6 +342,9 @@ fn hex_string<S: serde::Serializer>(bytes: &[u8], s: S) -> Result<S::Ok, S::Erro
 }
 
 /// One decoded UBX message.
+// Fixed-size messages (NAV-PVT, inline ESF-MEAS words) make this enum a few hundred bytes;
+// moving that is cheaper than boxing, which would allocate per message.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "msg")]
 pub enum UbxMessage {
@@ -615,6 +674,7 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
         }),
         (0x10, 0x02) if n >= 8 => {
             let flags = r.u16(4);
+            // numMeas is 5 bits, so it always fits EsfWords.
             let num_meas = usize::from((flags >> 11) & 0x1F);
             let has_calib = flags & 0x08 != 0;
             if n != 8 + 4 * num_meas + if has_calib { 4 } else { 0 } {
@@ -624,9 +684,16 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
                 time_tag: r.u32(0),
                 flags,
                 id: r.u16(6),
-                data: (0..num_meas)
-                    .map(|i| EsfData::from_word(r.u32(8 + 4 * i)))
-                    .collect(),
+                data: {
+                    let mut words = EsfWords {
+                        len: num_meas as u8,
+                        words: [0; 31],
+                    };
+                    for (i, slot) in words.words.iter_mut().take(num_meas).enumerate() {
+                        *slot = r.u32(8 + 4 * i) & 0x3FFF_FFFF;
+                    }
+                    words
+                },
                 calib_ttag: has_calib.then(|| r.u32(8 + 4 * num_meas)),
             })
         }
@@ -971,8 +1038,8 @@ fn write_payload(msg: &UbxMessage, w: &mut Put) -> Result<(), EncodeError> {
             w.u32(m.time_tag);
             w.u16(m.flags);
             w.u16(m.id);
-            for d in &m.data {
-                w.u32(d.word());
+            for &word in m.data.raw_words() {
+                w.u32(word);
             }
             if let Some(t) = m.calib_ttag {
                 w.u32(t);
@@ -1071,17 +1138,19 @@ mod tests {
             time_tag: 7,
             flags: 2 << 11,
             id: 0,
-            data: vec![
+            data: EsfWords::from_data(&[
                 EsfData::from_word((14 << 24) | 4096), // 1 deg/s about x
                 EsfData::from_word((16 << 24) | (0x00FF_FFFF & (-1024i32 as u32))), // −1 m/s²
-            ],
+            ])
+            .unwrap(),
             calib_ttag: None,
         });
         let UbxMessage::EsfMeas(m) = &msg else {
             unreachable!()
         };
-        assert!((m.data[0].si.unwrap_or(0.0) - DEG_TO_RAD).abs() < 1e-15);
-        assert_eq!(m.data[1].si, Some(-1.0));
+        let first = m.data.get(0).and_then(|d| d.si).unwrap_or(0.0);
+        assert!((first - DEG_TO_RAD).abs() < 1e-15);
+        assert_eq!(m.data.get(1).and_then(|d| d.si), Some(-1.0));
         let mut bytes = Vec::new();
         UbxEncoder.encode(&msg, &mut bytes).unwrap();
         let mut d = UbxDecoder::new();
