@@ -3,7 +3,11 @@
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "imulab", version, about = "Bench characterisation of inertial sensors")]
+#[command(
+    name = "imulab",
+    version,
+    about = "Bench characterisation of inertial sensors"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

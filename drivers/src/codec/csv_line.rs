@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Decoder, EncodeError, Encoder, InputBuffer};
+use super::{Decoder, EncodeError, Encoder, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Where one quantity is in the line and how to turn it into SI.
@@ -173,7 +173,7 @@ const MAX_FIELDS: usize = 64;
 #[derive(Debug, Clone)]
 pub struct CsvLineDecoder {
     config: CsvLineConfig,
-    buf: InputBuffer,
+    buf: StreamBuffer,
     stats: DecoderStats,
     /// True while discarding the rest of an over-long line.
     discarding: bool,
@@ -188,7 +188,7 @@ impl CsvLineDecoder {
         }
         Ok(CsvLineDecoder {
             config,
-            buf: InputBuffer::default(),
+            buf: StreamBuffer::default(),
             stats: DecoderStats::default(),
             discarding: false,
         })
@@ -350,16 +350,13 @@ impl Encoder for CsvLineEncoder {
         let n = self.config.column_count();
         let mut fields: Vec<Option<String>> = vec![None; n];
         let mut put = |field: &'static str, c: &CsvColumn, si: Option<f64>| {
-            let si = si.ok_or_else(|| {
-                EncodeError::Invalid(format!("{field} is mapped to a column but missing"))
+            let si = si.ok_or(EncodeError::Invalid {
+                field,
+                reason: "mapped to a column but missing from the sample",
             })?;
             let raw = (si - c.offset) / c.scale;
             if !raw.is_finite() {
-                return Err(EncodeError::ValueOutOfRange {
-                    field,
-                    value: si,
-                    reason: "not finite",
-                });
+                return Err(EncodeError::OutOfRange { field, value: si });
             }
             fields[c.index] = Some(format_number(raw));
             Ok(())
@@ -393,4 +390,24 @@ impl Encoder for CsvLineEncoder {
         let _ = writeln!(out, "{}", line.join(&sep));
         Ok(())
     }
+}
+
+/// Builds the decoder for `imulab decode --protocol csv`: the column map comes from
+/// `options.config` (TOML, see [`CsvLineConfig`]), else the default layout.
+pub fn open_json(
+    options: &super::DecoderOptions,
+) -> Result<Box<dyn super::JsonDecoder>, super::OpenError> {
+    let fail = |reason: String| super::OpenError {
+        protocol: "csv",
+        reason,
+    };
+    let config = match &options.config {
+        None => CsvLineConfig::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| fail(format!("{}: {e}", path.display())))?;
+            toml::from_str(&text).map_err(|e| fail(format!("{}: {e}", path.display())))?
+        }
+    };
+    Ok(Box::new(CsvLineDecoder::new(config).map_err(fail)?))
 }

@@ -20,7 +20,9 @@ use can_dbc::{ByteOrder, Dbc, MessageId, ValueType};
 use serde::{Deserialize, Serialize};
 
 use super::can::CanFrame;
-use super::EncodeError;
+use super::candump::{CandumpDecoder, CandumpRecord};
+use super::slcan::{SlcanDecoder, SlcanMessage};
+use super::{Decoder, DecoderOptions, EncodeError, JsonDecoder, OpenError};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Where one quantity lives in the DBC, and any extra scaling.
@@ -90,6 +92,16 @@ enum Quantity {
 }
 
 impl Quantity {
+    fn field(self) -> &'static str {
+        match self {
+            Quantity::Gyro(_) => "gyro",
+            Quantity::Accel(_) => "accel",
+            Quantity::Temp => "temp_c",
+            Quantity::Time => "sensor_time",
+            Quantity::Status => "status",
+        }
+    }
+
     fn key(self) -> String {
         match self {
             Quantity::Gyro(i) => format!("gyro[{i}]"),
@@ -225,10 +237,9 @@ impl ResolvedSignal {
         let raw = ((physical - self.layout.offset) / self.layout.factor).round();
         let (lo, hi) = self.layout.raw_range();
         if !(raw >= lo && raw <= hi) {
-            return Err(EncodeError::ValueOutOfRange {
-                field: "dbc signal",
+            return Err(EncodeError::OutOfRange {
+                field: self.quantity.field(),
                 value: si,
-                reason: "outside the signal's raw range",
             });
         }
         Ok(raw as i64)
@@ -438,7 +449,10 @@ impl DbcImu {
     pub fn encode(&self, sample: &ImuSample) -> Result<Vec<CanFrame>, EncodeError> {
         let mut payloads: Vec<[u8; 64]> = vec![[0u8; 64]; self.messages.len()];
         for s in &self.signals {
-            let missing = || EncodeError::Invalid(format!("sample has no {}", s.quantity.key()));
+            let missing = || EncodeError::Invalid {
+                field: s.quantity.field(),
+                reason: "mapped in the DBC mapping but missing from the sample",
+            };
             let raw = match s.quantity {
                 Quantity::Gyro(i) => s.to_raw(sample.gyro.ok_or_else(missing)?[i])?,
                 Quantity::Accel(i) => s.to_raw(sample.accel.ok_or_else(missing)?[i])?,
@@ -458,8 +472,112 @@ impl DbcImu {
                 } else {
                     CanFrame::fd(m.id, m.extended, true, false, data)
                 };
-                frame.map_err(EncodeError::Invalid)
+                frame.map_err(|_| EncodeError::Invalid {
+                    field: "message",
+                    reason: "DBC message id or size is not a valid CAN frame",
+                })
             })
             .collect()
     }
+}
+
+/// A byte decoder of CAN frames (slcan, candump) followed by a [`DbcImu`]: bytes in,
+/// [`ImuSample`]s out. Counters are the byte decoder's plus the DBC stage's malformed frames.
+pub struct DbcStreamDecoder<D: Decoder> {
+    inner: D,
+    extract: fn(&D::Frame) -> Option<CanFrame>,
+    imu: DbcImu,
+}
+
+impl<D: Decoder> DbcStreamDecoder<D> {
+    /// `extract` picks the CAN frame out of the inner decoder's frame (`None` to skip it).
+    pub fn new(inner: D, extract: fn(&D::Frame) -> Option<CanFrame>, imu: DbcImu) -> Self {
+        DbcStreamDecoder {
+            inner,
+            extract,
+            imu,
+        }
+    }
+}
+
+impl<D: Decoder> Decoder for DbcStreamDecoder<D> {
+    type Frame = ImuSample;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.inner.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<ImuSample> {
+        while let Some(frame) = self.inner.poll() {
+            if let Some(can) = (self.extract)(&frame) {
+                if let Some(sample) = self.imu.push_frame(&can) {
+                    return Some(sample);
+                }
+            }
+        }
+        None
+    }
+
+    fn stats(&self) -> DecoderStats {
+        let mut stats = self.inner.stats();
+        stats.frames_malformed += self.imu.stats().frames_malformed;
+        stats
+    }
+
+    fn finish(&mut self) -> Option<ImuSample> {
+        self.imu.finish()
+    }
+}
+
+fn slcan_frame(m: &SlcanMessage) -> Option<CanFrame> {
+    match m {
+        SlcanMessage::Frame { frame, .. } => Some(*frame),
+        _ => None,
+    }
+}
+
+fn candump_frame(r: &CandumpRecord) -> Option<CanFrame> {
+    Some(r.frame)
+}
+
+/// Loads the DBC (`options.dbc`) and its mapping (`options.config`, TOML), if a DBC is given.
+fn load_dbc(protocol: &'static str, options: &DecoderOptions) -> Result<Option<DbcImu>, OpenError> {
+    let fail = |reason: String| OpenError { protocol, reason };
+    let Some(dbc_path) = &options.dbc else {
+        return Ok(None);
+    };
+    let read = |p: &std::path::Path| {
+        std::fs::read_to_string(p).map_err(|e| fail(format!("{}: {e}", p.display())))
+    };
+    let dbc_text = read(dbc_path)?;
+    let mapping_path = options.config.as_ref().ok_or_else(|| {
+        fail("--dbc needs a signal mapping file (TOML, see docs/protocols-imu-can.md)".into())
+    })?;
+    let mapping = DbcImuMapping::from_toml_str(&read(mapping_path)?)
+        .map_err(|e| fail(format!("{}: {e}", mapping_path.display())))?;
+    DbcImu::new(&dbc_text, &mapping)
+        .map(Some)
+        .map_err(|e| fail(format!("{}: {e}", dbc_path.display())))
+}
+
+/// Builds the decoder for `imulab decode --protocol slcan`: CAN messages as JSON, or
+/// [`ImuSample`]s when a DBC and mapping are given.
+pub fn open_slcan_json(options: &DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError> {
+    Ok(match load_dbc("slcan", options)? {
+        Some(imu) => Box::new(DbcStreamDecoder::new(SlcanDecoder::new(), slcan_frame, imu)),
+        None => Box::new(SlcanDecoder::new()),
+    })
+}
+
+/// Builds the decoder for `imulab decode --protocol candump`: records as JSON, or
+/// [`ImuSample`]s when a DBC and mapping are given.
+pub fn open_candump_json(options: &DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError> {
+    Ok(match load_dbc("candump", options)? {
+        Some(imu) => Box::new(DbcStreamDecoder::new(
+            CandumpDecoder::new(),
+            candump_frame,
+            imu,
+        )),
+        None => Box::new(CandumpDecoder::new()),
+    })
 }

@@ -13,7 +13,7 @@
 //! not an slcan command, is dropped (`frames_malformed`, its bytes in `bytes_skipped`).
 
 use super::can::{parse_hex_bytes, parse_hex_u32, write_hex, CanFrame, CanKind};
-use super::{Decoder, EncodeError, Encoder, InputBuffer};
+use super::{Decoder, EncodeError, Encoder, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Longest valid line without its `\r`: `T` + 8 id + 1 dlc + 16 data + 4 timestamp.
@@ -125,7 +125,7 @@ fn parse_line(line: &[u8]) -> Option<SlcanMessage> {
 /// Streaming slcan decoder.
 #[derive(Debug, Default, Clone)]
 pub struct SlcanDecoder {
-    buf: InputBuffer,
+    buf: StreamBuffer,
     stats: DecoderStats,
     discarding: bool,
 }
@@ -221,10 +221,11 @@ impl Encoder for SlcanEncoder {
                     (CanKind::Data, true) => (b'T', 8),
                     (CanKind::Remote, false) => (b'r', 3),
                     (CanKind::Remote, true) => (b'R', 8),
-                    (kind, _) => {
-                        return Err(EncodeError::Invalid(format!(
-                            "slcan carries classic data and remote frames only, not {kind:?}"
-                        )))
+                    _ => {
+                        return Err(EncodeError::Invalid {
+                            field: "frame",
+                            reason: "slcan carries classic data and remote frames only",
+                        })
                     }
                 };
                 out.push(letter);
@@ -242,9 +243,10 @@ impl Encoder for SlcanEncoder {
             SlcanMessage::Close => out.push(b'C'),
             SlcanMessage::Bitrate(code) => {
                 if *code > 8 {
-                    return Err(EncodeError::Invalid(format!(
-                        "slcan bitrate code S{code} (valid S0-S8)"
-                    )));
+                    return Err(EncodeError::Invalid {
+                        field: "bitrate",
+                        reason: "slcan bitrate code must be S0-S8",
+                    });
                 }
                 out.extend_from_slice(&[b'S', b'0' + code]);
             }
@@ -263,9 +265,10 @@ impl Encoder for SlcanEncoder {
                         .is_some_and(|b| OTHER_COMMANDS.contains(&b))
                     && parse_line(text.as_bytes()) == Some(message.clone());
                 if !valid {
-                    return Err(EncodeError::Invalid(format!(
-                        "{text:?} is not an slcan command this codec passes through"
-                    )));
+                    return Err(EncodeError::Invalid {
+                        field: "other",
+                        reason: "not an slcan command this codec passes through",
+                    });
                 }
                 out.extend_from_slice(text.as_bytes());
             }
@@ -273,4 +276,17 @@ impl Encoder for SlcanEncoder {
         out.push(CR);
         Ok(())
     }
+}
+
+/// Auto-detection score: CAN frame lines in `sample` (acks and bare CRs do not count).
+pub fn detect_score(sample: &[u8]) -> u32 {
+    let mut d = SlcanDecoder::new();
+    d.push(sample);
+    let mut frames = 0u32;
+    while let Some(m) = d.poll() {
+        if matches!(m, SlcanMessage::Frame { .. }) {
+            frames = frames.saturating_add(1);
+        }
+    }
+    frames
 }

@@ -9,7 +9,7 @@
 //! Converted values use standard gravity 9.80665 m/s² for "g" (the datasheet writes 9.8);
 //! the raw int16 words stay in the [`WitPacket`] so nothing is lost.
 
-use super::{Decoder, EncodeError, Encoder, InputBuffer};
+use super::{Decoder, EncodeError, Encoder, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Packet header byte.
@@ -211,11 +211,7 @@ impl WitPacket {
 fn counts(field: &'static str, value: f64, scale: f64) -> Result<i16, EncodeError> {
     let c = (value * scale).round();
     if !c.is_finite() || c < f64::from(i16::MIN) || c > f64::from(i16::MAX) {
-        return Err(EncodeError::ValueOutOfRange {
-            field,
-            value,
-            reason: "outside the int16 full scale",
-        });
+        return Err(EncodeError::OutOfRange { field, value });
     }
     Ok(c as i16)
 }
@@ -243,7 +239,7 @@ fn checksum(bytes: &[u8]) -> u8 {
 /// real packet that starts inside a corrupt one is still found.
 #[derive(Debug, Default, Clone)]
 pub struct WitDecoder {
-    buf: InputBuffer,
+    buf: StreamBuffer,
     stats: DecoderStats,
     in_sync: bool,
 }
@@ -326,9 +322,10 @@ impl Encoder for WitEncoder {
     fn encode(&self, frame: &WitPacket, out: &mut Vec<u8>) -> Result<(), EncodeError> {
         let kind_byte = frame.kind();
         if !is_packet_kind(kind_byte) {
-            return Err(EncodeError::Invalid(format!(
-                "WitMotion type byte {kind_byte:#04x} is outside 0x50..=0x5F"
-            )));
+            return Err(EncodeError::Invalid {
+                field: "kind",
+                reason: "WitMotion type byte must be in 0x50..=0x5F",
+            });
         }
         let start = out.len();
         out.push(HEADER);
@@ -393,4 +390,52 @@ impl WitAssembler {
         self.seen = 0;
         (sample.gyro.is_some() || sample.accel.is_some()).then_some(sample)
     }
+}
+
+/// WitMotion bytes to [`ImuSample`]s: [`WitDecoder`] plus [`WitAssembler`]. This is what
+/// `imulab decode --protocol wit` and the daemon use; the packets themselves (raw counts,
+/// angles) come from [`WitDecoder`].
+#[derive(Debug, Default, Clone)]
+pub struct WitImuDecoder {
+    packets: WitDecoder,
+    assembler: WitAssembler,
+}
+
+impl WitImuDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
+
+impl Decoder for WitImuDecoder {
+    type Frame = ImuSample;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.packets.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<ImuSample> {
+        while let Some(packet) = self.packets.poll() {
+            if let Some(sample) = self.assembler.push(&packet) {
+                return Some(sample);
+            }
+        }
+        None
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.packets.stats()
+    }
+
+    fn finish(&mut self) -> Option<ImuSample> {
+        self.assembler.finish()
+    }
+}
+
+/// Auto-detection score: packets with a valid checksum in `sample`.
+pub fn detect_score(sample: &[u8]) -> u32 {
+    let mut d = WitDecoder::new();
+    d.push(sample);
+    while d.poll().is_some() {}
+    u32::try_from(d.stats().frames_ok).unwrap_or(u32::MAX)
 }

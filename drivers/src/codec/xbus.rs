@@ -10,7 +10,7 @@
 //! the coordinate frame. Values are big-endian and already SI (m/s², rad/s, m/s, °C).
 //! The data id is kept with each value, so the wire form is recoverable exactly.
 
-use super::{Decoder, EncodeError, Encoder, InputBuffer};
+use super::{Decoder, EncodeError, Encoder, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Frame preamble.
@@ -126,11 +126,7 @@ fn read_real(id: u16, b: &[u8]) -> f64 {
 }
 
 fn write_real(field: &'static str, id: u16, v: f64, out: &mut Vec<u8>) -> Result<(), EncodeError> {
-    let bad = |reason| EncodeError::ValueOutOfRange {
-        field,
-        value: v,
-        reason,
-    };
+    let bad = |_reason: &str| EncodeError::OutOfRange { field, value: v };
     match id & 0x3 {
         data_id::FLOAT32 => out.extend_from_slice(&(v as f32).to_be_bytes()),
         data_id::FP1220 => {
@@ -250,9 +246,10 @@ fn write_reals(
 
 fn check_type(field: &'static str, id: u16, expected: u16) -> Result<(), EncodeError> {
     if id & 0xFFF0 != expected {
-        return Err(EncodeError::Invalid(format!(
-            "{field} carries data id {id:#06x}, expected type {expected:#06x}"
-        )));
+        return Err(EncodeError::Invalid {
+            field,
+            reason: "data id does not match the field's MTData2 type",
+        });
     }
     Ok(())
 }
@@ -302,7 +299,7 @@ pub fn write_mtdata2(data: &MtData2, out: &mut Vec<u8>) -> Result<(), EncodeErro
 /// right but whose MTData2 items do not add up is consumed and counted as malformed.
 #[derive(Debug, Default, Clone)]
 pub struct XbusDecoder {
-    buf: InputBuffer,
+    buf: StreamBuffer,
     stats: DecoderStats,
     in_sync: bool,
 }
@@ -457,4 +454,12 @@ fn encode_into(frame: &XbusMessage, out: &mut Vec<u8>) -> Result<(), EncodeError
     let sum = out[start + 1..].iter().fold(0u8, |s, &b| s.wrapping_add(b));
     out.push(sum.wrapping_neg());
     Ok(())
+}
+
+/// Auto-detection score: frames with a valid checksum in `sample`.
+pub fn detect_score(sample: &[u8]) -> u32 {
+    let mut d = XbusDecoder::new();
+    d.push(sample);
+    while d.poll().is_some() {}
+    u32::try_from(d.stats().frames_ok).unwrap_or(u32::MAX)
 }
