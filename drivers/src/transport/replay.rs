@@ -79,7 +79,7 @@ impl ByteSource for RawReplay {
         let limit = match self.bytes_per_second {
             // Chunks of ~10 ms worth of bytes keep the pacing smooth.
             Some(rate) => buf.len().min(((rate / 100.0) as usize).max(1)),
-            None => buf.len().min(CHUNK.max(buf.len())),
+            None => buf.len(),
         };
         let n = self
             .file
