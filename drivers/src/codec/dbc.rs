@@ -183,19 +183,23 @@ impl Layout {
             + 1
     }
 
-    fn extract(&self, data: &[u8]) -> Option<i64> {
+    /// The raw value (unsigned signals as u64, signed sign-extended), widened to i128.
+    fn extract(&self, data: &[u8]) -> Option<i128> {
         let mut raw: u64 = 0;
         for p in self.bit_positions() {
             let byte = *data.get(p as usize / 8)?;
             raw = (raw << 1) | u64::from((byte >> (p % 8)) & 1);
         }
-        if self.signed && self.size < 64 && raw & (1 << (self.size - 1)) != 0 {
+        if !self.signed {
+            return Some(i128::from(raw));
+        }
+        if self.size < 64 && raw & (1 << (self.size - 1)) != 0 {
             raw |= u64::MAX << self.size;
         }
-        Some(raw as i64)
+        Some(i128::from(raw as i64))
     }
 
-    fn insert(&self, raw: i64, data: &mut [u8]) {
+    fn insert(&self, raw: i128, data: &mut [u8]) {
         let bits = raw as u64;
         for (i, p) in self.bit_positions().enumerate() {
             let bit = (bits >> (self.size as usize - 1 - i)) & 1;
@@ -227,12 +231,12 @@ struct ResolvedSignal {
 }
 
 impl ResolvedSignal {
-    fn to_si(&self, raw: i64) -> f64 {
+    fn to_si(&self, raw: i128) -> f64 {
         let physical = raw as f64 * self.layout.factor + self.layout.offset;
         self.unit_factor * (physical * self.scale + self.offset)
     }
 
-    fn to_raw(&self, si: f64) -> Result<i64, EncodeError> {
+    fn to_raw(&self, si: f64) -> Result<i128, EncodeError> {
         let physical = (si / self.unit_factor - self.offset) / self.scale;
         let raw = ((physical - self.layout.offset) / self.layout.factor).round();
         let (lo, hi) = self.layout.raw_range();
@@ -242,7 +246,7 @@ impl ResolvedSignal {
                 value: si,
             });
         }
-        Ok(raw as i64)
+        Ok(raw as i128)
     }
 }
 
@@ -458,7 +462,7 @@ impl DbcImu {
                 Quantity::Accel(i) => s.to_raw(sample.accel.ok_or_else(missing)?[i])?,
                 Quantity::Temp => s.to_raw(sample.temp_c.ok_or_else(missing)?)?,
                 Quantity::Time => s.to_raw(sample.sensor_time.ok_or_else(missing)?)?,
-                Quantity::Status => i64::from(sample.status),
+                Quantity::Status => i128::from(sample.status),
             };
             s.layout.insert(raw, &mut payloads[s.message_index]);
         }
