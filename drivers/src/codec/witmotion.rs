@@ -272,7 +272,13 @@ impl Decoder for WitDecoder {
     fn poll(&mut self) -> Option<WitPacket> {
         loop {
             let data = self.buf.data();
-            let Some(pos) = memchr::memchr(HEADER, data) else {
+            // In sync the next frame starts right here; only search when it does not.
+            let found = if data.first() == Some(&HEADER) {
+                Some(0)
+            } else {
+                memchr::memchr(HEADER, data)
+            };
+            let Some(pos) = found else {
                 let n = data.len();
                 self.skip(n);
                 return None;

@@ -332,7 +332,13 @@ impl Decoder for XbusDecoder {
     fn poll(&mut self) -> Option<XbusMessage> {
         loop {
             let data = self.buf.data();
-            let Some(pos) = memchr::memchr(PREAMBLE, data) else {
+            // In sync the next frame starts right here; only search when it does not.
+            let found = if data.first() == Some(&PREAMBLE) {
+                Some(0)
+            } else {
+                memchr::memchr(PREAMBLE, data)
+            };
+            let Some(pos) = found else {
                 let n = data.len();
                 self.skip(n);
                 return None;
