@@ -66,7 +66,12 @@ fn measure<D: Decoder>(make: impl Fn() -> D, bytes: &[u8]) -> (f64, f64, usize) 
     (best, best_wall, frames)
 }
 
-fn report(name: &str, bytes: &[u8], expected_frames: usize, (cpu, wall, frames): (f64, f64, usize)) {
+fn report(
+    name: &str,
+    bytes: &[u8],
+    expected_frames: usize,
+    (cpu, wall, frames): (f64, f64, usize),
+) {
     // Assemblers emit one sample per cycle; the other decoders one frame per encoded frame.
     println!(
         "| {name:<28} | {:>6.1} | {:>9} | {:>9} | {:>7.0} | {:>9.2} | {:>7.0} |",
@@ -87,7 +92,9 @@ fn fixture(name: &str) -> String {
 }
 
 fn main() {
-    println!("| codec | MB in | frames out | expected | MB/s (CPU) | Mframes/s (CPU) | MB/s (wall) |");
+    println!(
+        "| codec | MB in | frames out | expected | MB/s (CPU) | Mframes/s (CPU) | MB/s (wall) |"
+    );
     println!("| --- | ---: | ---: | ---: | ---: | ---: | ---: |");
 
     // WitMotion: one 100 Hz cycle = time, accel, gyro, angle packets.
