@@ -109,6 +109,7 @@ pub struct CandumpReplay {
     origin: Option<(u64, Instant)>,
     buf: Vec<u8>,
     eof: bool,
+    flushed: bool,
 }
 
 impl CandumpReplay {
@@ -128,6 +129,7 @@ impl CandumpReplay {
             origin: None,
             buf: vec![0u8; CHUNK],
             eof: false,
+            flushed: false,
         })
     }
 
@@ -139,9 +141,13 @@ impl CandumpReplay {
                 break r;
             }
             if self.eof {
-                // A last line without '\n'.
+                // A last line without '\n' is completed once; after that the file is done.
+                if self.flushed {
+                    return Ok(None);
+                }
+                self.flushed = true;
                 self.decoder.push(b"\n");
-                return Ok(self.decoder.poll());
+                continue;
             }
             let n = self
                 .file
