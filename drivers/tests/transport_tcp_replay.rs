@@ -163,7 +163,11 @@ async fn candump_replay_follows_recorded_timing() {
     }
     assert_eq!(n, records.len());
     // Unpaced: far below the 1 s the log spans (generous bound for a loaded machine).
-    assert!(start.elapsed() < Duration::from_millis(500), "{:?}", start.elapsed());
+    assert!(
+        start.elapsed() < Duration::from_millis(500),
+        "{:?}",
+        start.elapsed()
+    );
     assert!(
         CandumpReplay::open(&path, ReplaySpeed::Recorded { factor: -1.0 })
             .await
