@@ -10,9 +10,16 @@
 //! [`JsonDecoder`]. Adding a protocol means adding a module, a [`Protocol`] variant and one
 //! table line.
 
+pub mod can;
+pub mod candump;
+pub mod csv_line;
+pub mod dbc;
 pub mod gnss;
 pub mod nmea;
+pub mod slcan;
 pub mod ubx;
+pub mod witmotion;
+pub mod xbus;
 
 use std::path::PathBuf;
 
@@ -150,6 +157,16 @@ pub enum Protocol {
     Ubx,
     /// NMEA and UBX interleaved on one port, merged into navigation epochs.
     Gnss,
+    /// WitMotion 0x55 packets, assembled into IMU samples.
+    Wit,
+    /// Xsens Xbus messages (MTData2 decoded).
+    Xbus,
+    /// ASCII/CSV lines with a configurable column map.
+    Csv,
+    /// slcan (Lawicel) ASCII CAN, optionally through a DBC to IMU samples.
+    Slcan,
+    /// candump log, optionally through a DBC to IMU samples.
+    Candump,
 }
 
 /// One row of the protocol table.
@@ -172,6 +189,11 @@ pub const PROTOCOLS: &[ProtocolEntry] = &[
     ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", detect: gnss::detect_score, open: |_| Ok(Box::new(gnss::GnssDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", detect: nmea::detect_score, open: |_| Ok(Box::new(nmea::NmeaDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", detect: ubx::detect_score, open: |_| Ok(Box::new(ubx::UbxDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Wit, name: "wit", summary: "WitMotion serial IMU (0x55 packets) as IMU samples", detect: witmotion::detect_score, open: |_| Ok(Box::new(witmotion::WitImuDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Xbus, name: "xbus", summary: "Xsens MTi Xbus messages, MTData2 decoded", detect: xbus::detect_score, open: |_| Ok(Box::new(xbus::XbusDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Csv, name: "csv", summary: "ASCII/CSV IMU lines (column map from --config)", detect: |_| 0, open: csv_line::open_json },
+    ProtocolEntry { protocol: Protocol::Slcan, name: "slcan", summary: "slcan ASCII CAN (with --dbc and --config: IMU samples)", detect: slcan::detect_score, open: dbc::open_slcan_json },
+    ProtocolEntry { protocol: Protocol::Candump, name: "candump", summary: "candump log (with --dbc and --config: IMU samples)", detect: candump::detect_score, open: dbc::open_candump_json },
 ];
 
 /// A protocol name that is not in [`PROTOCOLS`].
