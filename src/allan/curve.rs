@@ -1,7 +1,7 @@
 //! One deviation curve: for every averaging factor of a grid, the deviation, its count of
 //! terms, the dominant noise type, the EDF and the chi-squared confidence interval.
 
-use super::deviation::{deviation_at, DeviationKind};
+use super::deviation::{deviation_from_variance, variance_at, DeviationKind};
 use super::edf::{confidence_interval, edf, Alpha, ONE_SIGMA_COVERAGE};
 use super::noise_id::identify_alpha;
 use super::numerics::Phase;
@@ -38,24 +38,70 @@ pub struct Curve {
 
 /// Computes `kind` on `phase` over `grid`, in parallel over τ.
 pub fn compute_curve(phase: &Phase, tau0: f64, kind: DeviationKind, grid: &TauGrid) -> Curve {
-    let factors = grid.factors(kind, phase.len(), tau0);
-    let raw: Vec<_> = factors
+    compute_curve_segments(std::slice::from_ref(phase), tau0, kind, grid)
+}
+
+/// Computes `kind` over several uniform segments of one axis (the `split` gap policy):
+/// the variances pool as Σ variance·count / Σ count, the EDFs add, and the noise type is
+/// identified on the longest segment. The grid follows the longest segment.
+pub fn compute_curve_segments(
+    phases: &[Phase],
+    tau0: f64,
+    kind: DeviationKind,
+    grid: &TauGrid,
+) -> Curve {
+    let Some(longest) = phases.iter().max_by_key(|p| p.len()) else {
+        return Curve {
+            kind,
+            tau0,
+            points: Vec::new(),
+        };
+    };
+    let factors = grid.factors(kind, longest.len(), tau0);
+    let pooled: Vec<(usize, f64, usize)> = factors
         .par_iter()
-        .filter_map(|&m| deviation_at(kind, phase, m, tau0))
+        .filter_map(|&m| {
+            let mut weighted = 0.0;
+            let mut total = 0usize;
+            for phase in phases {
+                if let Some((variance, count)) = variance_at(kind, phase, m) {
+                    weighted += variance * count as f64;
+                    total += count;
+                }
+            }
+            (total > 0).then(|| (m, weighted / total as f64, total))
+        })
         .collect();
     let max_differences = match kind {
         DeviationKind::Hdev | DeviationKind::Ohdev => 3,
         _ => 2,
     };
-    let identified: Vec<Option<Alpha>> = raw
+    let identified: Vec<Option<Alpha>> = pooled
         .par_iter()
-        .map(|p| identify_alpha(&phase.points, p.m, max_differences))
+        .map(|&(m, _, _)| identify_alpha(&longest.points, m, max_differences))
         .collect();
     let points = assign_alpha(&identified, kind)
         .into_iter()
-        .zip(raw)
-        .map(|(alpha, p)| {
-            point_with_interval(kind, alpha, p.m, p.tau, p.deviation, p.count, phase.len())
+        .zip(pooled)
+        .map(|(alpha, (m, variance, count))| {
+            let tau = m as f64 * tau0;
+            let deviation = deviation_from_variance(kind, variance, tau);
+            let mut point =
+                point_with_interval(kind, alpha, m, tau, deviation, count, longest.len());
+            if phases.len() > 1 {
+                // EDFs of independent segments add.
+                let edf: f64 = phases
+                    .iter()
+                    .filter_map(|p| edf(kind, alpha, m, p.len()))
+                    .sum();
+                let interval = (edf > 0.0)
+                    .then(|| confidence_interval(deviation, edf, ONE_SIGMA_COVERAGE))
+                    .flatten();
+                point.edf = (edf > 0.0).then_some(edf);
+                point.low = interval.map(|i| i.0);
+                point.high = interval.map(|i| i.1);
+            }
+            point
         })
         .collect();
     Curve { kind, tau0, points }

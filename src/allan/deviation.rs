@@ -112,6 +112,18 @@ pub struct RawPoint {
 
 /// Computes `kind` at averaging factor `m` (τ = m·tau0). `None` when no term is defined.
 pub fn deviation_at(kind: DeviationKind, phase: &Phase, m: usize, tau0: f64) -> Option<RawPoint> {
+    let (variance, count) = variance_at(kind, phase, m)?;
+    Some(RawPoint {
+        m,
+        tau: m as f64 * tau0,
+        deviation: deviation_from_variance(kind, variance, m as f64 * tau0),
+        count,
+    })
+}
+
+/// The variance (for TDEV: the MDEV variance) at factor `m` and its number of terms.
+/// Variances of several uniform segments pool as Σ variance·count / Σ count.
+pub fn variance_at(kind: DeviationKind, phase: &Phase, m: usize) -> Option<(f64, usize)> {
     let x = phase.points.as_slice();
     let n = x.len();
     let count = kind.term_count(m, n);
@@ -119,35 +131,28 @@ pub fn deviation_at(kind: DeviationKind, phase: &Phase, m: usize, tau0: f64) -> 
         return None;
     }
     let mf = m as f64;
+    let c = count as f64;
     let variance = match kind {
-        DeviationKind::Adev => {
-            second_difference_sum(x, m, m, count) / (2.0 * mf * mf * count as f64)
-        }
-        DeviationKind::Oadev => {
-            second_difference_sum(x, m, 1, count) / (2.0 * mf * mf * count as f64)
-        }
-        DeviationKind::Hdev => {
-            third_difference_sum(x, m, m, count) / (6.0 * mf * mf * count as f64)
-        }
-        DeviationKind::Ohdev => {
-            third_difference_sum(x, m, 1, count) / (6.0 * mf * mf * count as f64)
-        }
+        DeviationKind::Adev => second_difference_sum(x, m, m, count) / (2.0 * mf * mf * c),
+        DeviationKind::Oadev => second_difference_sum(x, m, 1, count) / (2.0 * mf * mf * c),
+        DeviationKind::Hdev => third_difference_sum(x, m, m, count) / (6.0 * mf * mf * c),
+        DeviationKind::Ohdev => third_difference_sum(x, m, 1, count) / (6.0 * mf * mf * c),
         DeviationKind::Mdev | DeviationKind::Tdev => {
-            modified_sum(x, m, count) / (2.0 * mf.powi(4) * count as f64)
+            modified_sum(x, m, count) / (2.0 * mf.powi(4) * c)
         }
-        DeviationKind::Totdev => total_sum(x, m) / (2.0 * mf * mf * count as f64),
+        DeviationKind::Totdev => total_sum(x, m) / (2.0 * mf * mf * c),
     };
-    let tau = mf * tau0;
-    let mut deviation = variance.max(0.0).sqrt();
+    Some((variance.max(0.0), count))
+}
+
+/// σ from the variance; TDEV is τ·MDEV/√3.
+pub fn deviation_from_variance(kind: DeviationKind, variance: f64, tau: f64) -> f64 {
+    let deviation = variance.max(0.0).sqrt();
     if kind == DeviationKind::Tdev {
-        deviation *= tau / 3f64.sqrt();
+        deviation * tau / 3f64.sqrt()
+    } else {
+        deviation
     }
-    Some(RawPoint {
-        m,
-        tau,
-        deviation,
-        count,
-    })
 }
 
 /// Σ (x[i+2m] − 2x[i+m] + x[i])² over `count` terms with `i` stepping by `stride`.

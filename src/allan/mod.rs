@@ -6,12 +6,19 @@
 //! [`taus::TauGrid`] with [`edf`] confidence intervals and [`noise_id`] noise types →
 //! [`fit`] fits the IMU noise model → [`report`] and [`export`] write the results.
 
+pub mod analysis;
 pub mod curve;
 pub mod deviation;
 pub mod edf;
+pub mod export;
+pub mod fit;
+pub mod input;
 pub mod noise_id;
 pub mod numerics;
+pub mod report;
 pub mod taus;
+pub mod thermal;
+pub mod units;
 
 pub use curve::{compute_curve, Curve, CurvePoint};
 pub use deviation::DeviationKind;

@@ -10,12 +10,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Allan-family deviations, confidence intervals and noise-term fit of a rate series.
+    Allan(imulab::cli::allan::AllanArgs),
+}
 
 fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Allan(args) => imulab::cli::allan::run(args),
+    };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
