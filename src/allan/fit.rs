@@ -116,11 +116,18 @@ pub enum FitError {
 
 /// Fits the model to an Allan-variance curve, weighting each point by its EDF.
 ///
-/// The residual of point i is (σ²_model − σ²_i)/σ²_i·√(edf_i/2): the variance estimate has
-/// relative standard error √(2/edf). Intervals (95 %) come from the weighted covariance on
-/// the free parameters, inflated by the reduced chi-squared when it exceeds 1 and by a
-/// factor 2 for the correlation between neighbouring τ of overlapping estimators. A term
-/// whose NNLS value is 0, or whose interval reaches 0, is reported as not identified.
+/// The variance estimate at each τ has relative standard error √(2/edf), so point i gets
+/// weight √(edf_i/2)/σ²_i. Weighting by the *measured* σ² biases the fit low (points that
+/// happen to fall low get more weight), so the weights use the *model* σ² and the fit is
+/// iterated (IRLS, 6 rounds; the first round uses the measured values). Each round solves
+/// the non-negative least-squares problem exactly.
+///
+/// Intervals (95 %): the weighted covariance gives a relative standard error s of each
+/// squared coefficient, inflated by √(reduced χ²) when above 1 and by a factor 2 for the
+/// correlation between neighbouring τ; the squared coefficient then gets a chi-squared
+/// interval with ν = 2/s² degrees of freedom (asymmetric, as for any variance). A term is
+/// identified when its NNLS value is positive and 1.96·s < 1; otherwise it is reported as
+/// not identified, with the largest value the data allow as `high`.
 pub fn fit_noise_terms(curve: &Curve) -> Result<NoiseFit, FitError> {
     if !curve.kind.is_allan_variance() {
         return Err(FitError::WrongKind(curve.kind.name()));
@@ -134,25 +141,26 @@ pub fn fit_noise_terms(curve: &Curve) -> Result<NoiseFit, FitError> {
         return Err(FitError::TooFewPoints(usable.len()));
     }
     let rows = usable.len();
-    // Scale each column to unit norm so the normal equations stay well conditioned across
-    // coefficients that differ by many orders of magnitude.
-    let mut design = DMatrix::<f64>::zeros(rows, 5);
-    let mut target = DVector::<f64>::zeros(rows);
-    for (i, p) in usable.iter().enumerate() {
-        let variance = p.deviation * p.deviation;
-        let weight = (p.edf.unwrap_or(1.0) / 2.0).sqrt();
-        for (j, term) in Term::ALL.iter().enumerate() {
-            design[(i, j)] = term.basis(p.tau) / variance * weight;
+    let measured: Vec<f64> = usable.iter().map(|p| p.deviation * p.deviation).collect();
+    let mut reference = measured.clone();
+    let mut outcome = None;
+    for _round in 0..6 {
+        let (design, target, scales) = weighted_system(&usable, &measured, &reference);
+        let (free, solution, residual) = best_nonnegative_subset(&design, &target);
+        // Model variances for the next round's weights (fall back to measured where ≤ 0).
+        for (i, p) in usable.iter().enumerate() {
+            let model: f64 = free
+                .iter()
+                .zip(solution.iter())
+                .map(|(&j, &v)| v / scales[j] * Term::ALL[j].basis(p.tau))
+                .sum();
+            reference[i] = if model > 0.0 { model } else { measured[i] };
         }
-        target[i] = weight;
+        outcome = Some((design, scales, free, solution, residual));
     }
-    let scales: Vec<f64> = (0..5)
-        .map(|j| design.column(j).norm().max(f64::MIN_POSITIVE))
-        .collect();
-    for (j, s) in scales.iter().enumerate() {
-        design.column_mut(j).scale_mut(1.0 / s);
-    }
-    let (free, solution, residual) = best_nonnegative_subset(&design, &target);
+    let Some((design, scales, free, solution, residual)) = outcome else {
+        return Err(FitError::TooFewPoints(rows));
+    };
     let dof = rows.saturating_sub(free.len()).max(1);
     let reduced_chi_squared = residual / dof as f64;
     let inflation = reduced_chi_squared.max(1.0).sqrt() * CORRELATION_INFLATION;
@@ -167,22 +175,26 @@ pub fn fit_noise_terms(curve: &Curve) -> Result<NoiseFit, FitError> {
                 (Some(k), Some(cov)) => (solution[k] / scale, cov[(k, k)].max(0.0).sqrt() / scale),
                 _ => (0.0, upper_bound_sd(&design, j) / scale),
             };
-            let half_width = 1.96 * sd * inflation;
-            let low_sq = squared - half_width;
-            let high_sq = squared + half_width;
-            if position.is_some() && squared > 0.0 && low_sq > 0.0 {
+            let sd = sd * inflation;
+            let relative = if squared > 0.0 {
+                sd / squared
+            } else {
+                f64::INFINITY
+            };
+            if position.is_some() && 1.96 * relative < 1.0 {
+                let (low_factor, high_factor) = chi_squared_factors(2.0 / (relative * relative));
                 TermEstimate {
                     term,
                     value: Some(squared.sqrt()),
-                    low: low_sq.sqrt(),
-                    high: high_sq.sqrt(),
+                    low: (squared * low_factor).sqrt(),
+                    high: (squared * high_factor).sqrt(),
                 }
             } else {
                 TermEstimate {
                     term,
                     value: None,
                     low: 0.0,
-                    high: high_sq.max(0.0).sqrt(),
+                    high: (squared.max(0.0) + 1.96 * sd).sqrt(),
                 }
             }
         })
@@ -194,17 +206,61 @@ pub fn fit_noise_terms(curve: &Curve) -> Result<NoiseFit, FitError> {
     })
 }
 
+/// The 95 % interval of a variance-like quantity with `nu` degrees of freedom, as factors
+/// on the estimate: (ν/χ²₀.₉₇₅, ν/χ²₀.₀₂₅).
+fn chi_squared_factors(nu: f64) -> (f64, f64) {
+    use super::edf::chi_squared_quantile;
+    match (
+        chi_squared_quantile(nu, 0.975),
+        chi_squared_quantile(nu, 0.025),
+    ) {
+        (Some(high), Some(low)) if low > 0.0 => (nu / high, nu / low),
+        _ => (0.0, f64::INFINITY),
+    }
+}
+
+/// Weighted, column-scaled design matrix and target for one IRLS round.
+fn weighted_system(
+    points: &[&CurvePoint],
+    measured: &[f64],
+    reference: &[f64],
+) -> (DMatrix<f64>, DVector<f64>, Vec<f64>) {
+    let rows = points.len();
+    let mut design = DMatrix::<f64>::zeros(rows, 5);
+    let mut target = DVector::<f64>::zeros(rows);
+    for (i, p) in points.iter().enumerate() {
+        let weight = (p.edf.unwrap_or(1.0) / 2.0).sqrt() / reference[i];
+        for (j, term) in Term::ALL.iter().enumerate() {
+            design[(i, j)] = term.basis(p.tau) * weight;
+        }
+        target[i] = measured[i] * weight;
+    }
+    // Scale each column to unit norm so coefficients that differ by many orders of
+    // magnitude stay well conditioned.
+    let scales: Vec<f64> = (0..5)
+        .map(|j| design.column(j).norm().max(f64::MIN_POSITIVE))
+        .collect();
+    for (j, s) in scales.iter().enumerate() {
+        design.column_mut(j).scale_mut(1.0 / s);
+    }
+    (design, target, scales)
+}
+
 /// Neighbouring points of overlapping estimators are strongly correlated, so the
 /// independent-point covariance understates the uncertainty; doubling it covers the
 /// simulated cases in `tests/allan_fit.rs`.
 const CORRELATION_INFLATION: f64 = 2.0;
 
-/// Exact NNLS for few parameters: least squares on every subset of free columns, keeping
-/// the feasible (all ≥ 0) solution with the smallest residual.
+/// Exact NNLS with model selection for few parameters: least squares on every subset of
+/// free columns, keeping the feasible (all ≥ 0) solution with the smallest Akaike score
+/// (residual χ² + 2 per free term), so a term enters only when it explains the curve
+/// better than chance — otherwise nearly degenerate pairs (B with K) would both enter
+/// and blur each other's intervals.
 fn best_nonnegative_subset(a: &DMatrix<f64>, b: &DVector<f64>) -> (Vec<usize>, DVector<f64>, f64) {
     let columns = a.ncols();
     let mut best: (Vec<usize>, DVector<f64>, f64) =
         (Vec::new(), DVector::zeros(0), b.norm_squared());
+    let mut best_score = best.2;
     for mask in 1u32..(1 << columns) {
         let free: Vec<usize> = (0..columns).filter(|j| mask & (1 << j) != 0).collect();
         if free.len() > a.nrows() {
@@ -218,7 +274,9 @@ fn best_nonnegative_subset(a: &DMatrix<f64>, b: &DVector<f64>) -> (Vec<usize>, D
             continue;
         }
         let residual = (&sub * &solution - b).norm_squared();
-        if residual < best.2 * (1.0 - 1e-12) {
+        let score = residual + 2.0 * free.len() as f64;
+        if score < best_score {
+            best_score = score;
             best = (free, solution, residual);
         }
     }

@@ -636,7 +636,7 @@ impl SeriesBuilder {
         self.health.samples += 1;
         if let Some(t) = time {
             if !t.is_finite() {
-                self.problem(format!("row {row}: time stamp is {t}"))?;
+                self.problem(format!("sample {row}: time stamp is {t}"))?;
                 return Ok(());
             }
             self.first_time.get_or_insert(t);
@@ -648,7 +648,7 @@ impl SeriesBuilder {
                     self.health.gaps += 1;
                     self.health.missing_samples += missing;
                     self.problem(format!(
-                        "row {row}: gap of {dt:.6} s at t = {t:.6} s ({missing} samples missing at τ0 = {:.6} s)",
+                        "sample {row}: gap of {dt:.6} s at t = {t:.6} s ({missing} samples missing at τ0 = {:.6} s)",
                         self.tau0
                     ))?;
                     match self.policy {
@@ -667,10 +667,16 @@ impl SeriesBuilder {
                         }
                         _ => {}
                     }
+                } else if dt <= 0.0 {
+                    self.health.nonuniform_intervals += 1;
+                    self.problem(format!("sample {row}: time stamp {t:.6} s does not increase (previous {prev:.6} s)"))?;
+                    if self.policy == GapPolicy::Split {
+                        self.cut();
+                    }
                 } else if (ratio - 1.0).abs() > JITTER_TOLERANCE {
                     self.health.nonuniform_intervals += 1;
                     self.problem(format!(
-                        "row {row}: interval {dt:.6} s at t = {t:.6} s is off the nominal {:.6} s (non-uniform sampling)",
+                        "sample {row}: interval {dt:.6} s at t = {t:.6} s is off the nominal {:.6} s (non-uniform sampling)",
                         self.tau0
                     ))?;
                     if self.policy == GapPolicy::Split {
@@ -685,7 +691,7 @@ impl SeriesBuilder {
         }
         if !value.is_finite() {
             self.health.invalid_values += 1;
-            self.problem(format!("row {row}: value is {value}"))?;
+            self.problem(format!("sample {row}: value is {value}"))?;
             match self.policy {
                 GapPolicy::Split => self.cut(),
                 GapPolicy::Fill => self.pending_invalid += 1,
@@ -782,7 +788,7 @@ mod tests {
         };
         let err = read_axis(&src, 1, &timing, GapPolicy::Error, DataKind::Rate, None).unwrap_err();
         assert!(
-            err.to_string().contains("row 2: gap of 3.000000 s"),
+            err.to_string().contains("sample 2: gap of 3.000000 s"),
             "{err}"
         );
         let split = read_axis(&src, 1, &timing, GapPolicy::Split, DataKind::Rate, None).unwrap();
