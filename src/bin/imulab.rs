@@ -3,7 +3,11 @@
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "imulab", version, about = "Bench characterisation of inertial sensors")]
+#[command(
+    name = "imulab",
+    version,
+    about = "Bench characterisation of inertial sensors"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -13,6 +17,10 @@ struct Cli {
 enum Command {
     /// Allan-family deviations, confidence intervals and noise-term fit of a rate series.
     Allan(imulab::cli::allan::AllanArgs),
+    /// Self-contained HTML noise report of one or more IMUs.
+    Report(imulab::cli::report::ReportArgs),
+    /// Datasheet-style comparison of two or more IMUs.
+    Compare(imulab::cli::compare::CompareArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -20,6 +28,8 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.command {
         Command::Allan(args) => imulab::cli::allan::run(args),
+        Command::Report(args) => imulab::cli::report::run(args),
+        Command::Compare(args) => imulab::cli::compare::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
