@@ -4,12 +4,14 @@
 //! - [`daemon`]: `imulogd`, the acquisition daemon.
 //! - [`allan`]: Allan-family deviations, confidence intervals, noise-term fit and reports.
 //! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
+//! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
 //! - [`cli`]: the `imulab` subcommands.
 
 pub mod allan;
 pub mod cli;
 pub mod daemon;
+pub mod earth;
 pub mod fusion;
 pub mod sim;
 pub mod store;

@@ -39,7 +39,7 @@ pub enum InputError {
 pub type RowVisitor<'a> = dyn FnMut(u64, &[f64]) -> Result<(), InputError> + 'a;
 
 /// A source of rows of named numeric channels, streamed in time order.
-pub trait SampleSource: Send + Sync {
+pub trait SampleSource {
     /// Short description for reports (e.g. the file name).
     fn describe(&self) -> String;
     /// Channel names in order.
@@ -47,6 +47,16 @@ pub trait SampleSource: Send + Sync {
     /// Calls `visit(row_index, values)` for each row with the values of `wanted` channels
     /// (in the order given).
     fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError>;
+
+    /// The device name when the source is a session device (names the results).
+    fn as_any_session(&self) -> Option<&str> {
+        None
+    }
+
+    /// The physical unit of a channel when the source knows it (sessions do).
+    fn channel_unit(&self, _channel: usize) -> Option<crate::allan::units::RateUnit> {
+        None
+    }
 
     /// Resolves a channel given by name or by 0-based index.
     fn channel_index(&self, spec: &str) -> Result<usize, InputError> {

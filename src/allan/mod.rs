@@ -16,6 +16,7 @@ pub mod input;
 pub mod noise_id;
 pub mod numerics;
 pub mod report;
+pub mod session_source;
 pub mod taus;
 pub mod thermal;
 pub mod units;

@@ -15,6 +15,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Summarise a session: devices, counts, rates, gaps, events, files.
+    Inspect(imulab::cli::inspect::InspectArgs),
+    /// Export one device's rows (CSV), streamed.
+    Export(imulab::cli::export::ExportArgs),
+    /// Make the partial chunk file of a killed writer readable.
+    Recover(imulab::cli::recover::RecoverArgs),
     /// Allan-family deviations, confidence intervals and noise-term fit of a rate series.
     Allan(imulab::cli::allan::AllanArgs),
     /// Self-contained HTML noise report of one or more IMUs.
@@ -27,6 +33,9 @@ fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.command {
+        Command::Inspect(args) => imulab::cli::inspect::run(args),
+        Command::Export(args) => imulab::cli::export::run(args),
+        Command::Recover(args) => imulab::cli::recover::run(args),
         Command::Allan(args) => imulab::cli::allan::run(args),
         Command::Report(args) => imulab::cli::report::run(args),
         Command::Compare(args) => imulab::cli::compare::run(args),

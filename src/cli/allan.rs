@@ -6,6 +6,7 @@ use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions, AxisRes
 use crate::allan::input::{
     open_file, read_axis, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
 };
+use crate::allan::session_source::SessionSource;
 use crate::allan::thermal::{bias_versus_temperature, find_plateaus};
 use crate::allan::units::{RateUnit, SensorKind};
 use crate::allan::{export, report, DeviationKind, TauGrid};
@@ -17,13 +18,21 @@ use std::time::{Duration, Instant};
 /// Options that say how to read inputs and what to compute (shared by allan/report/compare).
 #[derive(clap::Args, Debug, Clone)]
 pub struct AnalysisArgs {
-    /// Device name in reports (default: the input file's stem).
+    /// Session: the IMU device to analyse (default: the only one). Files: the device name
+    /// in reports (default: the file's stem).
     #[arg(long)]
     pub device: Option<String>,
+    /// Session: start of the analysed range, seconds after the device's first sample.
+    #[arg(long)]
+    pub from: Option<f64>,
+    /// Session: end of the analysed range, seconds after the device's first sample.
+    #[arg(long)]
+    pub to: Option<f64>,
     /// Sensor type of the channels (decides engineering units; implied by --units).
     #[arg(long, value_enum)]
     pub sensor: Option<SensorKind>,
     /// Channels to analyse, by name or 0-based index (default: all but time/temperature).
+    /// With a session: x, y, z (of --sensor, default both sensors) or gyro_x … accel_z.
     #[arg(long, value_delimiter = ',')]
     pub axes: Vec<String>,
     /// Deviation type.
@@ -72,7 +81,7 @@ pub struct AnalysisArgs {
     after_help = "Example: imulab allan gyro.csv --time-column t --axes gx,gy,gz --units rad/s --fit --taus dense:10 --json out.json --html out.html"
 )]
 pub struct AllanArgs {
-    /// Input file: CSV/TSV (header optional) or NumPy .npy (N or N×k).
+    /// Input: a session directory, a CSV/TSV file (header optional) or a NumPy .npy (N or N×k).
     pub input: PathBuf,
     #[command(flatten)]
     pub analysis: AnalysisArgs,
@@ -236,15 +245,53 @@ fn time_scale(unit: &str) -> anyhow::Result<f64> {
     })
 }
 
-/// Opens an input path: a plain file, or (when it is a directory) a session.
-pub fn open_input(path: &Path) -> anyhow::Result<Box<dyn SampleSource>> {
+/// Opens an input path: a session directory or a plain file.
+pub fn open_input(path: &Path, args: &AnalysisArgs) -> anyhow::Result<Box<dyn SampleSource>> {
     if path.is_dir() {
-        bail!(
-            "{}: is a directory; session input needs the session reader (imulab::store), which this build does not have yet — export the channels to CSV or .npy",
-            path.display()
-        );
+        return Ok(Box::new(SessionSource::open(
+            path,
+            args.device.as_deref(),
+            args.from,
+            args.to,
+        )?));
+    }
+    if args.from.is_some() || args.to.is_some() {
+        bail!("--from/--to select a time range of a session; for files, cut the file instead");
     }
     Ok(open_file(path)?)
+}
+
+/// Session channel names for `--axes`/`--sensor`.
+fn session_axes(args: &AnalysisArgs) -> Vec<String> {
+    let sensors: Vec<&str> = match args.sensor {
+        Some(SensorKind::Gyro) => vec!["gyro"],
+        Some(SensorKind::Accel) => vec!["accel"],
+        None => vec!["gyro", "accel"],
+    };
+    let axes: Vec<String> = if args.axes.is_empty() {
+        vec!["x".into(), "y".into(), "z".into()]
+    } else {
+        args.axes.clone()
+    };
+    sensors
+        .iter()
+        .flat_map(|s| {
+            axes.iter().map(move |a| {
+                if a.contains('_') {
+                    a.clone()
+                } else {
+                    format!("{s}_{a}")
+                }
+            })
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold(Vec::new(), |mut acc, a| {
+            if !acc.contains(&a) {
+                acc.push(a);
+            }
+            acc
+        })
 }
 
 /// One opened input with its resolved channels.
@@ -268,21 +315,22 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         bail!("--temperature-bin must be a positive number of °C");
     }
     let sensor = args.sensor.or(args.units.sensor());
-    let options = AnalysisOptions {
-        kind: args.kind,
-        grid: args.taus.clone(),
-        fit: args.fit,
-        unit: args.units,
-        sensor,
-    };
     let mut plan: Vec<PlannedInput> = Vec::new();
     for path in inputs {
-        let source = open_input(path)?;
-        let time_channel = args
-            .time_column
-            .as_deref()
-            .map(|c| source.channel_index(c))
-            .transpose()?;
+        let source = open_input(path, args)?;
+        let is_session = path.is_dir();
+        if is_session && (args.rate.is_some() || args.time_column.is_some()) {
+            bail!(
+                "{}: a session carries its own time stamps; drop --rate/--time-column",
+                path.display()
+            );
+        }
+        let time_column = if is_session {
+            Some("t")
+        } else {
+            args.time_column.as_deref()
+        };
+        let time_channel = time_column.map(|c| source.channel_index(c)).transpose()?;
         let temperature = args
             .temperature_column
             .as_deref()
@@ -300,7 +348,12 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
                 path.display()
             ),
         };
-        let axes: Vec<usize> = if args.axes.is_empty() {
+        let axes: Vec<usize> = if is_session {
+            session_axes(args)
+                .iter()
+                .map(|a| source.channel_index(a))
+                .collect::<Result<_, _>>()?
+        } else if args.axes.is_empty() {
             (0..source.channels().len())
                 .filter(|&c| Some(c) != time_channel && Some(c) != temperature)
                 .collect()
@@ -313,11 +366,15 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         if axes.is_empty() {
             bail!("{}: no channels to analyse", path.display());
         }
-        let device = args.device.clone().unwrap_or_else(|| {
-            path.file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "device".into())
-        });
+        let device = if let Some(session) = source.as_any_session() {
+            session.to_string()
+        } else {
+            args.device.clone().unwrap_or_else(|| {
+                path.file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "device".into())
+            })
+        };
         plan.push(PlannedInput {
             path: path.clone(),
             source,
@@ -349,6 +406,20 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
                 *temperature,
             )
             .with_context(|| format!("reading {}", path.display()))?;
+            // A source that knows its channel's unit (a session) overrides --units.
+            let known_unit = source.channel_unit(axis);
+            let unit = known_unit.unwrap_or(args.units);
+            let options = AnalysisOptions {
+                kind: args.kind,
+                grid: args.taus.clone(),
+                fit: args.fit,
+                unit,
+                sensor: if known_unit.is_some() {
+                    unit.sensor()
+                } else {
+                    sensor
+                },
+            };
             progress.step(format!("{device} {}", series.name));
             results.extend(analyse_with_thermal(device, series, &options, args));
         }
