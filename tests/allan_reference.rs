@@ -235,3 +235,53 @@ fn nbs14_matches_nist_published_values() {
     }
     assert_eq!(checked, 21);
 }
+
+/// Stable32's octave tables for the OCXO were computed on a differently normalised copy of
+/// the data (values agree only to ~2e-3), so they check interval *shapes*: the bounds
+/// relative to sigma, with Stable32's α per row (exercising flicker PM, white FM, flicker FM
+/// and random-walk FM in the EDF algorithm).
+#[test]
+fn ocxo_octave_interval_shapes_match_stable32() {
+    let Some(dir) = reference_dir() else { return };
+    let frequency = read_numbers(&dir.join("ocxo/ocxo_frequency.txt"));
+    let n_phase = frequency.len() + 1;
+    for (name, kind) in [
+        ("adev", DeviationKind::Adev),
+        ("oadev", DeviationKind::Oadev),
+    ] {
+        let rows = read_table(&dir.join(format!("ocxo/{name}_octave.txt")));
+        assert!(rows.len() >= 9, "{name}: short table");
+        for row in &rows {
+            let point = point_with_interval(
+                kind, row.alpha, row.m, row.tau, row.sigma, row.count, n_phase,
+            );
+            let edf = point
+                .edf
+                .unwrap_or_else(|| panic!("{name} m={} alpha={}: no EDF", row.m, row.alpha));
+            let ours = (
+                point.low.unwrap() / row.sigma,
+                point.high.unwrap() / row.sigma,
+            );
+            let theirs = (row.low / row.sigma, row.high / row.sigma);
+            // Same rule as the PHASE.DAT tables, on the relative half-widths; the printed
+            // bounds carry 5 digits, i.e. up to ~1e-4 of sigma each.
+            let tolerance = |t: f64| {
+                if edf < 100.0 {
+                    3e-4 + 1e-4
+                } else {
+                    0.03 * (1.0 - t).abs() + 1e-4
+                }
+            };
+            assert!(
+                (ours.0 - theirs.0).abs() <= tolerance(theirs.0) && (ours.1 - theirs.1).abs() <= tolerance(theirs.1),
+                "OCXO {name} m={} alpha={} edf={edf:.1}: bounds/sigma ours ({:.5}, {:.5}) vs Stable32 ({:.5}, {:.5})",
+                row.m,
+                row.alpha,
+                ours.0,
+                ours.1,
+                theirs.0,
+                theirs.1
+            );
+        }
+    }
+}
