@@ -94,6 +94,9 @@ impl Phase {
     /// Integrates rate (frequency) samples into phase; consumes the vector to reuse its memory.
     pub fn from_rate(mut rate: Vec<f64>) -> Self {
         let mean = compensated_mean(&rate);
+        // One more slot for the leading zero without doubling the capacity (for a large
+        // vector the allocator grows the mapping in place).
+        rate.reserve_exact(1);
         rate.push(0.0);
         let mut acc = CompensatedSum::new();
         let mut carried = 0.0;
