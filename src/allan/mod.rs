@@ -1,1 +1,27 @@
 //! Allan-family deviations, confidence intervals, noise-term fit and reports.
+//!
+//! Pipeline: [`input`] reads per-axis rate series (CSV/TSV, .npy, sessions) →
+//! [`numerics::Phase`] integrates one axis into phase with the mean removed →
+//! [`curve::compute_curve`] evaluates a [`deviation::DeviationKind`] over a
+//! [`taus::TauGrid`] with [`edf`] confidence intervals and [`noise_id`] noise types →
+//! [`fit`] fits the IMU noise model → [`report`] and [`export`] write the results.
+
+pub mod analysis;
+pub mod curve;
+pub mod deviation;
+pub mod edf;
+pub mod export;
+pub mod fit;
+pub mod input;
+pub mod noise_id;
+pub mod numerics;
+pub mod report;
+pub mod session_source;
+pub mod taus;
+pub mod thermal;
+pub mod units;
+
+pub use curve::{compute_curve, Curve, CurvePoint};
+pub use deviation::DeviationKind;
+pub use numerics::Phase;
+pub use taus::TauGrid;

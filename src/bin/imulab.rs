@@ -27,6 +27,12 @@ enum Command {
     Sim(imulab::cli::sim::SimArgs),
     /// Print imulogd's status file as a table.
     Status(imulab::cli::status::StatusArgs),
+    /// Allan-family deviations, confidence intervals and noise-term fit of a rate series.
+    Allan(imulab::cli::allan::AllanArgs),
+    /// Self-contained HTML noise report of one or more IMUs.
+    Report(imulab::cli::report::ReportArgs),
+    /// Datasheet-style comparison of two or more IMUs.
+    Compare(imulab::cli::compare::CompareArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -39,6 +45,9 @@ fn main() -> std::process::ExitCode {
         Command::Decode(args) => imulab::cli::decode::run(args),
         Command::Sim(args) => imulab::cli::sim::run(args),
         Command::Status(args) => imulab::cli::status::run(args),
+        Command::Allan(args) => imulab::cli::allan::run(args),
+        Command::Report(args) => imulab::cli::report::run(args),
+        Command::Compare(args) => imulab::cli::compare::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,6 +1,9 @@
 //! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
 
 pub mod status;
+pub mod allan;
+pub mod compare;
+pub mod report;
 
 /// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
 pub fn init_logging() {

@@ -1,0 +1,152 @@
+//! One deviation curve: for every averaging factor of a grid, the deviation, its count of
+//! terms, the dominant noise type, the EDF and the chi-squared confidence interval.
+
+use super::deviation::{deviation_from_variance, variance_at, DeviationKind};
+use super::edf::{confidence_interval, edf, Alpha, ONE_SIGMA_COVERAGE};
+use super::noise_id::identify_alpha;
+use super::numerics::Phase;
+use super::taus::TauGrid;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// One point of a deviation curve.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CurvePoint {
+    /// Averaging factor (τ = m·τ0).
+    pub m: usize,
+    /// Averaging time in seconds.
+    pub tau: f64,
+    pub deviation: f64,
+    /// Lower and upper bound of the 68.3 % interval (`null` where no EDF is available).
+    pub low: Option<f64>,
+    pub high: Option<f64>,
+    /// Equivalent degrees of freedom.
+    pub edf: Option<f64>,
+    /// Number of terms averaged.
+    pub count: usize,
+    /// Dominant power-law noise exponent α used for the EDF (2 white PM … −2 RW FM).
+    pub alpha: Alpha,
+}
+
+/// A computed curve.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Curve {
+    pub kind: DeviationKind,
+    pub tau0: f64,
+    pub points: Vec<CurvePoint>,
+}
+
+/// Computes `kind` on `phase` over `grid`, in parallel over τ.
+pub fn compute_curve(phase: &Phase, tau0: f64, kind: DeviationKind, grid: &TauGrid) -> Curve {
+    compute_curve_segments(std::slice::from_ref(phase), tau0, kind, grid)
+}
+
+/// Computes `kind` over several uniform segments of one axis (the `split` gap policy):
+/// the variances pool as Σ variance·count / Σ count, the EDFs add, and the noise type is
+/// identified on the longest segment. The grid follows the longest segment.
+pub fn compute_curve_segments(
+    phases: &[Phase],
+    tau0: f64,
+    kind: DeviationKind,
+    grid: &TauGrid,
+) -> Curve {
+    let Some(longest) = phases.iter().max_by_key(|p| p.len()) else {
+        return Curve {
+            kind,
+            tau0,
+            points: Vec::new(),
+        };
+    };
+    let factors = grid.factors(kind, longest.len(), tau0);
+    let pooled: Vec<(usize, f64, usize)> = factors
+        .par_iter()
+        .filter_map(|&m| {
+            let mut weighted = 0.0;
+            let mut total = 0usize;
+            for phase in phases {
+                if let Some((variance, count)) = variance_at(kind, phase, m) {
+                    weighted += variance * count as f64;
+                    total += count;
+                }
+            }
+            (total > 0).then(|| (m, weighted / total as f64, total))
+        })
+        .collect();
+    let max_differences = match kind {
+        DeviationKind::Hdev | DeviationKind::Ohdev => 3,
+        _ => 2,
+    };
+    let identified: Vec<Option<Alpha>> = pooled
+        .par_iter()
+        .map(|&(m, _, _)| identify_alpha(&longest.points, m, max_differences))
+        .collect();
+    let points = assign_alpha(&identified, kind)
+        .into_iter()
+        .zip(pooled)
+        .map(|(alpha, (m, variance, count))| {
+            let tau = m as f64 * tau0;
+            let deviation = deviation_from_variance(kind, variance, tau);
+            let mut point =
+                point_with_interval(kind, alpha, m, tau, deviation, count, longest.len());
+            if phases.len() > 1 {
+                // EDFs of independent segments add.
+                let edf: f64 = phases
+                    .iter()
+                    .filter_map(|p| edf(kind, alpha, m, p.len()))
+                    .sum();
+                let interval = (edf > 0.0)
+                    .then(|| confidence_interval(deviation, edf, ONE_SIGMA_COVERAGE))
+                    .flatten();
+                point.edf = (edf > 0.0).then_some(edf);
+                point.low = interval.map(|i| i.0);
+                point.high = interval.map(|i| i.1);
+            }
+            point
+        })
+        .collect();
+    Curve { kind, tau0, points }
+}
+
+/// Builds a point with EDF and interval for a known noise exponent.
+pub fn point_with_interval(
+    kind: DeviationKind,
+    alpha: Alpha,
+    m: usize,
+    tau: f64,
+    deviation: f64,
+    count: usize,
+    phase_points: usize,
+) -> CurvePoint {
+    let edf = edf(kind, alpha, m, phase_points);
+    let interval = edf.and_then(|e| confidence_interval(deviation, e, ONE_SIGMA_COVERAGE));
+    CurvePoint {
+        m,
+        tau,
+        deviation,
+        low: interval.map(|i| i.0),
+        high: interval.map(|i| i.1),
+        edf,
+        count,
+        alpha,
+    }
+}
+
+/// Fills τ where the lag-1 method had too few points with the α of the nearest shorter τ
+/// (white FM when nothing was identified), and clamps α into the range the variance
+/// converges for (α ≥ −2 for Allan types, ≥ −4 for Hadamard).
+fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
+    let lowest = match kind {
+        DeviationKind::Hdev | DeviationKind::Ohdev => -4,
+        _ => -2,
+    };
+    let mut last = 0;
+    identified
+        .iter()
+        .map(|a| {
+            if let Some(a) = a {
+                last = *a;
+            }
+            last.clamp(lowest, 2)
+        })
+        .collect()
+}

@@ -1,0 +1,912 @@
+//! Input layer: a [`SampleSource`] streams rows of named channels (CSV/TSV, NumPy `.npy`,
+//! and sessions through a small adapter); [`read_axis`] pulls one channel out of it as a
+//! uniformly sampled rate series, checking for gaps, NaN/Inf and non-uniform sampling
+//! under an explicit [`GapPolicy`]. Only one axis (plus an optional temperature channel)
+//! is held in memory at a time.
+
+use serde::{Deserialize, Serialize};
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+/// Errors of the input layer; each says where (file, row, column) and what.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: row {row}: {message}")]
+    Parse {
+        path: PathBuf,
+        row: u64,
+        message: String,
+    },
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+    #[error("{0}")]
+    Channel(String),
+    #[error("{0}")]
+    Sampling(String),
+    /// A visitor asked to stop reading early; never returned to callers of this module.
+    #[error("reading stopped early")]
+    Stopped,
+}
+
+/// Callback receiving `(row_index, values)` for each streamed row.
+pub type RowVisitor<'a> = dyn FnMut(u64, &[f64]) -> Result<(), InputError> + 'a;
+
+/// A source of rows of named numeric channels, streamed in time order.
+pub trait SampleSource {
+    /// Short description for reports (e.g. the file name).
+    fn describe(&self) -> String;
+    /// Channel names in order.
+    fn channels(&self) -> &[String];
+    /// Calls `visit(row_index, values)` for each row with the values of `wanted` channels
+    /// (in the order given).
+    fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError>;
+
+    /// The device name when the source is a session device (names the results).
+    fn as_any_session(&self) -> Option<&str> {
+        None
+    }
+
+    /// The physical unit of a channel when the source knows it (sessions do).
+    fn channel_unit(&self, _channel: usize) -> Option<crate::allan::units::RateUnit> {
+        None
+    }
+
+    /// Resolves a channel given by name or by 0-based index.
+    fn channel_index(&self, spec: &str) -> Result<usize, InputError> {
+        let spec = spec.trim();
+        if let Some(i) = self.channels().iter().position(|c| c == spec) {
+            return Ok(i);
+        }
+        match spec.parse::<usize>() {
+            Ok(i) if i < self.channels().len() => Ok(i),
+            _ => Err(InputError::Channel(format!(
+                "{}: no channel `{spec}` (channels: {})",
+                self.describe(),
+                self.channels().join(", ")
+            ))),
+        }
+    }
+}
+
+// --- CSV / TSV ---------------------------------------------------------------------------
+
+/// A delimited text file with an optional header row (detected: a first row that is not
+/// all numbers is a header). Tab-separated if the name ends in `.tsv`/`.tab` or the first
+/// line contains a tab; otherwise comma-separated. Lines starting with `#` are comments.
+pub struct CsvSource {
+    path: PathBuf,
+    delimiter: u8,
+    has_header: bool,
+    channels: Vec<String>,
+}
+
+impl CsvSource {
+    pub fn open(path: &Path) -> Result<Self, InputError> {
+        let io = |source| InputError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let text_head = {
+            use std::io::Read;
+            let mut buf = vec![0u8; 64 * 1024];
+            let mut f = File::open(path).map_err(io)?;
+            let n = f.read(&mut buf).map_err(io)?;
+            buf.truncate(n);
+            String::from_utf8_lossy(&buf).into_owned()
+        };
+        let first_line = text_head
+            .lines()
+            .find(|l| !l.trim().is_empty() && !l.starts_with('#'))
+            .ok_or_else(|| InputError::Format {
+                path: path.to_path_buf(),
+                message: "no data rows".into(),
+            })?;
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        let delimiter = if ext.eq_ignore_ascii_case("tsv")
+            || ext.eq_ignore_ascii_case("tab")
+            || first_line.contains('\t')
+        {
+            b'\t'
+        } else {
+            b','
+        };
+        let fields: Vec<&str> = first_line.split(delimiter as char).map(str::trim).collect();
+        let has_header = fields.iter().any(|f| f.parse::<f64>().is_err());
+        let channels = if has_header {
+            fields.iter().map(|s| s.to_string()).collect()
+        } else {
+            (0..fields.len()).map(|i| i.to_string()).collect()
+        };
+        Ok(CsvSource {
+            path: path.to_path_buf(),
+            delimiter,
+            has_header,
+            channels,
+        })
+    }
+}
+
+impl SampleSource for CsvSource {
+    fn describe(&self) -> String {
+        self.path.display().to_string()
+    }
+    fn channels(&self) -> &[String] {
+        &self.channels
+    }
+    fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError> {
+        let file = File::open(&self.path).map_err(|source| InputError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        let mut reader = csv::ReaderBuilder::new()
+            .delimiter(self.delimiter)
+            .has_headers(self.has_header)
+            .comment(Some(b'#'))
+            .flexible(true)
+            .trim(csv::Trim::All)
+            .from_reader(BufReader::with_capacity(1 << 20, file));
+        let mut record = csv::ByteRecord::new();
+        let mut values = vec![0.0; wanted.len()];
+        let mut row = 0u64;
+        loop {
+            let more = reader
+                .read_byte_record(&mut record)
+                .map_err(|e| InputError::Parse {
+                    path: self.path.clone(),
+                    row: row + 1,
+                    message: e.to_string(),
+                })?;
+            if !more {
+                break;
+            }
+            let line = record.position().map(|p| p.line()).unwrap_or(row + 1);
+            for (slot, &c) in values.iter_mut().zip(wanted) {
+                let field = record.get(c).ok_or_else(|| InputError::Parse {
+                    path: self.path.clone(),
+                    row: line,
+                    message: format!(
+                        "missing column `{}` (row has {} fields)",
+                        self.channels[c],
+                        record.len()
+                    ),
+                })?;
+                let text = std::str::from_utf8(field).unwrap_or("");
+                *slot = parse_number(text).ok_or_else(|| InputError::Parse {
+                    path: self.path.clone(),
+                    row: line,
+                    message: format!(
+                        "column `{}`: `{}` is not a number",
+                        self.channels[c],
+                        String::from_utf8_lossy(field)
+                    ),
+                })?;
+            }
+            visit(row, &values)?;
+            row += 1;
+        }
+        Ok(())
+    }
+}
+
+/// Parses a number; empty fields and the usual NaN spellings read as NaN so the gap
+/// policy (not the parser) decides what to do with them.
+fn parse_number(text: &str) -> Option<f64> {
+    let t = text.trim();
+    if t.is_empty() || t.eq_ignore_ascii_case("nan") || t.eq_ignore_ascii_case("na") {
+        return Some(f64::NAN);
+    }
+    t.parse::<f64>().ok()
+}
+
+// --- NumPy .npy --------------------------------------------------------------------------
+
+/// A NumPy `.npy` array of shape (N,) or (N, k), float64 or float32 (promoted), either
+/// memory order. Channels are named "0", "1", … by column.
+pub struct NpySource {
+    path: PathBuf,
+    rows: u64,
+    columns: usize,
+    fortran: bool,
+    single: bool,
+    channels: Vec<String>,
+}
+
+impl NpySource {
+    pub fn open(path: &Path) -> Result<Self, InputError> {
+        let npy = open_npy(path)?;
+        let format = |message: String| InputError::Format {
+            path: path.to_path_buf(),
+            message,
+        };
+        let shape = npy.shape().to_vec();
+        let (rows, columns) = match shape.as_slice() {
+            [n] => (*n, 1usize),
+            [n, k] => (
+                *n,
+                usize::try_from(*k).map_err(|_| format("too many columns".into()))?,
+            ),
+            other => {
+                return Err(format(format!(
+                    "expected a 1-D or 2-D array, got shape {other:?}"
+                )))
+            }
+        };
+        let type_string = npy.dtype().descr();
+        let single = match type_string.trim_matches(|c| c == '\'' || c == '"') {
+            "<f8" | ">f8" | "=f8" => false,
+            "<f4" | ">f4" | "=f4" => true,
+            other => {
+                return Err(format(format!(
+                    "unsupported dtype {other}: use float64 or float32"
+                )))
+            }
+        };
+        Ok(NpySource {
+            path: path.to_path_buf(),
+            rows,
+            columns,
+            fortran: matches!(npy.order(), npyz::Order::Fortran),
+            single,
+            channels: (0..columns).map(|i| i.to_string()).collect(),
+        })
+    }
+}
+
+fn open_npy(path: &Path) -> Result<npyz::NpyFile<BufReader<File>>, InputError> {
+    let io = |source| InputError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = File::open(path).map_err(io)?;
+    npyz::NpyFile::new(BufReader::with_capacity(1 << 20, file)).map_err(io)
+}
+
+impl SampleSource for NpySource {
+    fn describe(&self) -> String {
+        self.path.display().to_string()
+    }
+    fn channels(&self) -> &[String] {
+        &self.channels
+    }
+    fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError> {
+        let io = |source| InputError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let bad = |e: npyz::DTypeError| InputError::Format {
+            path: self.path.clone(),
+            message: e.to_string(),
+        };
+        let npy = open_npy(&self.path)?;
+        let mut values = vec![0.0; wanted.len()];
+        if self.fortran && self.columns > 1 {
+            // Column-major: each wanted column is a contiguous run; read them by seeking.
+            let mut columns: Vec<Vec<f64>> = Vec::with_capacity(wanted.len());
+            for &c in wanted {
+                let mut reader = npy_reader(&self.path, self.single)?;
+                reader.seek_to(c as u64 * self.rows).map_err(io)?;
+                let mut column = Vec::with_capacity(self.rows as usize);
+                for _ in 0..self.rows {
+                    column.push(reader.next_value().map_err(io)?);
+                }
+                columns.push(column);
+            }
+            for r in 0..self.rows as usize {
+                for (slot, column) in values.iter_mut().zip(&columns) {
+                    *slot = column[r];
+                }
+                visit(r as u64, &values)?;
+            }
+            return Ok(());
+        }
+        let mut row = vec![0.0; self.columns];
+        let mut fill = |r: u64, row: &[f64], values: &mut [f64]| -> Result<(), InputError> {
+            for (slot, &c) in values.iter_mut().zip(wanted) {
+                *slot = row[c];
+            }
+            visit(r, values)
+        };
+        if self.single {
+            let mut data = npy.data::<f32>().map_err(bad)?;
+            for r in 0..self.rows {
+                for slot in row.iter_mut() {
+                    *slot = f64::from(next_or_truncated(data.next(), &self.path, r)?);
+                }
+                fill(r, &row, &mut values)?;
+            }
+        } else {
+            let mut data = npy.data::<f64>().map_err(bad)?;
+            for r in 0..self.rows {
+                for slot in row.iter_mut() {
+                    *slot = next_or_truncated(data.next(), &self.path, r)?;
+                }
+                fill(r, &row, &mut values)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn next_or_truncated<T>(
+    item: Option<std::io::Result<T>>,
+    path: &Path,
+    row: u64,
+) -> Result<T, InputError> {
+    match item {
+        Some(Ok(v)) => Ok(v),
+        Some(Err(e)) => Err(InputError::Parse {
+            path: path.to_path_buf(),
+            row,
+            message: format!("read error: {e}"),
+        }),
+        None => Err(InputError::Parse {
+            path: path.to_path_buf(),
+            row,
+            message: "file is truncated (fewer values than its header declares)".into(),
+        }),
+    }
+}
+
+/// Random-access reader over either float width.
+enum AnyNpyReader {
+    F64(npyz::NpyReader<f64, BufReader<File>>),
+    F32(npyz::NpyReader<f32, BufReader<File>>),
+}
+
+impl AnyNpyReader {
+    fn seek_to(&mut self, index: u64) -> std::io::Result<()> {
+        match self {
+            AnyNpyReader::F64(r) => r.seek_to(index),
+            AnyNpyReader::F32(r) => r.seek_to(index),
+        }
+    }
+    fn next_value(&mut self) -> std::io::Result<f64> {
+        let eof = || std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "file is truncated");
+        match self {
+            AnyNpyReader::F64(r) => r.next().ok_or_else(eof)?,
+            AnyNpyReader::F32(r) => r.next().ok_or_else(eof)?.map(f64::from),
+        }
+    }
+}
+
+fn npy_reader(path: &Path, single: bool) -> Result<AnyNpyReader, InputError> {
+    let npy = open_npy(path)?;
+    let bad = |e: npyz::DTypeError| InputError::Format {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    Ok(if single {
+        AnyNpyReader::F32(npy.data::<f32>().map_err(bad)?)
+    } else {
+        AnyNpyReader::F64(npy.data::<f64>().map_err(bad)?)
+    })
+}
+
+/// Opens a plain file by extension: `.npy` or delimited text.
+pub fn open_file(path: &Path) -> Result<Box<dyn SampleSource>, InputError> {
+    let is_npy = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    Ok(if is_npy {
+        Box::new(NpySource::open(path)?)
+    } else {
+        Box::new(CsvSource::open(path)?)
+    })
+}
+
+// --- One axis as a uniform series --------------------------------------------------------
+
+/// What to do about gaps, NaN/Inf and non-uniform sampling.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum GapPolicy {
+    /// Refuse the data, saying where the first problem is.
+    #[default]
+    Error,
+    /// Cut the series at each problem and pool the deviations of the uniform pieces.
+    Split,
+    /// Fill missing samples and invalid values by linear interpolation; treat jitter as uniform.
+    Fill,
+    /// Drop invalid values and close gaps as if the samples were contiguous.
+    Ignore,
+}
+
+/// How the sample interval is known.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Timing {
+    /// Fixed rate in Hz.
+    Rate(f64),
+    /// A channel holding time stamps, scaled to seconds by `scale` (1 for s, 1e-9 for ns).
+    TimeChannel { channel: usize, scale: f64 },
+}
+
+/// Whether samples are rates (frequency) or phase (integrated: clock time error).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DataKind {
+    /// Rate or fractional-frequency samples (gyro rad/s, accel m/s², y).
+    #[default]
+    Rate,
+    /// Phase samples (e.g. clock time error in seconds).
+    Phase,
+}
+
+/// Data health of one axis, as reported.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Health {
+    pub policy: Option<GapPolicy>,
+    pub samples: u64,
+    pub duration_s: f64,
+    /// Intervals longer than 1.5 τ0.
+    pub gaps: u64,
+    /// Samples missing in those gaps.
+    pub missing_samples: u64,
+    /// NaN or infinite values.
+    pub invalid_values: u64,
+    /// Intervals off the nominal τ0 by more than 10 % (but not gaps), or not increasing.
+    pub nonuniform_intervals: u64,
+    /// Uniform pieces the series was split into (1 when nothing was wrong).
+    pub segments: usize,
+    /// First problem found, with its position.
+    pub first_problem: Option<String>,
+    pub temperature_min: Option<f64>,
+    pub temperature_max: Option<f64>,
+}
+
+/// One axis, ready for analysis: rate samples in uniform segments.
+#[derive(Debug, Clone)]
+pub struct AxisSeries {
+    pub name: String,
+    pub tau0: f64,
+    /// Uniform pieces of rate samples (one piece unless the policy is `split`).
+    pub segments: Vec<Vec<f64>>,
+    /// Temperature per sample, aligned with the concatenated segments, if requested.
+    pub temperature: Option<Vec<f32>>,
+    pub health: Health,
+}
+
+impl AxisSeries {
+    pub fn sample_count(&self) -> usize {
+        self.segments.iter().map(Vec::len).sum()
+    }
+}
+
+/// Fractional deviation of an interval from nominal that still counts as uniform.
+const JITTER_TOLERANCE: f64 = 0.1;
+
+/// Reads channel `axis` of `source` as a uniform rate series.
+///
+/// `temperature`: optional channel carried along (for thermal analysis). With a time
+/// channel, τ0 is the median of the first 10 000 intervals.
+pub fn read_axis(
+    source: &dyn SampleSource,
+    axis: usize,
+    timing: &Timing,
+    policy: GapPolicy,
+    data: DataKind,
+    temperature: Option<usize>,
+) -> Result<AxisSeries, InputError> {
+    let name = source.channels().get(axis).cloned().ok_or_else(|| {
+        InputError::Channel(format!("{}: no channel index {axis}", source.describe()))
+    })?;
+    let (tau0, time_channel) = match timing {
+        Timing::Rate(hz) => {
+            if !(hz.is_finite() && *hz > 0.0) {
+                return Err(InputError::Sampling(format!(
+                    "sample rate {hz} Hz must be positive"
+                )));
+            }
+            (1.0 / hz, None)
+        }
+        Timing::TimeChannel { channel, scale } => (
+            nominal_interval(source, *channel, *scale)?,
+            Some((*channel, *scale)),
+        ),
+    };
+    let mut wanted = vec![axis];
+    if let Some((c, _)) = time_channel {
+        wanted.push(c);
+    }
+    if let Some(t) = temperature {
+        wanted.push(t);
+    }
+    let temp_slot = temperature.map(|_| wanted.len() - 1);
+    let mut builder = SeriesBuilder::new(tau0, policy, &name, source.describe());
+    let mut temps: Option<Vec<f32>> = temperature.map(|_| Vec::new());
+    source.for_each_row(&wanted, &mut |row, values| {
+        let time = time_channel.map(|(_, scale)| values[1] * scale);
+        let temp = temp_slot.map(|s| values[s]);
+        builder.push(row, time, values[0], temp, temps.as_mut())
+    })?;
+    let (segments, mut health) = builder.finish()?;
+    if let Some(t) = &temps {
+        let finite = t.iter().filter(|v| v.is_finite());
+        health.temperature_min = finite.clone().copied().reduce(f32::min).map(f64::from);
+        health.temperature_max = finite.copied().reduce(f32::max).map(f64::from);
+    }
+    let segments = match data {
+        DataKind::Rate => segments,
+        DataKind::Phase => segments
+            .into_iter()
+            .map(|s| s.windows(2).map(|w| (w[1] - w[0]) / tau0).collect())
+            .collect(),
+    };
+    Ok(AxisSeries {
+        name,
+        tau0,
+        segments,
+        temperature: temps,
+        health,
+    })
+}
+
+/// Median of the first 10 000 time-stamp intervals.
+fn nominal_interval(
+    source: &dyn SampleSource,
+    channel: usize,
+    scale: f64,
+) -> Result<f64, InputError> {
+    let mut intervals = Vec::with_capacity(10_000);
+    let mut last: Option<f64> = None;
+    let result = source.for_each_row(&[channel], &mut |_, v| {
+        let t = v[0] * scale;
+        if let Some(prev) = last {
+            let dt = t - prev;
+            if dt.is_finite() && dt > 0.0 {
+                intervals.push(dt);
+            }
+        }
+        last = Some(t);
+        if intervals.len() >= 10_000 {
+            return Err(InputError::Stopped);
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) | Err(InputError::Stopped) => {}
+        Err(e) => return Err(e),
+    }
+    if intervals.is_empty() {
+        return Err(InputError::Sampling(format!(
+            "{}: the time column has no increasing time stamps",
+            source.describe()
+        )));
+    }
+    intervals.sort_by(f64::total_cmp);
+    Ok(intervals[intervals.len() / 2])
+}
+
+/// Streams samples into uniform segments under a gap policy.
+struct SeriesBuilder {
+    tau0: f64,
+    policy: GapPolicy,
+    label: String,
+    segments: Vec<Vec<f64>>,
+    current: Vec<f64>,
+    last_time: Option<f64>,
+    first_time: Option<f64>,
+    /// Number of trailing invalid values waiting for the next valid one (fill policy).
+    pending_invalid: usize,
+    health: Health,
+}
+
+impl SeriesBuilder {
+    fn new(tau0: f64, policy: GapPolicy, axis: &str, source: String) -> Self {
+        SeriesBuilder {
+            tau0,
+            policy,
+            label: format!("{source}: channel `{axis}`"),
+            segments: Vec::new(),
+            current: Vec::new(),
+            last_time: None,
+            first_time: None,
+            pending_invalid: 0,
+            health: Health {
+                policy: Some(policy),
+                ..Health::default()
+            },
+        }
+    }
+
+    fn problem(&mut self, message: String) -> Result<(), InputError> {
+        if self.health.first_problem.is_none() {
+            self.health.first_problem = Some(message.clone());
+        }
+        if self.policy == GapPolicy::Error {
+            return Err(InputError::Sampling(format!(
+                "{}: {message} (choose --gaps split|fill|ignore to proceed)",
+                self.label
+            )));
+        }
+        Ok(())
+    }
+
+    fn cut(&mut self) {
+        if !self.current.is_empty() {
+            self.segments.push(std::mem::take(&mut self.current));
+        }
+    }
+
+    fn push(
+        &mut self,
+        row: u64,
+        time: Option<f64>,
+        value: f64,
+        temperature: Option<f64>,
+        temps: Option<&mut Vec<f32>>,
+    ) -> Result<(), InputError> {
+        self.health.samples += 1;
+        if let Some(t) = time {
+            if !t.is_finite() {
+                self.problem(format!("sample {row}: time stamp is {t}"))?;
+                return Ok(());
+            }
+            self.first_time.get_or_insert(t);
+            if let Some(prev) = self.last_time {
+                let dt = t - prev;
+                let ratio = dt / self.tau0;
+                if ratio >= 1.5 {
+                    let missing = (ratio.round() as u64).saturating_sub(1);
+                    self.health.gaps += 1;
+                    self.health.missing_samples += missing;
+                    self.problem(format!(
+                        "sample {row}: gap of {dt:.6} s at t = {t:.6} s ({missing} samples missing at τ0 = {:.6} s)",
+                        self.tau0
+                    ))?;
+                    match self.policy {
+                        GapPolicy::Split => self.cut(),
+                        GapPolicy::Fill => {
+                            if let Some(&before) = self.current.last() {
+                                if value.is_finite() {
+                                    for k in 1..=missing {
+                                        let f = k as f64 / (missing + 1) as f64;
+                                        self.current.push(before + f * (value - before));
+                                    }
+                                } else {
+                                    self.pending_invalid += missing as usize;
+                                }
+                            }
+                        }
+                        _ => {}
+                    }
+                } else if dt <= 0.0 {
+                    self.health.nonuniform_intervals += 1;
+                    self.problem(format!("sample {row}: time stamp {t:.6} s does not increase (previous {prev:.6} s)"))?;
+                    if self.policy == GapPolicy::Split {
+                        self.cut();
+                    }
+                } else if (ratio - 1.0).abs() > JITTER_TOLERANCE {
+                    self.health.nonuniform_intervals += 1;
+                    self.problem(format!(
+                        "sample {row}: interval {dt:.6} s at t = {t:.6} s is off the nominal {:.6} s (non-uniform sampling)",
+                        self.tau0
+                    ))?;
+                    if self.policy == GapPolicy::Split {
+                        self.cut();
+                    }
+                }
+            }
+            self.last_time = Some(t);
+            self.health.duration_s = t - self.first_time.unwrap_or(t);
+        } else {
+            self.health.duration_s = self.health.samples as f64 * self.tau0;
+        }
+        if !value.is_finite() {
+            self.health.invalid_values += 1;
+            self.problem(format!("sample {row}: value is {value}"))?;
+            match self.policy {
+                GapPolicy::Split => self.cut(),
+                GapPolicy::Fill => self.pending_invalid += 1,
+                _ => {}
+            }
+            return Ok(());
+        }
+        if self.pending_invalid > 0 {
+            // Leading invalid values (nothing before them) are dropped.
+            if let Some(before) = self.current.last().copied() {
+                let n = self.pending_invalid;
+                for k in 1..=n {
+                    let f = k as f64 / (n + 1) as f64;
+                    self.current.push(before + f * (value - before));
+                }
+            }
+            self.pending_invalid = 0;
+        }
+        self.current.push(value);
+        if let (Some(temps), Some(temp)) = (temps, temperature) {
+            temps.push(temp as f32);
+        }
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<(Vec<Vec<f64>>, Health), InputError> {
+        self.cut();
+        self.health.segments = self.segments.len();
+        if self.segments.is_empty() {
+            return Err(InputError::Sampling(format!(
+                "{}: no valid samples",
+                self.label
+            )));
+        }
+        Ok((self.segments, self.health))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn write_file(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let path = dir.join(name);
+        std::fs::File::create(&path)
+            .unwrap()
+            .write_all(text.as_bytes())
+            .unwrap();
+        path
+    }
+
+    #[test]
+    fn csv_with_header_and_time_column() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_file(
+            dir.path(),
+            "a.csv",
+            "# comment\nt,gx,gy\n0,1,2\n0.1,3,4\n0.2,5,6\n",
+        );
+        let src = CsvSource::open(&path).unwrap();
+        assert_eq!(src.channels(), &["t", "gx", "gy"]);
+        let gy = src.channel_index("gy").unwrap();
+        let t = src.channel_index("t").unwrap();
+        let s = read_axis(
+            &src,
+            gy,
+            &Timing::TimeChannel {
+                channel: t,
+                scale: 1.0,
+            },
+            GapPolicy::Error,
+            DataKind::Rate,
+            None,
+        )
+        .unwrap();
+        assert!((s.tau0 - 0.1).abs() < 1e-12);
+        assert_eq!(s.segments, vec![vec![2.0, 4.0, 6.0]]);
+        assert!(src
+            .channel_index("gz")
+            .unwrap_err()
+            .to_string()
+            .contains("no channel `gz`"));
+    }
+
+    #[test]
+    fn gaps_are_errors_by_default_and_handled_by_policy() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_file(dir.path(), "g.tsv", "0\t1\n1\t2\n4\t5\n5\tnan\n6\t7\n");
+        let src = CsvSource::open(&path).unwrap();
+        let timing = Timing::TimeChannel {
+            channel: 0,
+            scale: 1.0,
+        };
+        let err = read_axis(&src, 1, &timing, GapPolicy::Error, DataKind::Rate, None).unwrap_err();
+        assert!(
+            err.to_string().contains("sample 2: gap of 3.000000 s"),
+            "{err}"
+        );
+        let split = read_axis(&src, 1, &timing, GapPolicy::Split, DataKind::Rate, None).unwrap();
+        assert_eq!(split.segments, vec![vec![1.0, 2.0], vec![5.0], vec![7.0]]);
+        assert_eq!(split.health.gaps, 1);
+        assert_eq!(split.health.missing_samples, 2);
+        assert_eq!(split.health.invalid_values, 1);
+        let fill = read_axis(&src, 1, &timing, GapPolicy::Fill, DataKind::Rate, None).unwrap();
+        assert_eq!(fill.segments, vec![vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]]);
+        let ignore = read_axis(&src, 1, &timing, GapPolicy::Ignore, DataKind::Rate, None).unwrap();
+        assert_eq!(ignore.segments, vec![vec![1.0, 2.0, 5.0, 7.0]]);
+    }
+
+    fn write_npy<T: npyz::AutoSerialize + Copy>(
+        path: &Path,
+        shape: &[u64],
+        order: npyz::Order,
+        data: &[T],
+    ) {
+        use npyz::WriterBuilder;
+        let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .order(order)
+            .writer(file)
+            .begin_nd()
+            .unwrap();
+        w.extend(data.iter().copied()).unwrap();
+        w.finish().unwrap();
+    }
+
+    #[test]
+    fn npy_columns_in_both_orders_and_f32_promoted() {
+        let dir = tempfile::tempdir().unwrap();
+        let c_path = dir.path().join("c.npy");
+        write_npy(
+            &c_path,
+            &[3, 2],
+            npyz::Order::C,
+            &[1.0f64, 10.0, 2.0, 20.0, 3.0, 30.0],
+        );
+        let f_path = dir.path().join("f.npy");
+        write_npy(
+            &f_path,
+            &[3, 2],
+            npyz::Order::Fortran,
+            &[1.0f32, 2.0, 3.0, 10.0, 20.0, 30.0],
+        );
+        for path in [&c_path, &f_path] {
+            let src = open_file(path).unwrap();
+            assert_eq!(src.channels().len(), 2);
+            let s = read_axis(
+                src.as_ref(),
+                1,
+                &Timing::Rate(100.0),
+                GapPolicy::Error,
+                DataKind::Rate,
+                None,
+            )
+            .unwrap();
+            assert_eq!(
+                s.segments,
+                vec![vec![10.0, 20.0, 30.0]],
+                "{}",
+                path.display()
+            );
+        }
+    }
+
+    #[test]
+    fn truncated_npy_is_a_clear_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.npy");
+        write_npy(&path, &[100], npyz::Order::C, &vec![1.0f64; 100]);
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() - 80]).unwrap();
+        let src = open_file(&path).unwrap();
+        let err = read_axis(
+            src.as_ref(),
+            0,
+            &Timing::Rate(1.0),
+            GapPolicy::Error,
+            DataKind::Rate,
+            None,
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("row 90"), "{err}");
+    }
+
+    #[test]
+    fn garbage_cell_names_row_and_column() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_file(dir.path(), "b.csv", "x,y\n1,2\n3,oops\n");
+        let src = CsvSource::open(&path).unwrap();
+        let err = read_axis(
+            &src,
+            1,
+            &Timing::Rate(10.0),
+            GapPolicy::Error,
+            DataKind::Rate,
+            None,
+        )
+        .unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("row 3") && text.contains("`y`") && text.contains("oops"),
+            "{text}"
+        );
+    }
+}

@@ -1,0 +1,139 @@
+//! Session input: a [`SampleSource`] over one IMU device of an `imulab` session, streamed
+//! block by block through `imulab::store::Session::imu_blocks`. Channels are `t` (seconds
+//! from the first sample in range), `gyro_x…z` (rad/s), `accel_x…z` (m/s²) and `temp` (°C).
+
+use super::input::{InputError, RowVisitor, SampleSource};
+use super::units::RateUnit;
+use crate::store::manifest::DeviceKind;
+use crate::store::{Session, TimeRange};
+use std::path::{Path, PathBuf};
+
+const CHANNELS: [&str; 8] = [
+    "t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z", "temp",
+];
+const BLOCK_ROWS: usize = 1 << 16;
+
+pub struct SessionSource {
+    dir: PathBuf,
+    session: Session,
+    device: String,
+    range: TimeRange,
+    channels: Vec<String>,
+}
+
+impl SessionSource {
+    /// Opens `device` (or the session's only IMU when `None`) limited to seconds
+    /// `[from, to)` after the device's first sample.
+    pub fn open(
+        dir: &Path,
+        device: Option<&str>,
+        from_s: Option<f64>,
+        to_s: Option<f64>,
+    ) -> Result<Self, InputError> {
+        let fail = |message: String| InputError::Format {
+            path: dir.to_path_buf(),
+            message,
+        };
+        let session = Session::open(dir).map_err(|e| fail(e.to_string()))?;
+        let imus: Vec<String> = session
+            .devices()
+            .iter()
+            .filter(|d| d.kind == DeviceKind::Imu)
+            .map(|d| d.name.clone())
+            .collect();
+        let device = match device {
+            Some(d) => d.to_string(),
+            None if imus.len() == 1 => imus[0].clone(),
+            None => {
+                return Err(fail(format!(
+                    "choose an IMU with --device (this session has: {})",
+                    if imus.is_empty() {
+                        "none".to_string()
+                    } else {
+                        imus.join(", ")
+                    }
+                )))
+            }
+        };
+        let first = session
+            .imu_blocks(&device, TimeRange::all(), 1)
+            .map_err(|e| fail(e.to_string()))?
+            .find_map(|b| b.ok().and_then(|b| b.t_mono_ns.first().copied()))
+            .ok_or_else(|| fail(format!("device `{device}` has no readable IMU rows")))?;
+        let to_ns = |s: f64| -> Result<i64, InputError> {
+            if !(s.is_finite() && s >= 0.0) {
+                return Err(fail(format!(
+                    "time range bound {s} s must be a non-negative number"
+                )));
+            }
+            Ok(first.saturating_add((s * 1e9) as i64))
+        };
+        let range = TimeRange::new(
+            Some(from_s.map(to_ns).transpose()?.unwrap_or(first)),
+            to_s.map(to_ns).transpose()?,
+        );
+        Ok(SessionSource {
+            dir: dir.to_path_buf(),
+            session,
+            device,
+            range,
+            channels: CHANNELS.iter().map(|c| c.to_string()).collect(),
+        })
+    }
+
+    pub fn device(&self) -> &str {
+        &self.device
+    }
+}
+
+impl SampleSource for SessionSource {
+    fn describe(&self) -> String {
+        format!("{} [{}]", self.dir.display(), self.device)
+    }
+
+    fn channels(&self) -> &[String] {
+        &self.channels
+    }
+
+    fn as_any_session(&self) -> Option<&str> {
+        Some(&self.device)
+    }
+
+    fn channel_unit(&self, channel: usize) -> Option<RateUnit> {
+        match channel {
+            1..=3 => Some(RateUnit::RadPerSecond),
+            4..=6 => Some(RateUnit::MetrePerSecondSquared),
+            _ => None,
+        }
+    }
+
+    fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError> {
+        let fail = |message: String| InputError::Format {
+            path: self.dir.clone(),
+            message,
+        };
+        let start = self.range.start_ns.unwrap_or(0);
+        let blocks = self
+            .session
+            .imu_blocks(&self.device, self.range, BLOCK_ROWS)
+            .map_err(|e| fail(e.to_string()))?;
+        let mut values = vec![0.0; wanted.len()];
+        let mut row = 0u64;
+        for block in blocks {
+            let block = block.map_err(|e| fail(format!("device `{}`: {e}", self.device)))?;
+            for i in 0..block.len() {
+                for (slot, &c) in values.iter_mut().zip(wanted) {
+                    *slot = match c {
+                        0 => (block.t_mono_ns[i] - start) as f64 * 1e-9,
+                        1..=3 => block.gyro[i][c - 1],
+                        4..=6 => block.accel[i][c - 4],
+                        _ => block.temp[i],
+                    };
+                }
+                visit(row, &values)?;
+                row += 1;
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,494 @@
+//! `imulab allan`: Allan-family deviations with confidence intervals, noise-term fit,
+//! thermal summary and JSON/CSV/HTML/PNG/Kalibr/MATLAB outputs, from plain files
+//! (CSV/TSV, .npy). The input options are shared with `imulab report` and `imulab compare`.
+
+use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions, AxisResult};
+use crate::allan::input::{
+    open_file, read_axis, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
+};
+use crate::allan::session_source::SessionSource;
+use crate::allan::thermal::{bias_versus_temperature, find_plateaus};
+use crate::allan::units::{RateUnit, SensorKind};
+use crate::allan::{export, report, DeviationKind, TauGrid};
+use anyhow::{bail, Context};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Options that say how to read inputs and what to compute (shared by allan/report/compare).
+#[derive(clap::Args, Debug, Clone)]
+pub struct AnalysisArgs {
+    /// Session: the IMU device to analyse (default: the only one). Files: the device name
+    /// in reports (default: the file's stem).
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Session: start of the analysed range, seconds after the device's first sample.
+    #[arg(long)]
+    pub from: Option<f64>,
+    /// Session: end of the analysed range, seconds after the device's first sample.
+    #[arg(long)]
+    pub to: Option<f64>,
+    /// Sensor type of the channels (decides engineering units; implied by --units).
+    #[arg(long, value_enum)]
+    pub sensor: Option<SensorKind>,
+    /// Channels to analyse, by name or 0-based index (default: all but time/temperature).
+    /// With a session: x, y, z (of --sensor, default both sensors) or gyro_x … accel_z.
+    #[arg(long, value_delimiter = ',')]
+    pub axes: Vec<String>,
+    /// Deviation type.
+    #[arg(long, value_enum, default_value = "oadev")]
+    pub kind: DeviationKind,
+    /// τ grid: octave, decade, dense:N (N per decade), all, or a list of taus in seconds.
+    #[arg(long, default_value = "octave")]
+    pub taus: TauGrid,
+    /// Sample rate in Hz (or give --time-column).
+    #[arg(long)]
+    pub rate: Option<f64>,
+    /// Channel with time stamps (name or index); τ0 is the median interval.
+    #[arg(long)]
+    pub time_column: Option<String>,
+    /// Unit of the time column: s, ms, us or ns.
+    #[arg(long, default_value = "s")]
+    pub time_unit: String,
+    /// Unit of the samples: rad/s, deg/s, deg/h, m/s2, g, mg, or none (results stay in input units).
+    #[arg(long, default_value = "none")]
+    pub units: RateUnit,
+    /// Samples are rates/fractional frequency (default) or phase.
+    #[arg(long, value_enum, default_value = "rate")]
+    pub data: DataKind,
+    /// What to do about gaps, NaN/Inf and non-uniform sampling (default: refuse).
+    #[arg(long, value_enum, default_value = "error")]
+    pub gaps: GapPolicy,
+    /// Fit the IMU noise model (ADEV/OADEV/TOTDEV).
+    #[arg(long)]
+    pub fit: bool,
+    /// Temperature channel (name or index) for bias-versus-temperature.
+    #[arg(long)]
+    pub temperature_column: Option<String>,
+    /// Temperature bin width in °C.
+    #[arg(long, default_value_t = 5.0)]
+    pub temperature_bin: f64,
+    /// Also compute one curve per temperature plateau (stepped profiles).
+    #[arg(long)]
+    pub plateaus: bool,
+    /// Settling time excluded at the start of each plateau, seconds.
+    #[arg(long, default_value_t = 600.0)]
+    pub settling: f64,
+}
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example: imulab allan gyro.csv --time-column t --axes gx,gy,gz --units rad/s --fit --taus dense:10 --json out.json --html out.html"
+)]
+pub struct AllanArgs {
+    /// Input: a session directory, a CSV/TSV file (header optional) or a NumPy .npy (N or N×k).
+    pub input: PathBuf,
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+    /// Write the JSON document (schema: docs/allan.md).
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write a CSV table (one row per axis and τ).
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Write a self-contained HTML report.
+    #[arg(long)]
+    pub html: Option<PathBuf>,
+    /// Write a PNG plot.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Write a Kalibr imu.yaml (needs --fit).
+    #[arg(long)]
+    pub kalibr: Option<PathBuf>,
+    /// Write MATLAB imuSensor parameters as a .m script (needs --fit).
+    #[arg(long)]
+    pub matlab: Option<PathBuf>,
+}
+
+pub fn run(args: AllanArgs) -> anyhow::Result<()> {
+    let report = analyse_inputs(std::slice::from_ref(&args.input), &args.analysis)?;
+    write_outputs(&report, &args)?;
+    print!("{}", summary_text(&report));
+    Ok(())
+}
+
+fn write_outputs(report: &AllanReport, args: &AllanArgs) -> anyhow::Result<()> {
+    if let Some(path) = &args.json {
+        let file =
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        serde_json::to_writer_pretty(std::io::BufWriter::new(file), report)?;
+    }
+    if let Some(path) = &args.csv {
+        report::write_csv(report, path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &args.html {
+        std::fs::write(path, report::html_report(report, "Allan analysis"))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &args.png {
+        report::write_png(report, path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if (args.kalibr.is_some() || args.matlab.is_some()) && !args.analysis.fit {
+        bail!("--kalibr and --matlab export fitted terms: add --fit");
+    }
+    if let Some(path) = &args.kalibr {
+        std::fs::write(path, export::kalibr_yaml(&report.axes, "/imu0"))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = &args.matlab {
+        std::fs::write(path, export::matlab_imu_sensor(&report.axes))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// Terminal summary: per axis the curve, then the datasheet table if fitted.
+pub fn summary_text(report: &AllanReport) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    for a in &report.axes {
+        let _ = writeln!(
+            out,
+            "{} {} ({}; {} samples, tau0 {} s, gaps policy {:?}):",
+            a.device,
+            a.axis,
+            a.curve.kind.name(),
+            a.health.samples,
+            a.tau0,
+            a.health.policy.unwrap_or_default()
+        );
+        let _ = writeln!(
+            out,
+            "  {:>12} {:>12} {:>12} {:>12} {:>9} {:>5}",
+            "tau [s]", "deviation", "low", "high", "edf", "alpha"
+        );
+        for p in &a.curve.points {
+            let f = |v: Option<f64>| v.map(|v| format!("{v:.5e}")).unwrap_or_else(|| "-".into());
+            let _ = writeln!(
+                out,
+                "  {:>12.5e} {:>12.5e} {:>12} {:>12} {:>9} {:>5}",
+                p.tau,
+                p.deviation,
+                f(p.low),
+                f(p.high),
+                p.edf
+                    .map(|e| format!("{e:.1}"))
+                    .unwrap_or_else(|| "-".into()),
+                p.alpha
+            );
+        }
+        if let Some(e) = &a.fit_error {
+            let _ = writeln!(out, "  fit: {e}");
+        }
+    }
+    if report.axes.iter().any(|a| a.fit.is_some()) {
+        let axes: Vec<&AxisResult> = report.axes.iter().collect();
+        let _ = writeln!(
+            out,
+            "\nNoise terms (n.i. = not identified, upper bound given):"
+        );
+        out.push_str(&report::datasheet_table_text(&axes));
+    }
+    out
+}
+
+/// Shows a progress bar on stderr once the work has taken more than a second, and only
+/// when stderr is a terminal.
+struct Progress {
+    bar: indicatif::ProgressBar,
+    started: Instant,
+    visible: bool,
+    terminal: bool,
+}
+
+impl Progress {
+    fn new(total: u64) -> Self {
+        let bar = indicatif::ProgressBar::with_draw_target(
+            Some(total),
+            indicatif::ProgressDrawTarget::hidden(),
+        );
+        if let Ok(style) = indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} {msg}",
+        ) {
+            bar.set_style(style);
+        }
+        Progress {
+            bar,
+            started: Instant::now(),
+            visible: false,
+            terminal: std::io::stderr().is_terminal(),
+        }
+    }
+
+    fn step(&mut self, message: String) {
+        if self.terminal && !self.visible && self.started.elapsed() > Duration::from_secs(1) {
+            self.bar
+                .set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            self.visible = true;
+        }
+        self.bar.set_message(message);
+        self.bar.inc(1);
+    }
+
+    fn finish(self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+fn time_scale(unit: &str) -> anyhow::Result<f64> {
+    Ok(match unit {
+        "s" => 1.0,
+        "ms" => 1e-3,
+        "us" | "µs" => 1e-6,
+        "ns" => 1e-9,
+        other => bail!("--time-unit `{other}`: use s, ms, us or ns"),
+    })
+}
+
+/// Opens an input path: a session directory or a plain file.
+pub fn open_input(path: &Path, args: &AnalysisArgs) -> anyhow::Result<Box<dyn SampleSource>> {
+    if path.is_dir() {
+        return Ok(Box::new(SessionSource::open(
+            path,
+            args.device.as_deref(),
+            args.from,
+            args.to,
+        )?));
+    }
+    if args.from.is_some() || args.to.is_some() {
+        bail!("--from/--to select a time range of a session; for files, cut the file instead");
+    }
+    Ok(open_file(path)?)
+}
+
+/// Session channel names for `--axes`/`--sensor`.
+fn session_axes(args: &AnalysisArgs) -> Vec<String> {
+    let sensors: Vec<&str> = match args.sensor {
+        Some(SensorKind::Gyro) => vec!["gyro"],
+        Some(SensorKind::Accel) => vec!["accel"],
+        None => vec!["gyro", "accel"],
+    };
+    let axes: Vec<String> = if args.axes.is_empty() {
+        vec!["x".into(), "y".into(), "z".into()]
+    } else {
+        args.axes.clone()
+    };
+    sensors
+        .iter()
+        .flat_map(|s| {
+            axes.iter().map(move |a| {
+                if a.contains('_') {
+                    a.clone()
+                } else {
+                    format!("{s}_{a}")
+                }
+            })
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold(Vec::new(), |mut acc, a| {
+            if !acc.contains(&a) {
+                acc.push(a);
+            }
+            acc
+        })
+}
+
+/// One opened input with its resolved channels.
+struct PlannedInput {
+    path: PathBuf,
+    source: Box<dyn SampleSource>,
+    axes: Vec<usize>,
+    timing: Timing,
+    temperature: Option<usize>,
+    device: String,
+}
+
+/// Reads and analyses every selected axis of every input, one axis in memory at a time.
+pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result<AllanReport> {
+    if args.fit && !args.kind.is_allan_variance() {
+        bail!(
+            "--fit needs --kind adev, oadev or totdev (the noise model is an Allan-variance model)"
+        );
+    }
+    if !(args.temperature_bin.is_finite() && args.temperature_bin > 0.0) {
+        bail!("--temperature-bin must be a positive number of °C");
+    }
+    let sensor = args.sensor.or(args.units.sensor());
+    let mut plan: Vec<PlannedInput> = Vec::new();
+    for path in inputs {
+        let source = open_input(path, args)?;
+        let is_session = path.is_dir();
+        if is_session && (args.rate.is_some() || args.time_column.is_some()) {
+            bail!(
+                "{}: a session carries its own time stamps; drop --rate/--time-column",
+                path.display()
+            );
+        }
+        let time_column = if is_session {
+            Some("t")
+        } else {
+            args.time_column.as_deref()
+        };
+        let time_channel = time_column.map(|c| source.channel_index(c)).transpose()?;
+        let temperature = args
+            .temperature_column
+            .as_deref()
+            .map(|c| source.channel_index(c))
+            .transpose()?;
+        let timing = match (time_channel, args.rate) {
+            (Some(channel), None) => Timing::TimeChannel {
+                channel,
+                scale: time_scale(&args.time_unit)?,
+            },
+            (None, Some(hz)) => Timing::Rate(hz),
+            (Some(_), Some(_)) => bail!("give either --rate or --time-column, not both"),
+            (None, None) => bail!(
+                "{}: the sample rate is unknown: give --rate HZ or --time-column NAME",
+                path.display()
+            ),
+        };
+        let axes: Vec<usize> = if is_session {
+            session_axes(args)
+                .iter()
+                .map(|a| source.channel_index(a))
+                .collect::<Result<_, _>>()?
+        } else if args.axes.is_empty() {
+            (0..source.channels().len())
+                .filter(|&c| Some(c) != time_channel && Some(c) != temperature)
+                .collect()
+        } else {
+            args.axes
+                .iter()
+                .map(|a| source.channel_index(a))
+                .collect::<Result<_, _>>()?
+        };
+        if axes.is_empty() {
+            bail!("{}: no channels to analyse", path.display());
+        }
+        let device = if let Some(session) = source.as_any_session() {
+            session.to_string()
+        } else {
+            args.device.clone().unwrap_or_else(|| {
+                path.file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "device".into())
+            })
+        };
+        plan.push(PlannedInput {
+            path: path.clone(),
+            source,
+            axes,
+            timing,
+            temperature,
+            device,
+        });
+    }
+    let total: usize = plan.iter().map(|p| p.axes.len()).sum();
+    let mut progress = Progress::new(total as u64);
+    let mut results = Vec::new();
+    for PlannedInput {
+        path,
+        source,
+        axes,
+        timing,
+        temperature,
+        device,
+    } in &plan
+    {
+        for &axis in axes {
+            let series = read_axis(
+                source.as_ref(),
+                axis,
+                timing,
+                args.gaps,
+                args.data,
+                *temperature,
+            )
+            .with_context(|| format!("reading {}", path.display()))?;
+            // A source that knows its channel's unit (a session) overrides --units.
+            let known_unit = source.channel_unit(axis);
+            let unit = known_unit.unwrap_or(args.units);
+            let options = AnalysisOptions {
+                kind: args.kind,
+                grid: args.taus.clone(),
+                fit: args.fit,
+                unit,
+                sensor: if known_unit.is_some() {
+                    unit.sensor()
+                } else {
+                    sensor
+                },
+            };
+            progress.step(format!("{device} {}", series.name));
+            results.extend(analyse_with_thermal(device, series, &options, args));
+        }
+    }
+    progress.finish();
+    Ok(AllanReport::new(
+        inputs.iter().map(|p| p.display().to_string()).collect(),
+        args.kind,
+        &grid_label(&args.taus),
+        results,
+    ))
+}
+
+fn grid_label(grid: &TauGrid) -> String {
+    match grid {
+        TauGrid::Octave => "octave".into(),
+        TauGrid::Decade => "decade".into(),
+        TauGrid::Dense(n) => format!("dense:{n}"),
+        TauGrid::All => "all".into(),
+        TauGrid::List(l) => l
+            .iter()
+            .map(|t| t.to_string())
+            .collect::<Vec<_>>()
+            .join(","),
+    }
+}
+
+/// The axis itself plus, with a temperature channel, its thermal summary and (with
+/// `--plateaus`) one extra result per temperature plateau.
+fn analyse_with_thermal(
+    device: &str,
+    mut series: AxisSeries,
+    options: &AnalysisOptions,
+    args: &AnalysisArgs,
+) -> Vec<AxisResult> {
+    let Some(temps) = series.temperature.take() else {
+        return vec![analyse_axis(device, series, options)];
+    };
+    let rate: Vec<f64> = series.segments.concat();
+    let mut thermal = bias_versus_temperature(&rate, &temps, args.temperature_bin);
+    let mut extra = Vec::new();
+    if args.plateaus {
+        let settling = (args.settling / series.tau0).round() as usize;
+        let min_len = settling.max((600.0 / series.tau0) as usize);
+        thermal.plateaus = find_plateaus(&temps, 0.5, min_len, settling);
+        for p in &thermal.plateaus {
+            let piece = AxisSeries {
+                name: format!("{} @ {:.1} °C", series.name, p.temperature),
+                tau0: series.tau0,
+                segments: vec![rate[p.start..p.end].to_vec()],
+                temperature: None,
+                health: crate::allan::input::Health {
+                    samples: (p.end - p.start) as u64,
+                    duration_s: (p.end - p.start) as f64 * series.tau0,
+                    segments: 1,
+                    first_problem: Some(format!(
+                        "plateau: samples {}..{}, first {} samples ({} s) excluded as settling",
+                        p.start, p.end, p.settling_samples, args.settling
+                    )),
+                    ..series.health.clone()
+                },
+            };
+            extra.push(analyse_axis(device, piece, options));
+        }
+    }
+    drop(rate);
+    let mut main = analyse_axis(device, series, options);
+    main.thermal = Some(thermal);
+    let mut out = vec![main];
+    out.extend(extra);
+    out
+}

@@ -1,0 +1,51 @@
+//! `imulab compare`: two or more IMUs side by side as a datasheet-style table (rows: bias
+//! stability, ARW/VRW, RRW/AccRW, …; columns: device × axis), on the terminal and
+//! optionally as HTML with the curves overlaid.
+
+use super::allan::{analyse_inputs, AnalysisArgs};
+use crate::allan::analysis::AxisResult;
+use crate::allan::report::{datasheet_table_html, datasheet_table_text, svg_plot};
+use anyhow::{bail, Context};
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example: imulab compare bench_a.csv bench_b.csv --time-column t --units rad/s --html compare.html"
+)]
+pub struct CompareArgs {
+    /// Two or more inputs, one device each.
+    #[arg(required = true, num_args = 2..)]
+    pub inputs: Vec<PathBuf>,
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+    /// Also write an HTML page with the table and the overlaid curves.
+    #[arg(long)]
+    pub html: Option<PathBuf>,
+}
+
+pub fn run(mut args: CompareArgs) -> anyhow::Result<()> {
+    if args.inputs.len() < 2 {
+        bail!("compare needs at least two inputs");
+    }
+    if !args.analysis.kind.is_allan_variance() {
+        bail!("compare fits the noise model: use --kind adev, oadev or totdev");
+    }
+    args.analysis.fit = true;
+    args.analysis.device = None;
+    let report = analyse_inputs(&args.inputs, &args.analysis)?;
+    let axes: Vec<&AxisResult> = report.axes.iter().collect();
+    print!("{}", datasheet_table_text(&axes));
+    if let Some(path) = &args.html {
+        let mut page = String::from(
+            "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>IMU comparison</title><style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}td:first-child{text-align:left}small{color:#666}</style></head><body><h1>IMU comparison</h1>",
+        );
+        page.push_str(&datasheet_table_html(&axes));
+        page.push_str(&svg_plot(
+            &axes,
+            &format!("{} of all axes", report.kind.name().to_uppercase()),
+        ));
+        page.push_str("</body></html>\n");
+        std::fs::write(path, page).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}

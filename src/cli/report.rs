@@ -1,0 +1,48 @@
+//! `imulab report`: one self-contained HTML page for one or more inputs (sessions or plain
+//! files): log-log curves with confidence bands and fitted lines, the datasheet-style
+//! noise-term table (rows: terms; columns: device × axis) and the data's health.
+
+use super::allan::{analyse_inputs, summary_text, AnalysisArgs};
+use crate::allan::report::html_report;
+use anyhow::Context;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Example: imulab report imu_a.csv imu_b.npy --rate 200 --units rad/s --kind oadev --html report.html"
+)]
+pub struct ReportArgs {
+    /// Inputs (one device each): CSV/TSV or .npy files.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    #[command(flatten)]
+    pub analysis: AnalysisArgs,
+    /// Output HTML file.
+    #[arg(long, default_value = "allan-report.html")]
+    pub html: PathBuf,
+    /// Also write the JSON document.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Page title.
+    #[arg(long, default_value = "IMU noise report")]
+    pub title: String,
+}
+
+pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
+    // A report always carries the noise terms.
+    args.analysis.fit = args.analysis.kind.is_allan_variance();
+    if args.analysis.device.is_some() && args.inputs.len() > 1 {
+        anyhow::bail!("--device names a single input; with several inputs the file names are used");
+    }
+    let report = analyse_inputs(&args.inputs, &args.analysis)?;
+    std::fs::write(&args.html, html_report(&report, &args.title))
+        .with_context(|| format!("writing {}", args.html.display()))?;
+    if let Some(path) = &args.json {
+        let file =
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        serde_json::to_writer_pretty(std::io::BufWriter::new(file), &report)?;
+    }
+    print!("{}", summary_text(&report));
+    println!("wrote {}", args.html.display());
+    Ok(())
+}
