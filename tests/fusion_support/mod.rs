@@ -72,14 +72,22 @@ pub fn simulate(
     seed: u64,
 ) -> SimData {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let fine: Vec<TruthSample> = MotionGenerator::new(spec, 2.0 * imu_rate)
-        .expect("valid motion")
-        .collect();
-    let truth: Vec<TruthSample> = fine.iter().step_by(2).copied().collect();
-    let mut imu = Vec::with_capacity(truth.len());
+    // Truth at twice the IMU rate, streamed: each IMU interval is Simpson-integrated from
+    // its start, middle and end sample.
+    let mut fine = MotionGenerator::new(spec, 2.0 * imu_rate).expect("valid motion");
     let dt = 1.0 / imu_rate;
-    for k in (2..fine.len()).step_by(2) {
-        let (a, m, b) = (&fine[k - 2], &fine[k - 1], &fine[k]);
+    let mut truth = Vec::with_capacity(fine.size_hint().0 / 2 + 1);
+    let mut imu = Vec::with_capacity(truth.capacity());
+    let Some(mut a) = fine.next() else {
+        return SimData {
+            truth,
+            imu,
+            gnss: Vec::new(),
+            imu_rate,
+        };
+    };
+    truth.push(a);
+    while let (Some(m), Some(b)) = (fine.next(), fine.next()) {
         let simpson =
             |x: Vector3<f64>, y: Vector3<f64>, z: Vector3<f64>| (x + 4.0 * y + z) * dt / 6.0;
         let dth = simpson(a.gyro_b, m.gyro_b, b.gyro_b);
@@ -98,6 +106,8 @@ pub fn simulate(
             dtheta,
             dvel,
         });
+        truth.push(b);
+        a = b;
     }
     let mut gnss = Vec::new();
     for t in truth.iter().step_by(gnss_every.max(1)) {
