@@ -123,6 +123,7 @@ fn run(
         initial: Some(nav_from(&d.truth[0])),
         outages: outages.to_vec(),
         smooth,
+        ..Default::default()
     };
     let start = Instant::now();
     let r = replay(c, imu.iter().copied(), d.gnss.iter().copied(), opts);

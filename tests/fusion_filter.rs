@@ -47,6 +47,7 @@ fn run(
         initial: Some(nav_from(&d.truth[0])),
         outages: outages.clone(),
         smooth,
+        ..Default::default()
     };
     let r = replay(c, d.imu.iter().copied(), d.gnss.iter().copied(), opts);
     let e = errors(&r.filtered, |t| d.truth_at(t));

@@ -14,12 +14,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// GNSS/INS replay through the error-state Kalman filter.
+    Replay(imulab::cli::replay::ReplayArgs),
+}
 
 fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.command {};
+    let result: anyhow::Result<()> = match cli.command {
+        Command::Replay(args) => imulab::cli::replay::run(args),
+    };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -1,5 +1,7 @@
 //! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
 
+pub mod replay;
+
 /// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()

@@ -9,10 +9,14 @@
 //! - [`navigator`]: the replay engine (input checks, outages, alignment, output).
 //! - [`metrics`]: errors against truth, NEES, RMS/p95/max, drift per outage.
 //! - [`config`]: the TOML configuration.
+//! - [`export`]: trajectory CSV / GeoJSON and error-summary JSON.
+//! - [`kfgins`]: KF-GINS text formats (IMU increments, GNSS, .nav, YAML configuration).
 
 pub mod align;
 pub mod config;
 pub mod eskf;
+pub mod export;
+pub mod kfgins;
 pub mod mechanisation;
 pub mod metrics;
 pub mod models;

@@ -71,6 +71,8 @@ pub struct ReplayStats {
 pub struct ReplayOptions {
     /// Start from this state (time, position, velocity, attitude) instead of aligning.
     pub initial: Option<NavState>,
+    /// Initial sensor-error estimates (with `initial`).
+    pub initial_sensors: SensorErrors,
     /// Withhold GNSS in these [start, end) windows, s.
     pub outages: Vec<(f64, f64)>,
     /// Run the RTS smoother and return the smoothed trajectory too.
@@ -143,6 +145,9 @@ impl<const N: usize> Navigator<N> {
         };
         if let Some(initial) = nav.options.initial {
             nav.start(initial);
+            if let Some(ins) = nav.ins.as_mut() {
+                ins.sensors = nav.options.initial_sensors;
+            }
         }
         nav
     }
