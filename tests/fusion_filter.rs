@@ -177,3 +177,59 @@ fn aligns_from_levelling_and_gnss_track() {
     );
     assert!(s.horizontal.max < 1.0);
 }
+
+fn mean_outage_drift(s: &ErrorSummary) -> f64 {
+    s.outages.iter().map(|o| o.max_horizontal_m).sum::<f64>() / s.outages.len().max(1) as f64
+}
+
+#[test]
+fn non_holonomic_constraint_reduces_outage_drift() {
+    let d = data(6, false);
+    let outages = vec![(60.0, 90.0), (150.0, 180.0), (215.0, 245.0)];
+    let (_, off) = run(&d, &config(15), outages.clone(), false);
+    let mut c = config(15);
+    c.nhc.enabled = true;
+    let (r, on) = run(&d, &c, outages.clone(), false);
+    println!("NHC off {:?}\nNHC on {:?}", off.outages, on.outages);
+    assert!(r.stats.nhc_updates > 500, "{:?}", r.stats);
+    assert!(mean_outage_drift(&on) < 0.7 * mean_outage_drift(&off));
+    assert!(on.inside_3sigma > 0.97, "{}", on.inside_3sigma);
+}
+
+#[test]
+fn zero_velocity_updates_hold_the_solution_during_a_stop() {
+    let d = data(7, false);
+    // The drive stops at 150–170 s; GNSS is out from 140 to 200 s.
+    let outages = vec![(140.0, 200.0)];
+    let (_, off) = run(&d, &config(15), outages.clone(), false);
+    let mut c = config(15);
+    c.zupt.enabled = true;
+    let (r, on) = run(&d, &c, outages.clone(), false);
+    if std::env::var_os("FUSION_DEBUG").is_some() {
+        let e = errors(&r.filtered, |t| d.truth_at(t));
+        for x in e
+            .iter()
+            .filter(|x| x.t_s > 130.0 && x.t_s < 205.0)
+            .step_by(10)
+        {
+            println!(
+                "{:.1} pos {:?} vel {:?}",
+                x.t_s,
+                x.pos_ned.as_slice(),
+                x.vel_ned.as_slice()
+            );
+        }
+    }
+    println!(
+        "ZUPT off {:?}\nZUPT on {:?}\n{:?}",
+        off.outages, on.outages, r.stats
+    );
+    // Stops at 0–10, 150–170 and 275–289 s give ZUPTs every 0.5 s.
+    assert!(
+        r.stats.zupt_updates >= 50 && r.stats.zupt_updates <= 100,
+        "{}",
+        r.stats.zupt_updates
+    );
+    assert!(on.outages[0].max_horizontal_m < 0.7 * off.outages[0].max_horizontal_m);
+    assert!(on.inside_3sigma > 0.97, "{}", on.inside_3sigma);
+}

@@ -3,6 +3,11 @@
 //!
 //! Low-cost gyros cannot see earth rate through their bias, so there is no gyrocompassing.
 
+/// Motion thresholds of the levelling period: angular rate (rad/s) and deviation of the
+/// specific force from its running mean (m/s²); far above MEMS noise at 1 kHz.
+pub const LEVEL_GYRO_THRESHOLD: f64 = 0.05;
+pub const LEVEL_ACCEL_THRESHOLD: f64 = 0.3;
+
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// Roll and pitch (rad) of a body whose accelerometers read the mean specific force `f_b`
@@ -33,8 +38,9 @@ pub struct StaticLeveller {
 
 impl StaticLeveller {
     /// Adds one interval of `dt_s` seconds with mean specific force `f_b` and rate `w_b`.
-    /// Stops accumulating for good at the first sign of motion (rate above `gyro_threshold`
-    /// or specific-force magnitude off gravity by more than `accel_threshold`).
+    /// Stops accumulating for good at the first sign of motion: a rate above
+    /// `gyro_threshold`, a specific force off the running mean by more than
+    /// `accel_threshold` (or, for the first sample, off gravity by more than that).
     pub fn add(
         &mut self,
         f_b: &Vector3<f64>,
@@ -51,7 +57,12 @@ impl StaticLeveller {
         if !finite {
             return;
         }
-        if w_b.norm() > gyro_threshold || (f_b.norm() - gravity).abs() > accel_threshold {
+        let off = if self.duration_s > 0.0 {
+            (f_b - self.sum_f / self.duration_s).norm()
+        } else {
+            (f_b.norm() - gravity).abs()
+        };
+        if w_b.norm() > gyro_threshold || off > accel_threshold {
             self.moved = true;
             return;
         }

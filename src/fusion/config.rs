@@ -145,12 +145,16 @@ pub struct ZuptOptions {
     pub enabled: bool,
     /// σ of the zero-velocity pseudo-measurement, m/s.
     pub sigma_mps: f64,
-    /// Stationary when the window's gyro magnitude stays below this, rad/s …
+    /// Stationary when the window-mean angular rate (bias-corrected) is below this, rad/s …
     pub gyro_threshold_rad_s: f64,
-    /// … and the specific-force magnitude stays within this of gravity, m/s².
+    /// … the window-mean specific force differs from the previous window's by less than
+    /// this, m/s² …
     pub accel_threshold_mps2: f64,
     /// Window length, s; also the update interval.
     pub window_s: f64,
+    /// … and the INS speed is below this, m/s (an IMU alone cannot tell a standstill from
+    /// a smooth straight cruise).
+    pub max_speed_mps: f64,
 }
 
 impl Default for ZuptOptions {
@@ -159,8 +163,9 @@ impl Default for ZuptOptions {
             enabled: false,
             sigma_mps: 0.01,
             gyro_threshold_rad_s: 0.01,
-            accel_threshold_mps2: 0.1,
+            accel_threshold_mps2: 0.05,
             window_s: 0.5,
+            max_speed_mps: 1.0,
         }
     }
 }
@@ -396,6 +401,12 @@ impl FusionConfig {
             pos,
         )?;
         check("zupt.window_s", z.window_s, z.window_s > 0.0, pos)?;
+        check(
+            "zupt.max_speed_mps",
+            z.max_speed_mps,
+            z.max_speed_mps > 0.0,
+            pos,
+        )?;
         let a = &self.alignment;
         if let Some(h) = a.heading_deg {
             check("alignment.heading_deg", h, true, "must be finite")?;

@@ -87,6 +87,15 @@ pub struct ReplayResult {
     pub stats: ReplayStats,
 }
 
+/// Running sums of the current zero-velocity detection window.
+#[derive(Debug, Clone, Copy, Default)]
+struct ZuptWindow {
+    duration_s: f64,
+    sum_gyro: Vector3<f64>,
+    sum_accel: Vector3<f64>,
+    prev_mean_accel: Option<Vector3<f64>>,
+}
+
 /// The incremental replay engine for a filter with `N` states.
 pub struct Navigator<const N: usize> {
     config: FusionConfig,
@@ -97,7 +106,7 @@ pub struct Navigator<const N: usize> {
     last_fix_t: Option<f64>,
     next_output_t: f64,
     last_nhc_t: f64,
-    zupt_window: (f64, f64, f64),
+    zupt_window: ZuptWindow,
     result: ReplayResult,
 }
 
@@ -139,7 +148,7 @@ impl<const N: usize> Navigator<N> {
             last_fix_t: None,
             next_output_t: f64::NEG_INFINITY,
             last_nhc_t: f64::NEG_INFINITY,
-            zupt_window: (0.0, 0.0, 0.0),
+            zupt_window: ZuptWindow::default(),
             result: ReplayResult::default(),
             options,
         };
@@ -197,14 +206,13 @@ impl<const N: usize> Navigator<N> {
         self.last_imu = Some((t, gyro, accel));
         let Some(ins) = self.ins.as_mut() else {
             let g = earth::normal_gravity(0.0, 0.0);
-            let z = &self.config.zupt;
             self.leveller.add(
                 &accel,
                 &gyro,
                 dt,
                 g,
-                z.gyro_threshold_rad_s,
-                3.0 * z.accel_threshold_mps2,
+                align::LEVEL_GYRO_THRESHOLD,
+                align::LEVEL_ACCEL_THRESHOLD,
             );
             return;
         };
@@ -230,25 +238,38 @@ impl<const N: usize> Navigator<N> {
         }
     }
 
+    /// Zero-velocity detection on consecutive windows: the window-mean angular rate is small,
+    /// the window-mean specific force has not changed since the previous window, and the INS
+    /// itself is slow (a smooth straight cruise looks like a standstill to an IMU).
     fn zupt(&mut self, gyro: Vector3<f64>, accel: Vector3<f64>, dt: f64) {
         let z = self.config.zupt;
         let Some(ins) = self.ins.as_mut() else { return };
         if !z.enabled {
             return;
         }
-        let g = earth::normal_gravity(ins.nav.lat_rad, ins.nav.height_m);
         let w = &mut self.zupt_window;
-        w.0 += dt;
-        w.1 = w.1.max((gyro - ins.sensors.gyro_bias).norm());
-        w.2 = w.2.max(((accel - ins.sensors.accel_bias).norm() - g).abs());
-        if w.0 >= z.window_s {
-            let still = w.1 < z.gyro_threshold_rad_s && w.2 < z.accel_threshold_mps2;
-            *w = (0.0, 0.0, 0.0);
-            if still {
-                let m = models::zero_velocity::<N>(&ins.nav, z.sigma_mps);
-                if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
-                    self.result.stats.zupt_updates += 1;
-                }
+        w.duration_s += dt;
+        w.sum_gyro += (gyro - ins.sensors.gyro_bias) * dt;
+        w.sum_accel += accel * dt;
+        if w.duration_s < z.window_s {
+            return;
+        }
+        let mean_gyro = w.sum_gyro / w.duration_s;
+        let mean_accel = w.sum_accel / w.duration_s;
+        let steady = w
+            .prev_mean_accel
+            .is_some_and(|p| (mean_accel - p).norm() < z.accel_threshold_mps2);
+        *w = ZuptWindow {
+            prev_mean_accel: Some(mean_accel),
+            ..ZuptWindow::default()
+        };
+        if steady
+            && mean_gyro.norm() < z.gyro_threshold_rad_s
+            && ins.nav.vel_ned.norm() < z.max_speed_mps
+        {
+            let m = models::zero_velocity::<N>(&ins.nav, z.sigma_mps);
+            if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
+                self.result.stats.zupt_updates += 1;
             }
         }
     }
