@@ -15,6 +15,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Summarise a session: devices, counts, rates, gaps, events, files.
+    Inspect(imulab::cli::inspect::InspectArgs),
+    /// Export one device's rows (CSV), streamed.
+    Export(imulab::cli::export::ExportArgs),
+    /// Make the partial chunk file of a killed writer readable.
+    Recover(imulab::cli::recover::RecoverArgs),
     /// GNSS/INS replay through the error-state Kalman filter.
     Replay(imulab::cli::replay::ReplayArgs),
 }
@@ -23,6 +29,9 @@ fn main() -> std::process::ExitCode {
     imulab::cli::init_logging();
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.command {
+        Command::Inspect(args) => imulab::cli::inspect::run(args),
+        Command::Export(args) => imulab::cli::export::run(args),
+        Command::Recover(args) => imulab::cli::recover::run(args),
         Command::Replay(args) => imulab::cli::replay::run(args),
     };
     match result {

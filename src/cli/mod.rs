@@ -11,3 +11,7 @@ pub fn init_logging() {
         .with_writer(std::io::stderr)
         .try_init();
 }
+
+pub mod export;
+pub mod inspect;
+pub mod recover;

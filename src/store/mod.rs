@@ -1,6 +1,30 @@
 //! The session store: a session is a directory holding `session.toml` (the manifest) and
 //! numbered HDF5 chunk files. See `docs/session-format.md` for the public layout.
+//!
+//! - [`manifest`]: `session.toml` (what was recorded, with which devices and config).
+//! - [`writer`]: [`SessionWriter`], rotating SWMR chunk files with crash-safe flushing.
+//! - [`reader`]: [`Session`], the only way analyses read data: time-ordered blocks per device.
+//! - [`recover`]: makes the `*.partial` chunk of a killed writer readable and final.
 
+mod columns;
+mod error;
+pub mod layout;
+pub mod manifest;
+pub mod reader;
 pub mod records;
+pub mod recover;
+pub mod writer;
 
+pub use error::StoreError;
+pub use manifest::{DeviceInfo, DeviceKind, Manifest};
+pub use reader::{
+    fix_type_from_code, ChunkFileInfo, GnssBlock, ImuBlock, RawBlock, Session, StreamSummary,
+    TimeRange, TruthImuBlock, TruthNavBlock,
+};
 pub use records::{EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
+pub use recover::{recover, RecoverReport};
+pub use writer::{SessionWriter, WriterOptions};
+
+/// Version of the on-disk layout this build writes and reads. Bumped on any change a reader
+/// must know about; readers refuse files with a version they do not know.
+pub const SCHEMA_VERSION: u32 = 1;

@@ -1,0 +1,39 @@
+//! `imulab recover SESSION`: makes the `*.partial` chunk file of a killed or crashed writer
+//! readable (clears the SWMR superblock flag, trims unwritten rows) and gives it its final name.
+
+use std::path::PathBuf;
+
+use crate::store::recover;
+
+#[derive(clap::Args, Debug)]
+#[command(after_help = "Example: imulab recover runs/2026-11-23-chamber")]
+pub struct RecoverArgs {
+    /// Session directory.
+    pub session: PathBuf,
+}
+
+pub fn run(args: RecoverArgs) -> anyhow::Result<()> {
+    let report = recover(&args.session)?;
+    if report.files.is_empty() {
+        println!("{}: nothing to recover", args.session.display());
+    }
+    for f in &report.files {
+        println!(
+            "{} -> {}{}",
+            f.from.display(),
+            f.to.display(),
+            if f.superblock_flags_cleared {
+                " (superblock flags cleared)"
+            } else {
+                ""
+            }
+        );
+        for t in &f.tables {
+            println!(
+                "  /{:<24} kept {:>9} rows, dropped {}",
+                t.group, t.rows_kept, t.rows_dropped
+            );
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,867 @@
+//! Column layout of every table (one HDF5 dataset per field, struct-of-arrays) and the code
+//! that moves rows between record structs and those datasets. The writer and the reader both
+//! use these lists, so a column is named, typed and documented in exactly one place.
+
+use std::ops::Range;
+
+use hdf5::types::{FixedAscii, FixedUnicode, VarLenUnicode};
+use hdf5::{Dataset, Group, H5Type, Location};
+
+use super::layout::{ATTR_DESCRIPTION, ATTR_SCHEMA_VERSION, ATTR_UNITS};
+use super::records::{
+    EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord,
+};
+use super::SCHEMA_VERSION;
+use imulab_drivers::types::FixType;
+
+/// Fixed string types of the events table (fixed size so a SWMR writer can append them).
+pub(crate) type DeviceStr = FixedAscii<64>;
+pub(crate) type KindStr = FixedAscii<32>;
+pub(crate) type DetailStr = FixedUnicode<512>;
+
+/// On-disk element type of a column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ColType {
+    I64,
+    U64,
+    F64,
+    U32,
+    U16,
+    U8,
+    Device,
+    Kind,
+    Detail,
+}
+
+/// One dataset of a table. `width` 0 means a 1-D column, otherwise N×width.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Column {
+    pub name: &'static str,
+    pub ty: ColType,
+    pub width: usize,
+    pub units: &'static str,
+    pub description: &'static str,
+}
+
+const fn col(
+    name: &'static str,
+    ty: ColType,
+    width: usize,
+    units: &'static str,
+    description: &'static str,
+) -> Column {
+    Column {
+        name,
+        ty,
+        width,
+        units,
+        description,
+    }
+}
+
+/// Host CLOCK_MONOTONIC at arrival; every table's first column. Its fill value is `i64::MIN`,
+/// which marks rows whose data never reached the disk (see `recover`).
+pub(crate) const T_MONO: Column = col(
+    "t_mono_ns",
+    ColType::I64,
+    0,
+    "ns",
+    "host CLOCK_MONOTONIC at arrival",
+);
+const T_WALL: Column = col(
+    "t_wall_ns",
+    ColType::I64,
+    0,
+    "ns",
+    "host CLOCK_REALTIME at arrival, since the Unix epoch",
+);
+pub(crate) const FILL_T_MONO: i64 = i64::MIN;
+
+pub(crate) const IMU_COLUMNS: &[Column] = &[
+    T_MONO,
+    T_WALL,
+    col(
+        "t_sensor",
+        ColType::F64,
+        0,
+        "device",
+        "the device's own counter or time, as given (NaN if none)",
+    ),
+    col(
+        "gyro",
+        ColType::F64,
+        3,
+        "rad/s",
+        "angular rate x,y,z in the device axis frame",
+    ),
+    col(
+        "accel",
+        ColType::F64,
+        3,
+        "m/s^2",
+        "specific force x,y,z in the device axis frame",
+    ),
+    col(
+        "temp",
+        ColType::F64,
+        0,
+        "degC",
+        "temperature (NaN if the device gives none)",
+    ),
+    col("status", ColType::U32, 0, "", "device status word"),
+];
+
+pub(crate) const GNSS_COLUMNS: &[Column] = &[
+    T_MONO,
+    T_WALL,
+    col("week", ColType::U16, 0, "week", "GPS week (0 when unknown)"),
+    col("tow_s", ColType::F64, 0, "s", "GPS time of week"),
+    col(
+        "utc_ns",
+        ColType::I64,
+        0,
+        "ns",
+        "UTC since the Unix epoch (-2^63 when unknown)",
+    ),
+    col("lat_deg", ColType::F64, 0, "deg", "latitude, WGS-84"),
+    col("lon_deg", ColType::F64, 0, "deg", "longitude, WGS-84"),
+    col(
+        "height_m",
+        ColType::F64,
+        0,
+        "m",
+        "height above the WGS-84 ellipsoid",
+    ),
+    col(
+        "vel_ned",
+        ColType::F64,
+        3,
+        "m/s",
+        "velocity north, east, down",
+    ),
+    col(
+        "h_acc_m",
+        ColType::F64,
+        0,
+        "m",
+        "horizontal accuracy (1 sigma)",
+    ),
+    col(
+        "v_acc_m",
+        ColType::F64,
+        0,
+        "m",
+        "vertical accuracy (1 sigma)",
+    ),
+    col(
+        "s_acc_mps",
+        ColType::F64,
+        0,
+        "m/s",
+        "speed accuracy (1 sigma)",
+    ),
+    col(
+        "fix_type",
+        ColType::U8,
+        0,
+        "",
+        "0 none, 1 DR, 2 2D, 3 3D, 4 GNSS+DR, 5 time, 6 DGNSS, 7 RTK float, 8 RTK fixed",
+    ),
+    col("num_sats", ColType::U8, 0, "", "satellites used"),
+    col("pdop", ColType::F64, 0, "", "position DOP"),
+    col("hdop", ColType::F64, 0, "", "horizontal DOP"),
+    col("vdop", ColType::F64, 0, "", "vertical DOP"),
+];
+
+pub(crate) const EVENT_COLUMNS: &[Column] = &[
+    T_MONO,
+    T_WALL,
+    col(
+        "device",
+        ColType::Device,
+        0,
+        "",
+        "device name, empty for session-wide events",
+    ),
+    col("kind", ColType::Kind, 0, "", "event kind (snake_case name)"),
+    col(
+        "detail",
+        ColType::Detail,
+        0,
+        "",
+        "free text, UTF-8, at most 512 bytes",
+    ),
+];
+
+pub(crate) const RAW_INDEX_COLUMNS: &[Column] = &[
+    T_MONO,
+    col(
+        "offset",
+        ColType::U64,
+        0,
+        "byte",
+        "start of this read in `bytes`",
+    ),
+    col(
+        "len",
+        ColType::U32,
+        0,
+        "byte",
+        "length of this read in `bytes`",
+    ),
+];
+pub(crate) const RAW_BYTES: Column = col(
+    "bytes",
+    ColType::U8,
+    0,
+    "byte",
+    "undecoded bytes as received, concatenated",
+);
+
+pub(crate) const TRUTH_NAV_COLUMNS: &[Column] = &[
+    T_MONO,
+    col("lat_deg", ColType::F64, 0, "deg", "true latitude, WGS-84"),
+    col("lon_deg", ColType::F64, 0, "deg", "true longitude, WGS-84"),
+    col(
+        "height_m",
+        ColType::F64,
+        0,
+        "m",
+        "true height above the WGS-84 ellipsoid",
+    ),
+    col(
+        "vel_ned",
+        ColType::F64,
+        3,
+        "m/s",
+        "true velocity north, east, down",
+    ),
+    col(
+        "quat_nb",
+        ColType::F64,
+        4,
+        "",
+        "true attitude body to NED, unit quaternion w,x,y,z",
+    ),
+];
+
+pub(crate) const TRUTH_IMU_COLUMNS: &[Column] = &[
+    T_MONO,
+    col(
+        "gyro_bias",
+        ColType::F64,
+        3,
+        "rad/s",
+        "total true gyro bias",
+    ),
+    col(
+        "accel_bias",
+        ColType::F64,
+        3,
+        "m/s^2",
+        "total true accel bias",
+    ),
+    col(
+        "gyro_true",
+        ColType::F64,
+        3,
+        "rad/s",
+        "error-free angular rate, sensor frame",
+    ),
+    col(
+        "accel_true",
+        ColType::F64,
+        3,
+        "m/s^2",
+        "error-free specific force, sensor frame",
+    ),
+];
+
+/// Writes a string attribute (variable-length UTF-8, what h5py and MATLAB read as text).
+pub(crate) fn put_str_attr(loc: &Location, name: &str, value: &str) -> hdf5::Result<()> {
+    let v: VarLenUnicode = value
+        .parse()
+        .map_err(|e| hdf5::Error::from(format!("attribute {name}: {e}")))?;
+    loc.new_attr::<VarLenUnicode>()
+        .create(name)?
+        .write_scalar(&v)
+}
+
+pub(crate) fn put_u32_attr(loc: &Location, name: &str, value: u32) -> hdf5::Result<()> {
+    loc.new_attr::<u32>().create(name)?.write_scalar(&value)
+}
+
+pub(crate) fn put_f64_attr(loc: &Location, name: &str, value: f64) -> hdf5::Result<()> {
+    loc.new_attr::<f64>().create(name)?.write_scalar(&value)
+}
+
+/// Creates one extendable, chunked (shuffle+deflate when `deflate > 0`) dataset for `c`.
+pub(crate) fn create_column(
+    group: &Group,
+    c: &Column,
+    chunk_rows: usize,
+    deflate: u8,
+) -> hdf5::Result<Dataset> {
+    fn make<T>(
+        group: &Group,
+        c: &Column,
+        chunk_rows: usize,
+        deflate: u8,
+        fill: Option<T>,
+    ) -> hdf5::Result<Dataset>
+    where
+        T: H5Type + Into<hdf5::types::OwnedDynValue>,
+    {
+        let chunk_rows = chunk_rows.max(1);
+        let mut b = group.new_dataset::<T>();
+        if deflate > 0 {
+            b = b.shuffle().deflate(deflate);
+        }
+        if let Some(f) = fill {
+            b = b.fill_value(f);
+        }
+        if c.width == 0 {
+            b.chunk(chunk_rows).shape(0..).create(c.name)
+        } else {
+            b.chunk((chunk_rows, c.width))
+                .shape(hdf5::SimpleExtents::new([
+                    hdf5::Extent::resizable(0),
+                    hdf5::Extent::fixed(c.width),
+                ]))
+                .create(c.name)
+        }
+    }
+    let ds = match c.ty {
+        ColType::I64 => make::<i64>(
+            group,
+            c,
+            chunk_rows,
+            deflate,
+            (c.name == T_MONO.name).then_some(FILL_T_MONO),
+        )?,
+        ColType::U64 => make::<u64>(group, c, chunk_rows, deflate, None)?,
+        ColType::F64 => make::<f64>(group, c, chunk_rows, deflate, None)?,
+        ColType::U32 => make::<u32>(group, c, chunk_rows, deflate, None)?,
+        ColType::U16 => make::<u16>(group, c, chunk_rows, deflate, None)?,
+        ColType::U8 => make::<u8>(group, c, chunk_rows, deflate, None)?,
+        ColType::Device => make::<DeviceStr>(group, c, chunk_rows, deflate, None)?,
+        ColType::Kind => make::<KindStr>(group, c, chunk_rows, deflate, None)?,
+        ColType::Detail => make::<DetailStr>(group, c, chunk_rows, deflate, None)?,
+    };
+    put_str_attr(&ds, ATTR_UNITS, c.units)?;
+    put_str_attr(&ds, ATTR_DESCRIPTION, c.description)?;
+    put_u32_attr(&ds, ATTR_SCHEMA_VERSION, SCHEMA_VERSION)?;
+    Ok(ds)
+}
+
+/// Grows a 1-D column to `start + values.len()` and writes `values` at `start`.
+pub(crate) fn put_1d<T: H5Type>(ds: &Dataset, start: usize, values: &[T]) -> hdf5::Result<()> {
+    let end = start + values.len();
+    ds.resize(end)?;
+    ds.write_slice(values, start..end)
+}
+
+/// Grows an N×W column and writes `values` as rows at `start`.
+pub(crate) fn put_2d<const W: usize>(
+    ds: &Dataset,
+    start: usize,
+    values: &[[f64; W]],
+) -> hdf5::Result<()> {
+    let end = start + values.len();
+    ds.resize((end, W))?;
+    let view = ndarray::ArrayView2::from(values);
+    ds.write_slice(view, (start..end, ..))
+}
+
+fn gather<R, T>(rows: &[R], f: impl Fn(&R) -> T) -> Vec<T> {
+    rows.iter().map(f).collect()
+}
+
+/// A record type stored as one table. `write` puts `rows` at row `start` of the table's
+/// datasets (given in `COLUMNS` order), writing `t_mono_ns` last so that a valid time implies
+/// the rest of the row was handed to HDF5 before it.
+pub(crate) trait Row: Clone {
+    const COLUMNS: &'static [Column];
+    fn t_mono_ns(&self) -> i64;
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()>;
+}
+
+impl Row for ImuRecord {
+    const COLUMNS: &'static [Column] = IMU_COLUMNS;
+    fn t_mono_ns(&self) -> i64 {
+        self.t_mono_ns
+    }
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+        put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
+        put_1d(&ds[2], start, &gather(rows, |r| r.t_sensor))?;
+        put_2d(&ds[3], start, &gather(rows, |r| r.gyro))?;
+        put_2d(&ds[4], start, &gather(rows, |r| r.accel))?;
+        put_1d(&ds[5], start, &gather(rows, |r| r.temp))?;
+        put_1d(&ds[6], start, &gather(rows, |r| r.status))?;
+        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+}
+
+impl Row for GnssRecord {
+    const COLUMNS: &'static [Column] = GNSS_COLUMNS;
+    fn t_mono_ns(&self) -> i64 {
+        self.t_mono_ns
+    }
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+        put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
+        put_1d(&ds[2], start, &gather(rows, |r| r.week))?;
+        put_1d(&ds[3], start, &gather(rows, |r| r.tow_s))?;
+        put_1d(&ds[4], start, &gather(rows, |r| r.utc_ns))?;
+        put_1d(&ds[5], start, &gather(rows, |r| r.lat_deg))?;
+        put_1d(&ds[6], start, &gather(rows, |r| r.lon_deg))?;
+        put_1d(&ds[7], start, &gather(rows, |r| r.height_m))?;
+        put_2d(&ds[8], start, &gather(rows, |r| r.vel_ned))?;
+        put_1d(&ds[9], start, &gather(rows, |r| r.h_acc_m))?;
+        put_1d(&ds[10], start, &gather(rows, |r| r.v_acc_m))?;
+        put_1d(&ds[11], start, &gather(rows, |r| r.s_acc_mps))?;
+        put_1d(&ds[12], start, &gather(rows, |r| r.fix_type as u8))?;
+        put_1d(&ds[13], start, &gather(rows, |r| r.num_sats))?;
+        put_1d(&ds[14], start, &gather(rows, |r| r.pdop))?;
+        put_1d(&ds[15], start, &gather(rows, |r| r.hdop))?;
+        put_1d(&ds[16], start, &gather(rows, |r| r.vdop))?;
+        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+}
+
+impl Row for TruthNavRecord {
+    const COLUMNS: &'static [Column] = TRUTH_NAV_COLUMNS;
+    fn t_mono_ns(&self) -> i64 {
+        self.t_mono_ns
+    }
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+        put_1d(&ds[1], start, &gather(rows, |r| r.lat_deg))?;
+        put_1d(&ds[2], start, &gather(rows, |r| r.lon_deg))?;
+        put_1d(&ds[3], start, &gather(rows, |r| r.height_m))?;
+        put_2d(&ds[4], start, &gather(rows, |r| r.vel_ned))?;
+        put_2d(&ds[5], start, &gather(rows, |r| r.quat_nb))?;
+        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+}
+
+impl Row for TruthImuRecord {
+    const COLUMNS: &'static [Column] = TRUTH_IMU_COLUMNS;
+    fn t_mono_ns(&self) -> i64 {
+        self.t_mono_ns
+    }
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+        put_2d(&ds[1], start, &gather(rows, |r| r.gyro_bias))?;
+        put_2d(&ds[2], start, &gather(rows, |r| r.accel_bias))?;
+        put_2d(&ds[3], start, &gather(rows, |r| r.gyro_true))?;
+        put_2d(&ds[4], start, &gather(rows, |r| r.accel_true))?;
+        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+}
+
+/// An event converted to its fixed-size on-disk strings (checked when appended, so a
+/// bad device name is reported to the caller instead of failing a later flush).
+#[derive(Debug, Clone)]
+pub(crate) struct EventRow {
+    pub t_mono_ns: i64,
+    pub t_wall_ns: i64,
+    pub device: DeviceStr,
+    pub kind: KindStr,
+    pub detail: DetailStr,
+}
+
+impl EventRow {
+    pub fn from_record(ev: &EventRecord) -> Result<Self, String> {
+        let device = DeviceStr::from_ascii(ev.device.as_bytes())
+            .map_err(|e| format!("event device name {:?}: {e}", ev.device))?;
+        let kind = KindStr::from_ascii(event_kind_name(ev.kind).as_bytes())
+            .map_err(|e| format!("event kind: {e}"))?;
+        let detail = truncate_utf8(&ev.detail, 512)
+            .parse::<DetailStr>()
+            .map_err(|e| format!("event detail: {e}"))?;
+        Ok(EventRow {
+            t_mono_ns: ev.t_mono_ns,
+            t_wall_ns: ev.t_wall_ns,
+            device,
+            kind,
+            detail,
+        })
+    }
+}
+
+/// The longest prefix of `s` that fits in `max` bytes without splitting a character.
+fn truncate_utf8(s: &str, max: usize) -> &str {
+    if s.len() <= max {
+        return s;
+    }
+    let mut end = max;
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
+}
+
+const EVENT_KINDS: &[(EventKind, &str)] = &[
+    (EventKind::SessionStart, "session_start"),
+    (EventKind::SessionStop, "session_stop"),
+    (EventKind::Rotation, "rotation"),
+    (EventKind::Connect, "connect"),
+    (EventKind::Disconnect, "disconnect"),
+    (EventKind::Reconnect, "reconnect"),
+    (EventKind::Resync, "resync"),
+    (EventKind::ChecksumError, "checksum_error"),
+    (EventKind::Gap, "gap"),
+    (EventKind::QueueOverflow, "queue_overflow"),
+    (EventKind::DiskLow, "disk_low"),
+    (EventKind::Info, "info"),
+];
+
+/// The on-disk (and serde) name of an event kind.
+pub(crate) fn event_kind_name(kind: EventKind) -> &'static str {
+    EVENT_KINDS
+        .iter()
+        .find(|(k, _)| *k == kind)
+        .map(|(_, n)| *n)
+        .unwrap_or("info")
+}
+
+pub(crate) fn event_kind_from_name(name: &str) -> Option<EventKind> {
+    EVENT_KINDS
+        .iter()
+        .find(|(_, n)| *n == name)
+        .map(|(k, _)| *k)
+}
+
+impl Row for EventRow {
+    const COLUMNS: &'static [Column] = EVENT_COLUMNS;
+    fn t_mono_ns(&self) -> i64 {
+        self.t_mono_ns
+    }
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+        put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
+        put_1d(&ds[2], start, &gather(rows, |r| r.device))?;
+        put_1d(&ds[3], start, &gather(rows, |r| r.kind))?;
+        put_1d(&ds[4], start, &gather(rows, |r| r.detail))?;
+        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+}
+
+/// One read of undecoded bytes: where it sits in the device's `bytes` dataset.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct RawIndexRow {
+    pub t_mono_ns: i64,
+    pub offset: u64,
+    pub len: u32,
+}
+
+impl Row for RawIndexRow {
+    const COLUMNS: &'static [Column] = RAW_INDEX_COLUMNS;
+    fn t_mono_ns(&self) -> i64 {
+        self.t_mono_ns
+    }
+    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+        put_1d(&ds[1], start, &gather(rows, |r| r.offset))?;
+        put_1d(&ds[2], start, &gather(rows, |r| r.len))?;
+        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Reading: blocks are struct-of-arrays, the same shape as on disk.
+
+fn get_1d<T: H5Type>(ds: &Dataset, r: Range<usize>) -> hdf5::Result<Vec<T>> {
+    Ok(ds.read_slice_1d::<T, _>(r)?.into_iter().collect())
+}
+
+fn get_2d<const W: usize>(ds: &Dataset, r: Range<usize>) -> hdf5::Result<Vec<[f64; W]>> {
+    let arr = ds.read_slice_2d::<f64, _>((r, ..))?;
+    if arr.ncols() != W {
+        return Err(format!("{} has {} columns, expected {W}", ds.name(), arr.ncols()).into());
+    }
+    Ok(arr
+        .outer_iter()
+        .map(|row| {
+            let mut a = [0.0; W];
+            for (dst, src) in a.iter_mut().zip(row.iter()) {
+                *dst = *src;
+            }
+            a
+        })
+        .collect())
+}
+
+/// A block of rows read back from one table.
+pub(crate) trait Block: Sized {
+    const COLUMNS: &'static [Column];
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self>;
+}
+
+/// IMU rows, struct-of-arrays (see [`ImuRecord`] for units).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImuBlock {
+    pub t_mono_ns: Vec<i64>,
+    pub t_wall_ns: Vec<i64>,
+    pub t_sensor: Vec<f64>,
+    pub gyro: Vec<[f64; 3]>,
+    pub accel: Vec<[f64; 3]>,
+    pub temp: Vec<f64>,
+    pub status: Vec<u32>,
+}
+
+impl ImuBlock {
+    pub fn len(&self) -> usize {
+        self.t_mono_ns.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t_mono_ns.is_empty()
+    }
+    /// Row `i` as a record (panics if `i >= len()`, like slice indexing).
+    pub fn record(&self, i: usize) -> ImuRecord {
+        ImuRecord {
+            t_mono_ns: self.t_mono_ns[i],
+            t_wall_ns: self.t_wall_ns[i],
+            t_sensor: self.t_sensor[i],
+            gyro: self.gyro[i],
+            accel: self.accel[i],
+            temp: self.temp[i],
+            status: self.status[i],
+        }
+    }
+}
+
+impl Block for ImuBlock {
+    const COLUMNS: &'static [Column] = IMU_COLUMNS;
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(ImuBlock {
+            t_mono_ns: get_1d(&ds[0], r.clone())?,
+            t_wall_ns: get_1d(&ds[1], r.clone())?,
+            t_sensor: get_1d(&ds[2], r.clone())?,
+            gyro: get_2d(&ds[3], r.clone())?,
+            accel: get_2d(&ds[4], r.clone())?,
+            temp: get_1d(&ds[5], r.clone())?,
+            status: get_1d(&ds[6], r)?,
+        })
+    }
+}
+
+/// GNSS rows, struct-of-arrays (see [`GnssRecord`] for units).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GnssBlock {
+    pub t_mono_ns: Vec<i64>,
+    pub t_wall_ns: Vec<i64>,
+    pub week: Vec<u16>,
+    pub tow_s: Vec<f64>,
+    pub utc_ns: Vec<i64>,
+    pub lat_deg: Vec<f64>,
+    pub lon_deg: Vec<f64>,
+    pub height_m: Vec<f64>,
+    pub vel_ned: Vec<[f64; 3]>,
+    pub h_acc_m: Vec<f64>,
+    pub v_acc_m: Vec<f64>,
+    pub s_acc_mps: Vec<f64>,
+    /// Fix type as stored (see [`FixType`]); [`GnssBlock::record`] converts it.
+    pub fix_type: Vec<u8>,
+    pub num_sats: Vec<u8>,
+    pub pdop: Vec<f64>,
+    pub hdop: Vec<f64>,
+    pub vdop: Vec<f64>,
+}
+
+/// Stored fix type code back to [`FixType`]; unknown codes read as `NoFix`.
+pub fn fix_type_from_code(code: u8) -> FixType {
+    match code {
+        1 => FixType::DeadReckoning,
+        2 => FixType::Fix2D,
+        3 => FixType::Fix3D,
+        4 => FixType::GnssDeadReckoning,
+        5 => FixType::TimeOnly,
+        6 => FixType::Dgnss,
+        7 => FixType::RtkFloat,
+        8 => FixType::RtkFixed,
+        _ => FixType::NoFix,
+    }
+}
+
+impl GnssBlock {
+    pub fn len(&self) -> usize {
+        self.t_mono_ns.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t_mono_ns.is_empty()
+    }
+    /// Row `i` as a record (panics if `i >= len()`, like slice indexing).
+    pub fn record(&self, i: usize) -> GnssRecord {
+        GnssRecord {
+            t_mono_ns: self.t_mono_ns[i],
+            t_wall_ns: self.t_wall_ns[i],
+            week: self.week[i],
+            tow_s: self.tow_s[i],
+            utc_ns: self.utc_ns[i],
+            lat_deg: self.lat_deg[i],
+            lon_deg: self.lon_deg[i],
+            height_m: self.height_m[i],
+            vel_ned: self.vel_ned[i],
+            h_acc_m: self.h_acc_m[i],
+            v_acc_m: self.v_acc_m[i],
+            s_acc_mps: self.s_acc_mps[i],
+            fix_type: fix_type_from_code(self.fix_type[i]),
+            num_sats: self.num_sats[i],
+            pdop: self.pdop[i],
+            hdop: self.hdop[i],
+            vdop: self.vdop[i],
+        }
+    }
+}
+
+impl Block for GnssBlock {
+    const COLUMNS: &'static [Column] = GNSS_COLUMNS;
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(GnssBlock {
+            t_mono_ns: get_1d(&ds[0], r.clone())?,
+            t_wall_ns: get_1d(&ds[1], r.clone())?,
+            week: get_1d(&ds[2], r.clone())?,
+            tow_s: get_1d(&ds[3], r.clone())?,
+            utc_ns: get_1d(&ds[4], r.clone())?,
+            lat_deg: get_1d(&ds[5], r.clone())?,
+            lon_deg: get_1d(&ds[6], r.clone())?,
+            height_m: get_1d(&ds[7], r.clone())?,
+            vel_ned: get_2d(&ds[8], r.clone())?,
+            h_acc_m: get_1d(&ds[9], r.clone())?,
+            v_acc_m: get_1d(&ds[10], r.clone())?,
+            s_acc_mps: get_1d(&ds[11], r.clone())?,
+            fix_type: get_1d(&ds[12], r.clone())?,
+            num_sats: get_1d(&ds[13], r.clone())?,
+            pdop: get_1d(&ds[14], r.clone())?,
+            hdop: get_1d(&ds[15], r.clone())?,
+            vdop: get_1d(&ds[16], r)?,
+        })
+    }
+}
+
+/// True trajectory rows, struct-of-arrays (see [`TruthNavRecord`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TruthNavBlock {
+    pub t_mono_ns: Vec<i64>,
+    pub lat_deg: Vec<f64>,
+    pub lon_deg: Vec<f64>,
+    pub height_m: Vec<f64>,
+    pub vel_ned: Vec<[f64; 3]>,
+    pub quat_nb: Vec<[f64; 4]>,
+}
+
+impl TruthNavBlock {
+    pub fn len(&self) -> usize {
+        self.t_mono_ns.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t_mono_ns.is_empty()
+    }
+}
+
+impl Block for TruthNavBlock {
+    const COLUMNS: &'static [Column] = TRUTH_NAV_COLUMNS;
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(TruthNavBlock {
+            t_mono_ns: get_1d(&ds[0], r.clone())?,
+            lat_deg: get_1d(&ds[1], r.clone())?,
+            lon_deg: get_1d(&ds[2], r.clone())?,
+            height_m: get_1d(&ds[3], r.clone())?,
+            vel_ned: get_2d(&ds[4], r.clone())?,
+            quat_nb: get_2d(&ds[5], r)?,
+        })
+    }
+}
+
+/// True IMU error-state rows, struct-of-arrays (see [`TruthImuRecord`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TruthImuBlock {
+    pub t_mono_ns: Vec<i64>,
+    pub gyro_bias: Vec<[f64; 3]>,
+    pub accel_bias: Vec<[f64; 3]>,
+    pub gyro_true: Vec<[f64; 3]>,
+    pub accel_true: Vec<[f64; 3]>,
+}
+
+impl TruthImuBlock {
+    pub fn len(&self) -> usize {
+        self.t_mono_ns.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t_mono_ns.is_empty()
+    }
+}
+
+impl Block for TruthImuBlock {
+    const COLUMNS: &'static [Column] = TRUTH_IMU_COLUMNS;
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(TruthImuBlock {
+            t_mono_ns: get_1d(&ds[0], r.clone())?,
+            gyro_bias: get_2d(&ds[1], r.clone())?,
+            accel_bias: get_2d(&ds[2], r.clone())?,
+            gyro_true: get_2d(&ds[3], r.clone())?,
+            accel_true: get_2d(&ds[4], r)?,
+        })
+    }
+}
+
+/// Events, struct-of-arrays.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct EventBlock(pub Vec<EventRecord>);
+
+impl Block for EventBlock {
+    const COLUMNS: &'static [Column] = EVENT_COLUMNS;
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        let t_mono: Vec<i64> = get_1d(&ds[0], r.clone())?;
+        let t_wall: Vec<i64> = get_1d(&ds[1], r.clone())?;
+        let device: Vec<DeviceStr> = get_1d(&ds[2], r.clone())?;
+        let kind: Vec<KindStr> = get_1d(&ds[3], r.clone())?;
+        let detail: Vec<DetailStr> = get_1d(&ds[4], r)?;
+        let mut out = Vec::with_capacity(t_mono.len());
+        for i in 0..t_mono.len() {
+            let kind_name = kind[i].as_str();
+            let kind = event_kind_from_name(kind_name).ok_or_else(|| {
+                hdf5::Error::from(format!("events: unknown kind {kind_name:?} in row {i}"))
+            })?;
+            out.push(EventRecord {
+                t_mono_ns: t_mono[i],
+                t_wall_ns: t_wall[i],
+                device: device[i].as_str().to_string(),
+                kind,
+                detail: detail[i].as_str().to_string(),
+            });
+        }
+        Ok(EventBlock(out))
+    }
+}
+
+/// Raw journal index rows.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RawIndexBlock {
+    pub t_mono_ns: Vec<i64>,
+    pub offset: Vec<u64>,
+    pub len: Vec<u32>,
+}
+
+impl Block for RawIndexBlock {
+    const COLUMNS: &'static [Column] = RAW_INDEX_COLUMNS;
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(RawIndexBlock {
+            t_mono_ns: get_1d(&ds[0], r.clone())?,
+            offset: get_1d(&ds[1], r.clone())?,
+            len: get_1d(&ds[2], r)?,
+        })
+    }
+}
+
+/// Only the time column of a table (for gap scans).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct TimeBlock(pub Vec<i64>);
+
+impl Block for TimeBlock {
+    const COLUMNS: &'static [Column] = &[T_MONO];
+    fn read(ds: &[Dataset], r: Range<usize>) -> hdf5::Result<Self> {
+        Ok(TimeBlock(get_1d(&ds[0], r)?))
+    }
+}
+
+pub(crate) fn read_bytes(ds: &Dataset, r: Range<usize>) -> hdf5::Result<Vec<u8>> {
+    get_1d(ds, r)
+}

@@ -1,0 +1,615 @@
+//! [`Session`]: reads a session directory as one continuous, time-ordered stream per device,
+//! across all chunk files, in blocks of bounded size with time-range selection. This is the
+//! only way the analyses read data.
+//!
+//! A bad chunk file (truncated, corrupt, unknown schema version) does not stop the rest: it
+//! is listed by [`Session::files`] with its problem, and a block iterator yields one `Err`
+//! naming that file at its place in the stream, then carries on with the next file.
+
+use std::marker::PhantomData;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use hdf5::Dataset;
+
+pub use super::columns::{fix_type_from_code, GnssBlock, ImuBlock, TruthImuBlock, TruthNavBlock};
+use super::columns::{
+    read_bytes, Block, EventBlock, RawIndexBlock, TimeBlock, FILL_T_MONO, RAW_BYTES,
+};
+use super::layout::{self, ATTR_SCHEMA_VERSION};
+use super::manifest::{DeviceInfo, DeviceKind, Manifest};
+use super::records::EventRecord;
+use super::{StoreError, SCHEMA_VERSION};
+
+/// A half-open range of host monotonic time `[start_ns, end_ns)`; `None` is unbounded.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TimeRange {
+    pub start_ns: Option<i64>,
+    pub end_ns: Option<i64>,
+}
+
+impl TimeRange {
+    pub fn all() -> Self {
+        TimeRange::default()
+    }
+    pub fn new(start_ns: Option<i64>, end_ns: Option<i64>) -> Self {
+        TimeRange { start_ns, end_ns }
+    }
+}
+
+/// One chunk file of a session and whether it can be read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkFileInfo {
+    pub path: PathBuf,
+    pub index: u32,
+    /// Still named `*.partial`: being written, or left by a writer that was killed.
+    pub partial: bool,
+    pub size_bytes: u64,
+    /// Why the file cannot be read (one line naming the file), or `None` when it is fine.
+    pub problem: Option<String>,
+}
+
+#[derive(Clone)]
+struct ChunkEntry {
+    info: ChunkFileInfo,
+    file: Option<hdf5::File>,
+}
+
+/// Undecoded bytes from `/raw/<device>`: `len[i]` bytes arrived at `t_mono_ns[i]`; the reads
+/// are concatenated in `bytes`.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RawBlock {
+    pub t_mono_ns: Vec<i64>,
+    pub len: Vec<u32>,
+    pub bytes: Vec<u8>,
+}
+
+/// Rows and time span of one stream, from file metadata and a few point reads (cheap).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StreamSummary {
+    pub rows: u64,
+    pub first_t_mono_ns: Option<i64>,
+    pub last_t_mono_ns: Option<i64>,
+    /// Files that could not be summarised, one line each.
+    pub problems: Vec<String>,
+}
+
+/// An open session directory.
+pub struct Session {
+    dir: PathBuf,
+    manifest: Manifest,
+    files: Vec<ChunkEntry>,
+}
+
+fn short_h5_error(e: &hdf5::Error) -> String {
+    let text = e.to_string();
+    text.lines().next().unwrap_or("").trim().to_string()
+}
+
+/// Opens one chunk file and checks its schema version; the error is one line naming it.
+fn open_chunk(path: &Path, partial: bool) -> Result<hdf5::File, String> {
+    let shown = path.display();
+    let file = if partial {
+        // A live file is read SWMR; a killed writer's file may also open that way.
+        hdf5::File::open_as(path, hdf5::file::OpenMode::ReadSWMR)
+            .or_else(|_| hdf5::File::open(path))
+    } else {
+        hdf5::File::open(path)
+    };
+    let file = file.map_err(|e| {
+        let hint = if partial {
+            " (a killed writer's file: run `imulab recover`)"
+        } else {
+            ""
+        };
+        format!(
+            "{shown}: cannot open as HDF5, truncated or corrupt{hint}: {}",
+            short_h5_error(&e)
+        )
+    })?;
+    let version = file
+        .attr(ATTR_SCHEMA_VERSION)
+        .and_then(|a| a.read_scalar::<u32>())
+        .map_err(|_| format!("{shown}: not an imulab chunk file (no schema_version attribute)"))?;
+    if version != SCHEMA_VERSION {
+        return Err(format!(
+            "{shown}: unknown schema version {version} (this build reads version {SCHEMA_VERSION})"
+        ));
+    }
+    Ok(file)
+}
+
+impl Session {
+    /// Opens a session directory: reads the manifest and opens every chunk file it can.
+    /// Fails only when the directory is not a session or its manifest is bad; per-file
+    /// problems are reported by [`Session::files`] and [`Session::problems`].
+    pub fn open(dir: &Path) -> Result<Self, StoreError> {
+        if !dir.is_dir() {
+            return Err(StoreError::NotASession {
+                path: dir.to_path_buf(),
+                msg: "no such directory".into(),
+            });
+        }
+        let manifest = Manifest::load(dir)?;
+        let mut found: Vec<(u32, bool, PathBuf)> = Vec::new();
+        for entry in std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))? {
+            let entry = entry.map_err(|e| StoreError::io(dir, e))?;
+            let name = entry.file_name();
+            let Some(name) = name.to_str() else { continue };
+            if let Some((index, partial)) = layout::parse_chunk_file_name(name) {
+                found.push((index, partial, entry.path()));
+            }
+        }
+        found.sort_by_key(|(index, partial, _)| (*index, *partial));
+        let mut files = Vec::with_capacity(found.len());
+        for (i, (index, partial, path)) in found.iter().enumerate() {
+            let size_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+            let duplicate = i > 0 && found[i - 1].0 == *index;
+            let opened = if duplicate {
+                Err(format!(
+                    "{}: both a final and a partial file for chunk {index}; reading the final one",
+                    path.display()
+                ))
+            } else {
+                open_chunk(path, *partial)
+            };
+            let (file, problem) = match opened {
+                Ok(f) => (Some(f), None),
+                Err(p) => (None, Some(p)),
+            };
+            files.push(ChunkEntry {
+                info: ChunkFileInfo {
+                    path: path.clone(),
+                    index: *index,
+                    partial: *partial,
+                    size_bytes,
+                    problem,
+                },
+                file,
+            });
+        }
+        Ok(Session {
+            dir: dir.to_path_buf(),
+            manifest,
+            files,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    pub fn devices(&self) -> &[DeviceInfo] {
+        &self.manifest.devices
+    }
+
+    /// Every chunk file in order, with its problem if it cannot be read.
+    pub fn files(&self) -> Vec<ChunkFileInfo> {
+        self.files.iter().map(|f| f.info.clone()).collect()
+    }
+
+    /// One line per unreadable chunk file.
+    pub fn problems(&self) -> Vec<String> {
+        self.files
+            .iter()
+            .filter_map(|f| f.info.problem.clone())
+            .collect()
+    }
+
+    fn device_of_kind(&self, device: &str, kind: DeviceKind) -> Result<(), StoreError> {
+        match self.manifest.device(device) {
+            Some(d) if d.kind == kind => Ok(()),
+            Some(d) => Err(StoreError::UnknownDevice {
+                device: device.into(),
+                msg: format!("is a {} device, not {}", d.kind.as_str(), kind.as_str()),
+            }),
+            None => Err(StoreError::UnknownDevice {
+                device: device.into(),
+                msg: format!(
+                    "not in this session (devices: {})",
+                    self.manifest
+                        .devices
+                        .iter()
+                        .map(|d| d.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            }),
+        }
+    }
+
+    fn blocks<B: Block>(&self, group: String, range: TimeRange, block_rows: usize) -> BlockIter<B> {
+        BlockIter {
+            files: self.files.clone(),
+            group,
+            range,
+            block_rows: block_rows.max(1),
+            pos: 0,
+            cursor: None,
+            optional: false,
+            _block: PhantomData,
+        }
+    }
+
+    /// IMU rows of `device` in `range`, in blocks of at most `block_rows` rows (a block never
+    /// spans two chunk files).
+    pub fn imu_blocks(
+        &self,
+        device: &str,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> Result<impl Iterator<Item = Result<ImuBlock, StoreError>> + use<>, StoreError> {
+        self.device_of_kind(device, DeviceKind::Imu)?;
+        Ok(self.blocks::<ImuBlock>(layout::imu_path(device), range, block_rows))
+    }
+
+    /// GNSS rows of `device` in `range`, in blocks of at most `block_rows` rows.
+    pub fn gnss_blocks(
+        &self,
+        device: &str,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> Result<impl Iterator<Item = Result<GnssBlock, StoreError>> + use<>, StoreError> {
+        self.device_of_kind(device, DeviceKind::Gnss)?;
+        Ok(self.blocks::<GnssBlock>(layout::gnss_path(device), range, block_rows))
+    }
+
+    /// Only the `t_mono_ns` column of device `device` (IMU or GNSS), in blocks: what a gap
+    /// scan needs, at a fraction of the cost of whole rows.
+    pub fn time_blocks(
+        &self,
+        device: &str,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> Result<impl Iterator<Item = Result<Vec<i64>, StoreError>> + use<>, StoreError> {
+        let d = self
+            .manifest
+            .device(device)
+            .ok_or_else(|| StoreError::UnknownDevice {
+                device: device.into(),
+                msg: "not in this session".into(),
+            })?;
+        let group = match d.kind {
+            DeviceKind::Imu => layout::imu_path(device),
+            DeviceKind::Gnss => layout::gnss_path(device),
+        };
+        Ok(self
+            .blocks::<TimeBlock>(group, range, block_rows)
+            .map(|b| b.map(|b| b.0)))
+    }
+
+    /// True trajectory rows (simulated sessions).
+    pub fn truth_nav_blocks(
+        &self,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> Result<impl Iterator<Item = Result<TruthNavBlock, StoreError>> + use<>, StoreError> {
+        if self.manifest.truth_nav_rate_hz.is_none() {
+            return Err(StoreError::Invalid(format!(
+                "{}: not a simulated session (no truth)",
+                self.dir.display()
+            )));
+        }
+        Ok(self.blocks::<TruthNavBlock>(layout::TRUTH_NAV_GROUP.to_string(), range, block_rows))
+    }
+
+    /// True IMU error states of IMU `device` (simulated sessions).
+    pub fn truth_imu_blocks(
+        &self,
+        device: &str,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> Result<impl Iterator<Item = Result<TruthImuBlock, StoreError>> + use<>, StoreError> {
+        self.device_of_kind(device, DeviceKind::Imu)?;
+        if self.manifest.truth_nav_rate_hz.is_none() {
+            return Err(StoreError::Invalid(format!(
+                "{}: not a simulated session (no truth)",
+                self.dir.display()
+            )));
+        }
+        Ok(self.blocks::<TruthImuBlock>(layout::truth_imu_path(device), range, block_rows))
+    }
+
+    /// Events in `range`, in blocks of at most `block_rows`.
+    pub fn event_blocks(
+        &self,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> impl Iterator<Item = Result<Vec<EventRecord>, StoreError>> + use<> {
+        self.blocks::<EventBlock>(layout::EVENTS_GROUP.to_string(), range, block_rows)
+            .map(|b| b.map(|b| b.0))
+    }
+
+    /// All events of the readable files, in file order, and one line per file that failed.
+    pub fn events(&self) -> (Vec<EventRecord>, Vec<String>) {
+        let mut events = Vec::new();
+        let mut problems = Vec::new();
+        for block in self.event_blocks(TimeRange::all(), 4096) {
+            match block {
+                Ok(b) => events.extend(b),
+                Err(e) => problems.push(e.to_string()),
+            }
+        }
+        (events, problems)
+    }
+
+    /// Raw journal of `device` in `range` (empty when the session kept no raw journal).
+    pub fn raw_blocks(
+        &self,
+        device: &str,
+        range: TimeRange,
+        block_rows: usize,
+    ) -> Result<impl Iterator<Item = Result<RawBlock, StoreError>> + use<>, StoreError> {
+        if self.manifest.device(device).is_none() {
+            return Err(StoreError::UnknownDevice {
+                device: device.into(),
+                msg: "not in this session".into(),
+            });
+        }
+        let mut inner = self.blocks::<RawIndexBlock>(layout::raw_path(device), range, block_rows);
+        inner.optional = true;
+        Ok(RawIter { inner })
+    }
+
+    /// Row count and time span of a stream (`imu/<name>`, `gnss/<name>`, `events`...), from
+    /// dataset sizes and first/last times only.
+    pub fn stream_summary(&self, group: &str) -> StreamSummary {
+        let mut s = StreamSummary::default();
+        for entry in &self.files {
+            let Some(file) = &entry.file else { continue };
+            match open_table(file, group, &[super::columns::T_MONO]) {
+                Ok((ds, len)) => {
+                    if len == 0 {
+                        continue;
+                    }
+                    s.rows += len as u64;
+                    match (t_at(&ds[0], 0), t_at(&ds[0], len - 1)) {
+                        (Ok(first), Ok(last)) => {
+                            s.first_t_mono_ns =
+                                Some(s.first_t_mono_ns.map_or(first, |f| f.min(first)));
+                            s.last_t_mono_ns = Some(s.last_t_mono_ns.map_or(last, |l| l.max(last)));
+                        }
+                        (Err(e), _) | (_, Err(e)) => s.problems.push(format!(
+                            "{}: {group}: cannot read times: {}",
+                            entry.info.path.display(),
+                            short_h5_error(&e)
+                        )),
+                    }
+                }
+                Err(e) => s.problems.push(format!(
+                    "{}: {group}: {}",
+                    entry.info.path.display(),
+                    short_h5_error(&e)
+                )),
+            }
+        }
+        s
+    }
+}
+
+fn t_at(ds: &Dataset, i: usize) -> hdf5::Result<i64> {
+    ds.read_slice_1d::<i64, _>(i..i + 1)?
+        .first()
+        .copied()
+        .ok_or_else(|| "empty read".into())
+}
+
+/// Opens the datasets of a table; its usable length is the shortest column, less any tail
+/// rows whose time never reached the disk (a live or recovered file).
+fn open_table(
+    file: &hdf5::File,
+    group: &str,
+    cols: &[super::columns::Column],
+) -> hdf5::Result<(Vec<Dataset>, usize)> {
+    let g = file
+        .group(group)
+        .map_err(|_| hdf5::Error::from(format!("no group /{group}")))?;
+    let mut ds = Vec::with_capacity(cols.len());
+    let mut len = usize::MAX;
+    for c in cols {
+        let d = g
+            .dataset(c.name)
+            .map_err(|_| hdf5::Error::from(format!("no dataset /{group}/{}", c.name)))?;
+        let shape = d.shape();
+        let rows = shape.first().copied().unwrap_or(0);
+        if c.width != 0 && shape.get(1).copied() != Some(c.width) {
+            return Err(format!(
+                "/{group}/{} has shape {shape:?}, expected N×{}",
+                c.name, c.width
+            )
+            .into());
+        }
+        len = len.min(rows);
+        ds.push(d);
+    }
+    let len = if len == usize::MAX { 0 } else { len };
+    let len = valid_prefix(&ds[0], len)?;
+    Ok((ds, len))
+}
+
+/// Number of leading rows whose `t_mono_ns` is not the fill value. Unwritten rows only ever
+/// sit at the end, so this is a binary search.
+pub(crate) fn valid_prefix(t: &Dataset, len: usize) -> hdf5::Result<usize> {
+    if len == 0 || t_at(t, len - 1)? != FILL_T_MONO {
+        return Ok(len);
+    }
+    let (mut lo, mut hi) = (0, len - 1);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if t_at(t, mid)? == FILL_T_MONO {
+            hi = mid;
+        } else {
+            lo = mid + 1;
+        }
+    }
+    Ok(lo)
+}
+
+/// First row in `0..len` with time >= `x` (times are non-decreasing).
+fn lower_bound(t: &Dataset, len: usize, x: i64) -> hdf5::Result<usize> {
+    let (mut lo, mut hi) = (0, len);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if t_at(t, mid)? < x {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    Ok(lo)
+}
+
+struct Cursor {
+    file_index: usize,
+    ds: Vec<Dataset>,
+    next: usize,
+    end: usize,
+}
+
+/// Streams one table across chunk files.
+struct BlockIter<B> {
+    files: Vec<ChunkEntry>,
+    group: String,
+    range: TimeRange,
+    block_rows: usize,
+    pos: usize,
+    cursor: Option<Cursor>,
+    /// A missing group is not an error (the raw journal is optional).
+    optional: bool,
+    _block: PhantomData<B>,
+}
+
+impl<B: Block> BlockIter<B> {
+    fn open_cursor(&self, file_index: usize, file: &hdf5::File) -> hdf5::Result<Option<Cursor>> {
+        if self.optional && file.group(&self.group).is_err() {
+            return Ok(None);
+        }
+        let (ds, len) = open_table(file, &self.group, B::COLUMNS)?;
+        let start = match self.range.start_ns {
+            Some(s) => lower_bound(&ds[0], len, s)?,
+            None => 0,
+        };
+        let end = match self.range.end_ns {
+            Some(e) => lower_bound(&ds[0], len, e)?,
+            None => len,
+        };
+        Ok(Some(Cursor {
+            file_index,
+            ds,
+            next: start,
+            end: end.max(start),
+        }))
+    }
+
+    /// Next block and the index of the file it came from.
+    fn next_with_file(&mut self) -> Option<Result<(B, usize), StoreError>> {
+        loop {
+            if let Some(c) = &mut self.cursor {
+                if c.next < c.end {
+                    let r: Range<usize> = c.next..(c.next + self.block_rows).min(c.end);
+                    c.next = r.end;
+                    let fi = c.file_index;
+                    let result = B::read(&c.ds, r.clone()).map(|b| (b, fi)).map_err(|e| {
+                        StoreError::Corrupt {
+                            path: self.files[fi].info.path.clone(),
+                            msg: format!(
+                                "/{} rows {}..{}: {}",
+                                self.group,
+                                r.start,
+                                r.end,
+                                short_h5_error(&e)
+                            ),
+                        }
+                    });
+                    if result.is_err() {
+                        self.cursor = None;
+                    }
+                    return Some(result);
+                }
+                self.cursor = None;
+            }
+            let fi = self.pos;
+            let entry = self.files.get(fi)?.clone();
+            self.pos += 1;
+            let Some(file) = entry.file else {
+                let msg = entry.info.problem.unwrap_or_default();
+                return Some(Err(StoreError::Corrupt {
+                    path: entry.info.path,
+                    msg: format!("skipped: {msg}"),
+                }));
+            };
+            match self.open_cursor(fi, &file) {
+                Ok(c) => self.cursor = c,
+                Err(e) => {
+                    return Some(Err(StoreError::Corrupt {
+                        path: entry.info.path,
+                        msg: short_h5_error(&e),
+                    }))
+                }
+            }
+        }
+    }
+}
+
+impl<B: Block> Iterator for BlockIter<B> {
+    type Item = Result<B, StoreError>;
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_with_file().map(|r| r.map(|(b, _)| b))
+    }
+}
+
+struct RawIter {
+    inner: BlockIter<RawIndexBlock>,
+}
+
+impl Iterator for RawIter {
+    type Item = Result<RawBlock, StoreError>;
+    fn next(&mut self) -> Option<Self::Item> {
+        let (index, fi) = match self.inner.next_with_file()? {
+            Ok(x) => x,
+            Err(e) => return Some(Err(e)),
+        };
+        let path = self.inner.files[fi].info.path.clone();
+        let corrupt = |msg: String| StoreError::Corrupt {
+            path: path.clone(),
+            msg,
+        };
+        let (Some(&first), Some(&last), Some(&last_len)) =
+            (index.offset.first(), index.offset.last(), index.len.last())
+        else {
+            return Some(Ok(RawBlock::default()));
+        };
+        let start = usize::try_from(first).unwrap_or(usize::MAX);
+        let end = usize::try_from(last.saturating_add(u64::from(last_len))).unwrap_or(usize::MAX);
+        let file = match &self.inner.files[fi].file {
+            Some(f) => f,
+            None => return Some(Err(corrupt("file not open".into()))),
+        };
+        let bytes = file
+            .dataset(&format!("{}/{}", self.inner.group, RAW_BYTES.name))
+            .and_then(|ds| {
+                if end > ds.shape().first().copied().unwrap_or(0) || start > end {
+                    return Err(
+                        format!("raw index points past the {}-byte journal", ds.size()).into(),
+                    );
+                }
+                read_bytes(&ds, start..end)
+            });
+        Some(match bytes {
+            Ok(bytes) => Ok(RawBlock {
+                t_mono_ns: index.t_mono_ns,
+                len: index.len,
+                bytes,
+            }),
+            Err(e) => Err(corrupt(format!(
+                "/{}: {}",
+                self.inner.group,
+                short_h5_error(&e)
+            ))),
+        })
+    }
+}

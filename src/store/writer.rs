@@ -1,0 +1,786 @@
+//! [`SessionWriter`]: appends rows to the current chunk file of a session, flushes on chunk
+//! boundaries every flush interval of *data* time, rotates files by data time or size, and
+//! finalises each file (flush, fsync, rename from `*.partial`, fsync the directory).
+//!
+//! Flushing and rotation happen inside the `append_*` calls, driven by the rows' `t_mono_ns`
+//! (so a simulator writing 6 h of data in seconds rotates every 10 min of *data*). A live
+//! writer whose devices go quiet should also call [`SessionWriter::maybe_flush_and_rotate`]
+//! from a timer with the current monotonic time, so buffered rows still reach the disk.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use hdf5::{Dataset, Group};
+
+use super::columns::{
+    create_column, put_1d, put_f64_attr, put_str_attr, put_u32_attr, Column, EventRow, RawIndexRow,
+    Row, EVENT_COLUMNS, FILL_T_MONO, RAW_BYTES, RAW_INDEX_COLUMNS,
+};
+use super::layout::{self, ATTR_AXIS_FRAME, ATTR_SCHEMA_VERSION};
+use super::manifest::{fsync_dir, DeviceInfo, DeviceKind, Manifest};
+use super::records::{
+    EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord,
+};
+use super::{StoreError, SCHEMA_VERSION};
+
+/// How the writer chunks, compresses, flushes and rotates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WriterOptions {
+    /// Start a new chunk file after this much data time (default 10 min).
+    pub rotate_after: Duration,
+    /// ... or once the current file reaches this many bytes (default 512 MiB).
+    pub rotate_bytes: u64,
+    /// Rows older than this (in data time) are always on disk: the most a crash can lose
+    /// (default 1 s). Also sets the chunk size: rows per chunk = rate × this interval.
+    pub flush_interval: Duration,
+    /// Deflate level 0..=9 (0 = no shuffle/deflate filters at all). Default 4.
+    pub deflate_level: u8,
+    /// Create `/raw/<device>` for every device so undecoded bytes can be kept (default off).
+    pub raw_journal: bool,
+    /// Override rows per HDF5 chunk for every device (default: rate_hz × flush_interval).
+    pub rows_per_chunk: Option<usize>,
+    /// fsync the file after every periodic flush (protects against power loss, not only
+    /// against a killed process). Default on. Finalised files are always fsynced.
+    pub fsync_on_flush: bool,
+}
+
+impl Default for WriterOptions {
+    fn default() -> Self {
+        WriterOptions {
+            rotate_after: Duration::from_secs(600),
+            rotate_bytes: 512 << 20,
+            flush_interval: Duration::from_secs(1),
+            deflate_level: 4,
+            raw_journal: false,
+            rows_per_chunk: None,
+            fsync_on_flush: true,
+        }
+    }
+}
+
+/// One table being appended: its datasets, chunk size, rows on disk and rows buffered.
+struct Table<R> {
+    ds: Vec<Dataset>,
+    chunk_rows: usize,
+    written: usize,
+    buf: Vec<R>,
+}
+
+impl<R: Row> Table<R> {
+    fn create(
+        group: &Group,
+        chunk_rows: usize,
+        deflate: u8,
+        axis_frame: &str,
+    ) -> hdf5::Result<Self> {
+        let ds = create_columns(group, R::COLUMNS, chunk_rows, deflate, axis_frame)?;
+        Ok(Table {
+            ds,
+            chunk_rows: chunk_rows.max(1),
+            written: 0,
+            buf: Vec::new(),
+        })
+    }
+
+    /// Writes buffered rows so that writes end on chunk boundaries: everything up to the last
+    /// complete chunk, and the incomplete rest only when `force` or when its oldest row is
+    /// `max_age_ns` older than `now`. At the nominal rate a flush interval fills exactly one
+    /// chunk, so the rest is written early only for a slow or stalled device.
+    fn write_aligned(&mut self, now: i64, max_age_ns: i64, force: bool) -> hdf5::Result<bool> {
+        if self.buf.is_empty() {
+            return Ok(false);
+        }
+        let to_boundary = self.chunk_rows - self.written % self.chunk_rows;
+        let mut n = 0;
+        if self.buf.len() >= to_boundary {
+            n = to_boundary + (self.buf.len() - to_boundary) / self.chunk_rows * self.chunk_rows;
+        }
+        if n < self.buf.len() {
+            let oldest_unwritten = self.buf[n].t_mono_ns();
+            if force || now.saturating_sub(oldest_unwritten) >= max_age_ns {
+                n = self.buf.len();
+            }
+        }
+        if n == 0 {
+            return Ok(false);
+        }
+        R::write(&self.buf[..n], &self.ds, self.written)?;
+        self.written += n;
+        self.buf.drain(..n);
+        Ok(true)
+    }
+}
+
+fn create_columns(
+    group: &Group,
+    cols: &[Column],
+    chunk_rows: usize,
+    deflate: u8,
+    axis_frame: &str,
+) -> hdf5::Result<Vec<Dataset>> {
+    cols.iter()
+        .map(|c| {
+            let ds = create_column(group, c, chunk_rows, deflate)?;
+            put_str_attr(&ds, ATTR_AXIS_FRAME, axis_frame)?;
+            Ok(ds)
+        })
+        .collect()
+}
+
+/// `/raw/<device>`: the bytes dataset plus its (t_mono_ns, offset, len) index.
+struct RawTable {
+    index: Table<RawIndexRow>,
+    bytes: Dataset,
+    bytes_written: usize,
+    bytes_buf: Vec<u8>,
+}
+
+impl RawTable {
+    fn write_all(&mut self) -> hdf5::Result<bool> {
+        if self.index.buf.is_empty() {
+            return Ok(false);
+        }
+        put_1d(&self.bytes, self.bytes_written, &self.bytes_buf)?;
+        self.bytes_written += self.bytes_buf.len();
+        self.bytes_buf.clear();
+        self.index.write_aligned(0, 0, true)
+    }
+}
+
+/// The chunk file being written and its tables.
+struct ChunkFile {
+    index: u32,
+    partial_path: PathBuf,
+    final_path: PathBuf,
+    file: hdf5::File,
+    sync_handle: std::fs::File,
+    imu: HashMap<String, Table<ImuRecord>>,
+    gnss: HashMap<String, Table<GnssRecord>>,
+    truth_imu: HashMap<String, Table<TruthImuRecord>>,
+    truth_nav: Option<Table<TruthNavRecord>>,
+    events: Table<EventRow>,
+    raw: HashMap<String, RawTable>,
+    /// Data time of the first row in this file (rotation by time counts from it).
+    first_t: Option<i64>,
+}
+
+impl ChunkFile {
+    fn create(
+        dir: &Path,
+        index: u32,
+        manifest: &Manifest,
+        opts: &WriterOptions,
+    ) -> Result<Self, StoreError> {
+        let partial_path = dir.join(layout::partial_file_name(index));
+        let final_path = dir.join(layout::chunk_file_name(index));
+        if final_path.exists() {
+            return Err(StoreError::Invalid(format!(
+                "{} already exists; never writing over completed data",
+                final_path.display()
+            )));
+        }
+        let p = &partial_path;
+        let h5 = |what: &str| {
+            let what = what.to_string();
+            move |e| StoreError::h5(p, what, e)
+        };
+        let file = hdf5::File::with_options()
+            .with_fapl(|fapl| fapl.libver_v110())
+            .create_excl(p)
+            .map_err(h5("creating the chunk file"))?;
+        let deflate = opts.deflate_level.min(9);
+        let flush_s = opts.flush_interval.as_secs_f64();
+        let rows_for = |rate_hz: f64| -> usize {
+            opts.rows_per_chunk
+                .unwrap_or_else(|| (rate_hz * flush_s).round().clamp(1.0, 1e6) as usize)
+        };
+
+        let build = || -> hdf5::Result<ChunkFile> {
+            put_u32_attr(&file, ATTR_SCHEMA_VERSION, SCHEMA_VERSION)?;
+            put_str_attr(&file, "session_id", &manifest.id)?;
+            put_u32_attr(&file, "chunk_index", index)?;
+            put_str_attr(&file, "software_version", &manifest.software_version)?;
+            let mut imu = HashMap::new();
+            let mut gnss = HashMap::new();
+            let mut truth_imu = HashMap::new();
+            let mut raw = HashMap::new();
+            for d in &manifest.devices {
+                let chunk = rows_for(d.rate_hz);
+                match d.kind {
+                    DeviceKind::Imu => {
+                        let g = device_group(&file, &layout::imu_path(&d.name), d, &d.axis_frame)?;
+                        imu.insert(
+                            d.name.clone(),
+                            Table::create(&g, chunk, deflate, &d.axis_frame)?,
+                        );
+                        if manifest.truth_nav_rate_hz.is_some() {
+                            let g = device_group(
+                                &file,
+                                &layout::truth_imu_path(&d.name),
+                                d,
+                                &d.axis_frame,
+                            )?;
+                            truth_imu.insert(
+                                d.name.clone(),
+                                Table::create(&g, chunk, deflate, &d.axis_frame)?,
+                            );
+                        }
+                    }
+                    DeviceKind::Gnss => {
+                        let g = device_group(&file, &layout::gnss_path(&d.name), d, "NED")?;
+                        gnss.insert(d.name.clone(), Table::create(&g, chunk, deflate, "NED")?);
+                    }
+                }
+                if opts.raw_journal {
+                    let g = device_group(&file, &layout::raw_path(&d.name), d, "")?;
+                    let index = Table::create(&g, layout::EVENT_CHUNK_ROWS, deflate, "")?;
+                    let bytes = create_column(&g, &RAW_BYTES, layout::RAW_BYTES_CHUNK, deflate)?;
+                    put_str_attr(&bytes, ATTR_AXIS_FRAME, "")?;
+                    raw.insert(
+                        d.name.clone(),
+                        RawTable {
+                            index,
+                            bytes,
+                            bytes_written: 0,
+                            bytes_buf: Vec::new(),
+                        },
+                    );
+                }
+            }
+            let truth_nav = match manifest.truth_nav_rate_hz {
+                Some(rate) => {
+                    let g = plain_group(&file, layout::TRUTH_NAV_GROUP, "NED")?;
+                    put_f64_attr(&g, "rate_hz", rate)?;
+                    Some(Table::create(&g, rows_for(rate), deflate, "NED")?)
+                }
+                None => None,
+            };
+            let ev = plain_group(&file, layout::EVENTS_GROUP, "")?;
+            let events = Table::create(&ev, layout::EVENT_CHUNK_ROWS, deflate, "")?;
+            debug_assert_eq!(EVENT_COLUMNS.len(), events.ds.len());
+            debug_assert_eq!(RAW_INDEX_COLUMNS.len(), 3);
+            // Every object exists now; from here on readers may watch the file (SWMR).
+            file.start_swmr()?;
+            Ok(ChunkFile {
+                index,
+                partial_path: partial_path.clone(),
+                final_path: final_path.clone(),
+                file: file.clone(),
+                sync_handle: std::fs::File::open(&partial_path)
+                    .map_err(|e| hdf5::Error::from(e.to_string()))?,
+                imu,
+                gnss,
+                truth_imu,
+                truth_nav,
+                events,
+                raw,
+                first_t: None,
+            })
+        };
+        let chunk = build().map_err(h5("laying out groups and datasets"))?;
+        fsync_dir(dir)?;
+        Ok(chunk)
+    }
+
+    /// Writes what is due (see [`Table::write_aligned`]) and makes it durable with an HDF5
+    /// flush (and fsync when asked). Returns whether anything was written.
+    fn flush(
+        &mut self,
+        now: i64,
+        max_age_ns: i64,
+        force: bool,
+        fsync: bool,
+    ) -> Result<bool, StoreError> {
+        let path = self.partial_path.clone();
+        let mut wrote = false;
+        let mut go = || -> hdf5::Result<()> {
+            for t in self.imu.values_mut() {
+                wrote |= t.write_aligned(now, max_age_ns, force)?;
+            }
+            for t in self.gnss.values_mut() {
+                wrote |= t.write_aligned(now, max_age_ns, force)?;
+            }
+            for t in self.truth_imu.values_mut() {
+                wrote |= t.write_aligned(now, max_age_ns, force)?;
+            }
+            if let Some(t) = self.truth_nav.as_mut() {
+                wrote |= t.write_aligned(now, max_age_ns, force)?;
+            }
+            // Events and raw reads come at no fixed rate, so there is no chunk to fill: they
+            // are written whole once the oldest has waited half a flush interval.
+            let half = max_age_ns / 2;
+            for r in self.raw.values_mut() {
+                let oldest = r.index.buf.first().map(|row| row.t_mono_ns);
+                if force || oldest.is_some_and(|t| now.saturating_sub(t) >= half) {
+                    wrote |= r.write_all()?;
+                }
+            }
+            let oldest = self.events.buf.first().map(|row| row.t_mono_ns);
+            if force || oldest.is_some_and(|t| now.saturating_sub(t) >= half) {
+                wrote |= self.events.write_aligned(now, 0, true)?;
+            }
+            if wrote {
+                self.file.flush()?;
+            }
+            Ok(())
+        };
+        go().map_err(|e| StoreError::h5(&path, "writing rows", e))?;
+        if wrote && fsync {
+            self.sync_handle
+                .sync_data()
+                .map_err(|e| StoreError::io(&path, e))?;
+        }
+        Ok(wrote)
+    }
+
+    /// Flushes everything, closes, fsyncs, renames to the final name and fsyncs the directory.
+    fn finish(mut self, dir: &Path) -> Result<PathBuf, StoreError> {
+        self.flush(0, 0, true, false)?;
+        let ChunkFile {
+            partial_path,
+            final_path,
+            file,
+            sync_handle,
+            ..
+        } = self;
+        file.close()
+            .map_err(|e| StoreError::h5(&partial_path, "closing", e))?;
+        sync_handle
+            .sync_all()
+            .map_err(|e| StoreError::io(&partial_path, e))?;
+        drop(sync_handle);
+        std::fs::rename(&partial_path, &final_path).map_err(|e| StoreError::io(&final_path, e))?;
+        fsync_dir(dir)?;
+        Ok(final_path)
+    }
+}
+
+fn plain_group(file: &hdf5::File, path: &str, axis_frame: &str) -> hdf5::Result<Group> {
+    let g = match file.group(path) {
+        Ok(g) => g,
+        Err(_) => {
+            // Create parents first (e.g. `truth` for `truth/nav`), tagging each.
+            if let Some((parent, _)) = path.rsplit_once('/') {
+                if file.group(parent).is_err() {
+                    plain_group(file, parent, "")?;
+                }
+            }
+            let g = file.create_group(path)?;
+            put_u32_attr(&g, ATTR_SCHEMA_VERSION, SCHEMA_VERSION)?;
+            put_str_attr(&g, ATTR_AXIS_FRAME, axis_frame)?;
+            g
+        }
+    };
+    Ok(g)
+}
+
+fn device_group(
+    file: &hdf5::File,
+    path: &str,
+    d: &DeviceInfo,
+    axis_frame: &str,
+) -> hdf5::Result<Group> {
+    let g = plain_group(file, path, axis_frame)?;
+    put_str_attr(&g, "kind", d.kind.as_str())?;
+    put_str_attr(&g, "model", &d.model)?;
+    put_str_attr(&g, "serial", &d.serial)?;
+    put_str_attr(&g, "protocol", &d.protocol)?;
+    put_f64_attr(&g, "rate_hz", d.rate_hz)?;
+    Ok(g)
+}
+
+/// Writes a session: see the module documentation for when it flushes and rotates.
+pub struct SessionWriter {
+    dir: PathBuf,
+    manifest: Manifest,
+    opts: WriterOptions,
+    current: Option<ChunkFile>,
+    next_index: u32,
+    /// Newest data time seen, ns.
+    max_t: Option<i64>,
+    /// Data time of the last check of the file size against `rotate_bytes`.
+    last_size_check_t: Option<i64>,
+    /// Last row time per stream (`imu/name`...), to refuse rows going back in time.
+    last_t: HashMap<String, i64>,
+    rotate_pending: bool,
+}
+
+impl SessionWriter {
+    /// Creates the session directory `dir` (which must not exist or be empty), writes the
+    /// manifest and opens chunk file 0.
+    pub fn create(dir: &Path, manifest: Manifest, opts: WriterOptions) -> Result<Self, StoreError> {
+        manifest.validate(&dir.join(super::manifest::MANIFEST_FILE))?;
+        if opts.flush_interval.is_zero() || opts.rotate_after.is_zero() {
+            return Err(StoreError::Invalid(
+                "flush_interval and rotate_after must be positive".into(),
+            ));
+        }
+        std::fs::create_dir_all(dir).map_err(|e| StoreError::io(dir, e))?;
+        let not_empty = std::fs::read_dir(dir)
+            .map_err(|e| StoreError::io(dir, e))?
+            .next()
+            .is_some();
+        if not_empty {
+            return Err(StoreError::Invalid(format!(
+                "{} is not empty; a new session needs a new directory",
+                dir.display()
+            )));
+        }
+        manifest.save(dir)?;
+        let first = ChunkFile::create(dir, 0, &manifest, &opts)?;
+        Ok(SessionWriter {
+            dir: dir.to_path_buf(),
+            manifest,
+            opts,
+            current: Some(first),
+            next_index: 1,
+            max_t: None,
+            last_size_check_t: None,
+            last_t: HashMap::new(),
+            rotate_pending: false,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Path of the chunk file being written.
+    pub fn current_file(&self) -> Option<&Path> {
+        self.current.as_ref().map(|c| c.partial_path.as_path())
+    }
+
+    fn flush_ns(&self) -> i64 {
+        i64::try_from(self.opts.flush_interval.as_nanos()).unwrap_or(i64::MAX)
+    }
+
+    fn check_device(&self, device: &str, kind: DeviceKind) -> Result<(), StoreError> {
+        match self.manifest.device(device) {
+            Some(d) if d.kind == kind => Ok(()),
+            Some(d) => Err(StoreError::UnknownDevice {
+                device: device.into(),
+                msg: format!("is a {} device, not {}", d.kind.as_str(), kind.as_str()),
+            }),
+            None => Err(StoreError::UnknownDevice {
+                device: device.into(),
+                msg: "not in the session manifest".into(),
+            }),
+        }
+    }
+
+    /// Checks that `times` are usable and do not go back in time for `stream`.
+    fn check_times(
+        &mut self,
+        stream: &str,
+        times: impl Iterator<Item = i64>,
+    ) -> Result<(), StoreError> {
+        let mut last = self.last_t.get(stream).copied();
+        for (i, t) in times.enumerate() {
+            if t == FILL_T_MONO {
+                return Err(StoreError::Invalid(format!(
+                    "{stream}: row {i}: t_mono_ns = i64::MIN is reserved"
+                )));
+            }
+            if let Some(l) = last {
+                if t < l {
+                    return Err(StoreError::Invalid(format!(
+                        "{stream}: row {i}: t_mono_ns {t} goes back in time (previous {l})"
+                    )));
+                }
+            }
+            last = Some(t);
+        }
+        if let Some(l) = last {
+            self.last_t.insert(stream.to_string(), l);
+        }
+        Ok(())
+    }
+
+    /// Makes sure a file is open for rows starting at data time `t`, rotating first if the
+    /// current file is due (by data time or size).
+    fn file_for(&mut self, t: i64) -> Result<&mut ChunkFile, StoreError> {
+        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
+        let due_by_time = self
+            .current
+            .as_ref()
+            .and_then(|c| c.first_t)
+            .is_some_and(|first| t.saturating_sub(first) >= rotate_ns);
+        if self.current.is_none() || due_by_time || self.rotate_pending {
+            self.rotate_at(Some(t))?;
+        }
+        let chunk = self
+            .current
+            .as_mut()
+            .ok_or_else(|| StoreError::Invalid("writer has no open chunk file".into()))?;
+        chunk.first_t.get_or_insert(t);
+        Ok(chunk)
+    }
+
+    fn note_time(&mut self, t: i64) {
+        self.max_t = Some(self.max_t.map_or(t, |m| m.max(t)));
+    }
+
+    /// Appends IMU rows for `device` (rows must be in time order).
+    pub fn append_imu(&mut self, device: &str, rows: &[ImuRecord]) -> Result<(), StoreError> {
+        self.check_device(device, DeviceKind::Imu)?;
+        self.check_times(&layout::imu_path(device), rows.iter().map(|r| r.t_mono_ns))?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        table_of(&mut chunk.imu, device)?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush()
+    }
+
+    /// Appends GNSS rows for `device` (rows must be in time order).
+    pub fn append_gnss(&mut self, device: &str, rows: &[GnssRecord]) -> Result<(), StoreError> {
+        self.check_device(device, DeviceKind::Gnss)?;
+        self.check_times(&layout::gnss_path(device), rows.iter().map(|r| r.t_mono_ns))?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        table_of(&mut chunk.gnss, device)?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush()
+    }
+
+    /// Appends one event to `/events` (written at the next flush).
+    pub fn append_event(&mut self, ev: &EventRecord) -> Result<(), StoreError> {
+        let row = EventRow::from_record(ev).map_err(StoreError::Invalid)?;
+        let chunk = self.file_for(ev.t_mono_ns)?;
+        chunk.events.buf.push(row);
+        self.note_time(ev.t_mono_ns);
+        self.maybe_flush()
+    }
+
+    /// Appends one read of undecoded bytes to `/raw/<device>` (needs `raw_journal`).
+    pub fn append_raw(
+        &mut self,
+        device: &str,
+        t_mono_ns: i64,
+        bytes: &[u8],
+    ) -> Result<(), StoreError> {
+        if self.manifest.device(device).is_none() {
+            return Err(StoreError::UnknownDevice {
+                device: device.into(),
+                msg: "not in the session manifest".into(),
+            });
+        }
+        if !self.opts.raw_journal {
+            return Err(StoreError::Invalid(format!(
+                "raw bytes for {device:?} but the writer was created without raw_journal"
+            )));
+        }
+        let len = u32::try_from(bytes.len()).map_err(|_| {
+            StoreError::Invalid(format!("raw read of {} bytes is too long", bytes.len()))
+        })?;
+        self.check_times(&layout::raw_path(device), std::iter::once(t_mono_ns))?;
+        let chunk = self.file_for(t_mono_ns)?;
+        let raw = chunk
+            .raw
+            .get_mut(device)
+            .ok_or_else(|| StoreError::UnknownDevice {
+                device: device.into(),
+                msg: "no raw journal group".into(),
+            })?;
+        let offset = (raw.bytes_written + raw.bytes_buf.len()) as u64;
+        raw.index.buf.push(RawIndexRow {
+            t_mono_ns,
+            offset,
+            len,
+        });
+        raw.bytes_buf.extend_from_slice(bytes);
+        self.note_time(t_mono_ns);
+        self.maybe_flush()
+    }
+
+    /// Appends true trajectory epochs (simulated sessions: manifest `truth_nav_rate_hz`).
+    pub fn append_truth_nav(&mut self, rows: &[TruthNavRecord]) -> Result<(), StoreError> {
+        if self.manifest.truth_nav_rate_hz.is_none() {
+            return Err(StoreError::Invalid(
+                "truth rows for a session whose manifest has no truth_nav_rate_hz".into(),
+            ));
+        }
+        self.check_times(layout::TRUTH_NAV_GROUP, rows.iter().map(|r| r.t_mono_ns))?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        chunk
+            .truth_nav
+            .as_mut()
+            .ok_or_else(|| StoreError::Invalid("no /truth/nav in this file".into()))?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush()
+    }
+
+    /// Appends true IMU error states for IMU `device` (simulated sessions).
+    pub fn append_truth_imu(
+        &mut self,
+        device: &str,
+        rows: &[TruthImuRecord],
+    ) -> Result<(), StoreError> {
+        self.check_device(device, DeviceKind::Imu)?;
+        if self.manifest.truth_nav_rate_hz.is_none() {
+            return Err(StoreError::Invalid(
+                "truth rows for a session whose manifest has no truth_nav_rate_hz".into(),
+            ));
+        }
+        self.check_times(
+            &layout::truth_imu_path(device),
+            rows.iter().map(|r| r.t_mono_ns),
+        )?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        table_of(&mut chunk.truth_imu, device)?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush()
+    }
+
+    /// Writes what is due after every append: completed chunks at once, and any table's
+    /// rows once the oldest has waited a flush interval (so at most one interval of data is
+    /// ever only in memory). Checks the file size for rotation once per flush interval.
+    fn maybe_flush(&mut self) -> Result<(), StoreError> {
+        let Some(now) = self.max_t else { return Ok(()) };
+        let (flush_ns, fsync) = (self.flush_ns(), self.opts.fsync_on_flush);
+        let Some(chunk) = self.current.as_mut() else {
+            return Ok(());
+        };
+        chunk.flush(now, flush_ns, false, fsync)?;
+        let size_check_due = self
+            .last_size_check_t
+            .is_none_or(|last| now.saturating_sub(last) >= flush_ns);
+        if size_check_due {
+            self.last_size_check_t = Some(now);
+            let size = std::fs::metadata(&chunk.partial_path)
+                .map_err(|e| StoreError::io(&chunk.partial_path, e))?
+                .len();
+            if size >= self.opts.rotate_bytes {
+                self.rotate_pending = true;
+            }
+        }
+        Ok(())
+    }
+
+    /// For a live writer's idle timer: treats `now_mono_ns` as the current data time, so
+    /// rows of a device that went quiet still reach the disk within a flush interval, and a
+    /// file due for rotation by time is finalised even when no new rows arrive.
+    pub fn maybe_flush_and_rotate(&mut self, now_mono_ns: i64) -> Result<(), StoreError> {
+        self.note_time(now_mono_ns);
+        self.maybe_flush()?;
+        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
+        let due = self
+            .current
+            .as_ref()
+            .and_then(|c| c.first_t)
+            .is_some_and(|first| now_mono_ns.saturating_sub(first) >= rotate_ns);
+        if due || self.rotate_pending {
+            self.rotate_at(None)?;
+        }
+        Ok(())
+    }
+
+    /// Writes every buffered row and flushes (and fsyncs) the current file now.
+    pub fn flush(&mut self) -> Result<(), StoreError> {
+        let fsync = self.opts.fsync_on_flush;
+        if let Some(chunk) = self.current.as_mut() {
+            chunk.flush(0, 0, true, fsync)?;
+        }
+        self.last_size_check_t = self.max_t;
+        Ok(())
+    }
+
+    /// Finalises the current chunk file and starts the next one now.
+    pub fn rotate(&mut self) -> Result<(), StoreError> {
+        self.rotate_at(None)
+    }
+
+    fn rotate_at(&mut self, t: Option<i64>) -> Result<(), StoreError> {
+        let previous = match self.current.take() {
+            Some(c) => {
+                let idx = c.index;
+                c.finish(&self.dir)?;
+                Some(idx)
+            }
+            None => None,
+        };
+        self.rotate_pending = false;
+        let index = self.next_index;
+        let chunk = ChunkFile::create(&self.dir, index, &self.manifest, &self.opts)?;
+        self.next_index += 1;
+        self.current = Some(chunk);
+        if let (Some(prev), Some(t)) = (previous, t.or(self.max_t)) {
+            let detail = format!(
+                "{} finished; {} started",
+                layout::chunk_file_name(prev),
+                layout::chunk_file_name(index)
+            );
+            let ev = EventRecord {
+                t_mono_ns: t,
+                t_wall_ns: wall_clock_ns(),
+                device: String::new(),
+                kind: EventKind::Rotation,
+                detail,
+            };
+            let row = EventRow::from_record(&ev).map_err(StoreError::Invalid)?;
+            if let Some(c) = self.current.as_mut() {
+                c.events.buf.push(row);
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes everything, finalises the current chunk file and returns the session directory.
+    pub fn close(mut self) -> Result<PathBuf, StoreError> {
+        if let Some(c) = self.current.take() {
+            c.finish(&self.dir)?;
+        }
+        Ok(std::mem::take(&mut self.dir))
+    }
+}
+
+fn table_of<'a, R>(
+    map: &'a mut HashMap<String, Table<R>>,
+    device: &str,
+) -> Result<&'a mut Table<R>, StoreError> {
+    map.get_mut(device)
+        .ok_or_else(|| StoreError::UnknownDevice {
+            device: device.into(),
+            msg: "no group for it in the current chunk file".into(),
+        })
+}
+
+fn wall_clock_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
+        .unwrap_or(0)
+}
+
+impl Drop for SessionWriter {
+    /// A writer dropped without `close` (e.g. on an error path) still finalises its file.
+    fn drop(&mut self) {
+        if let Some(c) = self.current.take() {
+            if let Err(e) = c.finish(&self.dir) {
+                tracing::error!("closing session {}: {e}", self.dir.display());
+            }
+        }
+    }
+}

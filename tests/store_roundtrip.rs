@@ -1,0 +1,170 @@
+//! Writes a session with rotation and reads it back through `Session`: values, block
+//! boundaries across files, time ranges, events, summaries and the manifest.
+
+#[path = "store_common.rs"]
+mod common;
+
+use common::*;
+use imulab::store::{layout, Session, TimeRange};
+
+#[test]
+fn session_reads_back_exactly_across_rotated_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s1");
+    let manifest = write_session(&dir, 25, 37, fast_opts());
+
+    // 25 s of data with rotation every 10 s of data time: 3 chunk files, no partials.
+    let mut names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        vec![
+            "chunk-000000.h5",
+            "chunk-000001.h5",
+            "chunk-000002.h5",
+            "session.toml"
+        ]
+    );
+
+    let s = Session::open(&dir).unwrap();
+    assert!(s.problems().is_empty(), "{:?}", s.problems());
+    assert_eq!(s.manifest(), &manifest);
+
+    for (d, name) in ["imu_a", "imu_b"].iter().enumerate() {
+        let mut n = 0;
+        for block in s.imu_blocks(name, TimeRange::all(), 333).unwrap() {
+            let block = block.unwrap();
+            assert!(block.len() <= 333 && !block.is_empty());
+            for k in 0..block.len() {
+                assert_eq!(block.record(k), imu_row(d, n), "{name} row {n}");
+                n += 1;
+            }
+        }
+        assert_eq!(n, 2500);
+    }
+    let mut n = 0;
+    for block in s.gnss_blocks("gps", TimeRange::all(), 64).unwrap() {
+        let block = block.unwrap();
+        for k in 0..block.len() {
+            assert_eq!(block.record(k), gnss_row(n));
+            n += 1;
+        }
+    }
+    assert_eq!(n, 125);
+
+    let (events, problems) = s.events();
+    assert!(problems.is_empty());
+    assert_eq!(events[0].detail, "3 frames dropped, ünïcode ok");
+    assert_eq!(events[0].device, "imu_a");
+    let rotations = events
+        .iter()
+        .filter(|e| e.kind == imulab::store::EventKind::Rotation)
+        .count();
+    assert_eq!(rotations, 2);
+
+    let sum = s.stream_summary(&layout::imu_path("imu_b"));
+    assert_eq!(sum.rows, 2500);
+    assert_eq!(sum.first_t_mono_ns, Some(imu_row(1, 0).t_mono_ns));
+    assert_eq!(sum.last_t_mono_ns, Some(imu_row(1, 2499).t_mono_ns));
+}
+
+#[test]
+fn time_range_selects_exactly_the_half_open_interval() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s2");
+    write_session(&dir, 25, 150, fast_opts());
+    let s = Session::open(&dir).unwrap();
+    // Rows 950..1250 span the first rotation (at 10 s of data).
+    let range = TimeRange::new(
+        Some(imu_row(0, 950).t_mono_ns),
+        Some(imu_row(0, 1250).t_mono_ns),
+    );
+    let got: Vec<_> = s
+        .imu_blocks("imu_a", range, 1000)
+        .unwrap()
+        .flat_map(|b| {
+            let b = b.unwrap();
+            (0..b.len()).map(move |k| b.record(k)).collect::<Vec<_>>()
+        })
+        .collect();
+    assert_eq!(got.len(), 300);
+    assert_eq!(got[0], imu_row(0, 950));
+    assert_eq!(got[299], imu_row(0, 1249));
+    // Empty and out-of-span ranges give nothing, not an error.
+    let none = TimeRange::new(Some(i64::MAX - 1), None);
+    assert_eq!(s.imu_blocks("imu_a", none, 10).unwrap().count(), 0);
+}
+
+#[test]
+fn datasets_carry_units_axis_frame_and_schema_version() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s3");
+    write_session(&dir, 2, 50, fast_opts());
+    let f = hdf5::File::open(dir.join("chunk-000000.h5")).unwrap();
+    let gyro = f.dataset("imu/imu_a/gyro").unwrap();
+    assert_eq!(gyro.shape()[1], 3);
+    let units: hdf5::types::VarLenUnicode = gyro.attr("units").unwrap().read_scalar().unwrap();
+    assert_eq!(units.as_str(), "rad/s");
+    let frame: hdf5::types::VarLenUnicode = gyro.attr("axis_frame").unwrap().read_scalar().unwrap();
+    assert_eq!(frame.as_str(), "FRD");
+    for path in [
+        "imu/imu_a",
+        "gnss/gps",
+        "events",
+        "imu/imu_a/t_mono_ns",
+        "gnss/gps/vel_ned",
+    ] {
+        let v: u32 = f
+            .group(path)
+            .map(|g| g.attr("schema_version").unwrap().read_scalar().unwrap())
+            .unwrap_or_else(|_| {
+                f.dataset(path)
+                    .unwrap()
+                    .attr("schema_version")
+                    .unwrap()
+                    .read_scalar()
+                    .unwrap()
+            });
+        assert_eq!(v, imulab::store::SCHEMA_VERSION, "{path}");
+    }
+    // Chunk rows = rate × flush interval, and the filters are on.
+    assert_eq!(gyro.chunk(), Some(vec![100, 3]));
+    assert_eq!(
+        f.dataset("gnss/gps/lat_deg").unwrap().chunk(),
+        Some(vec![5])
+    );
+    assert!(gyro.filters().len() >= 2);
+}
+
+#[test]
+fn writer_refuses_bad_input_with_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s4");
+    let mut w = imulab::store::SessionWriter::create(&dir, manifest(), fast_opts()).unwrap();
+    let e = w
+        .append_imu("nope", &[imu_row(0, 0)])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("nope") && e.contains("manifest"), "{e}");
+    let e = w
+        .append_gnss("imu_a", &[gnss_row(0)])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("imu_a") && e.contains("imu device"), "{e}");
+    w.append_imu("imu_a", &[imu_row(0, 5)]).unwrap();
+    let e = w
+        .append_imu("imu_a", &[imu_row(0, 4)])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("back in time"), "{e}");
+    w.close().unwrap();
+    // A second session in the same directory is refused.
+    let e = imulab::store::SessionWriter::create(&dir, manifest(), fast_opts())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("not empty"), "{e}");
+}
