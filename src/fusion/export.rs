@@ -46,12 +46,9 @@ pub const CSV_HEADER: [&str; 37] = [
     "sd_baz_mps2",
 ];
 
-/// Writes the trajectory CSV.
-pub fn write_csv(path: &Path, solutions: &[NavSolution]) -> anyhow::Result<()> {
-    let mut w =
-        csv::Writer::from_path(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    w.write_record(CSV_HEADER)?;
-    for s in solutions {
+/// One row of the trajectory table, in [`CSV_HEADER`] order.
+fn row(s: &NavSolution) -> Vec<f64> {
+    {
         let n = &s.nav;
         let (r, p, y) = n.quat_nb.euler_angles();
         let mut row: Vec<f64> = vec![
@@ -80,9 +77,40 @@ pub fn write_csv(path: &Path, solutions: &[NavSolution]) -> anyhow::Result<()> {
         }
         row.extend(s.sigma_sensors[0].iter());
         row.extend(s.sigma_sensors[1].iter());
-        w.write_record(row.iter().map(|v| v.to_string()))?;
+        row
+    }
+}
+
+/// Writes the trajectory CSV.
+pub fn write_csv(path: &Path, solutions: &[NavSolution]) -> anyhow::Result<()> {
+    let mut w =
+        csv::Writer::from_path(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    w.write_record(CSV_HEADER)?;
+    for s in solutions {
+        w.write_record(row(s).iter().map(|v| v.to_string()))?;
     }
     w.flush()?;
+    Ok(())
+}
+
+/// Writes trajectories into an HDF5 file: group `/replay/<name>` per set, one 1-D dataset
+/// per [`CSV_HEADER`] column.
+pub fn write_hdf5(path: &Path, sets: &[(&str, &[NavSolution])]) -> anyhow::Result<()> {
+    let ctx = |e: hdf5::Error| anyhow::anyhow!("{}: {e}", path.display());
+    let file = hdf5::File::create(path).map_err(ctx)?;
+    let top = file.create_group("replay").map_err(ctx)?;
+    for (name, solutions) in sets {
+        let group = top.create_group(name).map_err(ctx)?;
+        let rows: Vec<Vec<f64>> = solutions.iter().map(row).collect();
+        for (c, column) in CSV_HEADER.iter().enumerate() {
+            let values: Vec<f64> = rows.iter().map(|r| r[c]).collect();
+            group
+                .new_dataset_builder()
+                .with_data(&values)
+                .create(*column)
+                .map_err(ctx)?;
+        }
+    }
     Ok(())
 }
 

@@ -7,9 +7,10 @@
 //! - [`align`]: static levelling and heading from the GNSS track.
 //! - [`smoother`]: Rauch-Tung-Striebel backward pass.
 //! - [`navigator`]: the replay engine (input checks, outages, alignment, output).
+//! - [`session`]: replay of a recorded or simulated session from the store.
 //! - [`metrics`]: errors against truth, NEES, RMS/p95/max, drift per outage.
 //! - [`config`]: the TOML configuration.
-//! - [`export`]: trajectory CSV / GeoJSON and error-summary JSON.
+//! - [`export`]: trajectory HDF5 / CSV / GeoJSON and error-summary JSON.
 //! - [`kfgins`]: KF-GINS text formats (IMU increments, GNSS, .nav, YAML configuration).
 
 pub mod align;
@@ -21,4 +22,5 @@ pub mod mechanisation;
 pub mod metrics;
 pub mod models;
 pub mod navigator;
+pub mod session;
 pub mod smoother;
