@@ -279,10 +279,10 @@ impl<const N: usize> Ins<N> {
         let mut p = phi * self.p * phi.transpose() + qd;
         p = 0.5 * (p + p.transpose());
         if !p.iter().all(|v| v.is_finite()) || (0..N).any(|i| p[(i, i)] <= 0.0) {
-            // Cannot happen with finite inputs; keep the old covariance plus process noise
-            // rather than ever storing a NaN.
+            // Only absurd (finite but overflowing) inputs get here: keep the old covariance
+            // plus white process noise rather than ever storing a non-finite number.
             self.stats.propagation_repairs += 1;
-            p = p_prev + qd;
+            p = p_prev + SMatrix::from_diagonal(&(self.q_psd * dt));
         }
         if cap_covariance(&mut p) {
             self.stats.covariance_caps += 1;
