@@ -181,12 +181,20 @@ fn main() {
         c.mechanisation.coning_sculling = false;
         c
     };
+    let cov10 = FusionConfig {
+        covariance_interval_s: 0.1,
+        ..base
+    };
+    let cov20 = FusionConfig {
+        covariance_interval_s: 0.2,
+        ..base
+    };
     let s21 = FusionConfig { states: 21, ..base };
     let imu100 = decimate(&d.imu, 2);
     let imu50 = decimate(&d.imu, 4);
     let rows = [
         run(
-            "baseline: 15 states, 2nd order, coning/sculling, 200 Hz",
+            "baseline: 15 states, 2nd order, coning/sculling, 200 Hz, covariance every 0.05 s",
             &d,
             &d.imu,
             &base,
@@ -209,6 +217,22 @@ fn main() {
             &d,
             &d.imu,
             &s21,
+            false,
+            &outages,
+        ),
+        run(
+            "covariance propagated every 0.1 s",
+            &d,
+            &d.imu,
+            &cov10,
+            false,
+            &outages,
+        ),
+        run(
+            "covariance propagated every 0.2 s",
+            &d,
+            &d.imu,
+            &cov20,
             false,
             &outages,
         ),
