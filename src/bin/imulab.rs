@@ -23,6 +23,12 @@ enum Command {
     Recover(imulab::cli::recover::RecoverArgs),
     /// GNSS/INS replay through the error-state Kalman filter.
     Replay(imulab::cli::replay::ReplayArgs),
+    /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
+    Decode(imulab::cli::decode::DecodeArgs),
+    /// Simulate IMUs and GNSS receivers from a scene file.
+    Sim(imulab::cli::sim::SimArgs),
+    /// Print imulogd's status file as a table.
+    Status(imulab::cli::status::StatusArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -33,6 +39,9 @@ fn main() -> std::process::ExitCode {
         Command::Export(args) => imulab::cli::export::run(args),
         Command::Recover(args) => imulab::cli::recover::run(args),
         Command::Replay(args) => imulab::cli::replay::run(args),
+        Command::Decode(args) => imulab::cli::decode::run(args),
+        Command::Sim(args) => imulab::cli::sim::run(args),
+        Command::Status(args) => imulab::cli::status::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

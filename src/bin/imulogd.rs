@@ -1,2 +1,163 @@
-//! `imulogd`: the acquisition daemon.
-fn main() {}
+//! `imulogd`: the acquisition daemon. Logs IMUs and GNSS receivers into a session as the
+//! configuration file says; see `docs/daemon.md`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::Parser;
+use imulab::daemon::{self, config, source, writer::FreeSpaceFn, DaemonParts};
+
+#[derive(Parser)]
+#[command(
+    name = "imulogd",
+    version,
+    about = "Acquisition daemon: logs IMUs and GNSS receivers into HDF5 sessions",
+    after_help = "Examples:\n  imulogd --check-config /etc/imulogd/imulogd.toml\n  imulogd --config /etc/imulogd/imulogd.toml\n\n\
+Exit status: 0 after SIGTERM/SIGINT with the session closed, 1 on an error, 2 for a bad \
+configuration, 3 when the disk reserve was reached (session closed cleanly)."
+)]
+struct Args {
+    /// Run with this configuration file.
+    #[arg(long, value_name = "FILE", required_unless_present = "check_config")]
+    config: Option<PathBuf>,
+    /// Check this configuration file, print what it would run, and exit.
+    #[arg(long, value_name = "FILE", conflicts_with = "config")]
+    check_config: Option<PathBuf>,
+}
+
+/// Exit status for a configuration that is rejected.
+const EXIT_BAD_CONFIG: u8 = 2;
+
+fn main() -> ExitCode {
+    imulab::cli::init_logging();
+    let args = Args::parse();
+    if let Some(path) = args.check_config {
+        return check_config(&path);
+    }
+    let Some(path) = args.config else {
+        return ExitCode::from(EXIT_BAD_CONFIG);
+    };
+    let config = match config::load(&path) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("imulogd: {e}");
+            return ExitCode::from(EXIT_BAD_CONFIG);
+        }
+    };
+    if let Err(problems) = unsupported(&config) {
+        eprintln!("imulogd: {}: {problems}", path.display());
+        return ExitCode::from(EXIT_BAD_CONFIG);
+    }
+    match run(&config) {
+        Ok(code) => ExitCode::from(code),
+        Err(e) => {
+            tracing::error!("{e:#}");
+            eprintln!("imulogd: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Devices this build cannot open or decode, as one message.
+fn unsupported(config: &config::CheckedConfig) -> Result<(), String> {
+    let problems: Vec<String> = config
+        .devices
+        .iter()
+        .enumerate()
+        .flat_map(|(i, d)| {
+            let connector = source::connector_for(d).err();
+            let decoder = source::decoder_for(d).err();
+            connector
+                .into_iter()
+                .chain(decoder)
+                .map(move |p| format!("device[{i}] ({}): {p}", d.name))
+        })
+        .collect();
+    if problems.is_empty() {
+        Ok(())
+    } else {
+        Err(problems.join("; "))
+    }
+}
+
+fn check_config(path: &Path) -> ExitCode {
+    let config = match config::load(path) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("imulogd: {e}");
+            return ExitCode::from(EXIT_BAD_CONFIG);
+        }
+    };
+    let s = &config.session;
+    println!("{}: configuration is valid", path.display());
+    println!(
+        "session: {} in {} (flush {} ms, rotate {} min / {} MB, deflate {}, raw journal {}, reserve {} MB)",
+        s.name,
+        s.output_dir.display(),
+        s.flush_interval_ms,
+        s.rotate_minutes,
+        s.rotate_mb,
+        s.deflate_level,
+        if s.raw_journal { "on" } else { "off" },
+        s.disk_reserve_mb
+    );
+    println!("status file: {}", config.status_path().display());
+    for d in &config.devices {
+        println!(
+            "device {}: {} over {}, {} Hz",
+            d.name,
+            d.protocol.name(),
+            d.transport.describe(),
+            d.rate_hz
+        );
+    }
+    match unsupported(&config) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(problems) => {
+            eprintln!("imulogd: valid, but this build cannot run it: {problems}");
+            ExitCode::from(EXIT_BAD_CONFIG)
+        }
+    }
+}
+
+fn run(config: &config::CheckedConfig) -> anyhow::Result<u8> {
+    let session_dir = daemon::session::session_dir(config, chrono::Utc::now());
+    let sink = Box::new(daemon::session::open_session_sink(config, &session_dir)?);
+    let mut connectors = Vec::new();
+    let mut decoders = Vec::new();
+    for d in &config.devices {
+        connectors.push(source::connector_for(d).map_err(anyhow::Error::msg)?);
+        decoders.push(source::decoder_for(d).map_err(anyhow::Error::msg)?);
+    }
+    let space_dir = session_dir.clone();
+    let free_space: FreeSpaceFn = Box::new(move || daemon::disk::free_bytes(&space_dir));
+    let parts = DaemonParts {
+        sink,
+        session_dir: session_dir.clone(),
+        connectors,
+        decoders,
+        free_space,
+        status_path: config.status_path(),
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    tracing::info!("logging into {}", session_dir.display());
+    // Held for the whole run: only signals stop this daemon.
+    let (_stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let outcome = runtime.block_on(daemon::run(config, parts, stop_rx));
+    runtime.shutdown_timeout(std::time::Duration::from_millis(100));
+    match &outcome {
+        daemon::Outcome::Stopped => tracing::info!("session {} closed", session_dir.display()),
+        daemon::Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => tracing::error!(
+            "stopped: {free_bytes} bytes free is below the reserve of {reserve_bytes}; session {} closed cleanly",
+            session_dir.display()
+        ),
+        daemon::Outcome::Failed(e) => tracing::error!("stopped on an error: {e:#}"),
+    }
+    Ok(outcome.exit_code())
+}

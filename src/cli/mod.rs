@@ -1,6 +1,7 @@
 //! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
 
 pub mod replay;
+pub mod status;
 
 /// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
 pub fn init_logging() {
@@ -15,3 +16,5 @@ pub fn init_logging() {
 pub mod export;
 pub mod inspect;
 pub mod recover;
+pub mod decode;
+pub mod sim;

@@ -1,1 +1,29 @@
 //! imulogd: the acquisition daemon.
+//!
+//! - [`config`]: the TOML configuration, validated with key paths and hints.
+//! - [`device`]: one tokio task per device (open, read, timestamp, decode, gaps, retry).
+//! - [`writer`]: the blocking writer thread behind a bounded, never-blocking queue.
+//! - [`sink`]: the [`sink::RecordSink`] the writer writes to (session store or memory).
+//! - [`source`]: byte sources ([`source::Connector`]) and decoders ([`source::FrameDecoder`]).
+//! - [`mapping`]: frames to rows, units and the axis rotation into the body frame.
+//! - [`timerel`]: the GNSS-time ↔ host-time relation.
+//! - [`status`]: live counters and the status file.
+//! - [`run`]: signals, systemd notification, start and clean stop.
+
+pub mod backoff;
+pub mod clock;
+pub mod config;
+pub mod device;
+pub mod disk;
+pub mod gap;
+pub mod mapping;
+pub mod run;
+pub mod session;
+pub mod sink;
+pub mod source;
+pub mod status;
+pub mod timerel;
+pub mod writer;
+
+pub use config::{CheckedConfig, ConfigError};
+pub use run::{run, DaemonParts, Outcome};

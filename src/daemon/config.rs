@@ -1,0 +1,936 @@
+//! The imulogd configuration file (TOML): parsing, validation and the checked form the daemon
+//! runs from.
+//!
+//! Parsing is two steps. Serde (with `deny_unknown_fields`, and `serde_path_to_error` for the
+//! key path) rejects unknown keys and wrong types; [`Config::validate`] then checks values
+//! and combinations. Every rejection names the key path (`device[1].serial.baud`), says what
+//! is wrong and gives a hint.
+
+use std::collections::HashSet;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use nalgebra::Matrix3;
+
+use crate::store::manifest::MAX_DEVICE_NAME_LEN;
+use serde::{Deserialize, Serialize};
+
+/// A rejected configuration: where, what, and how to fix it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigIssue {
+    /// Key path, e.g. `device[0].serial.baud` (empty for a syntax error with no path).
+    pub path: String,
+    pub message: String,
+    pub hint: Option<String>,
+}
+
+impl fmt::Display for ConfigIssue {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.path.is_empty() {
+            write!(f, "{}", self.message)?;
+        } else {
+            write!(f, "{}: {}", self.path, self.message)?;
+        }
+        if let Some(hint) = &self.hint {
+            write!(f, " (hint: {hint})")?;
+        }
+        Ok(())
+    }
+}
+
+/// Every problem found in one configuration file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub struct ConfigError {
+    /// The file the configuration came from ("<string>" when parsed from memory).
+    pub source_name: String,
+    pub issues: Vec<ConfigIssue>,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "invalid configuration {}:", self.source_name)?;
+        for issue in &self.issues {
+            write!(f, "\n  {issue}")?;
+        }
+        Ok(())
+    }
+}
+
+impl ConfigError {
+    /// True when some issue's path starts with `path` and its message contains `needle`.
+    pub fn has_issue(&self, path: &str, needle: &str) -> bool {
+        self.issues
+            .iter()
+            .any(|i| i.path.starts_with(path) && i.message.contains(needle))
+    }
+}
+
+/// The whole file.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub session: SessionConfig,
+    #[serde(rename = "device", default)]
+    pub devices: Vec<DeviceConfig>,
+}
+
+/// `[session]`: where and how the session is written.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SessionConfig {
+    /// Directory the session directories are created in.
+    pub output_dir: PathBuf,
+    /// Session directory name; `{date}` (YYYYMMDD), `{time}` (HHMMSS, UTC) and `{host}` expand.
+    #[serde(default = "default_session_name")]
+    pub name: String,
+    /// Start a new chunk file after this many minutes (0 = no time-based rotation).
+    #[serde(default = "default_rotate_minutes")]
+    pub rotate_minutes: f64,
+    /// Start a new chunk file after this many MB (0 = no size-based rotation).
+    #[serde(default = "default_rotate_mb")]
+    pub rotate_mb: u64,
+    /// Flush buffered rows to disk this often; at most this much is lost on SIGKILL.
+    #[serde(default = "default_flush_interval_ms")]
+    pub flush_interval_ms: u64,
+    /// Deflate level for the HDF5 datasets, 0 (off) to 9.
+    #[serde(default = "default_deflate_level")]
+    pub deflate_level: u8,
+    /// Also keep the undecoded bytes (`/raw/<device>`), so the session can be decoded again.
+    #[serde(default)]
+    pub raw_journal: bool,
+    /// Close the session cleanly and exit non-zero when free space falls below this.
+    #[serde(default = "default_disk_reserve_mb")]
+    pub disk_reserve_mb: u64,
+    /// Where the status JSON is written every second (default `<output_dir>/imulogd-status.json`).
+    #[serde(default)]
+    pub status_file: Option<PathBuf>,
+    /// Batches that may wait for the writer before readers start dropping (and counting) them.
+    #[serde(default = "default_queue_capacity")]
+    pub queue_capacity: usize,
+}
+
+fn default_session_name() -> String {
+    "{date}-{time}".to_string()
+}
+fn default_rotate_minutes() -> f64 {
+    10.0
+}
+fn default_rotate_mb() -> u64 {
+    256
+}
+fn default_flush_interval_ms() -> u64 {
+    1000
+}
+fn default_deflate_level() -> u8 {
+    4
+}
+fn default_disk_reserve_mb() -> u64 {
+    512
+}
+fn default_queue_capacity() -> usize {
+    1024
+}
+
+/// Device protocols, named as in the codec table of the drivers crate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Protocol {
+    /// NMEA 0183 sentences.
+    Nmea,
+    /// u-blox UBX binary.
+    Ubx,
+    /// NMEA and UBX interleaved on one port (u-blox default output), merged into epochs.
+    Gnss,
+    /// WitMotion 0x55 frames.
+    Wit,
+    /// Xsens MTi Xbus MTData2.
+    Xbus,
+    /// ASCII/CSV lines from a home-built IMU.
+    Csv,
+    /// An IMU on a CAN bus, decoded through a DBC file.
+    CanDbc,
+}
+
+impl Protocol {
+    pub fn name(self) -> &'static str {
+        match self {
+            Protocol::Nmea => "nmea",
+            Protocol::Ubx => "ubx",
+            Protocol::Gnss => "gnss",
+            Protocol::Wit => "wit",
+            Protocol::Xbus => "xbus",
+            Protocol::Csv => "csv",
+            Protocol::CanDbc => "can-dbc",
+        }
+    }
+
+    /// True for protocols that arrive on a CAN bus (SocketCAN or slcan) rather than a byte stream.
+    pub fn is_can(self) -> bool {
+        matches!(self, Protocol::CanDbc)
+    }
+
+    /// True for receivers (their frames are GNSS fixes); false for IMUs.
+    pub fn is_gnss(self) -> bool {
+        matches!(self, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
+    }
+}
+
+/// `[device.serial]`: a serial port (or a pty standing in for one).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialConfig {
+    pub port: PathBuf,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+}
+fn default_baud() -> u32 {
+    115_200
+}
+
+/// `[device.tcp]`: a TCP byte stream (ser2net and the like).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TcpConfig {
+    /// `host:port`.
+    pub address: String,
+}
+
+/// `[device.can]`: a SocketCAN interface.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanConfig {
+    pub interface: String,
+    /// Informational for SocketCAN (the interface's bitrate is set with `ip link`).
+    #[serde(default)]
+    pub bitrate: Option<u32>,
+}
+
+/// `[device.slcan]`: a Lawicel/slcan USB-CAN adapter on a serial port.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SlcanConfig {
+    pub port: PathBuf,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// CAN bitrate the adapter is opened at.
+    pub bitrate: u32,
+}
+
+/// CAN bitrates an slcan adapter can be opened at (`S0`..`S8`).
+pub const SLCAN_BITRATES: [u32; 9] = [
+    10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000,
+];
+
+/// `[device.dbc]`: which DBC signals carry the IMU quantities.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DbcConfig {
+    pub file: PathBuf,
+    /// Signal names for gyro x, y, z (`MESSAGE.SIGNAL`).
+    pub gyro: [String; 3],
+    /// Signal names for accel x, y, z.
+    pub accel: [String; 3],
+    #[serde(default)]
+    pub temp: Option<String>,
+}
+
+/// `[device.axes]`: how the sensor's axes map into the body frame. Give one of the two.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxesConfig {
+    /// Body x, y, z as signed sensor axes, e.g. `["-y", "x", "z"]`.
+    #[serde(default)]
+    pub map: Option<[String; 3]>,
+    /// Rotation matrix body ← sensor, row by row (proper rotation: orthonormal, det +1).
+    #[serde(default)]
+    pub rotation: Option<[[f64; 3]; 3]>,
+}
+
+/// Units the device's numbers are really in, when they are not what the codec assumes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+pub enum GyroUnit {
+    #[default]
+    #[serde(rename = "rad/s")]
+    RadPerS,
+    #[serde(rename = "deg/s")]
+    DegPerS,
+    #[serde(rename = "mrad/s")]
+    MilliradPerS,
+}
+
+impl GyroUnit {
+    /// Factor that converts a value in this unit to rad/s.
+    pub fn to_si(self) -> f64 {
+        match self {
+            GyroUnit::RadPerS => 1.0,
+            GyroUnit::DegPerS => std::f64::consts::PI / 180.0,
+            GyroUnit::MilliradPerS => 1e-3,
+        }
+    }
+}
+
+/// Accelerometer units (see [`GyroUnit`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+pub enum AccelUnit {
+    #[default]
+    #[serde(rename = "m/s2")]
+    MetrePerS2,
+    #[serde(rename = "g")]
+    StandardGravity,
+    #[serde(rename = "mg")]
+    MilliG,
+}
+
+/// Standard gravity, m/s² (the definition of 1 g, not local gravity).
+pub const STANDARD_GRAVITY: f64 = 9.806_65;
+
+impl AccelUnit {
+    /// Factor that converts a value in this unit to m/s².
+    pub fn to_si(self) -> f64 {
+        match self {
+            AccelUnit::MetrePerS2 => 1.0,
+            AccelUnit::StandardGravity => STANDARD_GRAVITY,
+            AccelUnit::MilliG => STANDARD_GRAVITY * 1e-3,
+        }
+    }
+}
+
+/// `[device.units]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct UnitsConfig {
+    #[serde(default)]
+    pub gyro: GyroUnit,
+    #[serde(default)]
+    pub accel: AccelUnit,
+}
+
+/// One `[[device]]`.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeviceConfig {
+    /// Name used for the HDF5 groups and the status (letters, digits, `-`, `_`).
+    pub name: String,
+    pub protocol: Protocol,
+    /// Nominal output rate, Hz; used for gap detection and the status.
+    pub rate_hz: f64,
+    /// A pause longer than this many nominal periods is a gap event.
+    #[serde(default = "default_gap_factor")]
+    pub gap_factor: f64,
+    #[serde(default)]
+    pub serial: Option<SerialConfig>,
+    #[serde(default)]
+    pub tcp: Option<TcpConfig>,
+    #[serde(default)]
+    pub can: Option<CanConfig>,
+    #[serde(default)]
+    pub slcan: Option<SlcanConfig>,
+    #[serde(default)]
+    pub dbc: Option<DbcConfig>,
+    #[serde(default)]
+    pub axes: Option<AxesConfig>,
+    #[serde(default)]
+    pub units: Option<UnitsConfig>,
+    /// First retry delay after the device vanished or failed to open, ms.
+    #[serde(default = "default_retry_initial_ms")]
+    pub retry_initial_ms: u64,
+    /// Longest retry delay (the delay doubles up to this), ms.
+    #[serde(default = "default_retry_max_ms")]
+    pub retry_max_ms: u64,
+}
+
+fn default_gap_factor() -> f64 {
+    3.0
+}
+fn default_retry_initial_ms() -> u64 {
+    250
+}
+fn default_retry_max_ms() -> u64 {
+    8000
+}
+
+/// Where a device's bytes or frames come from, after validation.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Transport {
+    Serial(SerialConfig),
+    Tcp(TcpConfig),
+    Can(CanConfig),
+    Slcan(SlcanConfig),
+}
+
+impl Transport {
+    /// A short human description (`serial /dev/ttyUSB0 @ 115200`).
+    pub fn describe(&self) -> String {
+        match self {
+            Transport::Serial(s) => format!("serial {} @ {}", s.port.display(), s.baud),
+            Transport::Tcp(t) => format!("tcp {}", t.address),
+            Transport::Can(c) => format!("can {}", c.interface),
+            Transport::Slcan(s) => format!("slcan {} @ {} bit/s", s.port.display(), s.bitrate),
+        }
+    }
+}
+
+/// A device ready to run: transport resolved, axis rotation and unit factors computed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceSpec {
+    pub name: String,
+    pub protocol: Protocol,
+    pub transport: Transport,
+    pub rate_hz: f64,
+    pub gap_factor: f64,
+    /// Body ← sensor rotation applied to gyro and accel.
+    pub body_from_sensor: Matrix3<f64>,
+    pub gyro_scale: f64,
+    pub accel_scale: f64,
+    pub dbc: Option<DbcConfig>,
+    pub retry_initial_ms: u64,
+    pub retry_max_ms: u64,
+}
+
+/// The validated configuration the daemon runs from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedConfig {
+    pub session: SessionConfig,
+    pub devices: Vec<DeviceSpec>,
+    /// The file as written (all keys, defaults not filled in), for the session manifest.
+    pub table: toml::Table,
+}
+
+impl CheckedConfig {
+    /// Where the status JSON goes.
+    pub fn status_path(&self) -> PathBuf {
+        self.session
+            .status_file
+            .clone()
+            .unwrap_or_else(|| self.session.output_dir.join("imulogd-status.json"))
+    }
+}
+
+/// Reads, parses and validates a configuration file.
+pub fn load(path: &Path) -> Result<CheckedConfig, ConfigError> {
+    let source_name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        source_name: source_name.clone(),
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: format!("cannot read the file: {e}"),
+            hint: Some("give the path of an existing, readable TOML file".into()),
+        }],
+    })?;
+    parse(&text, &source_name)
+}
+
+/// Parses and validates configuration text; `source_name` is used in the error.
+pub fn parse(text: &str, source_name: &str) -> Result<CheckedConfig, ConfigError> {
+    let fail = |issues| ConfigError {
+        source_name: source_name.to_string(),
+        issues,
+    };
+    let deserializer = toml::Deserializer::parse(text).map_err(|e| {
+        fail(vec![ConfigIssue {
+            path: String::new(),
+            message: format!("TOML syntax error: {}", e.to_string().trim_end()),
+            hint: Some("see systemd/imulogd.toml for a complete example".into()),
+        }])
+    })?;
+    let config: Config = serde_path_to_error::deserialize(deserializer).map_err(|e| {
+        let path = e.path().to_string();
+        let message = e.inner().message().trim_end().to_string();
+        let line = e
+            .inner()
+            .span()
+            .map(|span| 1 + text[..span.start.min(text.len())].matches('\n').count());
+        let hint = hint_for_serde_message(&message);
+        fail(vec![ConfigIssue {
+            path: if path == "." { String::new() } else { path },
+            message: match line {
+                Some(line) => format!("{message} (line {line})"),
+                None => message,
+            },
+            hint,
+        }])
+    })?;
+    let mut checked = config.validate().map_err(fail)?;
+    // The text parsed above as a Config, so it is a valid table too.
+    checked.table = toml::from_str(text).unwrap_or_default();
+    Ok(checked)
+}
+
+/// Turns serde's "unknown field `x`, expected one of `a`, `b`" into a "did you mean" hint.
+fn hint_for_serde_message(message: &str) -> Option<String> {
+    let quoted: Vec<&str> = message.split('`').skip(1).step_by(2).collect();
+    let (given, expected) = quoted.split_first()?;
+    if message.starts_with("unknown field") || message.starts_with("unknown variant") {
+        let best = expected
+            .iter()
+            .min_by_key(|candidate| edit_distance(given, candidate))?;
+        let close = edit_distance(given, best) <= 2.max(given.len() / 3);
+        let contained = expected
+            .iter()
+            .find(|c| c.len() >= 3 && (given.contains(**c) || c.contains(given)));
+        if let Some(c) = contained.filter(|_| !close) {
+            return Some(format!("did you mean `{c}`?"));
+        }
+        if close {
+            return Some(format!("did you mean `{best}`?"));
+        }
+        return Some(format!("allowed: {}", expected.join(", ")));
+    }
+    None
+}
+
+/// Levenshtein distance, for "did you mean" hints on a handful of short key names.
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut previous: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut current = vec![i + 1; b.len() + 1];
+        for (j, cb) in b.iter().enumerate() {
+            let substitution = previous[j] + usize::from(ca != *cb);
+            current[j + 1] = substitution.min(previous[j + 1] + 1).min(current[j] + 1);
+        }
+        previous = current;
+    }
+    previous[b.len()]
+}
+
+/// Collects issues while validating.
+struct Issues(Vec<ConfigIssue>);
+
+impl Issues {
+    fn add(&mut self, path: impl Into<String>, message: impl Into<String>, hint: &str) {
+        self.0.push(ConfigIssue {
+            path: path.into(),
+            message: message.into(),
+            hint: (!hint.is_empty()).then(|| hint.to_string()),
+        });
+    }
+}
+
+impl Config {
+    /// Checks values and combinations; returns the runnable form or every issue found.
+    pub fn validate(&self) -> Result<CheckedConfig, Vec<ConfigIssue>> {
+        let mut issues = Issues(Vec::new());
+        self.validate_session(&mut issues);
+        if self.devices.is_empty() {
+            issues.add(
+                "device",
+                "no devices configured",
+                "add at least one [[device]] table with name, protocol, rate_hz and a transport",
+            );
+        }
+        let mut names = HashSet::new();
+        let mut devices = Vec::new();
+        for (index, device) in self.devices.iter().enumerate() {
+            let path = format!("device[{index}]");
+            if !names.insert(device.name.as_str()) {
+                issues.add(
+                    format!("{path}.name"),
+                    format!("duplicate device name `{}`", device.name),
+                    "every device needs its own name; it names the HDF5 group",
+                );
+            }
+            if let Some(spec) = validate_device(device, &path, &mut issues) {
+                devices.push(spec);
+            }
+        }
+        if issues.0.is_empty() {
+            Ok(CheckedConfig {
+                session: self.session.clone(),
+                devices,
+                table: toml::Table::new(),
+            })
+        } else {
+            Err(issues.0)
+        }
+    }
+
+    fn validate_session(&self, issues: &mut Issues) {
+        let s = &self.session;
+        if s.output_dir.as_os_str().is_empty() {
+            issues.add(
+                "session.output_dir",
+                "is empty",
+                "give the directory sessions are written in, e.g. /var/lib/imulogd",
+            );
+        }
+        if s.name.is_empty() || s.name.contains('/') || s.name.contains('\0') {
+            issues.add(
+                "session.name",
+                format!("`{}` is not a valid directory name", s.name),
+                "use letters, digits, -, _ and the placeholders {date}, {time}, {host}",
+            );
+        } else if let Err(bad) = check_placeholders(&s.name) {
+            issues.add(
+                "session.name",
+                format!("unknown placeholder `{{{bad}}}`"),
+                "allowed placeholders: {date}, {time}, {host}",
+            );
+        }
+        if !s.rotate_minutes.is_finite() || s.rotate_minutes < 0.0 {
+            issues.add(
+                "session.rotate_minutes",
+                format!("{} is not a duration in minutes", s.rotate_minutes),
+                "use a number >= 0 (0 turns time-based rotation off)",
+            );
+        }
+        if !(10..=60_000).contains(&s.flush_interval_ms) {
+            issues.add(
+                "session.flush_interval_ms",
+                format!("{} is out of range", s.flush_interval_ms),
+                "use 10 to 60000 ms; at most one interval of data is lost on a hard kill",
+            );
+        }
+        if s.deflate_level > 9 {
+            issues.add(
+                "session.deflate_level",
+                format!("{} is out of range", s.deflate_level),
+                "use 0 (no compression) to 9",
+            );
+        }
+        if s.queue_capacity == 0 || s.queue_capacity > 1_000_000 {
+            issues.add(
+                "session.queue_capacity",
+                format!("{} is out of range", s.queue_capacity),
+                "use 1 to 1000000 batches",
+            );
+        }
+        if let Some(status) = &s.status_file {
+            if status.as_os_str().is_empty() || status.file_name().is_none() {
+                issues.add(
+                    "session.status_file",
+                    "is not a file path",
+                    "e.g. /run/imulogd/status.json, or leave it out",
+                );
+            }
+        }
+    }
+}
+
+/// Checks that every `{...}` in a session name is a known placeholder.
+fn check_placeholders(name: &str) -> Result<(), String> {
+    let mut rest = name;
+    while let Some(open) = rest.find('{') {
+        let after = &rest[open + 1..];
+        let Some(close) = after.find('}') else {
+            return Err(after.to_string());
+        };
+        let key = &after[..close];
+        if !matches!(key, "date" | "time" | "host") {
+            return Err(key.to_string());
+        }
+        rest = &after[close + 1..];
+    }
+    Ok(())
+}
+
+fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<DeviceSpec> {
+    let before = issues.0.len();
+    if d.name.is_empty()
+        || d.name.len() > MAX_DEVICE_NAME_LEN
+        || !d
+            .name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+    {
+        issues.add(
+            format!("{path}.name"),
+            format!("`{}` is not a valid device name", d.name),
+            "use 1 to 63 letters, digits, - or _",
+        );
+    }
+    if !d.rate_hz.is_finite() || d.rate_hz <= 0.0 || d.rate_hz > 100_000.0 {
+        issues.add(
+            format!("{path}.rate_hz"),
+            format!("{} is not a usable rate", d.rate_hz),
+            "give the device's nominal output rate in Hz, above 0 and at most 100000",
+        );
+    }
+    if !d.gap_factor.is_finite() || d.gap_factor < 1.5 || d.gap_factor > 1000.0 {
+        issues.add(
+            format!("{path}.gap_factor"),
+            format!("{} is out of range", d.gap_factor),
+            "use 1.5 to 1000 nominal periods (default 3)",
+        );
+    }
+    if d.retry_initial_ms == 0 || d.retry_initial_ms > d.retry_max_ms {
+        issues.add(
+            format!("{path}.retry_initial_ms"),
+            format!(
+                "{} ms must be above 0 and at most retry_max_ms ({} ms)",
+                d.retry_initial_ms, d.retry_max_ms
+            ),
+            "e.g. retry_initial_ms = 250, retry_max_ms = 8000",
+        );
+    }
+    if d.retry_max_ms > 600_000 {
+        issues.add(
+            format!("{path}.retry_max_ms"),
+            format!("{} ms is more than 10 minutes", d.retry_max_ms),
+            "a long wait loses data after the device comes back; use at most 600000",
+        );
+    }
+
+    let transport = validate_transport(d, path, issues);
+    validate_dbc(d, path, issues);
+    let body_from_sensor = match &d.axes {
+        None => Matrix3::identity(),
+        Some(axes) => validate_axes(axes, &format!("{path}.axes"), issues),
+    };
+    let units = d.units.unwrap_or_default();
+    if issues.0.len() > before {
+        return None;
+    }
+    Some(DeviceSpec {
+        name: d.name.clone(),
+        protocol: d.protocol,
+        transport: transport?,
+        rate_hz: d.rate_hz,
+        gap_factor: d.gap_factor,
+        body_from_sensor,
+        gyro_scale: units.gyro.to_si(),
+        accel_scale: units.accel.to_si(),
+        dbc: d.dbc.clone(),
+        retry_initial_ms: d.retry_initial_ms,
+        retry_max_ms: d.retry_max_ms,
+    })
+}
+
+fn validate_transport(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<Transport> {
+    let mut given = Vec::new();
+    if let Some(s) = &d.serial {
+        given.push(("serial", Transport::Serial(s.clone())));
+    }
+    if let Some(t) = &d.tcp {
+        given.push(("tcp", Transport::Tcp(t.clone())));
+    }
+    if let Some(c) = &d.can {
+        given.push(("can", Transport::Can(c.clone())));
+    }
+    if let Some(s) = &d.slcan {
+        given.push(("slcan", Transport::Slcan(s.clone())));
+    }
+    if given.len() != 1 {
+        let names: Vec<&str> = given.iter().map(|(n, _)| *n).collect();
+        issues.add(
+            path.to_string(),
+            if given.is_empty() {
+                "no transport given".to_string()
+            } else {
+                format!("more than one transport given ({})", names.join(", "))
+            },
+            "give exactly one of [device.serial], [device.tcp], [device.can], [device.slcan]",
+        );
+        return None;
+    }
+    let (kind, transport) = given.pop()?;
+    let on_can = matches!(transport, Transport::Can(_) | Transport::Slcan(_));
+    if d.protocol.is_can() != on_can {
+        issues.add(
+            format!("{path}.{kind}"),
+            format!(
+                "protocol `{}` cannot run over a {kind} transport",
+                d.protocol.name()
+            ),
+            if on_can {
+                "CAN transports carry protocol `can-dbc`"
+            } else {
+                "protocol `can-dbc` needs [device.can] or [device.slcan]"
+            },
+        );
+    }
+    match &transport {
+        Transport::Serial(s) => {
+            check_port(&s.port, &format!("{path}.serial.port"), issues);
+            check_baud(s.baud, &format!("{path}.serial.baud"), issues);
+        }
+        Transport::Slcan(s) => {
+            check_port(&s.port, &format!("{path}.slcan.port"), issues);
+            check_baud(s.baud, &format!("{path}.slcan.baud"), issues);
+            if !SLCAN_BITRATES.contains(&s.bitrate) {
+                issues.add(
+                    format!("{path}.slcan.bitrate"),
+                    format!("{} bit/s is not an slcan bitrate", s.bitrate),
+                    "use one of 10000, 20000, 50000, 100000, 125000, 250000, 500000, 800000, 1000000",
+                );
+            }
+        }
+        Transport::Tcp(t) => {
+            let port_ok = t
+                .address
+                .rsplit_once(':')
+                .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
+            if !port_ok {
+                issues.add(
+                    format!("{path}.tcp.address"),
+                    format!("`{}` is not host:port", t.address),
+                    "e.g. \"192.168.1.20:4001\" or \"[::1]:4001\"",
+                );
+            }
+        }
+        Transport::Can(c) => {
+            if c.interface.is_empty()
+                || c.interface.len() > 15
+                || c.interface.contains('/')
+                || c.interface.chars().any(char::is_whitespace)
+            {
+                issues.add(
+                    format!("{path}.can.interface"),
+                    format!("`{}` is not a network interface name", c.interface),
+                    "e.g. \"can0\" or \"vcan0\" (at most 15 characters)",
+                );
+            }
+        }
+    }
+    Some(transport)
+}
+
+fn check_port(port: &Path, path: &str, issues: &mut Issues) {
+    if !port.is_absolute() {
+        issues.add(
+            path.to_string(),
+            format!("`{}` is not an absolute device path", port.display()),
+            "e.g. /dev/ttyUSB0 or a stable udev name such as /dev/imu-A1B2C3",
+        );
+    }
+}
+
+fn check_baud(baud: u32, path: &str, issues: &mut Issues) {
+    if !(300..=12_000_000).contains(&baud) {
+        issues.add(
+            path.to_string(),
+            format!("{baud} is not a serial baud rate"),
+            "use 300 to 12000000, e.g. 115200 or 921600",
+        );
+    }
+}
+
+fn validate_dbc(d: &DeviceConfig, path: &str, issues: &mut Issues) {
+    match (&d.dbc, d.protocol.is_can()) {
+        (None, true) => issues.add(
+            format!("{path}.dbc"),
+            "protocol `can-dbc` needs a DBC mapping",
+            "add [device.dbc] with file, gyro = [3 signals] and accel = [3 signals]",
+        ),
+        (Some(_), false) => issues.add(
+            format!("{path}.dbc"),
+            format!("protocol `{}` does not use a DBC file", d.protocol.name()),
+            "remove [device.dbc] or set protocol = \"can-dbc\"",
+        ),
+        (Some(dbc), true) => {
+            if dbc.file.as_os_str().is_empty() {
+                issues.add(
+                    format!("{path}.dbc.file"),
+                    "is empty",
+                    "path of the DBC file",
+                );
+            }
+            let signals = dbc
+                .gyro
+                .iter()
+                .chain(dbc.accel.iter())
+                .chain(dbc.temp.iter());
+            for signal in signals {
+                let well_formed = signal
+                    .split_once('.')
+                    .is_some_and(|(m, s)| !m.is_empty() && !s.is_empty());
+                if !well_formed {
+                    issues.add(
+                        format!("{path}.dbc"),
+                        format!("signal `{signal}` is not MESSAGE.SIGNAL"),
+                        "name each signal with its message, e.g. \"IMU_RATE.GyroX\"",
+                    );
+                }
+            }
+        }
+        (None, false) => {}
+    }
+}
+
+/// Parses one signed axis name (`x`, `-y`, `+z`) into (index, sign).
+fn parse_axis(name: &str) -> Option<(usize, f64)> {
+    let (sign, axis) = match name.trim().as_bytes() {
+        [b'-', a] => (-1.0, *a),
+        [b'+', a] | [a] => (1.0, *a),
+        _ => return None,
+    };
+    let index = match axis.to_ascii_lowercase() {
+        b'x' => 0,
+        b'y' => 1,
+        b'z' => 2,
+        _ => return None,
+    };
+    Some((index, sign))
+}
+
+fn validate_axes(axes: &AxesConfig, path: &str, issues: &mut Issues) -> Matrix3<f64> {
+    let matrix = match (&axes.map, &axes.rotation) {
+        (Some(_), Some(_)) | (None, None) => {
+            issues.add(
+                path.to_string(),
+                "give exactly one of `map` and `rotation`",
+                "map = [\"-y\", \"x\", \"z\"] or rotation = [[0,-1,0],[1,0,0],[0,0,1]]",
+            );
+            return Matrix3::identity();
+        }
+        (Some(map), None) => {
+            let mut m = Matrix3::zeros();
+            let mut used = [false; 3];
+            for (row, name) in map.iter().enumerate() {
+                match parse_axis(name) {
+                    Some((col, sign)) if !used[col] => {
+                        used[col] = true;
+                        m[(row, col)] = sign;
+                    }
+                    Some(_) => issues.add(
+                        format!("{path}.map[{row}]"),
+                        format!("sensor axis `{name}` is used twice"),
+                        "each of x, y, z appears exactly once",
+                    ),
+                    None => issues.add(
+                        format!("{path}.map[{row}]"),
+                        format!("`{name}` is not an axis"),
+                        "use x, y, z with an optional sign, e.g. \"-y\"",
+                    ),
+                }
+            }
+            m
+        }
+        (None, Some(rows)) => Matrix3::from_fn(|r, c| rows[r][c]),
+    };
+    if matrix.iter().any(|v| !v.is_finite()) {
+        issues.add(
+            format!("{path}.rotation"),
+            "contains a non-finite number",
+            "",
+        );
+        return Matrix3::identity();
+    }
+    let orthonormal_error = (matrix * matrix.transpose() - Matrix3::identity()).amax();
+    if axes.rotation.is_some() && orthonormal_error > 1e-6 {
+        issues.add(
+            format!("{path}.rotation"),
+            format!("is not orthonormal (|R·Rᵀ − I| = {orthonormal_error:.2e})"),
+            "give a rotation matrix body ← sensor with unit, orthogonal rows",
+        );
+    } else if matrix.determinant() < 0.0 {
+        issues.add(
+            path.to_string(),
+            "describes a reflection (determinant −1), not a rotation",
+            "flip the sign of one axis: a right-handed sensor frame stays right-handed",
+        );
+    }
+    matrix
+}
+
+/// Expands `{date}`, `{time}` and `{host}` in a session name.
+pub fn expand_session_name(
+    pattern: &str,
+    now: chrono::DateTime<chrono::Utc>,
+    host: &str,
+) -> String {
+    pattern
+        .replace("{date}", &now.format("%Y%m%d").to_string())
+        .replace("{time}", &now.format("%H%M%S").to_string())
+        .replace("{host}", host)
+}

@@ -1,0 +1,355 @@
+//! One device task: open the transport, read bytes, timestamp each arrival with both host
+//! clocks, decode, map frames to rows, detect gaps, turn decoder counters into events, and
+//! when the device vanishes (or never appears) retry with exponential back-off. Data after a
+//! reconnect continue in the same session. The task never touches the disk: it hands
+//! batches to the writer queue, which drops and counts rather than block.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use imulab_drivers::types::DecoderStats;
+use tokio::io::AsyncReadExt;
+use tokio::sync::{mpsc, watch};
+
+use crate::store::{EventKind, EventRecord};
+
+use super::backoff::Backoff;
+use super::clock::{self, Arrival};
+use super::config::DeviceSpec;
+use super::gap::{Gap, GapDetector};
+use super::mapping::{gnss_record, ImuMapping};
+use super::source::{ByteStream, Connector, DecoderFactory, Frame, FrameDecoder};
+use super::status::{DeviceShared, DeviceState};
+use super::timerel::{gps_time_ns, TimeRelationTracker};
+use super::writer::{Batch, QueueSender};
+
+/// Size of one read; at 15 kHz × ~40 bytes a read rarely holds more than a few ms of data.
+const READ_BUFFER_BYTES: usize = 16 * 1024;
+/// Length of one GNSS-time ↔ host-time window.
+const TIME_RELATION_WINDOW_S: f64 = 60.0;
+
+/// Everything one device task needs.
+pub struct DeviceTask {
+    /// Index into the daemon's device list (and the writer's).
+    pub index: usize,
+    pub spec: DeviceSpec,
+    pub connector: Box<dyn Connector>,
+    pub decoders: DecoderFactory,
+    pub queue: QueueSender,
+    pub shared: Arc<DeviceShared>,
+    pub raw_journal: bool,
+    /// Told this device's index once: after the first open, or the first failed attempt.
+    pub settled: Option<mpsc::UnboundedSender<usize>>,
+}
+
+/// How a connection ended.
+enum ConnectionEnd {
+    /// Shutdown requested.
+    Stop,
+    /// The writer is gone (it failed or stopped): nothing to read for.
+    WriterGone,
+    /// The device vanished: end of stream or a read error.
+    Vanished(String),
+}
+
+/// Resolves when shutdown is requested (or the sender is gone).
+async fn stopped(rx: &mut watch::Receiver<bool>) {
+    loop {
+        if *rx.borrow_and_update() {
+            return;
+        }
+        if rx.changed().await.is_err() {
+            return;
+        }
+    }
+}
+
+/// Per-connection decoding state.
+struct Decoding {
+    decoder: Box<dyn FrameDecoder>,
+    /// Counters of the previous connections' decoders.
+    base: DecoderStats,
+    /// Counters already turned into events.
+    reported: DecoderStats,
+}
+
+impl Decoding {
+    fn total(&self) -> DecoderStats {
+        let mut total = self.base;
+        total.add(&self.decoder.stats());
+        total
+    }
+}
+
+impl DeviceTask {
+    fn event(&self, kind: EventKind, at: Arrival, detail: String) -> EventRecord {
+        EventRecord {
+            t_mono_ns: at.mono_ns,
+            t_wall_ns: at.wall_ns,
+            device: self.spec.name.clone(),
+            kind,
+            detail,
+        }
+    }
+
+    /// Sends one event on its own.
+    fn send_event(&self, kind: EventKind, detail: String) -> bool {
+        let mut batch = Batch::new(self.index);
+        batch.events.push(self.event(kind, clock::now(), detail));
+        self.queue.send(batch).is_ok()
+    }
+
+    fn settle(&mut self) {
+        if let Some(tx) = self.settled.take() {
+            let _ = tx.send(self.index);
+        }
+    }
+
+    /// Runs until shutdown or until the writer is gone.
+    pub async fn run(mut self, mut shutdown: watch::Receiver<bool>) {
+        let mut backoff = Backoff::new(
+            Duration::from_millis(self.spec.retry_initial_ms),
+            Duration::from_millis(self.spec.retry_max_ms),
+        );
+        let mapping = ImuMapping::for_device(&self.spec);
+        let mut gaps = GapDetector::new(self.spec.rate_hz, self.spec.gap_factor);
+        let mut time_relation = TimeRelationTracker::new(TIME_RELATION_WINDOW_S);
+        let mut decoding = Decoding {
+            decoder: (self.decoders)(),
+            base: DecoderStats::default(),
+            reported: DecoderStats::default(),
+        };
+        let mut ever_connected = false;
+        let mut failed_attempts: u32 = 0;
+        let mut down_since_mono_ns: Option<i64> = None;
+        let where_ = self.connector.describe();
+        loop {
+            let opened = tokio::select! {
+                r = self.connector.connect() => r,
+                _ = stopped(&mut shutdown) => break,
+            };
+            match opened {
+                Ok(stream) => {
+                    self.settle();
+                    backoff.reset();
+                    let detail = if ever_connected {
+                        let down_s = down_since_mono_ns
+                            .map(|t| (clock::mono_ns() - t) as f64 * 1e-9)
+                            .unwrap_or(0.0);
+                        self.shared.counters().reconnects += 1;
+                        format!("reopened {where_} after {down_s:.3} s down ({failed_attempts} failed attempts)")
+                    } else if failed_attempts > 0 {
+                        format!("opened {where_} after {failed_attempts} failed attempts")
+                    } else {
+                        format!("opened {where_}")
+                    };
+                    tracing::info!(device = %self.spec.name, "{detail}");
+                    let kind = if ever_connected {
+                        EventKind::Reconnect
+                    } else {
+                        EventKind::Connect
+                    };
+                    if !self.send_event(kind, detail) {
+                        break;
+                    }
+                    {
+                        let mut c = self.shared.counters();
+                        c.state = DeviceState::Connected;
+                        c.last_error = None;
+                    }
+                    ever_connected = true;
+                    failed_attempts = 0;
+                    // A fresh decoder: a frame cut by the disconnect is not glued to new bytes.
+                    decoding.base = decoding.total();
+                    decoding.decoder = (self.decoders)();
+                    gaps.restart();
+                    let end = self
+                        .read_connection(
+                            stream,
+                            &mut decoding,
+                            &mapping,
+                            &mut gaps,
+                            &mut time_relation,
+                            &mut shutdown,
+                        )
+                        .await;
+                    match end {
+                        ConnectionEnd::Stop | ConnectionEnd::WriterGone => break,
+                        ConnectionEnd::Vanished(why) => {
+                            let detail = format!("{where_} vanished: {why}; retrying");
+                            tracing::warn!(device = %self.spec.name, "{detail}");
+                            down_since_mono_ns = Some(clock::mono_ns());
+                            {
+                                let mut c = self.shared.counters();
+                                c.state = DeviceState::Reconnecting;
+                                c.last_error = Some(why);
+                            }
+                            if !self.send_event(EventKind::Disconnect, detail) {
+                                break;
+                            }
+                        }
+                    }
+                }
+                Err(e) => {
+                    failed_attempts += 1;
+                    let why = format!("cannot open {where_}: {e}");
+                    {
+                        let mut c = self.shared.counters();
+                        c.state = if ever_connected {
+                            DeviceState::Reconnecting
+                        } else {
+                            DeviceState::Absent
+                        };
+                        c.last_error = Some(why.clone());
+                    }
+                    if !ever_connected && failed_attempts == 1 {
+                        // Said once, not on every retry; the status keeps saying it.
+                        tracing::error!(device = %self.spec.name, "{why}; retrying with back-off");
+                        if !self.send_event(EventKind::Info, format!("{why}; retrying")) {
+                            break;
+                        }
+                    }
+                    self.settle();
+                }
+            }
+            let delay = backoff.next_delay();
+            tokio::select! {
+                _ = tokio::time::sleep(delay) => {}
+                _ = stopped(&mut shutdown) => break,
+            }
+        }
+        self.settle();
+        self.shared.counters().state = DeviceState::Stopped;
+    }
+
+    async fn read_connection(
+        &self,
+        mut stream: ByteStream,
+        decoding: &mut Decoding,
+        mapping: &ImuMapping,
+        gaps: &mut GapDetector,
+        time_relation: &mut TimeRelationTracker,
+        shutdown: &mut watch::Receiver<bool>,
+    ) -> ConnectionEnd {
+        let mut buffer = vec![0u8; READ_BUFFER_BYTES];
+        loop {
+            let read = tokio::select! {
+                r = stream.read(&mut buffer) => r,
+                _ = stopped(shutdown) => return ConnectionEnd::Stop,
+            };
+            let n = match read {
+                Ok(0) => return ConnectionEnd::Vanished("end of stream".to_string()),
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return ConnectionEnd::Vanished(e.to_string()),
+            };
+            let at = clock::now();
+            let bytes = &buffer[..n];
+            let batch = self.decode_chunk(bytes, at, decoding, mapping, gaps, time_relation);
+            if self.queue.send(batch).is_err() {
+                return ConnectionEnd::WriterGone;
+            }
+        }
+    }
+
+    /// Decodes one read's bytes into a batch and updates the counters.
+    fn decode_chunk(
+        &self,
+        bytes: &[u8],
+        at: Arrival,
+        decoding: &mut Decoding,
+        mapping: &ImuMapping,
+        gaps: &mut GapDetector,
+        time_relation: &mut TimeRelationTracker,
+    ) -> Batch {
+        let mut batch = Batch::new(self.index);
+        if self.raw_journal {
+            batch.raw = Some((at.mono_ns, bytes.to_vec()));
+        }
+        decoding.decoder.push(bytes);
+        let mut new_gaps: Vec<Gap> = Vec::new();
+        let mut ignored = 0u64;
+        let gnss_device = self.spec.protocol.is_gnss();
+        while let Some(frame) = decoding.decoder.poll() {
+            if matches!(frame, Frame::Gnss(_)) != gnss_device {
+                ignored += 1;
+                continue;
+            }
+            if let Some(gap) = gaps.observe(at.mono_ns) {
+                new_gaps.push(gap);
+            }
+            match frame {
+                Frame::Imu(sample) => batch.imu.push(mapping.imu_record(&sample, at)),
+                Frame::Gnss(fix) => {
+                    let gps_ns = fix.week.zip(fix.tow_s).and_then(|(w, t)| gps_time_ns(w, t));
+                    if let Some(gps_ns) = gps_ns {
+                        if let Some(relation) =
+                            time_relation.observe(gps_ns, at.mono_ns, at.wall_ns)
+                        {
+                            batch.events.push(self.event(
+                                EventKind::Info,
+                                at,
+                                relation.event_detail(),
+                            ));
+                        }
+                    }
+                    batch.gnss.push(gnss_record(&fix, at));
+                }
+            }
+        }
+        for gap in &new_gaps {
+            let detail = format!(
+                "no samples for {:.3} s (about {} samples missing at {} Hz)",
+                gap.duration_s(),
+                gap.missing_estimate,
+                self.spec.rate_hz
+            );
+            let mut event = self.event(EventKind::Gap, at, detail);
+            event.t_mono_ns = gap.from_mono_ns;
+            batch.events.push(event);
+        }
+        let total = decoding.total();
+        let before = decoding.reported;
+        if total.resyncs > before.resyncs
+            || total.frames_malformed > before.frames_malformed
+            || total.frames_too_long > before.frames_too_long
+        {
+            batch.events.push(self.event(
+                EventKind::Resync,
+                at,
+                format!(
+                    "{} resyncs, {} bytes skipped, {} malformed and {} over-long frames since the last report",
+                    total.resyncs - before.resyncs,
+                    total.bytes_skipped - before.bytes_skipped,
+                    total.frames_malformed - before.frames_malformed,
+                    total.frames_too_long - before.frames_too_long
+                ),
+            ));
+        }
+        if total.checksum_errors > before.checksum_errors {
+            batch.events.push(self.event(
+                EventKind::ChecksumError,
+                at,
+                format!(
+                    "{} frames failed their checksum ({} in total)",
+                    total.checksum_errors - before.checksum_errors,
+                    total.checksum_errors
+                ),
+            ));
+        }
+        decoding.reported = total;
+        let mut c = self.shared.counters();
+        c.bytes += bytes.len() as u64;
+        c.frames_ok = total.frames_ok;
+        c.frames_bad = total.checksum_errors + total.frames_malformed + total.frames_too_long;
+        c.resyncs = total.resyncs;
+        c.gaps += new_gaps.len() as u64;
+        c.ignored_frames += ignored;
+        c.imu_rows += batch.imu.len() as u64;
+        c.gnss_rows += batch.gnss.len() as u64;
+        if !batch.imu.is_empty() || !batch.gnss.is_empty() {
+            c.last_sample_mono_ns = Some(at.mono_ns);
+        }
+        batch
+    }
+}

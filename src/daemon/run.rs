@@ -1,0 +1,297 @@
+//! The daemon's top level: starts the writer thread, one task per device and the status
+//! task; handles SIGTERM/SIGINT (flush, close, exit 0 within 2 s) and SIGHUP (rotate); tells
+//! systemd READY once every device has opened or failed its first attempt, and feeds the
+//! watchdog while the writer thread is alive.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::signal::unix::{signal, SignalKind};
+use tokio::sync::{mpsc, oneshot, watch};
+
+use super::clock;
+use super::config::CheckedConfig;
+use super::device::DeviceTask;
+use super::sink::RecordSink;
+use super::source::{Connector, DecoderFactory};
+use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
+use super::writer::{self, FreeSpaceFn, QueueSender, WriterControl, WriterExit, WriterSettings};
+
+/// How long device tasks get to stop before they are aborted.
+const DEVICE_STOP_TIMEOUT: Duration = Duration::from_millis(300);
+/// How long the writer gets to drain, flush, close and rename (the whole stop must fit in 2 s).
+const WRITER_STOP_TIMEOUT: Duration = Duration::from_millis(1500);
+/// How often free space is checked.
+const DISK_CHECK_INTERVAL: Duration = Duration::from_secs(1);
+
+/// What the daemon runs with, built from the config (or by a test).
+pub struct DaemonParts {
+    pub sink: Box<dyn RecordSink>,
+    pub session_dir: PathBuf,
+    /// One connector and decoder factory per configured device, in config order.
+    pub connectors: Vec<Box<dyn Connector>>,
+    pub decoders: Vec<DecoderFactory>,
+    pub free_space: FreeSpaceFn,
+    /// Where the status JSON is written every second.
+    pub status_path: PathBuf,
+}
+
+/// How the daemon ended; [`Outcome::exit_code`] is the process exit status.
+#[derive(Debug)]
+pub enum Outcome {
+    /// Stopped by a signal (or the caller) with the session closed cleanly.
+    Stopped,
+    /// Free space fell below the reserve; the session was closed cleanly.
+    DiskReserve { free_bytes: u64, reserve_bytes: u64 },
+    /// Writing failed, or the writer did not finish in time.
+    Failed(anyhow::Error),
+}
+
+impl Outcome {
+    /// 0 after a clean stop, 3 when the disk reserve was reached, 1 on failure.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Outcome::Stopped => 0,
+            Outcome::DiskReserve { .. } => 3,
+            Outcome::Failed(_) => 1,
+        }
+    }
+}
+
+fn notify(states: &[sd_notify::NotifyState<'_>]) {
+    // Without NOTIFY_SOCKET (not under systemd) this does nothing.
+    if let Err(e) = sd_notify::notify(states) {
+        tracing::debug!("sd_notify failed: {e}");
+    }
+}
+
+/// Runs the daemon until SIGTERM/SIGINT, `stop` turning true, the disk reserve, or a write
+/// failure. Must be called inside a tokio runtime.
+pub async fn run(
+    config: &CheckedConfig,
+    parts: DaemonParts,
+    mut stop: watch::Receiver<bool>,
+) -> Outcome {
+    let DaemonParts {
+        sink,
+        session_dir,
+        connectors,
+        decoders,
+        free_space,
+        status_path,
+    } = parts;
+    let shared: Vec<Arc<DeviceShared>> = config
+        .devices
+        .iter()
+        .map(|d| {
+            DeviceShared::new(
+                &d.name,
+                d.protocol.name(),
+                &d.transport.describe(),
+                d.rate_hz,
+            )
+        })
+        .collect();
+    let writer_shared = Arc::new(WriterShared::default());
+    writer_shared.counters().session_dir = Some(session_dir.clone());
+    let control = Arc::new(WriterControl::default());
+
+    // Signal handlers first, so a signal during start-up is not the default (fatal) action.
+    let signals = (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::hangup()),
+    );
+    let (mut sigterm, mut sigint, mut sighup) = match signals {
+        (Ok(t), Ok(i), Ok(h)) => (t, i, h),
+        _ => return Outcome::Failed(anyhow::anyhow!("cannot install signal handlers")),
+    };
+
+    let (tx, rx) = writer::queue(config.session.queue_capacity);
+    let settings = WriterSettings {
+        flush_interval: Duration::from_millis(config.session.flush_interval_ms),
+        reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
+        disk_check_interval: DISK_CHECK_INTERVAL,
+        start_detail: format!(
+            "imulogd {} started: {} devices ({})",
+            env!("CARGO_PKG_VERSION"),
+            config.devices.len(),
+            config
+                .devices
+                .iter()
+                .map(|d| format!(
+                    "{} {} {}",
+                    d.name,
+                    d.protocol.name(),
+                    d.transport.describe()
+                ))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+    };
+    let (writer_done_tx, mut writer_done) = oneshot::channel::<WriterExit>();
+    let writer_thread = {
+        let shared = shared.clone();
+        let writer_shared = writer_shared.clone();
+        let control = control.clone();
+        std::thread::Builder::new()
+            .name("imulogd-writer".into())
+            .spawn(move || {
+                let exit = writer::run_writer(
+                    sink,
+                    rx,
+                    shared,
+                    writer_shared,
+                    control,
+                    settings,
+                    free_space,
+                );
+                let _ = writer_done_tx.send(exit);
+            })
+    };
+    if let Err(e) = writer_thread {
+        return Outcome::Failed(anyhow::anyhow!("cannot start the writer thread: {e}"));
+    }
+
+    let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let (settled_tx, mut settled_rx) = mpsc::unbounded_channel();
+    let mut device_tasks = Vec::new();
+    for (index, ((spec, connector), decoders)) in config
+        .devices
+        .iter()
+        .zip(connectors)
+        .zip(decoders)
+        .enumerate()
+    {
+        let task = DeviceTask {
+            index,
+            spec: spec.clone(),
+            connector,
+            decoders,
+            queue: QueueSender::new(tx.clone(), shared[index].clone()),
+            shared: shared[index].clone(),
+            raw_journal: config.session.raw_journal,
+            settled: Some(settled_tx.clone()),
+        };
+        device_tasks.push(tokio::spawn(task.run(shutdown_rx.clone())));
+    }
+    // Only the device tasks hold senders now: when they all end, the writer sees it.
+    drop(tx);
+    drop(settled_tx);
+
+    let device_count = config.devices.len();
+    let ready_task = tokio::spawn(async move {
+        let mut settled = 0;
+        while settled < device_count && settled_rx.recv().await.is_some() {
+            settled += 1;
+        }
+        tracing::info!("all {device_count} devices opened or retrying: ready");
+        notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Status("logging"),
+        ]);
+    });
+
+    let status_task = {
+        let mut tracker =
+            StatusTracker::new(shared.clone(), writer_shared.clone(), clock::mono_ns());
+        let writer_shared = writer_shared.clone();
+        let status_path = status_path.clone();
+        let watchdog = sd_notify::watchdog_enabled();
+        tokio::spawn(async move {
+            let tick = watchdog
+                .map(|w| (w / 2).min(Duration::from_secs(1)))
+                .unwrap_or(Duration::from_secs(1));
+            let mut interval = tokio::time::interval(tick);
+            let mut last_status = None::<tokio::time::Instant>;
+            loop {
+                interval.tick().await;
+                let now = clock::mono_ns();
+                if let Some(w) = watchdog {
+                    // Feed the watchdog only while the writer thread is turning over.
+                    let heartbeat = writer_shared.counters().heartbeat_mono_ns;
+                    if (now - heartbeat) < w.as_nanos() as i64 / 2 {
+                        notify(&[sd_notify::NotifyState::Watchdog]);
+                    } else {
+                        tracing::warn!(
+                            "writer thread has not turned over for {} ms: not feeding the watchdog",
+                            (now - heartbeat) / 1_000_000
+                        );
+                    }
+                }
+                if last_status.is_none_or(|t| t.elapsed() >= Duration::from_millis(990)) {
+                    last_status = Some(tokio::time::Instant::now());
+                    let report = tracker.report(now, chrono::Utc::now());
+                    if let Err(e) = write_status_file(&status_path, &report) {
+                        tracing::warn!(
+                            "cannot write the status file {}: {e}",
+                            status_path.display()
+                        );
+                    }
+                }
+            }
+        })
+    };
+
+    // Wait for a reason to stop.
+    let early_exit: Option<WriterExit> = loop {
+        tokio::select! {
+            _ = sigterm.recv() => { tracing::info!("SIGTERM: stopping"); break None; }
+            _ = sigint.recv() => { tracing::info!("SIGINT: stopping"); break None; }
+            _ = sighup.recv() => { tracing::info!("SIGHUP: rotating"); control.request_rotate(); }
+            changed = stop.changed() => {
+                if changed.is_err() || *stop.borrow() { break None; }
+            }
+            exit = &mut writer_done => {
+                break Some(exit.unwrap_or_else(|_| WriterExit::Failed(anyhow::anyhow!("the writer thread panicked"))));
+            }
+        }
+    };
+
+    // Stop: devices first (so the queue stops growing), then the writer drains and closes.
+    notify(&[sd_notify::NotifyState::Stopping]);
+    let _ = shutdown_tx.send(true);
+    for task in &mut device_tasks {
+        if tokio::time::timeout(DEVICE_STOP_TIMEOUT, &mut *task)
+            .await
+            .is_err()
+        {
+            task.abort();
+        }
+    }
+    ready_task.abort();
+    control.request_stop();
+    let writer_exit = match early_exit {
+        Some(exit) => exit,
+        None => match tokio::time::timeout(WRITER_STOP_TIMEOUT, &mut writer_done).await {
+            Ok(Ok(exit)) => exit,
+            Ok(Err(_)) => WriterExit::Failed(anyhow::anyhow!("the writer thread panicked")),
+            Err(_) => WriterExit::Failed(anyhow::anyhow!(
+                "the writer did not close the session within {} ms",
+                WRITER_STOP_TIMEOUT.as_millis()
+            )),
+        },
+    };
+    status_task.abort();
+    let mut tracker = StatusTracker::new(shared, writer_shared, clock::mono_ns());
+    let mut report = tracker.report(clock::mono_ns(), chrono::Utc::now());
+    report.state = "stopped".to_string();
+    if let Err(e) = write_status_file(&status_path, &report) {
+        tracing::warn!(
+            "cannot write the status file {}: {e}",
+            status_path.display()
+        );
+    }
+    match writer_exit {
+        WriterExit::Clean => Outcome::Stopped,
+        WriterExit::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        },
+        WriterExit::Failed(e) => Outcome::Failed(e),
+    }
+}

@@ -1,0 +1,331 @@
+//! The writer thread: the only place that touches the disk. Device tasks hand it batches
+//! through one bounded queue with `try_send`, so a slow disk never blocks a reader; a batch
+//! the queue has no room for is dropped, counted per device and written as a
+//! `queue_overflow` event. The writer also flushes every interval, rotates on request and
+//! stops the session cleanly before the disk reserve is reached.
+
+use std::io;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord};
+
+use super::clock;
+use super::sink::RecordSink;
+use super::status::{DeviceShared, WriterShared};
+
+/// What one read of one device produced.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Batch {
+    /// Index of the device (into the daemon's device list).
+    pub device: usize,
+    pub imu: Vec<ImuRecord>,
+    pub gnss: Vec<GnssRecord>,
+    pub events: Vec<EventRecord>,
+    /// The undecoded bytes and their arrival time, when the raw journal is on.
+    pub raw: Option<(i64, Vec<u8>)>,
+}
+
+impl Batch {
+    pub fn new(device: usize) -> Self {
+        Batch {
+            device,
+            ..Batch::default()
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.imu.is_empty() && self.gnss.is_empty() && self.events.is_empty() && self.raw.is_none()
+    }
+
+    fn rows(&self) -> u64 {
+        (self.imu.len() + self.gnss.len()) as u64
+    }
+}
+
+/// The writer thread is gone; the device task should stop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the writer thread has stopped")]
+pub struct WriterGone;
+
+/// A device task's end of the queue: never blocks, counts what it had to drop.
+#[derive(Clone)]
+pub struct QueueSender {
+    tx: SyncSender<Batch>,
+    device: Arc<DeviceShared>,
+}
+
+impl QueueSender {
+    pub fn new(tx: SyncSender<Batch>, device: Arc<DeviceShared>) -> Self {
+        QueueSender { tx, device }
+    }
+
+    /// Queues a batch, or drops and counts it when the queue is full.
+    pub fn send(&self, batch: Batch) -> Result<(), WriterGone> {
+        if batch.is_empty() {
+            return Ok(());
+        }
+        match self.tx.try_send(batch) {
+            Ok(()) => Ok(()),
+            Err(TrySendError::Full(batch)) => {
+                let mut c = self.device.counters();
+                c.dropped_batches += 1;
+                c.dropped_rows += batch.rows();
+                c.dropped_events += batch.events.len() as u64;
+                Ok(())
+            }
+            Err(TrySendError::Disconnected(_)) => Err(WriterGone),
+        }
+    }
+}
+
+/// Requests to the writer from the control side (signals, shutdown).
+#[derive(Debug, Default)]
+pub struct WriterControl {
+    rotate: AtomicBool,
+    stop: AtomicBool,
+}
+
+impl WriterControl {
+    /// Rotate to a new chunk file at the writer's next turn (SIGHUP).
+    pub fn request_rotate(&self) {
+        self.rotate.store(true, Ordering::SeqCst);
+    }
+
+    /// Drain the queue, write the stop event, close and return (SIGTERM/SIGINT).
+    pub fn request_stop(&self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Returns the free bytes on the session's filesystem (statvfs in the daemon, injected in tests).
+pub type FreeSpaceFn = Box<dyn FnMut() -> io::Result<u64> + Send>;
+
+/// Writer timing and limits.
+#[derive(Debug, Clone)]
+pub struct WriterSettings {
+    pub flush_interval: Duration,
+    /// Stop cleanly when free space falls below this many bytes.
+    pub reserve_bytes: u64,
+    pub disk_check_interval: Duration,
+    /// Detail of the `session_start` event (config summary).
+    pub start_detail: String,
+}
+
+/// Why the writer stopped.
+#[derive(Debug)]
+pub enum WriterExit {
+    /// Asked to stop, or every device task ended; the session is closed.
+    Clean,
+    /// Free space fell below the reserve; the session is closed.
+    DiskReserve { free_bytes: u64, reserve_bytes: u64 },
+    /// The sink failed (disk error, full filesystem); the session was closed as far as possible.
+    Failed(anyhow::Error),
+}
+
+/// Runs the writer loop until stopped; closes the sink in every case.
+pub fn run_writer(
+    mut sink: Box<dyn RecordSink>,
+    rx: Receiver<Batch>,
+    devices: Vec<Arc<DeviceShared>>,
+    shared: Arc<WriterShared>,
+    control: Arc<WriterControl>,
+    settings: WriterSettings,
+    mut free_space: FreeSpaceFn,
+) -> WriterExit {
+    let mut state = WriterState {
+        devices,
+        shared,
+        reported_drops: Vec::new(),
+    };
+    state.reported_drops = vec![(0, 0, 0); state.devices.len()];
+    {
+        let mut w = state.shared.counters();
+        w.current_file = sink.current_file();
+        w.reserve_bytes = settings.reserve_bytes;
+        w.heartbeat_mono_ns = clock::mono_ns();
+    }
+    let started = sink.append_event(&session_event(
+        EventKind::SessionStart,
+        settings.start_detail.clone(),
+    ));
+    let outcome = match started {
+        Ok(()) => state.main_loop(&mut *sink, &rx, &control, &settings, &mut free_space),
+        Err(e) => Err(e),
+    };
+    state.shared.counters().stopping = true;
+    // Whatever stopped us, keep what is already queued (bounded: the queue's capacity plus
+    // what the device tasks send while they stop).
+    let mut outcome = match outcome {
+        Ok(exit) => match state.drain(&mut *sink, &rx) {
+            Ok(()) => exit,
+            Err(e) => WriterExit::Failed(e),
+        },
+        Err(e) => WriterExit::Failed(e),
+    };
+    let _ = state.report_drops(&mut *sink);
+    let reason = match &outcome {
+        WriterExit::Clean => "stopped".to_string(),
+        WriterExit::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => format!("disk reserve reached: {free_bytes} bytes free, reserve {reserve_bytes}"),
+        WriterExit::Failed(e) => format!("write failed: {e:#}"),
+    };
+    let _ = sink.append_event(&session_event(EventKind::SessionStop, reason));
+    if let Err(e) = sink.close() {
+        tracing::error!("closing the session failed: {e:#}");
+        if matches!(outcome, WriterExit::Clean) {
+            outcome = WriterExit::Failed(e);
+        }
+    }
+    state.shared.counters().current_file = None;
+    outcome
+}
+
+fn session_event(kind: EventKind, detail: String) -> EventRecord {
+    let now = clock::now();
+    EventRecord {
+        t_mono_ns: now.mono_ns,
+        t_wall_ns: now.wall_ns,
+        device: String::new(),
+        kind,
+        detail,
+    }
+}
+
+struct WriterState {
+    devices: Vec<Arc<DeviceShared>>,
+    shared: Arc<WriterShared>,
+    /// Drop counts (batches, rows, events) already written as events, per device.
+    reported_drops: Vec<(u64, u64, u64)>,
+}
+
+impl WriterState {
+    fn main_loop(
+        &mut self,
+        sink: &mut dyn RecordSink,
+        rx: &Receiver<Batch>,
+        control: &WriterControl,
+        settings: &WriterSettings,
+        free_space: &mut FreeSpaceFn,
+    ) -> anyhow::Result<WriterExit> {
+        let tick = Duration::from_millis(50).min(settings.flush_interval);
+        let mut last_flush = Instant::now();
+        let mut last_disk_check: Option<Instant> = None;
+        loop {
+            self.shared.counters().heartbeat_mono_ns = clock::mono_ns();
+            if control.stop.load(Ordering::SeqCst) {
+                return Ok(WriterExit::Clean);
+            }
+            if last_disk_check.is_none_or(|t| t.elapsed() >= settings.disk_check_interval) {
+                last_disk_check = Some(Instant::now());
+                match free_space() {
+                    Ok(free_bytes) => {
+                        self.shared.counters().free_bytes = Some(free_bytes);
+                        if free_bytes < settings.reserve_bytes {
+                            let detail = format!(
+                                "{free_bytes} bytes free, below the reserve of {} bytes: closing the session",
+                                settings.reserve_bytes
+                            );
+                            tracing::error!("{detail}");
+                            sink.append_event(&session_event(EventKind::DiskLow, detail))?;
+                            return Ok(WriterExit::DiskReserve {
+                                free_bytes,
+                                reserve_bytes: settings.reserve_bytes,
+                            });
+                        }
+                    }
+                    Err(e) => tracing::warn!("cannot read free disk space: {e}"),
+                }
+            }
+            if control.rotate.swap(false, Ordering::SeqCst) {
+                self.report_drops(sink)?;
+                sink.append_event(&session_event(
+                    EventKind::Info,
+                    "rotation requested (SIGHUP)".to_string(),
+                ))?;
+                sink.rotate()?;
+                let mut w = self.shared.counters();
+                w.rotations += 1;
+                w.current_file = sink.current_file();
+                tracing::info!("rotated to {:?}", w.current_file);
+            }
+            let until_flush = settings.flush_interval.saturating_sub(last_flush.elapsed());
+            match rx.recv_timeout(tick.min(until_flush).max(Duration::from_millis(1))) {
+                Ok(batch) => self.write(sink, batch)?,
+                Err(RecvTimeoutError::Timeout) => {}
+                // Every device task has ended: nothing more will come.
+                Err(RecvTimeoutError::Disconnected) => return Ok(WriterExit::Clean),
+            }
+            if last_flush.elapsed() >= settings.flush_interval {
+                self.report_drops(sink)?;
+                sink.flush()?;
+                last_flush = Instant::now();
+                let mut w = self.shared.counters();
+                w.flushes += 1;
+                w.current_file = sink.current_file();
+            }
+        }
+    }
+
+    fn write(&mut self, sink: &mut dyn RecordSink, batch: Batch) -> anyhow::Result<()> {
+        let Some(device) = self.devices.get(batch.device) else {
+            anyhow::bail!("batch for unknown device index {}", batch.device);
+        };
+        let name = device.name.as_str();
+        if let Some((t_mono_ns, bytes)) = &batch.raw {
+            sink.append_raw(name, *t_mono_ns, bytes)?;
+        }
+        if !batch.imu.is_empty() {
+            sink.append_imu(name, &batch.imu)?;
+        }
+        if !batch.gnss.is_empty() {
+            sink.append_gnss(name, &batch.gnss)?;
+        }
+        for event in &batch.events {
+            sink.append_event(event)?;
+        }
+        self.shared.counters().rows_written += batch.rows();
+        Ok(())
+    }
+
+    fn drain(&mut self, sink: &mut dyn RecordSink, rx: &Receiver<Batch>) -> anyhow::Result<()> {
+        while let Ok(batch) = rx.try_recv() {
+            self.write(sink, batch)?;
+        }
+        Ok(())
+    }
+
+    /// Writes a `queue_overflow` event for every device that dropped batches since the last call.
+    fn report_drops(&mut self, sink: &mut dyn RecordSink) -> anyhow::Result<()> {
+        for (device, reported) in self.devices.iter().zip(self.reported_drops.iter_mut()) {
+            let now = {
+                let c = device.counters();
+                (c.dropped_batches, c.dropped_rows, c.dropped_events)
+            };
+            if now.0 > reported.0 {
+                let detail = format!(
+                    "writer queue full: dropped {} batches ({} rows, {} events) since the last report; {} rows in total",
+                    now.0 - reported.0,
+                    now.1 - reported.1,
+                    now.2 - reported.2,
+                    now.1
+                );
+                tracing::warn!(device = %device.name, "{detail}");
+                let mut event = session_event(EventKind::QueueOverflow, detail);
+                event.device = device.name.clone();
+                sink.append_event(&event)?;
+                *reported = now;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A queue pair sized for `capacity` batches.
+pub fn queue(capacity: usize) -> (SyncSender<Batch>, Receiver<Batch>) {
+    std::sync::mpsc::sync_channel(capacity)
+}

@@ -1,0 +1,157 @@
+//! A really full disk: the test mounts a small tmpfs (when it may: root or CAP_SYS_ADMIN;
+//! skipped with the reason otherwise), points the session at it and streams fast until free
+//! space falls under the reserve. The daemon must close the session cleanly, say why and exit
+//! non-zero, and every chunk file must read back without problems.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use common::{encode_imu, LineDecoder, QueueConnector};
+use imulab::daemon::config::parse;
+use imulab::daemon::session::open_session_sink;
+use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};
+use imulab::daemon::{disk, run, DaemonParts, Outcome};
+use imulab::store::{EventKind, Session, TimeRange};
+use nix::mount::{mount, umount, MsFlags};
+use tokio::io::AsyncWriteExt;
+
+/// A tmpfs mounted for the test, unmounted when dropped.
+struct SmallFs {
+    dir: tempfile::TempDir,
+}
+
+impl SmallFs {
+    fn mount(size_mib: u32) -> Result<Self, String> {
+        let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
+        let options = format!("size={size_mib}m");
+        mount(
+            Some("tmpfs"),
+            dir.path(),
+            Some("tmpfs"),
+            MsFlags::MS_NOSUID | MsFlags::MS_NODEV,
+            Some(options.as_str()),
+        )
+        .map_err(|e| format!("cannot mount a tmpfs ({e}); needs root or CAP_SYS_ADMIN"))?;
+        Ok(SmallFs { dir })
+    }
+
+    fn path(&self) -> &Path {
+        self.dir.path()
+    }
+}
+
+impl Drop for SmallFs {
+    fn drop(&mut self) {
+        let _ = umount(self.dir.path());
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_filling_disk_stops_the_session_cleanly_with_exit_status_3() {
+    let fs = match SmallFs::mount(10) {
+        Ok(fs) => fs,
+        Err(reason) => {
+            println!("SKIPPED a_filling_disk_stops_the_session_cleanly: {reason}");
+            return;
+        }
+    };
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nflush_interval_ms = 100\nraw_journal = true\ndeflate_level = 0\n\
+         disk_reserve_mb = 6\n\
+         [[device]]\nname = \"imu\"\nprotocol = \"csv\"\nrate_hz = 10000\nserial = {{ port = \"/dev/imu\" }}\n",
+        fs.path().display()
+    );
+    let config = parse(&text, "test").unwrap_or_else(|e| panic!("{e}"));
+    let session_dir: PathBuf = fs.path().join("session");
+    let sink = open_session_sink(&config, &session_dir).expect("session created");
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let decoders: DecoderFactory =
+        Box::new(|| Box::new(LineDecoder::default()) as Box<dyn FrameDecoder>);
+    let space_dir = session_dir.clone();
+    let parts = DaemonParts {
+        sink: Box::new(sink),
+        session_dir: session_dir.clone(),
+        connectors: vec![Box::new(imu) as Box<dyn Connector>],
+        decoders: vec![decoders],
+        free_space: Box::new(move || disk::free_bytes(&space_dir)),
+        status_path: fs.path().join("status.json"),
+    };
+    let (_stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+    // About 4 MB/s of rows and raw bytes: the 4 MiB above the reserve last ~1-2 s.
+    let sender = tokio::spawn(async move {
+        let mut seq = 0u64;
+        loop {
+            let mut burst = Vec::new();
+            for _ in 0..250 {
+                burst.extend_from_slice(&encode_imu(
+                    seq,
+                    [1e-3 * seq as f64, 0.0, 0.0],
+                    [0.0, 0.0, 9.81],
+                ));
+                seq += 1;
+            }
+            if port.write_all(&burst).await.is_err() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    });
+    let t = Instant::now();
+    let outcome = tokio::time::timeout(Duration::from_secs(30), daemon)
+        .await
+        .expect("the daemon stops by itself")
+        .unwrap();
+    sender.abort();
+    println!("stopped after {:?}: {outcome:?}", t.elapsed());
+    match &outcome {
+        Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => assert!(free_bytes < reserve_bytes),
+        other => panic!("expected the disk reserve to stop the daemon, got {other:?}"),
+    }
+    assert_eq!(outcome.exit_code(), 3);
+
+    let session = Session::open(&session_dir).expect("session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    assert!(
+        session.files().iter().all(|f| !f.partial),
+        "{:?}",
+        session.files()
+    );
+    let mut rows = 0usize;
+    let mut next = 0u64;
+    for block in session.imu_blocks("imu", TimeRange::all(), 4096).unwrap() {
+        let block = block.unwrap();
+        for s in &block.t_sensor {
+            assert_eq!(*s as u64, next, "rows are contiguous from 0");
+            next += 1;
+        }
+        rows += block.len();
+    }
+    assert!(rows > 10_000, "{rows} rows");
+    let (events, _) = session.events();
+    let low: Vec<_> = events
+        .iter()
+        .filter(|e| e.kind == EventKind::DiskLow)
+        .collect();
+    assert_eq!(low.len(), 1, "{events:?}");
+    assert!(
+        low[0].detail.contains("below the reserve"),
+        "{}",
+        low[0].detail
+    );
+    let stop = events
+        .iter()
+        .find(|e| e.kind == EventKind::SessionStop)
+        .unwrap();
+    assert!(
+        stop.detail.contains("disk reserve reached"),
+        "{}",
+        stop.detail
+    );
+}

@@ -1,0 +1,419 @@
+//! The daemon pipeline end to end with in-memory devices and sink: every frame sent arrives
+//! exactly once with its values, garbage becomes resync/checksum events, a vanished device is
+//! reconnected with back-off and a gap, a device that never appears is an error in the
+//! status, a slow writer's losses are counted and logged, and the disk reserve stops the
+//! session cleanly with a non-zero exit.
+
+mod common;
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
+use imulab::daemon::config::{parse, CheckedConfig};
+use imulab::daemon::sink::{MemorySink, MemoryStore};
+use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};
+use imulab::daemon::status::{read_status_file, DeviceState, StatusReport};
+use imulab::daemon::writer::FreeSpaceFn;
+use imulab::daemon::{run, DaemonParts, Outcome};
+use imulab::store::EventKind;
+use tokio::io::AsyncWriteExt;
+use tokio::sync::watch;
+
+fn config(dir: &std::path::Path, session_extra: &str, devices: &[(&str, f64)]) -> CheckedConfig {
+    let mut text = format!(
+        "[session]\noutput_dir = \"{}\"\nflush_interval_ms = 50\n{session_extra}\n",
+        dir.display()
+    );
+    for (name, rate) in devices {
+        let protocol = if name.starts_with("gnss") {
+            "gnss"
+        } else {
+            "csv"
+        };
+        text.push_str(&format!(
+            "[[device]]\nname = \"{name}\"\nprotocol = \"{protocol}\"\nrate_hz = {rate}\ngap_factor = 10\nretry_initial_ms = 20\nretry_max_ms = 160\nserial = {{ port = \"/dev/test-{name}\" }}\n"
+        ));
+    }
+    parse(&text, "test").unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn line_decoders() -> DecoderFactory {
+    Box::new(|| Box::new(LineDecoder::default()) as Box<dyn FrameDecoder>)
+}
+
+struct Running {
+    stop: watch::Sender<bool>,
+    handle: tokio::task::JoinHandle<Outcome>,
+    status_path: std::path::PathBuf,
+}
+
+fn start(
+    config: CheckedConfig,
+    sink: MemorySink,
+    connectors: Vec<QueueConnector>,
+    free_space: FreeSpaceFn,
+) -> Running {
+    let status_path = config.status_path();
+    let parts = DaemonParts {
+        sink: Box::new(sink),
+        session_dir: config.session.output_dir.join("session"),
+        decoders: connectors.iter().map(|_| line_decoders()).collect(),
+        connectors: connectors
+            .into_iter()
+            .map(|c| Box::new(c) as Box<dyn Connector>)
+            .collect(),
+        free_space,
+        status_path: status_path.clone(),
+    };
+    let (stop, stop_rx) = watch::channel(false);
+    let handle = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+    Running {
+        stop,
+        handle,
+        status_path,
+    }
+}
+
+impl Running {
+    async fn finish(self) -> (Outcome, StatusReport) {
+        let _ = self.stop.send(true);
+        let t = Instant::now();
+        let outcome = self.handle.await.expect("daemon task");
+        assert!(
+            t.elapsed() < Duration::from_secs(2),
+            "stop took {:?}",
+            t.elapsed()
+        );
+        let status = read_status_file(&self.status_path).expect("status file");
+        (outcome, status)
+    }
+}
+
+fn plenty_of_space() -> FreeSpaceFn {
+    Box::new(|| Ok(u64::MAX / 2))
+}
+
+fn events(store: &MemoryStore, kind: EventKind) -> Vec<String> {
+    store
+        .events
+        .iter()
+        .filter(|e| e.kind == kind)
+        .map(|e| format!("[{}] {}", e.device, e.detail))
+        .collect()
+}
+
+fn gyro_of(seq: u64) -> [f64; 3] {
+    [seq as f64 * 1e-3, -0.25, 1.5e-7 * seq as f64]
+}
+fn accel_of(seq: u64) -> [f64; 3] {
+    [0.125, -9.80665, seq as f64]
+}
+
+/// Sends frames `range` at `rate_hz`, with `garbage` written before frame numbers in `dirty`.
+async fn send_imu(
+    port: &mut tokio::io::DuplexStream,
+    range: std::ops::Range<u64>,
+    rate_hz: f64,
+    dirty: &[u64],
+    garbage: &[u8],
+) {
+    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let start = tokio::time::Instant::now();
+    for (k, seq) in range.enumerate() {
+        if dirty.contains(&seq) {
+            port.write_all(garbage).await.unwrap();
+        }
+        port.write_all(&encode_imu(seq, gyro_of(seq), accel_of(seq)))
+            .await
+            .unwrap();
+        tokio::time::sleep_until(start + period * (k as u32 + 1)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_arrive_once_with_values_and_garbage_becomes_events() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "", &[("imu", 150.0), ("gnss", 10.0)]);
+    let imu = QueueConnector::default();
+    let gnss = QueueConnector::default();
+    let mut imu_port = imu.plug();
+    let mut gnss_port = gnss.plug();
+    let sink = MemorySink::new();
+    let running = start(config, sink.clone(), vec![imu, gnss], plenty_of_space());
+
+    let gnss_sender = tokio::spawn(async move {
+        for k in 0..6u32 {
+            let fix = encode_gnss(2400, 100.0 + f64::from(k) * 0.1, 48.1 + f64::from(k), 11.5);
+            gnss_port.write_all(&fix).await.unwrap();
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        gnss_port
+    });
+    // Garbage: random-ish bytes, a frame with a wrong checksum, and a frame cut short.
+    let mut garbage = b"\x00\xff\x13garbage".to_vec();
+    garbage.extend_from_slice(b"$I,999,1,2,3,4,5,6*00\n");
+    garbage.extend_from_slice(b"$I,998,1,2");
+    send_imu(&mut imu_port, 0..120, 150.0, &[30, 31, 80], &garbage).await;
+    let _gnss_port = gnss_sender.await.unwrap();
+    tokio::time::sleep(Duration::from_millis(150)).await;
+    let (outcome, status) = running.finish().await;
+    assert!(matches!(outcome, Outcome::Stopped), "{outcome:?}");
+    assert_eq!(outcome.exit_code(), 0);
+
+    let store = sink.snapshot();
+    assert!(store.closed);
+    assert!(store.flushes >= 2, "flushes {}", store.flushes);
+    let rows = &store.imu["imu"];
+    let seqs: Vec<u64> = rows.iter().map(|r| r.t_sensor as u64).collect();
+    assert_eq!(
+        seqs,
+        (0..120).collect::<Vec<_>>(),
+        "every frame exactly once, in order"
+    );
+    for r in rows {
+        let seq = r.t_sensor as u64;
+        assert_eq!(r.gyro, gyro_of(seq));
+        assert_eq!(r.accel, accel_of(seq));
+        assert!(r.temp.is_nan());
+    }
+    assert!(rows.windows(2).all(|w| w[0].t_mono_ns <= w[1].t_mono_ns));
+    assert!(rows
+        .windows(2)
+        .all(|w| w[0].t_wall_ns <= w[1].t_wall_ns + 1_000_000));
+    let span_s = (rows[119].t_mono_ns - rows[0].t_mono_ns) as f64 * 1e-9;
+    let rate = 119.0 / span_s;
+    assert!((rate - 150.0).abs() < 15.0, "rate {rate}");
+
+    let fixes = &store.gnss["gnss"];
+    assert_eq!(fixes.len(), 6);
+    assert_eq!(fixes[3].week, 2400);
+    assert!((fixes[3].tow_s - 100.3).abs() < 1e-9);
+    assert_eq!(fixes[3].lat_deg, 51.1);
+    assert_eq!(fixes[3].utc_ns, i64::MIN);
+
+    assert_eq!(events(&store, EventKind::SessionStart).len(), 1);
+    assert_eq!(events(&store, EventKind::SessionStop).len(), 1);
+    assert_eq!(store.events.last().unwrap().kind, EventKind::SessionStop);
+    assert_eq!(events(&store, EventKind::Connect).len(), 2);
+    let resyncs = events(&store, EventKind::Resync);
+    let checksums = events(&store, EventKind::ChecksumError);
+    assert!(!resyncs.is_empty(), "{:?}", store.events);
+    assert_eq!(checksums.len(), 3, "{checksums:?}");
+    assert!(
+        events(&store, EventKind::Gap).is_empty(),
+        "{:?}",
+        events(&store, EventKind::Gap)
+    );
+
+    assert_eq!(status.state, "stopped");
+    let imu_status = &status.devices[0];
+    assert_eq!(imu_status.frames_ok, 120);
+    assert_eq!(imu_status.frames_bad, 6, "3 checksum + 3 cut frames");
+    assert_eq!(imu_status.resyncs, 3);
+    assert_eq!(status.devices[1].frames_ok, 6);
+    assert_eq!(status.rows_written, 126);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vanished_device_reconnects_into_the_same_session() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "", &[("imu", 100.0)]);
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::new();
+    let running = start(config, sink.clone(), vec![imu.clone()], plenty_of_space());
+
+    send_imu(&mut port, 0..30, 100.0, &[], b"").await;
+    drop(port); // unplugged
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let attempts_while_down = imu.attempt_count();
+    let mut port = imu.plug(); // plugged back
+    tokio::time::sleep(Duration::from_millis(250)).await;
+    send_imu(&mut port, 30..60, 100.0, &[], b"").await;
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let (outcome, status) = running.finish().await;
+    assert_eq!(outcome.exit_code(), 0);
+
+    let store = sink.snapshot();
+    let seqs: Vec<u64> = store.imu["imu"].iter().map(|r| r.t_sensor as u64).collect();
+    assert_eq!(seqs, (0..60).collect::<Vec<_>>());
+    let disconnects = events(&store, EventKind::Disconnect);
+    let reconnects = events(&store, EventKind::Reconnect);
+    assert_eq!(disconnects.len(), 1, "{:?}", store.events);
+    assert!(
+        disconnects[0].contains("vanished: end of stream"),
+        "{disconnects:?}"
+    );
+    assert_eq!(reconnects.len(), 1, "{:?}", store.events);
+    assert!(reconnects[0].contains("s down"), "{reconnects:?}");
+    // Back-off 20, 40, 80, 160 ms: in 400 ms about 4 to 5 attempts, not hundreds.
+    assert!(
+        (3..=7).contains(&attempts_while_down),
+        "{attempts_while_down} attempts"
+    );
+    let times = imu.attempts.lock().unwrap().clone();
+    let deltas: Vec<Duration> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(deltas[2] > deltas[1], "back-off grows: {deltas:?}");
+    assert_eq!(status.devices[0].reconnects, 1);
+    assert_eq!(status.devices[0].state, DeviceState::Stopped);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_that_never_appears_is_an_error_in_the_status_not_a_crash() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "", &[("imu", 100.0), ("ghost", 100.0)]);
+    let imu = QueueConnector::default();
+    let ghost = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::new();
+    let running = start(
+        config,
+        sink.clone(),
+        vec![imu, ghost.clone()],
+        plenty_of_space(),
+    );
+    send_imu(&mut port, 0..120, 100.0, &[], b"").await;
+    let live = read_status_file(&running.status_path).expect("status written while running");
+    assert_eq!(live.state, "running");
+    assert_eq!(live.devices[1].state, DeviceState::Absent);
+    assert!(
+        live.devices[1]
+            .last_error
+            .as_deref()
+            .is_some_and(|e| e.contains("no such device")),
+        "{live:?}"
+    );
+    assert_eq!(live.devices[0].state, DeviceState::Connected);
+    assert!(live.devices[0].rate_hz > 50.0, "{live:?}");
+    assert!(live.devices[0].last_sample_age_s.is_some_and(|a| a < 0.5));
+    let (outcome, _) = running.finish().await;
+    assert_eq!(outcome.exit_code(), 0);
+    let store = sink.snapshot();
+    assert_eq!(store.imu["imu"].len(), 120);
+    let info = events(&store, EventKind::Info);
+    assert_eq!(info.len(), 1, "said once, not per retry: {info:?}");
+    assert!(
+        info[0].starts_with("[ghost] cannot open memory"),
+        "{info:?}"
+    );
+    assert!(ghost.attempt_count() >= 5);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pause_longer_than_the_gap_factor_is_a_gap_event() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "", &[("imu", 100.0)]);
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::new();
+    let running = start(config, sink.clone(), vec![imu], plenty_of_space());
+    send_imu(&mut port, 0..20, 100.0, &[], b"").await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    send_imu(&mut port, 20..40, 100.0, &[], b"").await;
+    let (_, status) = running.finish().await;
+    let gaps = events(&sink.snapshot(), EventKind::Gap);
+    assert_eq!(gaps.len(), 1, "{gaps:?}");
+    // About 300 ms at 100 Hz (threshold 10 periods): ~30 missing (scheduling adds a few ms).
+    let missing: u64 = gaps[0]
+        .split("about ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap();
+    assert!((28..=36).contains(&missing), "{gaps:?}");
+    assert_eq!(status.devices[0].gaps, 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slow_writer_drops_are_counted_and_logged_never_silent() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "queue_capacity = 2", &[("imu", 1000.0)]);
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::slow(Duration::from_millis(15));
+    let running = start(config, sink.clone(), vec![imu], plenty_of_space());
+    // 400 frames at 1 kHz into a writer that takes 15 ms per batch and a 2-batch queue.
+    send_imu(&mut port, 0..400, 1000.0, &[], b"").await;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let (outcome, status) = running.finish().await;
+    assert_eq!(outcome.exit_code(), 0);
+    let store = sink.snapshot();
+    let written = store.imu["imu"].len() as u64;
+    let dropped = status.devices[0].dropped_rows;
+    assert!(dropped > 0, "the test must overload the writer");
+    assert_eq!(
+        written + dropped,
+        400,
+        "written {written} + dropped {dropped}"
+    );
+    let overflow = events(&store, EventKind::QueueOverflow);
+    assert!(!overflow.is_empty());
+    let logged: u64 = overflow
+        .iter()
+        .map(|e| {
+            e.split(" batches (")
+                .nth(1)
+                .and_then(|s| s.split(' ').next())
+                .and_then(|s| s.parse::<u64>().ok())
+                .unwrap()
+        })
+        .sum();
+    assert_eq!(
+        logged, dropped,
+        "every dropped row is in an event: {overflow:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn disk_reserve_closes_the_session_and_exits_non_zero() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "disk_reserve_mb = 10", &[("imu", 100.0)]);
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::new();
+    // Free space shrinks by 4 MiB per check (checks are 1 s apart) from 18 MiB.
+    let free = Arc::new(AtomicU64::new(18 << 20));
+    let free_in = free.clone();
+    let free_space: FreeSpaceFn =
+        Box::new(move || Ok(free_in.fetch_sub(4 << 20, Ordering::SeqCst)));
+    let running = start(config, sink.clone(), vec![imu], free_space);
+    let sender = tokio::spawn(async move {
+        send_imu(&mut port, 0..400, 100.0, &[], b"").await;
+    });
+    let t = Instant::now();
+    let outcome = tokio::time::timeout(Duration::from_secs(5), running.handle)
+        .await
+        .expect("daemon stops on its own")
+        .unwrap();
+    sender.abort();
+    // 18, 14, 10 MiB are >= the reserve; 6 MiB at the 4th check (t ≈ 3 s) is not.
+    assert!(
+        t.elapsed() > Duration::from_millis(2500),
+        "{:?}",
+        t.elapsed()
+    );
+    match &outcome {
+        Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => {
+            assert_eq!(*free_bytes, 6 << 20);
+            assert_eq!(*reserve_bytes, 10 << 20);
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(outcome.exit_code(), 3);
+    let store = sink.snapshot();
+    assert!(store.closed);
+    let low = events(&store, EventKind::DiskLow);
+    assert_eq!(low.len(), 1);
+    let stop = events(&store, EventKind::SessionStop);
+    assert!(stop[0].contains("disk reserve reached"), "{stop:?}");
+    let seqs: Vec<u64> = store.imu["imu"].iter().map(|r| r.t_sensor as u64).collect();
+    assert!(seqs.len() > 250);
+    assert_eq!(seqs, (0..seqs.len() as u64).collect::<Vec<_>>());
+    let status = read_status_file(&running.status_path).unwrap();
+    assert_eq!(status.state, "stopped");
+}
