@@ -21,6 +21,8 @@ enum Command {
     Export(imulab::cli::export::ExportArgs),
     /// Make the partial chunk file of a killed writer readable.
     Recover(imulab::cli::recover::RecoverArgs),
+    /// GNSS/INS replay through the error-state Kalman filter.
+    Replay(imulab::cli::replay::ReplayArgs),
     /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
     Decode(imulab::cli::decode::DecodeArgs),
     /// Simulate IMUs and GNSS receivers from a scene file.
@@ -42,6 +44,7 @@ fn main() -> std::process::ExitCode {
         Command::Inspect(args) => imulab::cli::inspect::run(args),
         Command::Export(args) => imulab::cli::export::run(args),
         Command::Recover(args) => imulab::cli::recover::run(args),
+        Command::Replay(args) => imulab::cli::replay::run(args),
         Command::Decode(args) => imulab::cli::decode::run(args),
         Command::Sim(args) => imulab::cli::sim::run(args),
         Command::Status(args) => imulab::cli::status::run(args),

@@ -1,5 +1,6 @@
 //! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
 
+pub mod replay;
 pub mod status;
 pub mod allan;
 pub mod compare;
@@ -15,8 +16,8 @@ pub fn init_logging() {
         .try_init();
 }
 
+pub mod decode;
 pub mod export;
 pub mod inspect;
 pub mod recover;
-pub mod decode;
 pub mod sim;

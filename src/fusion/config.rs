@@ -1,0 +1,491 @@
+//! Configuration of the GNSS/INS filter: IMU noise and sensor-error processes, GNSS handling,
+//! constraints, alignment and initial uncertainty. Read from TOML (`[fusion]`-style file) with
+//! unknown keys rejected; every number is checked before the filter starts.
+//!
+//! Units are in the key names: `_rad_per_sqrt_s`, `_mps`, `_deg`, `_ppm` and so on.
+
+use crate::fusion::mechanisation::MechanisationOptions;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// A first-order Gauss-Markov process: stationary σ and correlation time τ. τ = ∞ (or any
+/// τ ≤ 0 written as `0`) makes it a random constant with initial σ.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GaussMarkov {
+    pub sigma: f64,
+    pub tau_s: f64,
+}
+
+impl GaussMarkov {
+    /// Continuous driving-noise spectral density 2σ²/τ (0 for a random constant).
+    pub fn driving_psd(&self) -> f64 {
+        if self.is_constant() {
+            0.0
+        } else {
+            2.0 * self.sigma * self.sigma / self.tau_s
+        }
+    }
+
+    /// The decay rate 1/τ (0 for a random constant).
+    pub fn decay(&self) -> f64 {
+        if self.is_constant() {
+            0.0
+        } else {
+            1.0 / self.tau_s
+        }
+    }
+
+    fn is_constant(&self) -> bool {
+        !(self.tau_s.is_finite() && self.tau_s > 0.0)
+    }
+}
+
+/// IMU noise and sensor-error model. Gyro quantities in rad, accel in m/s, scale factors as
+/// fractions (1e-3 = 1000 ppm).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImuModel {
+    /// Angle random walk, rad/√s.
+    pub arw_rad_per_sqrt_s: f64,
+    /// Velocity random walk, m/s/√s.
+    pub vrw_mps_per_sqrt_s: f64,
+    /// Gyro bias, rad/s.
+    pub gyro_bias: GaussMarkov,
+    /// Accelerometer bias, m/s².
+    pub accel_bias: GaussMarkov,
+    /// Gyro scale-factor error (used with 21 states), fraction.
+    pub gyro_scale: GaussMarkov,
+    /// Accelerometer scale-factor error (used with 21 states), fraction.
+    pub accel_scale: GaussMarkov,
+}
+
+impl Default for ImuModel {
+    /// A consumer MEMS IMU: 0.3°/√h ARW, 0.1 m/s/√h VRW, 20°/h and 5 mg biases over 1 h.
+    fn default() -> Self {
+        Self {
+            arw_rad_per_sqrt_s: 0.3f64.to_radians() / 60.0,
+            vrw_mps_per_sqrt_s: 0.1 / 60.0,
+            gyro_bias: GaussMarkov {
+                sigma: 20f64.to_radians() / 3600.0,
+                tau_s: 3600.0,
+            },
+            accel_bias: GaussMarkov {
+                sigma: 5e-3 * 9.81,
+                tau_s: 3600.0,
+            },
+            gyro_scale: GaussMarkov {
+                sigma: 1e-3,
+                tau_s: 3600.0,
+            },
+            accel_scale: GaussMarkov {
+                sigma: 1e-3,
+                tau_s: 3600.0,
+            },
+        }
+    }
+}
+
+/// How GNSS fixes are used.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GnssOptions {
+    /// Antenna position relative to the IMU centre, body frame (forward, right, down), m.
+    pub lever_arm_m: [f64; 3],
+    /// Use the receiver's velocity when the fix has one.
+    pub use_velocity: bool,
+    /// Floor under the receiver's position σ, m (receivers are optimistic).
+    pub min_position_sigma_m: f64,
+    /// Floor under the receiver's velocity σ, m/s.
+    pub min_velocity_sigma_mps: f64,
+    /// Reject fixes whose normalised innovation squared exceeds this (0 = no gating).
+    pub innovation_gate: f64,
+}
+
+impl Default for GnssOptions {
+    fn default() -> Self {
+        Self {
+            lever_arm_m: [0.0; 3],
+            use_velocity: true,
+            min_position_sigma_m: 0.01,
+            min_velocity_sigma_mps: 0.005,
+            innovation_gate: 0.0,
+        }
+    }
+}
+
+/// Non-holonomic constraint: a land vehicle does not slide sideways or jump.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NhcOptions {
+    pub enabled: bool,
+    /// σ of the lateral and vertical body velocity, m/s.
+    pub sigma_mps: f64,
+    /// Apply only above this speed, m/s.
+    pub min_speed_mps: f64,
+    /// Apply at most this often, s.
+    pub interval_s: f64,
+}
+
+impl Default for NhcOptions {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            sigma_mps: 0.1,
+            min_speed_mps: 1.0,
+            interval_s: 0.2,
+        }
+    }
+}
+
+/// Zero-velocity update when the IMU looks stationary over a window.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ZuptOptions {
+    pub enabled: bool,
+    /// σ of the zero-velocity pseudo-measurement, m/s.
+    pub sigma_mps: f64,
+    /// Stationary when the window-mean angular rate (bias-corrected) is below this, rad/s …
+    pub gyro_threshold_rad_s: f64,
+    /// … the window-mean specific force differs from the previous window's by less than
+    /// this, m/s² …
+    pub accel_threshold_mps2: f64,
+    /// Window length, s; also the update interval.
+    pub window_s: f64,
+    /// … and the INS speed is below this, m/s (an IMU alone cannot tell a standstill from
+    /// a smooth straight cruise).
+    pub max_speed_mps: f64,
+}
+
+impl Default for ZuptOptions {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            sigma_mps: 0.01,
+            gyro_threshold_rad_s: 0.01,
+            accel_threshold_mps2: 0.05,
+            window_s: 0.5,
+            max_speed_mps: 1.0,
+        }
+    }
+}
+
+/// Initial alignment.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AlignmentOptions {
+    /// Heading given by the user, degrees from north; otherwise from GNSS velocity.
+    pub heading_deg: Option<f64>,
+    /// Speed above which the GNSS track gives the heading, m/s.
+    pub min_speed_mps: f64,
+    /// Minimum static data for levelling before starting with a given heading, s.
+    pub level_s: f64,
+}
+
+impl Default for AlignmentOptions {
+    fn default() -> Self {
+        Self {
+            heading_deg: None,
+            min_speed_mps: 3.0,
+            level_s: 5.0,
+        }
+    }
+}
+
+/// Initial 1σ uncertainty of the navigation states.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct InitialSigma {
+    pub position_m: f64,
+    pub velocity_mps: f64,
+    pub roll_pitch_deg: f64,
+    pub heading_deg: f64,
+}
+
+impl Default for InitialSigma {
+    fn default() -> Self {
+        Self {
+            position_m: 2.0,
+            velocity_mps: 0.2,
+            roll_pitch_deg: 1.0,
+            heading_deg: 5.0,
+        }
+    }
+}
+
+/// Everything the filter needs besides data.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FusionConfig {
+    /// 15 states (position, velocity, attitude, gyro and accel bias) or 21 (plus scale factors).
+    pub states: usize,
+    pub mechanisation: MechanisationOptions,
+    pub imu: ImuModel,
+    pub gnss: GnssOptions,
+    pub nhc: NhcOptions,
+    pub zupt: ZuptOptions,
+    pub alignment: AlignmentOptions,
+    pub initial: InitialSigma,
+    /// Covariance propagation interval, s (the mechanisation runs at the IMU rate).
+    pub covariance_interval_s: f64,
+    /// Output interval of the trajectory, s.
+    pub output_interval_s: f64,
+}
+
+impl Default for FusionConfig {
+    fn default() -> Self {
+        Self {
+            states: 15,
+            mechanisation: MechanisationOptions::default(),
+            imu: ImuModel::default(),
+            gnss: GnssOptions::default(),
+            nhc: NhcOptions::default(),
+            zupt: ZuptOptions::default(),
+            alignment: AlignmentOptions::default(),
+            initial: InitialSigma::default(),
+            covariance_interval_s: 0.05,
+            output_interval_s: 0.1,
+        }
+    }
+}
+
+/// A configuration value that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("fusion config {path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("fusion config {path}: {source}")]
+    Parse {
+        path: String,
+        source: Box<toml::de::Error>,
+    },
+    #[error("fusion config: {key} = {value} is invalid: {why}")]
+    Invalid {
+        key: &'static str,
+        value: String,
+        why: &'static str,
+    },
+}
+
+fn check(key: &'static str, value: f64, ok: bool, why: &'static str) -> Result<(), ConfigError> {
+    if value.is_finite() && ok {
+        Ok(())
+    } else {
+        Err(ConfigError::Invalid {
+            key,
+            value: value.to_string(),
+            why,
+        })
+    }
+}
+
+impl FusionConfig {
+    /// Reads and validates a TOML configuration file.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml_str(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates TOML text; `origin` names it in errors.
+    pub fn from_toml_str(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let config: Self = toml::from_str(text).map_err(|source| ConfigError::Parse {
+            path: origin.to_string(),
+            source: Box::new(source),
+        })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks every number for sense.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.states != 15 && self.states != 21 {
+            return Err(ConfigError::Invalid {
+                key: "states",
+                value: self.states.to_string(),
+                why: "must be 15 or 21",
+            });
+        }
+        let nonneg = "must be finite and ≥ 0";
+        let pos = "must be finite and > 0";
+        let imu = &self.imu;
+        check(
+            "imu.arw_rad_per_sqrt_s",
+            imu.arw_rad_per_sqrt_s,
+            imu.arw_rad_per_sqrt_s >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "imu.vrw_mps_per_sqrt_s",
+            imu.vrw_mps_per_sqrt_s,
+            imu.vrw_mps_per_sqrt_s >= 0.0,
+            nonneg,
+        )?;
+        for (key, gm) in [
+            ("imu.gyro_bias.sigma", imu.gyro_bias),
+            ("imu.accel_bias.sigma", imu.accel_bias),
+            ("imu.gyro_scale.sigma", imu.gyro_scale),
+            ("imu.accel_scale.sigma", imu.accel_scale),
+        ] {
+            check(key, gm.sigma, gm.sigma >= 0.0, nonneg)?;
+            if gm.tau_s.is_nan() {
+                return Err(ConfigError::Invalid {
+                    key: "imu.*.tau_s",
+                    value: "NaN".into(),
+                    why: "must be a number (inf or 0 = random constant)",
+                });
+            }
+        }
+        for (i, l) in self.gnss.lever_arm_m.iter().enumerate() {
+            let key = [
+                "gnss.lever_arm_m[0]",
+                "gnss.lever_arm_m[1]",
+                "gnss.lever_arm_m[2]",
+            ][i];
+            check(key, *l, l.abs() < 100.0, "must be finite and within ±100 m")?;
+        }
+        let g = &self.gnss;
+        check(
+            "gnss.min_position_sigma_m",
+            g.min_position_sigma_m,
+            g.min_position_sigma_m > 0.0,
+            pos,
+        )?;
+        check(
+            "gnss.min_velocity_sigma_mps",
+            g.min_velocity_sigma_mps,
+            g.min_velocity_sigma_mps > 0.0,
+            pos,
+        )?;
+        check(
+            "gnss.innovation_gate",
+            g.innovation_gate,
+            g.innovation_gate >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "nhc.sigma_mps",
+            self.nhc.sigma_mps,
+            self.nhc.sigma_mps > 0.0,
+            pos,
+        )?;
+        check(
+            "nhc.min_speed_mps",
+            self.nhc.min_speed_mps,
+            self.nhc.min_speed_mps >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "nhc.interval_s",
+            self.nhc.interval_s,
+            self.nhc.interval_s >= 0.0,
+            nonneg,
+        )?;
+        let z = &self.zupt;
+        check("zupt.sigma_mps", z.sigma_mps, z.sigma_mps > 0.0, pos)?;
+        check(
+            "zupt.gyro_threshold_rad_s",
+            z.gyro_threshold_rad_s,
+            z.gyro_threshold_rad_s > 0.0,
+            pos,
+        )?;
+        check(
+            "zupt.accel_threshold_mps2",
+            z.accel_threshold_mps2,
+            z.accel_threshold_mps2 > 0.0,
+            pos,
+        )?;
+        check("zupt.window_s", z.window_s, z.window_s > 0.0, pos)?;
+        check(
+            "zupt.max_speed_mps",
+            z.max_speed_mps,
+            z.max_speed_mps > 0.0,
+            pos,
+        )?;
+        let a = &self.alignment;
+        if let Some(h) = a.heading_deg {
+            check("alignment.heading_deg", h, true, "must be finite")?;
+        }
+        check(
+            "alignment.min_speed_mps",
+            a.min_speed_mps,
+            a.min_speed_mps > 0.0,
+            pos,
+        )?;
+        check("alignment.level_s", a.level_s, a.level_s >= 0.0, nonneg)?;
+        let i = &self.initial;
+        check("initial.position_m", i.position_m, i.position_m > 0.0, pos)?;
+        check(
+            "initial.velocity_mps",
+            i.velocity_mps,
+            i.velocity_mps > 0.0,
+            pos,
+        )?;
+        check(
+            "initial.roll_pitch_deg",
+            i.roll_pitch_deg,
+            i.roll_pitch_deg > 0.0,
+            pos,
+        )?;
+        check(
+            "initial.heading_deg",
+            i.heading_deg,
+            i.heading_deg > 0.0,
+            pos,
+        )?;
+        check(
+            "covariance_interval_s",
+            self.covariance_interval_s,
+            self.covariance_interval_s > 0.0 && self.covariance_interval_s <= 1.0,
+            "must be in (0, 1] s",
+        )?;
+        check(
+            "output_interval_s",
+            self.output_interval_s,
+            self.output_interval_s > 0.0,
+            pos,
+        )?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_toml_overrides_parse() {
+        FusionConfig::default()
+            .validate()
+            .expect("defaults are valid");
+        let c = FusionConfig::from_toml_str(
+            "states = 21\n[gnss]\nlever_arm_m = [0.5, 0.0, -1.2]\n[imu.gyro_bias]\nsigma = 1e-5\ntau_s = 100.0\n",
+            "test",
+        )
+        .expect("valid");
+        assert_eq!(c.states, 21);
+        assert_eq!(c.gnss.lever_arm_m, [0.5, 0.0, -1.2]);
+        assert!((c.imu.gyro_bias.driving_psd() - 2e-10 / 100.0).abs() < 1e-20);
+    }
+
+    #[test]
+    fn bad_keys_and_values_are_named() {
+        let e = FusionConfig::from_toml_str("stats = 15\n", "cfg.toml").expect_err("unknown key");
+        assert!(
+            e.to_string().contains("cfg.toml") && e.to_string().contains("stats"),
+            "{e}"
+        );
+        let e = FusionConfig::from_toml_str("states = 16\n", "x").expect_err("bad count");
+        assert!(e.to_string().contains("states"), "{e}");
+        let e =
+            FusionConfig::from_toml_str("covariance_interval_s = -1.0\n", "x").expect_err("neg");
+        assert!(e.to_string().contains("covariance_interval_s"), "{e}");
+        let e = FusionConfig::from_toml_str("[nhc]\nsigma_mps = nan\n", "x").expect_err("nan");
+        assert!(e.to_string().contains("nhc.sigma_mps"), "{e}");
+    }
+}

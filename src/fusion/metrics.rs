@@ -1,0 +1,172 @@
+//! Accuracy and consistency of a trajectory against the truth: position, velocity and attitude
+//! errors, normalised estimation error squared (NEES), the share of error components inside
+//! the filter's 3σ, horizontal/vertical RMS, p95 and max, and the drift during each outage.
+
+use crate::fusion::mechanisation::NavState;
+use crate::fusion::navigator::NavSolution;
+use nalgebra::{Cholesky, SVector, Vector3};
+
+/// The errors of one output epoch (estimate minus truth).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorEpoch {
+    pub t_s: f64,
+    /// NED position error, m.
+    pub pos_ned: Vector3<f64>,
+    pub vel_ned: Vector3<f64>,
+    /// Attitude error φ (rad) with C(est) = (I − [φ×]) C(true).
+    pub att: Vector3<f64>,
+    /// NEES of the 9 navigation error states (NaN when the covariance is not PD).
+    pub nees: f64,
+    /// Number of the 9 error components inside ±3σ.
+    pub inside_3sigma: u8,
+}
+
+impl ErrorEpoch {
+    pub fn horizontal_m(&self) -> f64 {
+        self.pos_ned.xy().norm()
+    }
+}
+
+/// Errors of `solution` against the true state `truth` (same time).
+pub fn epoch_error(solution: &NavSolution, truth: &NavState) -> ErrorEpoch {
+    let est = &solution.nav;
+    let pos = est.ned_offset_from(truth.lat_rad, truth.lon_rad, truth.height_m);
+    let vel = est.vel_ned - truth.vel_ned;
+    let att = (truth.quat_nb * est.quat_nb.inverse()).scaled_axis();
+    let mut e = SVector::<f64, 9>::zeros();
+    e.fixed_rows_mut::<3>(0).copy_from(&pos);
+    e.fixed_rows_mut::<3>(3).copy_from(&vel);
+    e.fixed_rows_mut::<3>(6).copy_from(&att);
+    let nees = Cholesky::new(solution.cov_nav)
+        .map(|c| e.dot(&c.solve(&e)))
+        .unwrap_or(f64::NAN);
+    let inside = (0..9)
+        .filter(|&i| e[i].abs() <= 3.0 * solution.cov_nav[(i, i)].sqrt())
+        .count() as u8;
+    ErrorEpoch {
+        t_s: est.t_s,
+        pos_ned: pos,
+        vel_ned: vel,
+        att,
+        nees,
+        inside_3sigma: inside,
+    }
+}
+
+/// The errors of each solution that has a truth; `truth_at` gives the true state at a time.
+pub fn errors(
+    solutions: &[NavSolution],
+    mut truth_at: impl FnMut(f64) -> Option<NavState>,
+) -> Vec<ErrorEpoch> {
+    solutions
+        .iter()
+        .filter_map(|s| truth_at(s.nav.t_s).map(|t| epoch_error(s, &t)))
+        .collect()
+}
+
+/// RMS, 95th percentile (nearest rank) and maximum of a set of non-negative errors.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Spread {
+    pub rms: f64,
+    pub p95: f64,
+    pub max: f64,
+}
+
+impl Spread {
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
+        let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return Self::default();
+        }
+        v.sort_by(f64::total_cmp);
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+        let rank = ((0.95 * v.len() as f64).ceil() as usize).clamp(1, v.len());
+        Self {
+            rms,
+            p95: v[rank - 1],
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// Horizontal error growth during one GNSS outage.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OutageDrift {
+    pub start_s: f64,
+    pub duration_s: f64,
+    /// Largest horizontal error inside the outage, m.
+    pub max_horizontal_m: f64,
+}
+
+/// Summary of a run against the truth.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ErrorSummary {
+    pub epochs: usize,
+    pub horizontal: Spread,
+    pub vertical: Spread,
+    /// Horizontal error over epochs outside outages only.
+    pub horizontal_gnss: Spread,
+    /// Roll, pitch, heading error RMS, degrees (about NED axes).
+    pub attitude_rms_deg: [f64; 3],
+    /// Mean NEES of the 9 navigation states (9 for a consistent filter).
+    pub nees_mean: f64,
+    /// Share of all error components inside ±3σ (≈ 0.997 for a consistent filter).
+    pub inside_3sigma: f64,
+    pub outages: Vec<OutageDrift>,
+}
+
+/// Summarises epoch errors; `outages` are the [start, end) windows GNSS was withheld.
+pub fn summarise(errors: &[ErrorEpoch], outages: &[(f64, f64)]) -> ErrorSummary {
+    let in_outage = |t: f64| outages.iter().any(|&(a, b)| t >= a && t < b);
+    let n = errors.len().max(1) as f64;
+    let att_rms = |i: usize| {
+        (errors.iter().map(|e| e.att[i].powi(2)).sum::<f64>() / n)
+            .sqrt()
+            .to_degrees()
+    };
+    let nees: Vec<f64> = errors
+        .iter()
+        .map(|e| e.nees)
+        .filter(|x| x.is_finite())
+        .collect();
+    ErrorSummary {
+        epochs: errors.len(),
+        horizontal: Spread::of(errors.iter().map(|e| e.horizontal_m())),
+        vertical: Spread::of(errors.iter().map(|e| e.pos_ned.z.abs())),
+        horizontal_gnss: Spread::of(
+            errors
+                .iter()
+                .filter(|e| !in_outage(e.t_s))
+                .map(|e| e.horizontal_m()),
+        ),
+        attitude_rms_deg: [att_rms(0), att_rms(1), att_rms(2)],
+        nees_mean: nees.iter().sum::<f64>() / nees.len().max(1) as f64,
+        inside_3sigma: errors.iter().map(|e| e.inside_3sigma as f64).sum::<f64>() / (9.0 * n),
+        outages: outages
+            .iter()
+            .map(|&(a, b)| OutageDrift {
+                start_s: a,
+                duration_s: b - a,
+                max_horizontal_m: errors
+                    .iter()
+                    .filter(|e| e.t_s >= a && e.t_s < b)
+                    .map(|e| e.horizontal_m())
+                    .fold(0.0, f64::max),
+            })
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spread_of_known_values() {
+        let s = Spread::of((1..=100).map(f64::from));
+        assert_eq!(s.max, 100.0);
+        assert_eq!(s.p95, 95.0);
+        assert!((s.rms - (338350.0f64 / 100.0).sqrt()).abs() < 1e-12);
+        assert_eq!(Spread::of([f64::NAN]), Spread::default());
+    }
+}

@@ -1,0 +1,324 @@
+//! Process and measurement models of the loosely coupled error-state filter.
+//!
+//! Error state (estimate minus truth), N = 15 or 21:
+//! `δr` NED position error (m) 0..3, `δv` NED velocity error 3..6, `φ` attitude error 6..9
+//! defined by C_b^n(est) = (I − [φ×]) C_b^n(true), gyro bias error 9..12 (rad/s), accel bias
+//! error 12..15 (m/s²), and with 21 states gyro 15..18 and accel 18..21 scale-factor errors.
+//! The sensors are modelled as ω̃ = (I + diag s_g) ω + b_g + noise, f̃ likewise.
+//!
+//! The continuous error dynamics are the usual ψ-angle model in NED (Titterton & Weston,
+//! *Strapdown Inertial Navigation Technology*, ch. 12; Shin 2005, ch. 2) including the
+//! transport-rate couplings, the vertical gravity gradient and the Gauss-Markov sensor errors.
+
+use crate::earth;
+use crate::fusion::config::FusionConfig;
+use crate::fusion::mechanisation::NavState;
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+
+pub const POS: usize = 0;
+pub const VEL: usize = 3;
+pub const ATT: usize = 6;
+pub const BG: usize = 9;
+pub const BA: usize = 12;
+pub const SG: usize = 15;
+pub const SA: usize = 18;
+
+/// Skew-symmetric cross-product matrix [v×].
+pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// The continuous-time error dynamics matrix F for mean body rate `gyro_b` and specific force
+/// `accel_b` (bias-corrected) over the interval.
+pub fn dynamics_matrix<const N: usize>(
+    nav: &NavState,
+    gyro_b: &Vector3<f64>,
+    accel_b: &Vector3<f64>,
+    config: &FusionConfig,
+) -> SMatrix<f64, N, N> {
+    let mut f = SMatrix::<f64, N, N>::zeros();
+    let (lat, h, v) = (nav.lat_rad, nav.height_m, nav.vel_ned);
+    let (rm, rn) = nav.radii();
+    let tan = lat.tan();
+    let c_bn = nav.quat_nb.to_rotation_matrix().into_inner();
+    let w_ie = earth::earth_rate_ned(lat);
+    let w_en = earth::transport_rate_ned(lat, h, &v);
+    let w_in = w_ie + w_en;
+    let f_n = c_bn * accel_b;
+    let g = earth::normal_gravity(lat, h);
+    let omega = earth::OMEGA_IE;
+
+    // Position error.
+    let mut frr = Matrix3::zeros();
+    frr[(0, 0)] = -v.z / rm;
+    frr[(0, 2)] = v.x / rm;
+    frr[(1, 0)] = v.y * tan / rm;
+    frr[(1, 1)] = -(v.x * tan / rm + v.z / rn);
+    frr[(1, 2)] = v.y / rn;
+    f.fixed_view_mut::<3, 3>(POS, POS).copy_from(&frr);
+    f.fixed_view_mut::<3, 3>(POS, VEL)
+        .copy_from(&Matrix3::identity());
+
+    // Velocity error: δv̇ = [fⁿ×]φ − C δb_a − (2ω_ie + ω_en)×δv + gravity gradient.
+    let mut fvr = Matrix3::zeros();
+    fvr[(2, 2)] = 2.0 * g / (rm.sqrt() * rn.sqrt());
+    f.fixed_view_mut::<3, 3>(VEL, POS).copy_from(&fvr);
+    f.fixed_view_mut::<3, 3>(VEL, VEL)
+        .copy_from(&(-skew(&(2.0 * w_ie + w_en))));
+    f.fixed_view_mut::<3, 3>(VEL, ATT).copy_from(&skew(&f_n));
+    f.fixed_view_mut::<3, 3>(VEL, BA).copy_from(&(-c_bn));
+
+    // Attitude error: φ̇ = −ω_in×φ + δω_in + C δb_g.
+    let mut far = Matrix3::zeros();
+    far[(0, 0)] = -omega * lat.sin() / rm;
+    far[(2, 0)] = -omega * lat.cos() / rm - v.y / (rn * rm * lat.cos().powi(2));
+    far[(0, 2)] = v.y / (rn * rn);
+    far[(1, 2)] = -v.x / (rm * rm);
+    far[(2, 2)] = -v.y * tan / (rn * rn);
+    f.fixed_view_mut::<3, 3>(ATT, POS).copy_from(&far);
+    let mut fav = Matrix3::zeros();
+    fav[(0, 1)] = 1.0 / rn;
+    fav[(1, 0)] = -1.0 / rm;
+    fav[(2, 1)] = -tan / rn;
+    f.fixed_view_mut::<3, 3>(ATT, VEL).copy_from(&fav);
+    f.fixed_view_mut::<3, 3>(ATT, ATT)
+        .copy_from(&(-skew(&w_in)));
+    f.fixed_view_mut::<3, 3>(ATT, BG).copy_from(&c_bn);
+
+    // Sensor errors as first-order Gauss-Markov processes.
+    let imu = &config.imu;
+    for i in 0..3 {
+        f[(BG + i, BG + i)] = -imu.gyro_bias.decay();
+        f[(BA + i, BA + i)] = -imu.accel_bias.decay();
+    }
+    if N == 21 {
+        f.fixed_view_mut::<3, 3>(ATT, SG)
+            .copy_from(&(c_bn * Matrix3::from_diagonal(gyro_b)));
+        f.fixed_view_mut::<3, 3>(VEL, SA)
+            .copy_from(&(-c_bn * Matrix3::from_diagonal(accel_b)));
+        for i in 0..3 {
+            f[(SG + i, SG + i)] = -imu.gyro_scale.decay();
+            f[(SA + i, SA + i)] = -imu.accel_scale.decay();
+        }
+    }
+    f
+}
+
+/// Continuous process noise spectral densities (diagonal of G Q Gᵀ): white noise on
+/// velocity (VRW) and attitude (ARW) and the Gauss-Markov driving noises.
+pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, N> {
+    let imu = &config.imu;
+    let mut q = SVector::<f64, N>::zeros();
+    for i in 0..3 {
+        q[VEL + i] = imu.vrw_mps_per_sqrt_s.powi(2);
+        q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
+        q[BG + i] = imu.gyro_bias.driving_psd();
+        q[BA + i] = imu.accel_bias.driving_psd();
+        if N == 21 {
+            q[SG + i] = imu.gyro_scale.driving_psd();
+            q[SA + i] = imu.accel_scale.driving_psd();
+        }
+    }
+    q
+}
+
+/// Discrete transition Φ ≈ I + FΔt + (FΔt)²/2 and process noise Q_d ≈ (Φ Q Φᵀ + Q) Δt / 2.
+pub fn discretise<const N: usize>(
+    f: &SMatrix<f64, N, N>,
+    q_psd: &SVector<f64, N>,
+    dt: f64,
+) -> (SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+    let fdt = f * dt;
+    let phi = SMatrix::<f64, N, N>::identity() + fdt + 0.5 * fdt * fdt;
+    // Φ·diag(q) is a column scaling: one matrix product instead of two.
+    let mut phi_q = phi;
+    for (j, mut column) in phi_q.column_iter_mut().enumerate() {
+        column *= q_psd[j];
+    }
+    let mut qd =
+        (phi_q * phi.transpose() + SMatrix::<f64, N, N>::from_diagonal(q_psd)) * (0.5 * dt);
+    qd = 0.5 * (qd + qd.transpose());
+    (phi, qd)
+}
+
+/// A linearised measurement: innovation z = h(estimate) − measurement, its Jacobian and noise.
+#[derive(Debug, Clone)]
+pub struct Measurement<const M: usize, const N: usize> {
+    pub z: SVector<f64, M>,
+    pub h: SMatrix<f64, M, N>,
+    pub r: SMatrix<f64, M, M>,
+}
+
+/// GNSS antenna position: lever arm `lever_b` (m, body), measured lat/lon/height and NED σ.
+pub fn gnss_position<const N: usize>(
+    nav: &NavState,
+    lever_b: &Vector3<f64>,
+    lat: f64,
+    lon: f64,
+    height: f64,
+    sigma_ned: &Vector3<f64>,
+) -> Measurement<3, N> {
+    let lever_n = nav.quat_nb * lever_b;
+    let z = nav.ned_offset_from(lat, lon, height) + lever_n;
+    let mut h = SMatrix::<f64, 3, N>::zeros();
+    h.fixed_view_mut::<3, 3>(0, POS)
+        .copy_from(&Matrix3::identity());
+    h.fixed_view_mut::<3, 3>(0, ATT).copy_from(&skew(&lever_n));
+    Measurement {
+        z,
+        h,
+        r: Matrix3::from_diagonal(&sigma_ned.component_mul(sigma_ned)),
+    }
+}
+
+/// GNSS antenna velocity (NED) with the lever-arm rotation term; `gyro_b` bias-corrected.
+pub fn gnss_velocity<const N: usize>(
+    nav: &NavState,
+    lever_b: &Vector3<f64>,
+    gyro_b: &Vector3<f64>,
+    vel_ned: &Vector3<f64>,
+    sigma_ned: &Vector3<f64>,
+) -> Measurement<3, N> {
+    let c_bn = nav.quat_nb.to_rotation_matrix().into_inner();
+    let w_in = earth::earth_rate_ned(nav.lat_rad)
+        + earth::transport_rate_ned(nav.lat_rad, nav.height_m, &nav.vel_ned);
+    let lever_n = c_bn * lever_b;
+    let rot_b = c_bn * gyro_b.cross(lever_b);
+    let v_ant = nav.vel_ned + rot_b - w_in.cross(&lever_n);
+    let mut h = SMatrix::<f64, 3, N>::zeros();
+    h.fixed_view_mut::<3, 3>(0, VEL)
+        .copy_from(&Matrix3::identity());
+    h.fixed_view_mut::<3, 3>(0, ATT)
+        .copy_from(&(skew(&rot_b) - skew(&w_in) * skew(&lever_n)));
+    h.fixed_view_mut::<3, 3>(0, BG)
+        .copy_from(&(c_bn * skew(lever_b)));
+    Measurement {
+        z: v_ant - vel_ned,
+        h,
+        r: Matrix3::from_diagonal(&sigma_ned.component_mul(sigma_ned)),
+    }
+}
+
+/// Non-holonomic constraint: body-frame lateral and vertical velocity are zero.
+pub fn non_holonomic<const N: usize>(nav: &NavState, sigma: f64) -> Measurement<2, N> {
+    let c_nb = nav.quat_nb.inverse().to_rotation_matrix().into_inner();
+    let v_b = c_nb * nav.vel_ned;
+    let h_v = c_nb;
+    let h_a = -c_nb * skew(&nav.vel_ned);
+    let mut h = SMatrix::<f64, 2, N>::zeros();
+    for (row, axis) in [(0, 1), (1, 2)] {
+        for j in 0..3 {
+            h[(row, VEL + j)] = h_v[(axis, j)];
+            h[(row, ATT + j)] = h_a[(axis, j)];
+        }
+    }
+    Measurement {
+        z: SVector::<f64, 2>::new(v_b.y, v_b.z),
+        h,
+        r: SMatrix::<f64, 2, 2>::identity() * sigma * sigma,
+    }
+}
+
+/// Zero-velocity update.
+pub fn zero_velocity<const N: usize>(nav: &NavState, sigma: f64) -> Measurement<3, N> {
+    let mut h = SMatrix::<f64, 3, N>::zeros();
+    h.fixed_view_mut::<3, 3>(0, VEL)
+        .copy_from(&Matrix3::identity());
+    Measurement {
+        z: nav.vel_ned,
+        h,
+        r: Matrix3::identity() * sigma * sigma,
+    }
+}
+
+/// Stacks two measurements into one (position and velocity of the same fix).
+pub fn stack<const N: usize>(a: &Measurement<3, N>, b: &Measurement<3, N>) -> Measurement<6, N> {
+    let mut z = SVector::<f64, 6>::zeros();
+    let mut h = SMatrix::<f64, 6, N>::zeros();
+    let mut r = SMatrix::<f64, 6, 6>::zeros();
+    z.fixed_rows_mut::<3>(0).copy_from(&a.z);
+    z.fixed_rows_mut::<3>(3).copy_from(&b.z);
+    h.fixed_rows_mut::<3>(0).copy_from(&a.h);
+    h.fixed_rows_mut::<3>(3).copy_from(&b.h);
+    r.fixed_view_mut::<3, 3>(0, 0).copy_from(&a.r);
+    r.fixed_view_mut::<3, 3>(3, 3).copy_from(&b.r);
+    Measurement { z, h, r }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::UnitQuaternion;
+
+    fn nav() -> NavState {
+        NavState {
+            t_s: 0.0,
+            lat_rad: 0.7,
+            lon_rad: 0.1,
+            height_m: 100.0,
+            vel_ned: Vector3::new(10.0, -5.0, 0.3),
+            quat_nb: UnitQuaternion::from_euler_angles(0.05, -0.02, 2.0),
+        }
+    }
+
+    /// The position Jacobian against a numerical perturbation of the state.
+    #[test]
+    fn gnss_position_jacobian_matches_perturbation() {
+        let n = nav();
+        let lever = Vector3::new(1.0, -0.5, -1.5);
+        let sigma = Vector3::repeat(1.0);
+        let m0 = gnss_position::<15>(&n, &lever, 0.7, 0.1, 100.0, &sigma);
+        // Attitude error φ: est = (I − [φ×]) true  ⇒  perturbing the estimate by
+        // q_est = exp(−φ) q changes z by H_att φ.
+        let phi = Vector3::new(1e-4, -2e-4, 3e-4);
+        let mut p = n;
+        p.quat_nb = UnitQuaternion::from_scaled_axis(-phi) * n.quat_nb;
+        let m1 = gnss_position::<15>(&p, &lever, 0.7, 0.1, 100.0, &sigma);
+        let predicted = m0.h.fixed_view::<3, 3>(0, ATT) * phi;
+        assert!(
+            (m1.z - m0.z - predicted).norm() < 1e-7,
+            "{} vs {}",
+            m1.z - m0.z,
+            predicted
+        );
+        // Position: shifting the estimate by d changes z by d.
+        let d = Vector3::new(0.3, -0.2, 0.1);
+        let mut p = n;
+        p.shift_position(&d);
+        let m2 = gnss_position::<15>(&p, &lever, 0.7, 0.1, 100.0, &sigma);
+        assert!((m2.z - m0.z - d).norm() < 1e-6);
+    }
+
+    #[test]
+    fn nhc_jacobian_matches_perturbation() {
+        let n = nav();
+        let m0 = non_holonomic::<21>(&n, 0.1);
+        let phi = Vector3::new(-2e-4, 1e-4, 2e-4);
+        let mut p = n;
+        p.quat_nb = UnitQuaternion::from_scaled_axis(-phi) * n.quat_nb;
+        let m1 = non_holonomic::<21>(&p, 0.1);
+        let mut dx = SVector::<f64, 21>::zeros();
+        dx.fixed_rows_mut::<3>(ATT).copy_from(&phi);
+        assert!((m1.z - m0.z - m0.h * dx).norm() < 1e-6);
+    }
+
+    #[test]
+    fn transition_is_identity_for_zero_interval_and_noise_is_symmetric() {
+        let config = FusionConfig {
+            states: 21,
+            ..FusionConfig::default()
+        };
+        let f = dynamics_matrix::<21>(
+            &nav(),
+            &Vector3::new(0.1, 0.0, 0.2),
+            &Vector3::new(0.0, 0.5, -9.8),
+            &config,
+        );
+        let q = process_noise_psd::<21>(&config);
+        let (phi, qd) = discretise(&f, &q, 0.0);
+        assert_eq!(phi, SMatrix::<f64, 21, 21>::identity());
+        assert!(qd.norm() == 0.0);
+        let (_, qd) = discretise(&f, &q, 0.1);
+        assert!((qd - qd.transpose()).norm() == 0.0 && qd[(3, 3)] > 0.0);
+    }
+}

@@ -1,0 +1,467 @@
+//! The replay engine: feeds time-ordered IMU samples and GNSS fixes through alignment, the
+//! strapdown INS and the error-state filter (GNSS position/velocity, optional NHC and ZUPT,
+//! simulated outages), checks every input (non-finite values, time going backwards,
+//! duplicate or out-of-order fixes are rejected and counted, never fatal) and collects the
+//! trajectory at the output interval, optionally RTS-smoothed.
+
+use crate::earth;
+use crate::fusion::align::{self, StaticLeveller};
+use crate::fusion::config::FusionConfig;
+use crate::fusion::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
+use crate::fusion::mechanisation::{ImuInput, NavState};
+use crate::fusion::models::{self, BA, BG, SA, SG};
+use crate::fusion::smoother;
+use nalgebra::{SMatrix, Vector3};
+
+/// Receivers that give no accuracy get these 1σ values: horizontal, vertical (m), velocity (m/s).
+pub const FALLBACK_SIGMA: (f64, f64, f64) = (2.5, 5.0, 0.1);
+/// IMU gaps longer than this restart the mechanisation history, s.
+pub const MAX_IMU_GAP_S: f64 = 1.0;
+
+/// One GNSS fix as the filter uses it (antenna position).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnssObservation {
+    pub t_s: f64,
+    pub lat_rad: f64,
+    pub lon_rad: f64,
+    pub height_m: f64,
+    /// 1σ north, east, down position accuracy, m (NaN = unknown).
+    pub sigma_ned_m: Vector3<f64>,
+    /// Velocity north/east/down when the receiver gives it.
+    pub vel_ned: Option<Vector3<f64>>,
+    /// 1σ velocity accuracy, m/s (NaN = unknown).
+    pub sigma_vel_mps: Vector3<f64>,
+}
+
+/// One output epoch of the trajectory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavSolution {
+    pub nav: NavState,
+    pub sensors: SensorErrors,
+    /// Covariance of (δr, δv, φ), 9×9.
+    pub cov_nav: SMatrix<f64, 9, 9>,
+    /// 1σ of gyro bias, accel bias, gyro scale, accel scale (NaN for scales with 15 states).
+    pub sigma_sensors: [Vector3<f64>; 4],
+}
+
+/// Counts of what the replay accepted, rejected and did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ReplayStats {
+    pub imu_samples: u64,
+    pub imu_rejected_non_finite: u64,
+    pub imu_rejected_time: u64,
+    pub imu_gaps: u64,
+    pub gnss_used: u64,
+    pub gnss_withheld_outage: u64,
+    pub gnss_rejected_invalid: u64,
+    pub gnss_rejected_duplicate: u64,
+    pub gnss_rejected_out_of_order: u64,
+    pub gnss_gated: u64,
+    pub nhc_updates: u64,
+    pub zupt_updates: u64,
+    /// Time the filter started (after alignment), s.
+    pub aligned_at_s: Option<f64>,
+    pub filter: FilterStats,
+    /// Smoothed epochs that kept their filtered value (singular prediction).
+    pub smoother_skipped: usize,
+}
+
+/// How a replay starts and what it withholds.
+#[derive(Debug, Clone, Default)]
+pub struct ReplayOptions {
+    /// Start from this state (time, position, velocity, attitude) instead of aligning.
+    pub initial: Option<NavState>,
+    /// Initial sensor-error estimates (with `initial`).
+    pub initial_sensors: SensorErrors,
+    /// Withhold GNSS in these [start, end) windows, s.
+    pub outages: Vec<(f64, f64)>,
+    /// Run the RTS smoother and return the smoothed trajectory too.
+    pub smooth: bool,
+}
+
+/// Everything a replay produced.
+#[derive(Debug, Clone, Default)]
+pub struct ReplayResult {
+    pub filtered: Vec<NavSolution>,
+    pub smoothed: Vec<NavSolution>,
+    pub stats: ReplayStats,
+}
+
+/// Running sums of the current zero-velocity detection window.
+#[derive(Debug, Clone, Copy, Default)]
+struct ZuptWindow {
+    duration_s: f64,
+    sum_gyro: Vector3<f64>,
+    sum_accel: Vector3<f64>,
+    prev_mean_accel: Option<Vector3<f64>>,
+}
+
+/// The incremental replay engine for a filter with `N` states.
+pub struct Navigator<const N: usize> {
+    config: FusionConfig,
+    options: ReplayOptions,
+    ins: Option<Ins<N>>,
+    leveller: StaticLeveller,
+    last_imu: Option<(f64, Vector3<f64>, Vector3<f64>)>,
+    last_fix_t: Option<f64>,
+    next_output_t: f64,
+    last_nhc_t: f64,
+    zupt_window: ZuptWindow,
+    result: ReplayResult,
+}
+
+fn solution<const N: usize>(ins: &Ins<N>) -> NavSolution {
+    solution_from(&ins.nav, &ins.sensors, &ins.p)
+}
+
+fn solution_from<const N: usize>(
+    nav: &NavState,
+    sensors: &SensorErrors,
+    p: &SMatrix<f64, N, N>,
+) -> NavSolution {
+    let sigma = |i: usize| {
+        if i + 3 <= N {
+            Vector3::new(
+                p[(i, i)].sqrt(),
+                p[(i + 1, i + 1)].sqrt(),
+                p[(i + 2, i + 2)].sqrt(),
+            )
+        } else {
+            Vector3::repeat(f64::NAN)
+        }
+    };
+    NavSolution {
+        nav: *nav,
+        sensors: *sensors,
+        cov_nav: p.fixed_view::<9, 9>(0, 0).into_owned(),
+        sigma_sensors: [sigma(BG), sigma(BA), sigma(SG), sigma(SA)],
+    }
+}
+
+impl<const N: usize> Navigator<N> {
+    pub fn new(config: &FusionConfig, options: ReplayOptions) -> Self {
+        let mut nav = Self {
+            config: *config,
+            ins: None,
+            leveller: StaticLeveller::default(),
+            last_imu: None,
+            last_fix_t: None,
+            next_output_t: f64::NEG_INFINITY,
+            last_nhc_t: f64::NEG_INFINITY,
+            zupt_window: ZuptWindow::default(),
+            result: ReplayResult::default(),
+            options,
+        };
+        if let Some(initial) = nav.options.initial {
+            nav.start(initial);
+            if let Some(ins) = nav.ins.as_mut() {
+                ins.sensors = nav.options.initial_sensors;
+            }
+        }
+        nav
+    }
+
+    fn start(&mut self, nav: NavState) {
+        self.ins = Some(Ins::new(nav, &self.config, self.options.smooth));
+        self.result.stats.aligned_at_s = Some(nav.t_s);
+        self.next_output_t = nav.t_s;
+    }
+
+    /// The running filter, once aligned.
+    pub fn ins(&self) -> Option<&Ins<N>> {
+        self.ins.as_ref()
+    }
+
+    /// Feeds one raw IMU input.
+    pub fn push_imu(&mut self, raw: &ImuInput) {
+        let (t, gyro, accel, dt_hint) = match *raw {
+            ImuInput::Rates { t_s, gyro, accel } => (t_s, gyro, accel, None),
+            ImuInput::Increments {
+                t_s,
+                dt_s,
+                dtheta,
+                dvel,
+            } => (t_s, dtheta / dt_s, dvel / dt_s, Some(dt_s)),
+        };
+        let stats = &mut self.result.stats;
+        if !(t.is_finite() && gyro.iter().chain(accel.iter()).all(|v| v.is_finite())) {
+            stats.imu_rejected_non_finite += 1;
+            return;
+        }
+        let dt = match (self.last_imu, dt_hint) {
+            (Some((t0, _, _)), _) if t <= t0 => {
+                stats.imu_rejected_time += 1;
+                return;
+            }
+            (Some((t0, _, _)), None) => t - t0,
+            (_, Some(d)) if d > 0.0 && d <= MAX_IMU_GAP_S => d,
+            (_, Some(_)) => {
+                stats.imu_rejected_time += 1;
+                return;
+            }
+            (None, None) => 0.0,
+        };
+        stats.imu_samples += 1;
+        let gap = matches!(self.last_imu, Some((t0, _, _)) if t - t0 > MAX_IMU_GAP_S);
+        self.last_imu = Some((t, gyro, accel));
+        let Some(ins) = self.ins.as_mut() else {
+            let g = earth::normal_gravity(0.0, 0.0);
+            self.leveller.add(
+                &accel,
+                &gyro,
+                dt,
+                g,
+                align::LEVEL_GYRO_THRESHOLD,
+                align::LEVEL_ACCEL_THRESHOLD,
+            );
+            return;
+        };
+        if t < ins.nav.t_s {
+            return;
+        }
+        if gap {
+            stats.imu_gaps += 1;
+            ins.reset_history();
+        }
+        ins.propagate(raw);
+        self.zupt(gyro, accel, dt);
+        self.nhc();
+        self.output();
+    }
+
+    fn output(&mut self) {
+        let Some(ins) = self.ins.as_ref() else { return };
+        if ins.nav.t_s + 1e-9 >= self.next_output_t {
+            self.result.filtered.push(solution(ins));
+            let step = self.config.output_interval_s;
+            self.next_output_t = ((ins.nav.t_s + 1e-9) / step).floor() * step + step;
+        }
+    }
+
+    /// Zero-velocity detection on consecutive windows: the window-mean angular rate is small,
+    /// the window-mean specific force has not changed since the previous window, and the INS
+    /// itself is slow (a smooth straight cruise looks like a standstill to an IMU).
+    fn zupt(&mut self, gyro: Vector3<f64>, accel: Vector3<f64>, dt: f64) {
+        let z = self.config.zupt;
+        let Some(ins) = self.ins.as_mut() else { return };
+        if !z.enabled {
+            return;
+        }
+        let w = &mut self.zupt_window;
+        w.duration_s += dt;
+        w.sum_gyro += (gyro - ins.sensors.gyro_bias) * dt;
+        w.sum_accel += accel * dt;
+        if w.duration_s < z.window_s {
+            return;
+        }
+        let mean_gyro = w.sum_gyro / w.duration_s;
+        let mean_accel = w.sum_accel / w.duration_s;
+        let steady = w
+            .prev_mean_accel
+            .is_some_and(|p| (mean_accel - p).norm() < z.accel_threshold_mps2);
+        *w = ZuptWindow {
+            prev_mean_accel: Some(mean_accel),
+            ..ZuptWindow::default()
+        };
+        if steady
+            && mean_gyro.norm() < z.gyro_threshold_rad_s
+            && ins.nav.vel_ned.norm() < z.max_speed_mps
+        {
+            let m = models::zero_velocity::<N>(&ins.nav, z.sigma_mps);
+            if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
+                self.result.stats.zupt_updates += 1;
+            }
+        }
+    }
+
+    fn nhc(&mut self) {
+        let c = self.config.nhc;
+        let Some(ins) = self.ins.as_mut() else { return };
+        if !c.enabled
+            || ins.nav.vel_ned.norm() < c.min_speed_mps
+            || ins.nav.t_s - self.last_nhc_t < c.interval_s
+        {
+            return;
+        }
+        self.last_nhc_t = ins.nav.t_s;
+        let m = models::non_holonomic::<N>(&ins.nav, c.sigma_mps);
+        if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
+            self.result.stats.nhc_updates += 1;
+        }
+    }
+
+    /// Feeds one GNSS fix (its time should not be later than the next IMU sample's).
+    pub fn push_gnss(&mut self, fix: &GnssObservation) {
+        let stats = &mut self.result.stats;
+        let valid = fix.t_s.is_finite()
+            && fix.lat_rad.is_finite()
+            && fix.lat_rad.abs() < 1.57
+            && fix.lon_rad.is_finite()
+            && fix.height_m.is_finite()
+            && fix.height_m.abs() < 1e5;
+        if !valid {
+            stats.gnss_rejected_invalid += 1;
+            return;
+        }
+        if let Some(last) = self.last_fix_t {
+            if fix.t_s == last {
+                stats.gnss_rejected_duplicate += 1;
+                return;
+            }
+            if fix.t_s < last {
+                stats.gnss_rejected_out_of_order += 1;
+                return;
+            }
+        }
+        self.last_fix_t = Some(fix.t_s);
+        if self
+            .options
+            .outages
+            .iter()
+            .any(|&(a, b)| fix.t_s >= a && fix.t_s < b)
+        {
+            stats.gnss_withheld_outage += 1;
+            return;
+        }
+        let vel = fix
+            .vel_ned
+            .filter(|v| v.iter().all(|x| x.is_finite()) && v.norm() < 1e3);
+        let g = self.config.gnss;
+        let floor = |s: f64, fallback: f64, min: f64| {
+            if s.is_finite() && s > 0.0 {
+                s.max(min)
+            } else {
+                fallback
+            }
+        };
+        let sigma_pos = Vector3::new(
+            floor(fix.sigma_ned_m.x, FALLBACK_SIGMA.0, g.min_position_sigma_m),
+            floor(fix.sigma_ned_m.y, FALLBACK_SIGMA.0, g.min_position_sigma_m),
+            floor(fix.sigma_ned_m.z, FALLBACK_SIGMA.1, g.min_position_sigma_m),
+        );
+        let sigma_vel = fix
+            .sigma_vel_mps
+            .map(|s| floor(s, FALLBACK_SIGMA.2, g.min_velocity_sigma_mps));
+        let lever = Vector3::from(g.lever_arm_m);
+
+        let Some(ins) = self.ins.as_mut() else {
+            self.try_align(fix, vel);
+            return;
+        };
+        // Predict the state to the fix time (the fix lies within one IMU interval).
+        let mut at_fix = ins.nav;
+        let lag = fix.t_s - ins.nav.t_s;
+        if lag.abs() < 1.0 {
+            at_fix.shift_position(&(ins.nav.vel_ned * lag));
+        }
+        let pos = models::gnss_position::<N>(
+            &at_fix,
+            &lever,
+            fix.lat_rad,
+            fix.lon_rad,
+            fix.height_m,
+            &sigma_pos,
+        );
+        let outcome = match vel.filter(|_| g.use_velocity) {
+            Some(v) => {
+                let vm =
+                    models::gnss_velocity::<N>(&at_fix, &lever, &ins.last_gyro(), &v, &sigma_vel);
+                ins.update(&models::stack(&pos, &vm), g.innovation_gate)
+            }
+            None => ins.update(&pos, g.innovation_gate),
+        };
+        match outcome {
+            UpdateOutcome::Applied { .. } => stats.gnss_used += 1,
+            UpdateOutcome::Gated { .. } => stats.gnss_gated += 1,
+            UpdateOutcome::Rejected => {}
+        }
+    }
+
+    fn try_align(&mut self, fix: &GnssObservation, vel: Option<Vector3<f64>>) {
+        let a = self.config.alignment;
+        let Some((t_imu, _, _)) = self.last_imu else {
+            return;
+        };
+        let heading = match (a.heading_deg, vel) {
+            (Some(h), _) if self.leveller.duration_s() >= a.level_s || self.leveller.moved() => {
+                h.to_radians()
+            }
+            (None, Some(v)) if v.xy().norm() >= a.min_speed_mps => align::heading_from_velocity(&v),
+            _ => return,
+        };
+        let (roll, pitch) = self.leveller.roll_pitch().unwrap_or((0.0, 0.0));
+        let quat_nb = align::attitude(roll, pitch, heading);
+        let mut nav = NavState {
+            t_s: t_imu,
+            lat_rad: fix.lat_rad,
+            lon_rad: fix.lon_rad,
+            height_m: fix.height_m,
+            vel_ned: vel.unwrap_or_else(Vector3::zeros),
+            quat_nb,
+        };
+        nav.shift_position(&-(quat_nb * Vector3::from(self.config.gnss.lever_arm_m)));
+        nav.shift_position(&(nav.vel_ned * (t_imu - fix.t_s)));
+        self.start(nav);
+        self.last_nhc_t = t_imu;
+    }
+
+    /// Ends the replay: final output epoch, smoother pass, statistics.
+    pub fn finish(mut self) -> ReplayResult {
+        if let Some(mut ins) = self.ins.take() {
+            let records = ins.finish();
+            if self.result.filtered.last().map(|s| s.nav.t_s) != Some(ins.nav.t_s) {
+                self.result.filtered.push(solution(&ins));
+            }
+            if self.options.smooth {
+                let (epochs, skipped) = smoother::smooth(&records);
+                self.result.stats.smoother_skipped = skipped;
+                let step = self.config.output_interval_s;
+                let mut next = f64::NEG_INFINITY;
+                for e in &epochs {
+                    if e.nav.t_s + 1e-9 >= next {
+                        self.result
+                            .smoothed
+                            .push(solution_from(&e.nav, &e.sensors, &e.p));
+                        next = ((e.nav.t_s + 1e-9) / step).floor() * step + step;
+                    }
+                }
+            }
+            self.result.stats.filter = ins.stats;
+        }
+        self.result
+    }
+}
+
+/// Runs a whole replay: IMU inputs and GNSS fixes, each in time order, merged by time.
+pub fn replay(
+    config: &FusionConfig,
+    imu: impl IntoIterator<Item = ImuInput>,
+    gnss: impl IntoIterator<Item = GnssObservation>,
+    options: ReplayOptions,
+) -> ReplayResult {
+    match config.states {
+        21 => run::<21>(config, imu, gnss, options),
+        _ => run::<15>(config, imu, gnss, options),
+    }
+}
+
+fn run<const N: usize>(
+    config: &FusionConfig,
+    imu: impl IntoIterator<Item = ImuInput>,
+    gnss: impl IntoIterator<Item = GnssObservation>,
+    options: ReplayOptions,
+) -> ReplayResult {
+    let mut navigator = Navigator::<N>::new(config, options);
+    let mut fixes = gnss.into_iter().peekable();
+    for sample in imu {
+        let t = sample.t_s();
+        while let Some(fix) = fixes.next_if(|f| f.t_s < t || f.t_s.is_nan()) {
+            navigator.push_gnss(&fix);
+        }
+        navigator.push_imu(&sample);
+    }
+    for fix in fixes {
+        navigator.push_gnss(&fix);
+    }
+    navigator.finish()
+}

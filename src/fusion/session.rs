@@ -1,0 +1,232 @@
+//! Replay of a recorded or simulated session (`imulab::store`): streams one IMU's rows
+//! block by block through the navigator with one GNSS receiver's fixes, and reads the truth
+//! trajectory of simulated sessions for the error statistics. Times are seconds since the
+//! first IMU row (host monotonic clock).
+
+use crate::fusion::config::FusionConfig;
+use crate::fusion::mechanisation::{ImuInput, NavState};
+use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions, ReplayResult};
+use crate::store::{DeviceKind, Session, TimeRange};
+use anyhow::{bail, Context};
+use imulab_drivers::types::FixType;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+
+/// Rows per block read from the store.
+const BLOCK_ROWS: usize = 65_536;
+
+/// What a session replay produced besides the trajectory.
+#[derive(Debug, Clone, Default)]
+pub struct SessionReplay {
+    pub result: ReplayResult,
+    pub imu_device: String,
+    pub gnss_device: String,
+    /// Host monotonic time of the first IMU row, ns (time zero of the trajectory).
+    pub t0_mono_ns: i64,
+    /// True trajectory (simulated sessions), on the same time axis.
+    pub truth: Vec<NavState>,
+    /// GNSS epochs without a position fix (no fix, time only), skipped.
+    pub gnss_without_fix: u64,
+    /// GPS week and the offset sow − t of the first fix with a known week, for navresult.
+    pub gps_time: Option<(u32, f64)>,
+    /// Unreadable files and blocks, one line each.
+    pub problems: Vec<String>,
+}
+
+fn pick(session: &Session, kind: DeviceKind, wanted: Option<&str>) -> anyhow::Result<String> {
+    let of_kind: Vec<&str> = session
+        .devices()
+        .iter()
+        .filter(|d| d.kind == kind)
+        .map(|d| d.name.as_str())
+        .collect();
+    match wanted {
+        Some(w) if of_kind.contains(&w) => Ok(w.to_string()),
+        Some(w) => bail!(
+            "{}: no {} device `{w}` (have: {})",
+            session.dir().display(),
+            kind.as_str(),
+            of_kind.join(", ")
+        ),
+        None => match of_kind.as_slice() {
+            [one] => Ok(one.to_string()),
+            [] => bail!("{}: no {} device", session.dir().display(), kind.as_str()),
+            many => bail!(
+                "{}: several {} devices ({}); choose one with --{}",
+                session.dir().display(),
+                kind.as_str(),
+                many.join(", "),
+                kind.as_str()
+            ),
+        },
+    }
+}
+
+fn seconds(t_ns: i64, t0_ns: i64) -> f64 {
+    (t_ns.saturating_sub(t0_ns)) as f64 * 1e-9
+}
+
+/// Replays `session` with IMU `imu` and receiver `gnss` (each may be omitted when the session
+/// has only one). Outage windows in `options` are in seconds since the first IMU row.
+pub fn replay_session(
+    session: &Session,
+    imu: Option<&str>,
+    gnss: Option<&str>,
+    config: &FusionConfig,
+    options: ReplayOptions,
+) -> anyhow::Result<SessionReplay> {
+    let mut out = SessionReplay {
+        imu_device: pick(session, DeviceKind::Imu, imu)?,
+        gnss_device: pick(session, DeviceKind::Gnss, gnss)?,
+        ..SessionReplay::default()
+    };
+    let t0 = session
+        .stream_summary(&crate::store::layout::imu_path(&out.imu_device))
+        .first_t_mono_ns
+        .with_context(|| {
+            format!(
+                "{}: IMU `{}` has no rows",
+                session.dir().display(),
+                out.imu_device
+            )
+        })?;
+    out.t0_mono_ns = t0;
+
+    let mut fixes = Vec::new();
+    for block in session.gnss_blocks(&out.gnss_device, TimeRange::all(), BLOCK_ROWS)? {
+        let block = match block {
+            Ok(b) => b,
+            Err(e) => {
+                out.problems.push(e.to_string());
+                continue;
+            }
+        };
+        for i in 0..block.len() {
+            let r = block.record(i);
+            if matches!(r.fix_type, FixType::NoFix | FixType::TimeOnly) {
+                out.gnss_without_fix += 1;
+                continue;
+            }
+            let t = seconds(r.t_mono_ns, t0);
+            if out.gps_time.is_none() && r.week > 0 && r.tow_s.is_finite() {
+                out.gps_time = Some((u32::from(r.week), r.tow_s - t));
+            }
+            let v = Vector3::from(r.vel_ned);
+            fixes.push(GnssObservation {
+                t_s: t,
+                lat_rad: r.lat_deg.to_radians(),
+                lon_rad: r.lon_deg.to_radians(),
+                height_m: r.height_m,
+                sigma_ned_m: Vector3::new(r.h_acc_m, r.h_acc_m, r.v_acc_m),
+                vel_ned: v.iter().all(|x| x.is_finite()).then_some(v),
+                sigma_vel_mps: Vector3::repeat(r.s_acc_mps),
+            });
+        }
+    }
+
+    if session.manifest().truth_nav_rate_hz.is_some() {
+        for block in session.truth_nav_blocks(TimeRange::all(), BLOCK_ROWS)? {
+            let block = match block {
+                Ok(b) => b,
+                Err(e) => {
+                    out.problems.push(e.to_string());
+                    continue;
+                }
+            };
+            for i in 0..block.len() {
+                let q = block.quat_nb[i];
+                out.truth.push(NavState {
+                    t_s: seconds(block.t_mono_ns[i], t0),
+                    lat_rad: block.lat_deg[i].to_radians(),
+                    lon_rad: block.lon_deg[i].to_radians(),
+                    height_m: block.height_m[i],
+                    vel_ned: Vector3::from(block.vel_ned[i]),
+                    quat_nb: UnitQuaternion::from_quaternion(Quaternion::new(
+                        q[0], q[1], q[2], q[3],
+                    )),
+                });
+            }
+        }
+    }
+
+    out.result = match config.states {
+        21 => stream::<21>(
+            session,
+            &out.imu_device,
+            t0,
+            config,
+            options,
+            &fixes,
+            &mut out.problems,
+        )?,
+        _ => stream::<15>(
+            session,
+            &out.imu_device,
+            t0,
+            config,
+            options,
+            &fixes,
+            &mut out.problems,
+        )?,
+    };
+    Ok(out)
+}
+
+fn stream<const N: usize>(
+    session: &Session,
+    imu: &str,
+    t0: i64,
+    config: &FusionConfig,
+    options: ReplayOptions,
+    fixes: &[GnssObservation],
+    problems: &mut Vec<String>,
+) -> anyhow::Result<ReplayResult> {
+    let mut nav = Navigator::<N>::new(config, options);
+    let mut next_fix = fixes.iter().peekable();
+    for block in session.imu_blocks(imu, TimeRange::all(), BLOCK_ROWS)? {
+        let block = match block {
+            Ok(b) => b,
+            Err(e) => {
+                problems.push(e.to_string());
+                continue;
+            }
+        };
+        for i in 0..block.len() {
+            let t = seconds(block.t_mono_ns[i], t0);
+            while let Some(f) = next_fix.next_if(|f| f.t_s < t) {
+                nav.push_gnss(f);
+            }
+            nav.push_imu(&ImuInput::Rates {
+                t_s: t,
+                gyro: Vector3::from(block.gyro[i]),
+                accel: Vector3::from(block.accel[i]),
+            });
+        }
+    }
+    for f in next_fix {
+        nav.push_gnss(f);
+    }
+    Ok(nav.finish())
+}
+
+/// The truth at time `t`, interpolated between the two nearest rows (at most 1 s apart).
+pub fn truth_at(truth: &[NavState], t: f64) -> Option<NavState> {
+    let i = truth.partition_point(|r| r.t_s < t);
+    let b = truth.get(i)?;
+    if (b.t_s - t).abs() < 1e-6 {
+        return Some(*b);
+    }
+    let a = truth.get(i.checked_sub(1)?)?;
+    let span = b.t_s - a.t_s;
+    if !(span > 0.0 && span <= 1.0) {
+        return None;
+    }
+    let w = (t - a.t_s) / span;
+    Some(NavState {
+        t_s: t,
+        lat_rad: a.lat_rad + w * (b.lat_rad - a.lat_rad),
+        lon_rad: a.lon_rad + w * crate::fusion::mechanisation::wrap_pi(b.lon_rad - a.lon_rad),
+        height_m: a.height_m + w * (b.height_m - a.height_m),
+        vel_ned: a.vel_ned + w * (b.vel_ned - a.vel_ned),
+        quat_nb: a.quat_nb.slerp(&b.quat_nb, w),
+    })
+}

@@ -1,0 +1,213 @@
+//! KF-GINS text formats end to end: a simulated drive written as KF-GINS IMU, GNSS, truth
+//! `.nav` and YAML configuration files, replayed through the library and the `imulab replay
+//! --kf-gins` command; the navresult output compares with the truth line by line. A public
+//! dataset in that layout under the external data directory is replayed when present.
+
+mod fusion_support;
+
+use fusion_support::{city_drive, mems_errors, simulate, SimData};
+use imulab::fusion::kfgins::{self, format_nav_line, KfGinsConfig};
+use imulab::fusion::mechanisation::{ImuInput, NavState};
+use imulab::fusion::metrics::{errors, summarise};
+use nalgebra::Vector3;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+const SOW0: f64 = 456_300.0;
+const WEEK: u32 = 2200;
+const LEVER: [f64; 3] = [0.136, -0.301, -0.184];
+
+fn write_dataset(dir: &Path) -> SimData {
+    let mut e = mems_errors(21);
+    e.gyro_scale = Vector3::new(4e-4, -2e-4, 6e-4);
+    e.accel_scale = Vector3::new(-3e-4, 5e-4, 2e-4);
+    let d = simulate(
+        &city_drive(),
+        100.0,
+        100,
+        &e,
+        (0.02, 0.03, 0.01),
+        Vector3::from(LEVER),
+        21,
+    );
+    let mut imu = String::new();
+    for s in &d.imu {
+        if let ImuInput::Increments {
+            t_s, dtheta, dvel, ..
+        } = s
+        {
+            writeln!(
+                imu,
+                "{:.5} {:.12e} {:.12e} {:.12e} {:.12e} {:.12e} {:.12e}",
+                SOW0 + t_s,
+                dtheta.x,
+                dtheta.y,
+                dtheta.z,
+                dvel.x,
+                dvel.y,
+                dvel.z
+            )
+            .expect("fmt");
+        }
+    }
+    std::fs::write(dir.join("imu.txt"), imu).expect("write imu");
+    let mut gnss = String::new();
+    for g in d.gnss.iter().skip(1) {
+        writeln!(
+            gnss,
+            "{:.3} {:.10} {:.10} {:.4} {} {} {}",
+            SOW0 + g.t_s,
+            g.lat_rad.to_degrees(),
+            g.lon_rad.to_degrees(),
+            g.height_m,
+            g.sigma_ned_m.x,
+            g.sigma_ned_m.y,
+            g.sigma_ned_m.z
+        )
+        .expect("fmt");
+    }
+    std::fs::write(dir.join("gnss.txt"), gnss).expect("write gnss");
+    let mut truth = String::new();
+    for t in d.truth.iter().step_by(10) {
+        let mut nav = fusion_support::nav_from(t);
+        nav.t_s += SOW0;
+        writeln!(truth, "{}", format_nav_line(WEEK, &nav)).expect("fmt");
+    }
+    std::fs::write(dir.join("truth.nav"), truth).expect("write truth");
+    let t0 = &d.truth[0];
+    let (r, p, y) = t0.quat_nb.euler_angles();
+    let yaml = format!(
+        "# written by the imulab test\nimupath: \"imu.txt\"\ngnsspath: \"gnss.txt\"\noutputpath: \"out\"\nimudatalen: 7\nimudatarate: 100\nstarttime: {SOW0}\nendtime: -1\n\
+         initpos: [ {:.10}, {:.10}, {:.4} ]\ninitvel: [ 0, 0, 0 ]\ninitatt: [ {:.8}, {:.8}, {:.8} ]\n\
+         initposstd: [ 0.05, 0.05, 0.1 ]\ninitvelstd: [ 0.05, 0.05, 0.05 ]\ninitattstd: [ 0.1, 0.1, 0.5 ]\n\
+         imunoise:\n  arw: [0.3, 0.3, 0.3]\n  vrw: [0.1, 0.1, 0.1]\n  gbstd: [20.0, 20.0, 20.0]\n  abstd: [4905.0, 4905.0, 4905.0]\n  gsstd: [1000.0, 1000.0, 1000.0]\n  asstd: [1000.0, 1000.0, 1000.0]\n  corrtime: 1.0\n\
+         antlever: [ {}, {}, {} ]\n",
+        t0.lat_rad.to_degrees(), t0.lon_rad.to_degrees(), t0.height_m,
+        r.to_degrees(), p.to_degrees(), y.to_degrees(), LEVER[0], LEVER[1], LEVER[2],
+    );
+    std::fs::write(dir.join("kf-gins.yaml"), yaml).expect("write yaml");
+    d
+}
+
+fn truth_lookup(rows: &[kfgins::NavRow]) -> impl FnMut(f64) -> Option<NavState> + '_ {
+    |t| {
+        let i = rows.partition_point(|r| r.nav.t_s < t - 1e-4);
+        rows.get(i)
+            .filter(|r| (r.nav.t_s - t).abs() < 1e-4)
+            .map(|r| r.nav)
+    }
+}
+
+#[test]
+fn simulated_drive_in_kf_gins_format_replays_to_the_truth() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    let cfg =
+        KfGinsConfig::from_file(&dir.path().join("kf-gins.yaml"), dir.path()).expect("config");
+    assert_eq!(cfg.lever_arm_m, Vector3::from(LEVER));
+    let r = kfgins::replay_files(&cfg, &[(SOW0 + 100.0, SOW0 + 120.0)], false).expect("replay");
+    let out = dir.path().join("navresult.nav");
+    kfgins::write_navresult(&out, WEEK, &r.filtered).expect("write");
+    let back = kfgins::read_nav(&out).expect("read back");
+    assert_eq!(back.len(), r.filtered.len());
+    assert!(back.iter().all(|row| row.week == WEEK));
+    let truth = kfgins::read_nav(&dir.path().join("truth.nav")).expect("truth");
+    let e = errors(&r.filtered, truth_lookup(&truth));
+    let s = summarise(&e, &[(SOW0 + 100.0, SOW0 + 120.0)]);
+    println!("{s:?}\n{:?}", r.stats);
+    assert!(s.epochs > 2500, "{}", s.epochs);
+    assert!(s.horizontal_gnss.rms < 0.05, "{:?}", s.horizontal_gnss);
+    assert!(s.outages[0].max_horizontal_m > 0.01 && s.outages[0].max_horizontal_m < 5.0);
+    assert!(s.inside_3sigma > 0.97, "{}", s.inside_3sigma);
+}
+
+#[test]
+fn replay_command_writes_navresult_csv_geojson_and_errors() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    let out = dir.path().join("results");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .current_dir(dir.path())
+        .args([
+            "replay",
+            "--kf-gins",
+            "kf-gins.yaml",
+            "--truth",
+            "truth.nav",
+            "--outages",
+            "every:100:20",
+            "--smooth",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .expect("run imulab");
+    let stdout = String::from_utf8_lossy(&status.stdout);
+    println!("{stdout}\n{}", String::from_utf8_lossy(&status.stderr));
+    assert!(status.status.success());
+    for f in [
+        "filtered_navresult.nav",
+        "smoothed_navresult.nav",
+        "filtered_trajectory.csv",
+        "smoothed_trajectory.geojson",
+        "errors.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("errors.json")).expect("json"))
+            .expect("valid json");
+    let filt = report["filtered"]["outages"][0]["max_horizontal_m"]
+        .as_f64()
+        .expect("number");
+    let smooth = report["smoothed"]["outages"][0]["max_horizontal_m"]
+        .as_f64()
+        .expect("number");
+    assert!(smooth < filt, "smoothed {smooth} filtered {filt}");
+    let geo: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("smoothed_trajectory.geojson")).expect("geojson"),
+    )
+    .expect("valid");
+    assert_eq!(geo["geometry"]["type"], "LineString");
+    // A bad configuration fails with the file and key named.
+    std::fs::write(
+        dir.path().join("bad.yaml"),
+        "imupath: x\nimudatarate: fast\n",
+    )
+    .expect("write");
+    let bad = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .current_dir(dir.path())
+        .args(["replay", "--kf-gins", "bad.yaml"])
+        .output()
+        .expect("run imulab");
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("bad.yaml"), "{err}");
+}
+
+fn external_dir() -> Option<PathBuf> {
+    let candidates = [
+        std::env::var_os("IMULAB_EXTERNAL").map(PathBuf::from),
+        Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/external")),
+        Some(PathBuf::from("/work/shared/external")),
+    ];
+    candidates.into_iter().flatten().find(|p| p.is_dir())
+}
+
+/// A public KF-GINS-layout dataset: `<external>/kf-gins/kf-gins.yaml` (paths inside relative
+/// to that directory) with `truth.nav` beside it.
+#[test]
+fn public_kf_gins_dataset_when_present() {
+    let Some(base) = external_dir()
+        .map(|d| d.join("kf-gins"))
+        .filter(|d| d.join("kf-gins.yaml").is_file())
+    else {
+        println!("SKIPPED: no <external>/kf-gins/kf-gins.yaml (set IMULAB_EXTERNAL to the external data directory)");
+        return;
+    };
+    let cfg = KfGinsConfig::from_file(&base.join("kf-gins.yaml"), &base).expect("config");
+    let r = kfgins::replay_files(&cfg, &[], false).expect("replay");
+    let truth = kfgins::read_nav(&base.join("truth.nav")).expect("truth");
+    let s = summarise(&errors(&r.filtered, truth_lookup(&truth)), &[]);
+    println!("public dataset: {s:?}");
+    assert!(s.epochs > 0 && s.horizontal.rms.is_finite());
+}
