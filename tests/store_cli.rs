@@ -251,3 +251,56 @@ fn non_sessions_and_bad_manifests_give_one_line_errors() {
     assert!(ok);
     assert!(out.contains("nothing to recover"));
 }
+
+#[test]
+fn corrupted_bytes_inside_a_chunk_give_errors_not_crashes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let good = tmp.path().join("good");
+    write_session(&good, 12, 100, fast_opts());
+    let original = std::fs::read(good.join("chunk-000000.h5")).unwrap();
+    let mut detected = 0;
+    for percent in [5, 20, 35, 50, 65, 80, 95] {
+        let dir = tmp.path().join(format!("c{percent}"));
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::copy(good.join("session.toml"), dir.join("session.toml")).unwrap();
+        std::fs::copy(good.join("chunk-000001.h5"), dir.join("chunk-000001.h5")).unwrap();
+        let mut bytes = original.clone();
+        let at = bytes.len() * percent / 100;
+        for b in &mut bytes[at..at + 64] {
+            *b ^= 0x5a;
+        }
+        std::fs::write(dir.join("chunk-000000.h5"), &bytes).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+            .args(["inspect", "--json", dir.to_str().unwrap()])
+            .env("RUST_LOG", "off")
+            .output()
+            .unwrap();
+        // Never a crash or a panic: either a clean report or a report plus one-line error.
+        assert!(
+            out.status.code().is_some(),
+            "{percent}%: killed by a signal"
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!stderr.contains("panicked"), "{percent}%: {stderr}");
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        // The undamaged second file is always counted.
+        assert!(
+            v["devices"][0]["rows"].as_u64().unwrap() >= 200,
+            "{percent}%"
+        );
+        eprintln!(
+            "{percent}%: rows {} problems {}",
+            v["devices"][0]["rows"], v["problems"]
+        );
+        if !out.status.success() {
+            assert!(one_line(&stderr).contains("chunk-000000.h5"), "{stderr}");
+            detected += 1;
+        }
+    }
+    // Damage in the compressed data or in the metadata inspect walks is found (a few bytes
+    // in unused space may not be).
+    assert!(
+        detected >= 4,
+        "only {detected} of 7 corruptions were reported"
+    );
+}

@@ -62,6 +62,9 @@ fn kill_9_then_recover_loses_at_most_one_flush_interval() {
             last_t = t.parse().unwrap();
         }
     }
+    // While the writer lives, recover must refuse to touch its file.
+    let e = recover(&dir).unwrap_err().to_string();
+    assert!(e.contains("still running"), "{e}");
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
     for line in lines {

@@ -21,6 +21,10 @@ enum Command {
     Export(imulab::cli::export::ExportArgs),
     /// Make the partial chunk file of a killed writer readable.
     Recover(imulab::cli::recover::RecoverArgs),
+    /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
+    Decode(imulab::cli::decode::DecodeArgs),
+    /// Simulate IMUs and GNSS receivers from a scene file.
+    Sim(imulab::cli::sim::SimArgs),
     /// Print imulogd's status file as a table.
     Status(imulab::cli::status::StatusArgs),
 }
@@ -32,6 +36,8 @@ fn main() -> std::process::ExitCode {
         Command::Inspect(args) => imulab::cli::inspect::run(args),
         Command::Export(args) => imulab::cli::export::run(args),
         Command::Recover(args) => imulab::cli::recover::run(args),
+        Command::Decode(args) => imulab::cli::decode::run(args),
+        Command::Sim(args) => imulab::cli::sim::run(args),
         Command::Status(args) => imulab::cli::status::run(args),
     };
     match result {

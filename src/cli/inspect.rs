@@ -81,6 +81,9 @@ pub struct InspectReport {
     pub problems: Vec<String>,
 }
 
+/// Rows per block while scanning a device.
+const SCAN_BLOCK_ROWS: usize = 16384;
+
 /// The number an event stands for: `count=N` in its detail, else 1.
 fn event_count(detail: &str) -> u64 {
     detail
@@ -140,26 +143,57 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
         let (mut gap_count, mut gap_total_ns, mut longest_ns) = (0u64, 0f64, 0f64);
         let mut gaps = Vec::new();
         let mut prev: Option<i64> = None;
-        if let Ok(blocks) = session.time_blocks(&d.name, TimeRange::all(), 65536) {
-            for block in blocks {
-                let Ok(times) = block else { continue };
-                for t in times {
-                    if let Some(p) = prev {
-                        let dt = (t - p) as f64;
-                        if dt > 2.0 * period_ns {
-                            gap_count += 1;
-                            gap_total_ns += dt;
-                            longest_ns = longest_ns.max(dt);
-                            if gaps.len() < max_gaps {
-                                gaps.push(Gap {
-                                    after_t_mono_ns: p,
-                                    duration_s: dt * 1e-9,
-                                });
-                            }
+        // Whole rows are read (not only the times) so that damage anywhere in the data shows.
+        let mut scan = |times: &[i64]| {
+            for &t in times {
+                if let Some(p) = prev {
+                    let dt = (t - p) as f64;
+                    if dt > 2.0 * period_ns {
+                        gap_count += 1;
+                        gap_total_ns += dt;
+                        longest_ns = longest_ns.max(dt);
+                        if gaps.len() < max_gaps {
+                            gaps.push(Gap {
+                                after_t_mono_ns: p,
+                                duration_s: dt * 1e-9,
+                            });
                         }
                     }
-                    prev = Some(t);
                 }
+                prev = Some(t);
+            }
+        };
+        let mut read_problems = Vec::new();
+        match d.kind {
+            DeviceKind::Imu => {
+                if let Ok(blocks) = session.imu_blocks(&d.name, TimeRange::all(), SCAN_BLOCK_ROWS) {
+                    for block in blocks {
+                        match block {
+                            Ok(b) => scan(&b.t_mono_ns),
+                            Err(e) => read_problems.push(e.to_string()),
+                        }
+                    }
+                }
+            }
+            DeviceKind::Gnss => {
+                if let Ok(blocks) = session.gnss_blocks(&d.name, TimeRange::all(), SCAN_BLOCK_ROWS)
+                {
+                    for block in blocks {
+                        match block {
+                            Ok(b) => scan(&b.t_mono_ns),
+                            Err(e) => read_problems.push(e.to_string()),
+                        }
+                    }
+                }
+            }
+        }
+        // Unreadable files were listed already; add only new problems.
+        for p in read_problems {
+            if !problems
+                .iter()
+                .any(|q| p.contains(q.as_str()) || q.contains(p.as_str()))
+            {
+                problems.push(p);
             }
         }
         let span_s = match (summary.first_t_mono_ns, summary.last_t_mono_ns) {

@@ -15,3 +15,5 @@ pub fn init_logging() {
 pub mod export;
 pub mod inspect;
 pub mod recover;
+pub mod decode;
+pub mod sim;

@@ -29,6 +29,10 @@ pub fn parse_chunk_file_name(name: &str) -> Option<(u32, bool)> {
     digits.parse().ok().map(|i| (i, partial))
 }
 
+/// Held (flock, exclusive) by a live writer for its lifetime, so `recover` never touches
+/// the file of a writer that is still running. The kernel drops the lock when the writer dies.
+pub const WRITER_LOCK_FILE: &str = "writer.lock";
+
 pub const IMU_GROUP: &str = "imu";
 pub const GNSS_GROUP: &str = "gnss";
 pub const EVENTS_GROUP: &str = "events";

@@ -217,6 +217,25 @@ fn valid_device_name(name: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-' || b == b'.')
 }
 
+/// Takes the session's writer lock without waiting; `Ok(None)` when another process (a live
+/// writer) holds it.
+pub(crate) fn try_writer_lock(
+    dir: &Path,
+) -> Result<Option<nix::fcntl::Flock<std::fs::File>>, StoreError> {
+    let path = dir.join(super::layout::WRITER_LOCK_FILE);
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .map_err(|e| StoreError::io(&path, e))?;
+    match nix::fcntl::Flock::lock(file, nix::fcntl::FlockArg::LockExclusiveNonblock) {
+        Ok(lock) => Ok(Some(lock)),
+        Err((_, nix::errno::Errno::EWOULDBLOCK)) => Ok(None),
+        Err((_, e)) => Err(StoreError::io(&path, std::io::Error::from(e))),
+    }
+}
+
 /// Makes a rename or create in `dir` durable.
 pub(crate) fn fsync_dir(dir: &Path) -> Result<(), StoreError> {
     std::fs::File::open(dir)

@@ -15,7 +15,7 @@ use super::columns::{
     RAW_BYTES,
 };
 use super::layout;
-use super::manifest::{fsync_dir, Manifest};
+use super::manifest::{fsync_dir, try_writer_lock, Manifest};
 use super::reader::valid_prefix;
 use super::StoreError;
 
@@ -352,6 +352,12 @@ fn repair_file(path: &Path) -> Result<Vec<TableRecovery>, StoreError> {
 /// the others have been recovered.
 pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
     Manifest::load(dir)?;
+    let Some(lock) = try_writer_lock(dir)? else {
+        return Err(StoreError::Invalid(format!(
+            "{}: a writer is still running on this session; stop it first",
+            dir.display()
+        )));
+    };
     let mut partials: Vec<(u32, PathBuf)> = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))? {
         let entry = entry.map_err(|e| StoreError::io(dir, e))?;
@@ -397,6 +403,8 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
             }
         }
     }
+    drop(lock);
+    let _ = std::fs::remove_file(dir.join(layout::WRITER_LOCK_FILE));
     match first_error {
         Some(e) => Err(e),
         None => Ok(report),

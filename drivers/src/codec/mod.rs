@@ -1,1 +1,336 @@
 //! Sans-IO codecs: bytes in, typed frames out, and the reverse.
+//!
+//! Every protocol implements [`Decoder`] (push bytes, poll frames, read counters) and
+//! [`Encoder`] (frame to bytes). Decoders never panic on any input, keep a bounded buffer
+//! (the unconsumed tail of the last push plus at most one partial frame), resynchronise after
+//! garbage and count what they skip in [`DecoderStats`].
+//!
+//! [`PROTOCOLS`] is the protocol table used by `imulab decode` and the daemon: one line per
+//! protocol with its name, a detector for `auto` and a constructor of a type-erased
+//! [`JsonDecoder`]. Adding a protocol means adding a module, a [`Protocol`] variant and one
+//! table line.
+
+pub mod gnss;
+pub mod nmea;
+pub mod ubx;
+
+use std::path::PathBuf;
+
+use crate::types::DecoderStats;
+
+/// A sans-IO decoder: feed bytes with [`push`](Decoder::push), then call
+/// [`poll`](Decoder::poll) until it returns `None` before pushing again.
+pub trait Decoder {
+    /// What one decoded unit is (a sentence, a message, a sample).
+    type Frame;
+    /// Appends bytes read from the device. Never fails: bad bytes are skipped and counted
+    /// when polled.
+    fn push(&mut self, bytes: &[u8]);
+    /// Returns the next complete frame, or `None` when the buffered bytes hold no complete
+    /// frame any more.
+    fn poll(&mut self) -> Option<Self::Frame>;
+    /// Counters since construction.
+    fn stats(&self) -> DecoderStats;
+
+    /// Called once the input has ended: returns frames the decoder held back (e.g. a merged
+    /// epoch waiting for its cycle to close). Call until `None`. Partial frames are dropped.
+    fn finish(&mut self) -> Option<Self::Frame> {
+        None
+    }
+
+    /// Pushes `bytes` and hands every frame they complete to `sink`.
+    fn decode(&mut self, bytes: &[u8], mut sink: impl FnMut(Self::Frame))
+    where
+        Self: Sized,
+    {
+        self.push(bytes);
+        while let Some(frame) = self.poll() {
+            sink(frame);
+        }
+    }
+}
+
+/// Why a frame could not be encoded.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EncodeError {
+    /// A value does not fit the field's wire range or is not finite.
+    #[error("field `{field}` = {value} cannot be encoded (out of range or not finite)")]
+    OutOfRange { field: &'static str, value: f64 },
+    /// The encoded frame would exceed the protocol's length limit.
+    #[error("frame of {len} bytes exceeds the protocol limit of {max}")]
+    TooLong { len: usize, max: usize },
+    /// A field holds something the protocol cannot carry (e.g. a `*` in an NMEA field).
+    #[error("field `{field}` is invalid: {reason}")]
+    Invalid {
+        field: &'static str,
+        reason: &'static str,
+    },
+}
+
+/// A sans-IO encoder: appends the wire bytes of one frame to `out`.
+pub trait Encoder {
+    type Frame;
+    /// Appends the encoded frame to `out`. On error `out` is left as it was.
+    fn encode(&self, frame: &Self::Frame, out: &mut Vec<u8>) -> Result<(), EncodeError>;
+}
+
+/// A decoder seen through JSON: what `imulab decode` and tools that do not care about the
+/// concrete frame type use. Implemented for every [`Decoder`] whose frame is `Serialize`.
+pub trait JsonDecoder: Send {
+    fn push(&mut self, bytes: &[u8]);
+    /// Writes the next frame as one JSON object (no newline) into `out`; `false` when none.
+    fn next_json(&mut self, out: &mut Vec<u8>) -> bool;
+    /// Like [`next_json`](JsonDecoder::next_json) for frames held back until the input ended.
+    fn finish_json(&mut self, out: &mut Vec<u8>) -> bool;
+    fn stats(&self) -> DecoderStats;
+}
+
+impl<D> JsonDecoder for D
+where
+    D: Decoder + Send,
+    D::Frame: serde::Serialize,
+{
+    fn push(&mut self, bytes: &[u8]) {
+        Decoder::push(self, bytes);
+    }
+
+    fn next_json(&mut self, out: &mut Vec<u8>) -> bool {
+        let frame = Decoder::poll(self);
+        write_json(frame, out)
+    }
+
+    fn finish_json(&mut self, out: &mut Vec<u8>) -> bool {
+        let frame = Decoder::finish(self);
+        write_json(frame, out)
+    }
+
+    fn stats(&self) -> DecoderStats {
+        Decoder::stats(self)
+    }
+}
+
+fn write_json<F: serde::Serialize>(frame: Option<F>, out: &mut Vec<u8>) -> bool {
+    match frame {
+        Some(frame) => {
+            // Serialising our own frame types into a Vec cannot fail (no maps with non-string
+            // keys, no I/O); keep going rather than panic if it ever did.
+            if serde_json::to_writer(&mut *out, &frame).is_err() {
+                out.extend_from_slice(b"{\"error\":\"frame not serialisable\"}");
+            }
+            true
+        }
+        None => false,
+    }
+}
+
+/// Options a protocol may need to build its decoder.
+#[derive(Debug, Clone, Default)]
+pub struct DecoderOptions {
+    /// DBC file for IMU-over-CAN protocols.
+    pub dbc: Option<PathBuf>,
+    /// Protocol-specific configuration file (e.g. a CSV column map or a DBC signal map).
+    pub config: Option<PathBuf>,
+}
+
+/// Why a decoder could not be built from the options.
+#[derive(Debug, thiserror::Error)]
+#[error("protocol `{protocol}`: {reason}")]
+pub struct OpenError {
+    pub protocol: &'static str,
+    pub reason: String,
+}
+
+/// The protocols the codecs understand.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Protocol {
+    /// NMEA 0183 sentences only.
+    Nmea,
+    /// u-blox UBX binary messages only.
+    Ubx,
+    /// NMEA and UBX interleaved on one port, merged into navigation epochs.
+    Gnss,
+}
+
+/// One row of the protocol table.
+pub struct ProtocolEntry {
+    pub protocol: Protocol,
+    /// Name on the command line and in configuration files.
+    pub name: &'static str,
+    pub summary: &'static str,
+    /// Score for auto-detection: number of valid frames found in a sample of the stream
+    /// (0 = not this protocol).
+    pub detect: fn(&[u8]) -> u32,
+    /// Builds a decoder that yields JSON objects.
+    pub open: fn(&DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError>,
+}
+
+/// The protocol table, one line per protocol. Auto-detection prefers the highest score, and
+/// the earlier line on a tie.
+#[rustfmt::skip]
+pub const PROTOCOLS: &[ProtocolEntry] = &[
+    ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", detect: gnss::detect_score, open: |_| Ok(Box::new(gnss::GnssDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", detect: nmea::detect_score, open: |_| Ok(Box::new(nmea::NmeaDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", detect: ubx::detect_score, open: |_| Ok(Box::new(ubx::UbxDecoder::new())) },
+];
+
+/// A protocol name that is not in [`PROTOCOLS`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown protocol `{name}` (known: {known})")]
+pub struct UnknownProtocol {
+    pub name: String,
+    pub known: String,
+}
+
+impl Protocol {
+    /// Looks a protocol up by its table name (case-insensitive).
+    pub fn from_name(name: &str) -> Result<Protocol, UnknownProtocol> {
+        PROTOCOLS
+            .iter()
+            .find(|entry| entry.name.eq_ignore_ascii_case(name.trim()))
+            .map(|entry| entry.protocol)
+            .ok_or_else(|| UnknownProtocol {
+                name: name.to_string(),
+                known: PROTOCOLS
+                    .iter()
+                    .map(|entry| entry.name)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })
+    }
+
+    /// This protocol's row in [`PROTOCOLS`].
+    pub fn entry(self) -> &'static ProtocolEntry {
+        // A missing row is a programming error, caught by the test below, never input-driven.
+        PROTOCOLS
+            .iter()
+            .find(|entry| entry.protocol == self)
+            .expect("every Protocol variant has a row in PROTOCOLS")
+    }
+
+    pub fn name(self) -> &'static str {
+        self.entry().name
+    }
+
+    /// Builds this protocol's decoder.
+    pub fn open(self, options: &DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError> {
+        (self.entry().open)(options)
+    }
+}
+
+/// Guesses the protocol of a stream from a sample of its first bytes (a few kB is plenty).
+/// Returns `None` when no protocol finds a single valid frame.
+pub fn detect(sample: &[u8]) -> Option<Protocol> {
+    let mut best: Option<(u32, Protocol)> = None;
+    for entry in PROTOCOLS {
+        let score = (entry.detect)(sample);
+        if score > 0 && best.is_none_or(|(best_score, _)| score > best_score) {
+            best = Some((score, entry.protocol));
+        }
+    }
+    best.map(|(_, protocol)| protocol)
+}
+
+/// What scanning the bytes at a frame start found.
+#[derive(Debug)]
+pub(crate) enum Scan<F> {
+    /// Not enough bytes yet.
+    Incomplete,
+    /// A frame of `len` bytes.
+    Frame { len: usize, frame: F },
+    /// Drop `len` bytes (≥ 1) and count `reject`.
+    Reject { len: usize, reject: Reject },
+}
+
+/// Why bytes were rejected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Reject {
+    Checksum,
+    TooLong,
+    Malformed,
+    /// Not a frame start after all (e.g. 0xB5 not followed by 0x62): plain garbage.
+    NoSync,
+}
+
+impl Reject {
+    pub(crate) fn count(self, stats: &mut DecoderStats) {
+        match self {
+            Reject::Checksum => stats.checksum_errors += 1,
+            Reject::TooLong => stats.frames_too_long += 1,
+            Reject::Malformed => stats.frames_malformed += 1,
+            Reject::NoSync => {}
+        }
+    }
+}
+
+/// The byte buffer behind a streaming decoder: appended at the back, consumed at the front,
+/// compacted so it never holds more than the unconsumed bytes.
+#[derive(Debug, Default, Clone)]
+pub struct StreamBuffer {
+    bytes: Vec<u8>,
+    start: usize,
+}
+
+impl StreamBuffer {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Appends bytes, first dropping the consumed front when that frees enough room.
+    pub fn push(&mut self, bytes: &[u8]) {
+        if self.start == self.bytes.len() {
+            self.bytes.clear();
+            self.start = 0;
+        } else if self.start > 0 && self.start >= self.bytes.len() / 2 {
+            self.bytes.drain(..self.start);
+            self.start = 0;
+        }
+        self.bytes.extend_from_slice(bytes);
+    }
+
+    /// The unconsumed bytes.
+    pub fn data(&self) -> &[u8] {
+        &self.bytes[self.start..]
+    }
+
+    /// Marks `n` bytes at the front as consumed (clamped to what is there).
+    pub fn consume(&mut self, n: usize) {
+        self.start = (self.start + n).min(self.bytes.len());
+    }
+
+    pub fn len(&self) -> usize {
+        self.bytes.len() - self.start
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_protocol_has_a_table_row_and_name_round_trips() {
+        for entry in PROTOCOLS {
+            assert_eq!(Protocol::from_name(entry.name), Ok(entry.protocol));
+            assert_eq!(entry.protocol.name(), entry.name);
+        }
+        assert!(Protocol::from_name("NMEA").is_ok());
+        let err = Protocol::from_name("foo").unwrap_err();
+        assert!(err.to_string().contains("nmea"), "{err}");
+    }
+
+    #[test]
+    fn stream_buffer_consumes_and_compacts() {
+        let mut buf = StreamBuffer::new();
+        buf.push(b"abcdef");
+        buf.consume(4);
+        assert_eq!(buf.data(), b"ef");
+        buf.push(b"gh");
+        assert_eq!(buf.data(), b"efgh");
+        buf.consume(100);
+        assert!(buf.is_empty());
+    }
+}

@@ -1,0 +1,296 @@
+//! Simulator benchmark: run time and throughput of one 6-axis IMU with the full error model
+//! (6 h × 150 Hz target: under 1 s on one core), scaling with duration, the saving from
+//! computing only what a scene needs, and the Allan-recovered noise terms of every preset
+//! next to the configured ones. Prints markdown tables; see docs/bench/sim.md.
+//!
+//! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings).
+
+#[path = "../tests/sim_support/mod.rs"]
+mod sim_support;
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::Result;
+use imulab::sim::outputs::SimSink;
+use imulab::sim::presets::IMU_PRESETS;
+use imulab::sim::runner::run;
+use imulab::sim::scene::Scene;
+use imulab::store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+const G0: f64 = 9.806_65;
+
+/// Counts records and folds one value of each so nothing is optimised away.
+#[derive(Default)]
+struct CountingSink {
+    records: u64,
+    checksum: f64,
+}
+
+impl SimSink for CountingSink {
+    fn imu(&mut self, _: &str, r: &[ImuRecord]) -> Result<()> {
+        self.records += r.len() as u64;
+        self.checksum += r.iter().map(|x| x.gyro[0] + x.accel[2]).sum::<f64>();
+        Ok(())
+    }
+    fn gnss(&mut self, _: &str, r: &[GnssRecord]) -> Result<()> {
+        self.records += r.len() as u64;
+        Ok(())
+    }
+    fn truth_nav(&mut self, r: &[TruthNavRecord]) -> Result<()> {
+        self.records += r.len() as u64;
+        Ok(())
+    }
+    fn truth_imu(&mut self, _: &str, r: &[TruthImuRecord]) -> Result<()> {
+        self.records += r.len() as u64;
+        Ok(())
+    }
+    fn event(&mut self, _: &EventRecord) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// Keeps 10-sample block means of the six channels of one IMU (for the Allan table):
+/// ten times less memory, and OADEV at τ = multiples of 10 samples is unaffected.
+#[derive(Default)]
+struct BlockMeanSink {
+    acc: [f64; 6],
+    count: usize,
+    means: [Vec<f64>; 6],
+}
+
+const BLOCK: usize = 10;
+
+impl SimSink for BlockMeanSink {
+    fn imu(&mut self, _: &str, r: &[ImuRecord]) -> Result<()> {
+        for x in r {
+            let v = [
+                x.gyro[0], x.gyro[1], x.gyro[2], x.accel[0], x.accel[1], x.accel[2],
+            ];
+            for (acc, x) in self.acc.iter_mut().zip(v) {
+                *acc += x;
+            }
+            self.count += 1;
+            if self.count == BLOCK {
+                for (acc, means) in self.acc.iter_mut().zip(&mut self.means) {
+                    means.push(*acc / BLOCK as f64);
+                    *acc = 0.0;
+                }
+                self.count = 0;
+            }
+        }
+        Ok(())
+    }
+    fn gnss(&mut self, _: &str, _: &[GnssRecord]) -> Result<()> {
+        Ok(())
+    }
+    fn truth_nav(&mut self, _: &[TruthNavRecord]) -> Result<()> {
+        Ok(())
+    }
+    fn truth_imu(&mut self, _: &str, _: &[TruthImuRecord]) -> Result<()> {
+        Ok(())
+    }
+    fn event(&mut self, _: &EventRecord) -> Result<()> {
+        Ok(())
+    }
+}
+
+const FULL_IMU: &str = r#"
+[[imu]]
+name = "dut"
+preset = "bench-cheap"
+[imu.gyro]
+rrw_dph_rth = [1.0, 1.0, 1.0]
+rate_ramp_dph_per_h = [0.5, -0.5, 0.2]
+turn_on_bias_sigma_dph = [20.0, 20.0, 20.0]
+scale_factor_ppm = [500.0, -300.0, 200.0]
+misalignment_mrad = [1.0, -0.5, 0.3, 0.8, -1.0, 0.2]
+g_sensitivity_dph_per_g = [[10.0, 1.0, 0.0], [0.0, 10.0, 1.0], [1.0, 0.0, 10.0]]
+bias_tempco_dph_per_c = [0.5, -0.4, 0.3]
+scale_tempco_ppm_per_c = [20.0, 20.0, 20.0]
+range_dps = 2000.0
+lsb_dps = 0.001
+[imu.accel]
+rrw_mg_rth = [0.02, 0.02, 0.02]
+rate_ramp_mg_per_h = [0.01, 0.01, -0.01]
+turn_on_bias_sigma_mg = [2.0, 2.0, 2.0]
+scale_factor_ppm = [300.0, 300.0, -300.0]
+misalignment_mrad = [0.5, 0.5, -0.5, 0.5, 0.5, -0.5]
+bias_tempco_mg_per_c = [0.02, 0.02, 0.02]
+scale_tempco_ppm_per_c = [10.0, 10.0, 10.0]
+range_g = 16.0
+lsb_mg = 0.05
+[imu.timing]
+jitter_us = 50.0
+drop_probability = 0.0001
+"#;
+
+fn scene(duration_s: f64, motion: &str, temperature: &str, sensors: &str, truth: bool) -> Scene {
+    let text = format!(
+        r#"
+duration_s = {duration_s}
+rate_hz = 150
+seed = 1
+[location]
+lat_deg = 48.15
+lon_deg = 11.57
+height_m = 520
+{motion}
+{temperature}
+[outputs]
+truth_nav = {truth}
+truth_imu = {truth}
+{sensors}
+"#
+    );
+    Scene::parse(&text, Path::new(".")).expect("benchmark scene")
+}
+
+const STATIC: &str = "[motion]\nkind = \"static\"";
+const RAMP: &str =
+    "[temperature]\nkind = \"ramp\"\nstart_c = 20\nend_c = 30\nstart_s = 0\nend_s = 21600";
+const CONSTANT: &str = "[temperature]\nkind = \"constant\"\ncelsius = 25";
+
+fn drive(duration_s: f64) -> String {
+    // Repeating 10-minute laps: accelerate, cruise, turn, cruise, brake, stand.
+    let laps = (duration_s / 600.0).ceil() as usize;
+    let lap = r#"{ kind = "accelerate", dv_mps = 15, duration_s = 20 }, { kind = "cruise", duration_s = 200 }, { kind = "turn", angle_deg = 90, duration_s = 20 }, { kind = "cruise", duration_s = 300 }, { kind = "accelerate", dv_mps = -15, duration_s = 20 }, { kind = "stop", duration_s = 40 }"#;
+    format!(
+        "[motion]\nkind = \"segments\"\nsegments = [{}]",
+        vec![lap; laps].join(", ")
+    )
+}
+
+/// Best of `reps` single-threaded runs: (seconds, samples, records).
+fn time_scene(s: &Scene, reps: usize) -> (f64, u64, u64) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let mut best = f64::INFINITY;
+    let mut out = (0, 0);
+    for _ in 0..reps {
+        let mut sink = CountingSink::default();
+        let t = Instant::now();
+        let stats = pool.install(|| run(s, &mut sink)).expect("run");
+        best = best.min(t.elapsed().as_secs_f64());
+        assert!(sink.checksum.is_finite() || sink.records == 0);
+        out = (stats.samples, sink.records);
+    }
+    (best, out.0, out.1)
+}
+
+fn main() {
+    let six_h = 6.0 * 3600.0;
+    println!("## Full error model, one 6-axis IMU, 150 Hz, single thread\n");
+    println!("| duration | samples | time (s) | samples/s | s per simulated hour |");
+    println!("|---|---|---|---|---|");
+    for hours in [0.75, 1.5, 3.0, 6.0] {
+        let s = scene(hours * 3600.0, STATIC, RAMP, FULL_IMU, false);
+        let (t, n, _) = time_scene(&s, 3);
+        println!(
+            "| {hours} h | {n} | {t:.3} | {:.3e} | {:.4} |",
+            n as f64 / t,
+            t / hours
+        );
+    }
+
+    println!("\n## Compute only what the scene needs (6 h × 150 Hz, single thread)\n");
+    println!("| scene | time (s) | records out | samples/s |");
+    println!("|---|---|---|---|");
+    let cheap = "[[imu]]\nname = \"dut\"\npreset = \"bench-cheap\"";
+    let gyro_only = "[[imu]]\nname = \"dut\"\npreset = \"bench-cheap\"\nchannels = [\"gyro\"]";
+    let with_gnss =
+        format!("{FULL_IMU}\n[[gnss]]\nname = \"rx\"\npreset = \"standalone\"\nrate_hz = 10");
+    let cases: Vec<(&str, Scene)> = vec![
+        (
+            "static, bench-cheap, gyro only",
+            scene(six_h, STATIC, CONSTANT, gyro_only, false),
+        ),
+        (
+            "static, bench-cheap, gyro + accel",
+            scene(six_h, STATIC, CONSTANT, cheap, false),
+        ),
+        (
+            "static, full model, temperature ramp",
+            scene(six_h, STATIC, RAMP, FULL_IMU, false),
+        ),
+        (
+            "static, full model, + truth outputs",
+            scene(six_h, STATIC, RAMP, FULL_IMU, true),
+        ),
+        (
+            "static, full model, + 10 Hz GNSS",
+            scene(six_h, STATIC, RAMP, &with_gnss, false),
+        ),
+        (
+            "drive (segments), full model + GNSS + truth",
+            scene(six_h, &drive(six_h), RAMP, &with_gnss, true),
+        ),
+    ];
+    for (name, s) in &cases {
+        let (t, n, records) = time_scene(s, 2);
+        println!("| {name} | {t:.3} | {records} | {:.3e} |", n as f64 / t);
+    }
+
+    println!("\n## Allan-recovered noise terms of the presets (6 h × 150 Hz, seed 1)\n");
+    println!("Fit of AVAR = N²/τ + B² + K²τ/3 + R²τ²/2 over τ = 0.067 s … 2160 s; \"min\" is the");
+    println!("minimum of the ADEV curve (what a datasheet calls bias stability).\n");
+    println!("| preset | axis | N set | N fit | B set | B fit | min ADEV | unit N / B |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for preset in IMU_PRESETS {
+        let sensors = format!("[[imu]]\nname = \"dut\"\npreset = \"{}\"", preset.name);
+        let mut s = scene(six_h, STATIC, CONSTANT, &sensors, false);
+        let spec = s.imus[0].spec.clone();
+        // No drops, so each block mean covers 10 consecutive samples.
+        s.imus[0].spec.timing.drop_probability = 0.0;
+        let mut sink = BlockMeanSink::default();
+        run(&s, &mut sink).expect("run");
+        let dt = BLOCK as f64 / 150.0;
+        for (ch, y) in sink.means.iter().enumerate() {
+            let points: Vec<(f64, f64)> = sim_support::log_factors(y.len(), 5.0, 10)
+                .into_iter()
+                .map(|m| (m as f64 * dt, sim_support::oadev(y, dt, m)))
+                .collect();
+            let (n, b, _, _) = sim_support::fit_terms(&points);
+            let min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+            let axis = ch % 3;
+            if ch < 3 {
+                let g = &spec.gyro;
+                let n_set = g
+                    .arw_deg_rth
+                    .map(|a| a[axis])
+                    .or(g.noise_density_dps_rthz.map(|d| d[axis] * 60.0))
+                    .unwrap_or(0.0);
+                let k = DEG / 3600.0;
+                println!(
+                    "| {} | gyro {} | {n_set:.3} | {:.3} | {:.2} | {:.2} | {:.2} | °/√h / °/h |",
+                    preset.name,
+                    ["x", "y", "z"][axis],
+                    n / (DEG / 60.0),
+                    g.bias_instability_dph[axis],
+                    b / k,
+                    min / k
+                );
+            } else {
+                let a = &spec.accel;
+                let n_set = a
+                    .vrw_mg_rth
+                    .map(|v| v[axis])
+                    .or(a.noise_density_ug_rthz.map(|d| d[axis] * 60.0 / 1000.0))
+                    .unwrap_or(0.0);
+                let mg = G0 * 1e-3;
+                println!(
+                    "| {} | accel {} | {n_set:.3} | {:.3} | {:.4} | {:.4} | {:.4} | mg/√h / mg |",
+                    preset.name,
+                    ["x", "y", "z"][axis],
+                    n / (mg / 60.0),
+                    a.bias_instability_mg[axis],
+                    b / mg,
+                    min / mg
+                );
+            }
+        }
+    }
+}

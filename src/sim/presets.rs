@@ -1,0 +1,195 @@
+//! Named IMU presets: the two IMUs of the motivating bench study and one consumer,
+//! industrial and tactical-grade unit from their datasheets. GNSS presets live with the
+//! GNSS model ([`super::gnss_model::GnssSpec::preset`]).
+//!
+//! Values are per axis X/Y/Z. Where a datasheet gives no value for a term, the term is
+//! either left out or the assumed value is marked "assumed" below and in
+//! docs/simulator.md.
+
+use super::imu_model::{AccelSpec, GyroSpec, ImuSpec, DEFAULT_BAND_S};
+
+/// One IMU preset: its name, where its numbers come from, and the spec.
+pub struct ImuPreset {
+    pub name: &'static str,
+    pub source: &'static str,
+    pub spec: fn() -> ImuSpec,
+}
+
+/// Every IMU preset, in the order the docs list them.
+pub const IMU_PRESETS: &[ImuPreset] = &[
+    ImuPreset {
+        name: "bench-cheap",
+        source: "bench study, ~25 EUR IMU, per axis at 25 °C and 150 Hz (ARW printed as °/s/√hr, read as °/√h)",
+        spec: bench_cheap,
+    },
+    ImuPreset {
+        name: "bench-dear",
+        source: "bench study, ~250 EUR IMU, per axis at 25 °C and 150 Hz (ARW printed as °/s/√hr, read as °/√h)",
+        spec: bench_dear,
+    },
+    ImuPreset {
+        name: "consumer",
+        source: "InvenSense MPU-6000/MPU-6050 Product Specification PS-MPU-6000A-00 rev 3.4 (±250 °/s, ±2 g); bias instability assumed",
+        spec: consumer,
+    },
+    ImuPreset {
+        name: "industrial",
+        source: "Xsens MTi-1 series datasheet (gyro 10 °/h, 0.007 °/s/√Hz; accel 0.03 mg, 120 µg/√Hz)",
+        spec: industrial,
+    },
+    ImuPreset {
+        name: "tactical",
+        source: "Honeywell HG1700 brochure N61-1619-000-001 (ARW 0.125 °/√h, gyro bias 1 °/h, VRW 0.065 ft/s/√h, accel bias 1 mg)",
+        spec: tactical,
+    },
+];
+
+/// The spec of preset `name`, or None.
+pub fn imu_preset(name: &str) -> Option<ImuSpec> {
+    IMU_PRESETS
+        .iter()
+        .find(|p| p.name == name)
+        .map(|p| (p.spec)())
+}
+
+/// Names of every IMU preset, for error messages.
+pub fn imu_preset_names() -> Vec<&'static str> {
+    IMU_PRESETS.iter().map(|p| p.name).collect()
+}
+
+fn with_noise(gyro: GyroSpec, accel: AccelSpec) -> ImuSpec {
+    ImuSpec {
+        gyro: GyroSpec {
+            bias_instability_band_s: DEFAULT_BAND_S,
+            ..gyro
+        },
+        accel: AccelSpec {
+            bias_instability_band_s: DEFAULT_BAND_S,
+            ..accel
+        },
+        ..ImuSpec::default()
+    }
+}
+
+fn bench_cheap() -> ImuSpec {
+    with_noise(
+        GyroSpec {
+            arw_deg_rth: Some([0.36, 0.31, 0.30]),
+            bias_instability_dph: [5.3, 4.8, 4.0],
+            ..GyroSpec::default()
+        },
+        AccelSpec {
+            vrw_mg_rth: Some([6.6, 7.9, 8.5]),
+            bias_instability_mg: [0.029, 0.074, 0.043],
+            ..AccelSpec::default()
+        },
+    )
+}
+
+fn bench_dear() -> ImuSpec {
+    with_noise(
+        GyroSpec {
+            arw_deg_rth: Some([0.30, 0.26, 0.30]),
+            bias_instability_dph: [4.1, 4.1, 4.7],
+            ..GyroSpec::default()
+        },
+        AccelSpec {
+            vrw_mg_rth: Some([2.8, 3.0, 2.8]),
+            bias_instability_mg: [0.022, 0.037, 0.031],
+            ..AccelSpec::default()
+        },
+    )
+}
+
+fn consumer() -> ImuSpec {
+    with_noise(
+        GyroSpec {
+            noise_density_dps_rthz: Some([0.005; 3]),
+            // Assumed: the datasheet gives no in-run stability.
+            bias_instability_dph: [10.0; 3],
+            // Initial zero-rate tolerance ±20 °/s, read as 3σ.
+            turn_on_bias_sigma_dph: [20.0 / 3.0 * 3600.0; 3],
+            // Linear acceleration sensitivity 0.1 °/s/g, on each axis's own input.
+            g_sensitivity_dph_per_g: [[360.0, 0.0, 0.0], [0.0, 360.0, 0.0], [0.0, 0.0, 360.0]],
+            range_dps: Some(250.0),
+            lsb_dps: Some(1.0 / 131.0),
+            ..GyroSpec::default()
+        },
+        AccelSpec {
+            noise_density_ug_rthz: Some([400.0; 3]),
+            // Assumed: the datasheet gives no in-run stability.
+            bias_instability_mg: [0.1; 3],
+            // Initial zero-g tolerance ±50 mg (X, Y) and ±80 mg (Z), read as 3σ.
+            turn_on_bias_sigma_mg: [50.0 / 3.0, 50.0 / 3.0, 80.0 / 3.0],
+            range_g: Some(2.0),
+            lsb_mg: Some(1000.0 / 16384.0),
+            ..AccelSpec::default()
+        },
+    )
+}
+
+fn industrial() -> ImuSpec {
+    with_noise(
+        GyroSpec {
+            noise_density_dps_rthz: Some([0.007; 3]),
+            bias_instability_dph: [10.0; 3],
+            range_dps: Some(2000.0),
+            ..GyroSpec::default()
+        },
+        AccelSpec {
+            noise_density_ug_rthz: Some([120.0; 3]),
+            bias_instability_mg: [0.03; 3],
+            range_g: Some(16.0),
+            ..AccelSpec::default()
+        },
+    )
+}
+
+fn tactical() -> ImuSpec {
+    // 0.065 ft/s/√h = 0.019812 m/s/√h = 2.0203 mg/√h in the bench study's convention.
+    let vrw_mg_rth = 0.065 * 0.3048 / (super::imu_model::G0 * 1e-3);
+    with_noise(
+        GyroSpec {
+            arw_deg_rth: Some([0.125; 3]),
+            // The brochure's 1σ bias, used as the in-run floor (conservative).
+            bias_instability_dph: [1.0; 3],
+            ..GyroSpec::default()
+        },
+        AccelSpec {
+            vrw_mg_rth: Some([vrw_mg_rth; 3]),
+            bias_instability_mg: [1.0; 3],
+            ..AccelSpec::default()
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_preset_is_valid_and_named_once() {
+        let names = imu_preset_names();
+        for (i, p) in IMU_PRESETS.iter().enumerate() {
+            (p.spec)()
+                .validate()
+                .unwrap_or_else(|e| panic!("{}: {e}", p.name));
+            assert!(!names[..i].contains(&p.name), "duplicate {}", p.name);
+        }
+        assert!(imu_preset("nope").is_none());
+    }
+
+    #[test]
+    fn bench_numbers_are_the_issue_numbers() {
+        let cheap = imu_preset("bench-cheap").unwrap();
+        assert_eq!(cheap.accel.bias_instability_mg, [0.029, 0.074, 0.043]);
+        assert_eq!(cheap.accel.vrw_mg_rth, Some([6.6, 7.9, 8.5]));
+        assert_eq!(cheap.gyro.bias_instability_dph, [5.3, 4.8, 4.0]);
+        assert_eq!(cheap.gyro.arw_deg_rth, Some([0.36, 0.31, 0.30]));
+        let dear = imu_preset("bench-dear").unwrap();
+        assert_eq!(dear.accel.bias_instability_mg, [0.022, 0.037, 0.031]);
+        assert_eq!(dear.accel.vrw_mg_rth, Some([2.8, 3.0, 2.8]));
+        assert_eq!(dear.gyro.bias_instability_dph, [4.1, 4.1, 4.7]);
+        assert_eq!(dear.gyro.arw_deg_rth, Some([0.30, 0.26, 0.30]));
+    }
+}
