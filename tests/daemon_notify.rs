@@ -6,6 +6,7 @@
 mod common;
 
 use std::os::unix::net::UnixDatagram;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{encode_imu, LineDecoder, QueueConnector};
@@ -15,12 +16,35 @@ use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};
 use imulab::daemon::{run, DaemonParts};
 use tokio::io::AsyncWriteExt;
 
-/// Messages received so far, each with its arrival time since `t0`.
-fn drain(socket: &UnixDatagram, t0: Instant, into: &mut Vec<(Duration, String)>) {
-    let mut buf = [0u8; 4096];
-    while let Ok(n) = socket.recv(&mut buf) {
-        into.push((t0.elapsed(), String::from_utf8_lossy(&buf[..n]).into_owned()));
-    }
+type Log = Arc<Mutex<Vec<(Instant, String)>>>;
+
+/// Receives notifications on a thread, stamping each with its arrival time.
+fn listen(socket: UnixDatagram) -> Log {
+    let log: Log = Arc::default();
+    let into = log.clone();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        loop {
+            if let Ok(n) = socket.recv(&mut buf) {
+                let text = String::from_utf8_lossy(&buf[..n]).trim().to_string();
+                into.lock().unwrap().push((Instant::now(), text));
+            }
+        }
+    });
+    log
+}
+
+/// Messages that arrived after `t0`, with their time since `t0`.
+fn since(log: &Log, t0: Instant) -> Vec<(Duration, String)> {
+    log.lock()
+        .unwrap()
+        .iter()
+        .filter(|(t, _)| *t >= t0)
+        .map(|(t, m)| (*t - t0, m.clone()))
+        .collect()
 }
 
 fn parts(
@@ -51,7 +75,7 @@ fn ready_after_every_device_settled_watchdog_fed_only_while_the_writer_turns() {
     let dir = tempfile::tempdir().unwrap();
     let socket_path = dir.path().join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
-    socket.set_nonblocking(true).unwrap();
+    let log = listen(socket);
     // Set before any thread of the daemon exists.
     std::env::set_var("NOTIFY_SOCKET", &socket_path);
     std::env::set_var("WATCHDOG_USEC", "400000");
@@ -83,21 +107,28 @@ fn ready_after_every_device_settled_watchdog_fed_only_while_the_writer_turns() {
     let daemon = runtime.spawn(async move { run(&daemon_config, daemon_parts, stop_rx).await });
     runtime.block_on(async {
         for seq in 0..100 {
-            port.write_all(&encode_imu(seq, [0.0; 3], [0.0; 3])).await.unwrap();
+            port.write_all(&encode_imu(seq, [0.0; 3], [0.0; 3]))
+                .await
+                .unwrap();
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
     });
     let _ = stop.send(true);
     let outcome = runtime.block_on(daemon).unwrap();
     assert_eq!(outcome.exit_code(), 0);
-    let mut messages = Vec::new();
-    drain(&socket, t0, &mut messages);
-    let ready: Vec<_> = messages.iter().filter(|(_, m)| m.contains("READY=1")).collect();
+    std::thread::sleep(Duration::from_millis(100));
+    let messages = since(&log, t0);
+    let ready: Vec<_> = messages
+        .iter()
+        .filter(|(_, m)| m.contains("READY=1"))
+        .collect();
     assert_eq!(ready.len(), 1, "{messages:?}");
     let watchdogs = messages.iter().filter(|(_, m)| m == "WATCHDOG=1").count();
     assert!(watchdogs >= 3, "fed every 200 ms for ~1 s: {messages:?}");
     assert!(
-        messages.last().is_some_and(|(_, m)| m.contains("STOPPING=1")),
+        messages
+            .last()
+            .is_some_and(|(_, m)| m.contains("STOPPING=1")),
         "{messages:?}"
     );
 
@@ -112,11 +143,12 @@ fn ready_after_every_device_settled_watchdog_fed_only_while_the_writer_turns() {
     let t1 = Instant::now();
     runtime.block_on(async {
         tokio::time::sleep(Duration::from_millis(300)).await;
-        port.write_all(&encode_imu(0, [0.0; 3], [0.0; 3])).await.unwrap();
+        port.write_all(&encode_imu(0, [0.0; 3], [0.0; 3]))
+            .await
+            .unwrap();
         tokio::time::sleep(Duration::from_millis(1300)).await;
     });
-    let mut wedged = Vec::new();
-    drain(&socket, t1, &mut wedged);
+    let wedged = since(&log, t1);
     let _ = stop.send(true);
     let _ = runtime.block_on(daemon);
     // The writer took the row at ~0.3 s and is stuck until ~1.8 s: after the 200 ms grace
@@ -127,7 +159,9 @@ fn ready_after_every_device_settled_watchdog_fed_only_while_the_writer_turns() {
         .collect();
     assert!(fed_while_wedged.is_empty(), "{wedged:?}");
     assert!(
-        wedged.iter().any(|(t, m)| m == "WATCHDOG=1" && *t < Duration::from_millis(300)),
+        wedged
+            .iter()
+            .any(|(t, m)| m == "WATCHDOG=1" && *t < Duration::from_millis(300)),
         "fed before the writer wedged: {wedged:?}"
     );
 }

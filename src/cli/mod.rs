@@ -12,8 +12,8 @@ pub fn init_logging() {
         .try_init();
 }
 
+pub mod decode;
 pub mod export;
 pub mod inspect;
 pub mod recover;
-pub mod decode;
 pub mod sim;
