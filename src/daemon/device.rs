@@ -173,6 +173,17 @@ impl DeviceTask {
                             &mut shutdown,
                         )
                         .await;
+                    // Frames the decoder held back (an epoch waiting for its cycle to close).
+                    let held = self.decode_chunk(
+                        &[],
+                        clock::now(),
+                        &mut decoding,
+                        &mapping,
+                        &mut gaps,
+                        &mut time_relation,
+                        true,
+                    );
+                    let _ = self.queue.send(held);
                     match end {
                         ConnectionEnd::Stop | ConnectionEnd::WriterGone => break,
                         ConnectionEnd::Vanished(why) => {
@@ -245,14 +256,16 @@ impl DeviceTask {
             };
             let at = clock::now();
             let bytes = &buffer[..n];
-            let batch = self.decode_chunk(bytes, at, decoding, mapping, gaps, time_relation);
+            let batch = self.decode_chunk(bytes, at, decoding, mapping, gaps, time_relation, false);
             if self.queue.send(batch).is_err() {
                 return ConnectionEnd::WriterGone;
             }
         }
     }
 
-    /// Decodes one read's bytes into a batch and updates the counters.
+    /// Decodes one read's bytes into a batch and updates the counters; with `finish`, takes
+    /// the frames the decoder held back because the input ended.
+    #[allow(clippy::too_many_arguments)]
     fn decode_chunk(
         &self,
         bytes: &[u8],
@@ -261,16 +274,22 @@ impl DeviceTask {
         mapping: &ImuMapping,
         gaps: &mut GapDetector,
         time_relation: &mut TimeRelationTracker,
+        finish: bool,
     ) -> Batch {
         let mut batch = Batch::new(self.index);
-        if self.raw_journal {
+        if self.raw_journal && !bytes.is_empty() {
             batch.raw = Some((at.mono_ns, bytes.to_vec()));
         }
         decoding.decoder.push(bytes);
         let mut new_gaps: Vec<Gap> = Vec::new();
         let mut ignored = 0u64;
         let gnss_device = self.spec.protocol.is_gnss();
-        while let Some(frame) = decoding.decoder.poll() {
+        let decoder = &mut decoding.decoder;
+        while let Some(frame) = if finish {
+            decoder.finish()
+        } else {
+            decoder.poll()
+        } {
             if matches!(frame, Frame::Gnss(_)) != gnss_device {
                 ignored += 1;
                 continue;

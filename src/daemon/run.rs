@@ -273,7 +273,10 @@ pub async fn run(
             )),
         },
     };
+    // Wait until the status task has really stopped: it must not write the file concurrently
+    // with the final report below.
     status_task.abort();
+    let _ = status_task.await;
     let mut tracker = StatusTracker::new(shared, writer_shared, clock::mono_ns());
     let mut report = tracker.report(clock::mono_ns(), chrono::Utc::now());
     report.state = "stopped".to_string();

@@ -7,6 +7,8 @@ use std::io;
 use std::path::PathBuf;
 use std::pin::Pin;
 
+use imulab_drivers::codec::gnss::{GnssDecoder, GnssFrame};
+use imulab_drivers::codec::Decoder;
 use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
 use tokio::io::AsyncRead;
 
@@ -25,6 +27,40 @@ pub trait FrameDecoder: Send {
     fn push(&mut self, bytes: &[u8]);
     fn poll(&mut self) -> Option<Frame>;
     fn stats(&self) -> DecoderStats;
+    /// The input ended (device vanished, shutdown): frames the decoder held back.
+    fn finish(&mut self) -> Option<Frame> {
+        None
+    }
+}
+
+/// The drivers' mixed NMEA + UBX decoder, yielding its merged navigation epochs. (Raw
+/// sentences and messages are not rows; they stay in the raw journal.)
+struct GnssEpochs(GnssDecoder);
+
+impl FrameDecoder for GnssEpochs {
+    fn push(&mut self, bytes: &[u8]) {
+        Decoder::push(&mut self.0, bytes);
+    }
+
+    fn poll(&mut self) -> Option<Frame> {
+        loop {
+            if let GnssFrame::Fix(epoch) = Decoder::poll(&mut self.0)? {
+                return Some(Frame::Gnss(epoch.fix));
+            }
+        }
+    }
+
+    fn stats(&self) -> DecoderStats {
+        Decoder::stats(&self.0)
+    }
+
+    fn finish(&mut self) -> Option<Frame> {
+        loop {
+            if let GnssFrame::Fix(epoch) = Decoder::finish(&mut self.0)? {
+                return Some(Frame::Gnss(epoch.fix));
+            }
+        }
+    }
 }
 
 /// Makes a fresh decoder (one per connection, so a partial frame from before a disconnect
@@ -105,13 +141,11 @@ pub fn connector_for(device: &DeviceSpec) -> Result<Box<dyn Connector>, String> 
 /// The decoder for a configured protocol, or why this build cannot decode it.
 pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
     match device.protocol {
-        Protocol::Nmea
-        | Protocol::Ubx
-        | Protocol::Gnss
-        | Protocol::Wit
-        | Protocol::Xbus
-        | Protocol::Csv
-        | Protocol::CanDbc => Err(format!(
+        // One decoder for all three: it takes NMEA, UBX or both interleaved.
+        Protocol::Nmea | Protocol::Ubx | Protocol::Gnss => Ok(Box::new(|| {
+            Box::new(GnssEpochs(GnssDecoder::new())) as Box<dyn FrameDecoder>
+        })),
+        Protocol::Wit | Protocol::Xbus | Protocol::Csv | Protocol::CanDbc => Err(format!(
             "protocol `{}` has no decoder in this build of imulab-drivers yet",
             device.protocol.name()
         )),
