@@ -1,10 +1,10 @@
 //! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
 
-pub mod replay;
-pub mod status;
 pub mod allan;
 pub mod compare;
+pub mod replay;
 pub mod report;
+pub mod status;
 
 /// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
 pub fn init_logging() {
