@@ -3,7 +3,7 @@
 
 mod imucan_support;
 
-use imucan_support::{assert_every_split, decode_all};
+use imucan_support::{assert_every_split, decode_all, decode_split};
 use imulab_drivers::codec::can::{CanFrame, CanKind};
 use imulab_drivers::codec::slcan::{bitrate_code, SlcanDecoder, SlcanEncoder, SlcanMessage};
 use imulab_drivers::codec::{Decoder, Encoder};
@@ -175,5 +175,19 @@ proptest! {
         let mut d = SlcanDecoder::new();
         let frames = decode_all(&mut d, &bytes);
         prop_assert_eq!(d.stats().frames_ok, frames.len() as u64);
+    }
+}
+
+#[test]
+fn long_line_ended_by_bel_counts_the_same_however_split() {
+    let mut input = vec![b'x'; 40];
+    input.push(0x07);
+    input.extend_from_slice(b"t1230\r");
+    let (_, whole) = decode_split(SlcanDecoder::new(), &input, input.len());
+    assert_eq!(whole.stats().frames_too_long, 1);
+    for split in 0..=input.len() {
+        let (frames, d) = decode_split(SlcanDecoder::new(), &input, split);
+        assert_eq!(frames.len(), 2, "split {split}");
+        assert_eq!(d.stats(), whole.stats(), "split {split}");
     }
 }

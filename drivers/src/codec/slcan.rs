@@ -168,7 +168,11 @@ impl Decoder for SlcanDecoder {
                 return None;
             };
             if data[end] == BEL {
-                if end > 0 {
+                if end > MAX_LINE {
+                    // Counted like a long line seen in pieces, so splits do not matter.
+                    self.stats.frames_too_long += 1;
+                    self.stats.bytes_skipped += end as u64;
+                } else if end > 0 {
                     // Bytes before a BEL with no CR: an unterminated line, dropped.
                     self.stats.frames_malformed += 1;
                     self.stats.bytes_skipped += end as u64;
