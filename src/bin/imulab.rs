@@ -35,6 +35,8 @@ enum Command {
     Report(imulab::cli::report::ReportArgs),
     /// Datasheet-style comparison of two or more IMUs.
     Compare(imulab::cli::compare::CompareArgs),
+    /// The bench workflow end to end on built-in simulated sensors.
+    Demo(imulab::cli::demo::DemoArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -51,6 +53,7 @@ fn main() -> std::process::ExitCode {
         Command::Allan(args) => imulab::cli::allan::run(args),
         Command::Report(args) => imulab::cli::report::run(args),
         Command::Compare(args) => imulab::cli::compare::run(args),
+        Command::Demo(args) => imulab::cli::demo::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

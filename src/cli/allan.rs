@@ -245,14 +245,16 @@ fn time_scale(unit: &str) -> anyhow::Result<f64> {
     })
 }
 
-/// Opens an input path: a session directory or a plain file.
-pub fn open_input(path: &Path, args: &AnalysisArgs) -> anyhow::Result<Box<dyn SampleSource>> {
+/// Opens an input path: a session directory (one IMU of it: `device`, or its only one) or a
+/// plain file.
+pub fn open_input(
+    path: &Path,
+    device: Option<&str>,
+    args: &AnalysisArgs,
+) -> anyhow::Result<Box<dyn SampleSource>> {
     if path.is_dir() {
         return Ok(Box::new(SessionSource::open(
-            path,
-            args.device.as_deref(),
-            args.from,
-            args.to,
+            path, device, args.from, args.to,
         )?));
     }
     if args.from.is_some() || args.to.is_some() {
@@ -294,6 +296,33 @@ fn session_axes(args: &AnalysisArgs) -> Vec<String> {
         })
 }
 
+/// Pairs each input with the IMU to read from it: `--device` when given, otherwise every IMU
+/// of a session (so `imulab report SESSION` compares all of them), and none for plain files.
+fn expand_sessions(
+    inputs: &[PathBuf],
+    args: &AnalysisArgs,
+) -> anyhow::Result<Vec<(PathBuf, Option<String>)>> {
+    let mut out = Vec::new();
+    for path in inputs {
+        if !path.is_dir() || args.device.is_some() {
+            out.push((path.clone(), args.device.clone()));
+            continue;
+        }
+        let session = crate::store::Session::open(path)?;
+        let imus: Vec<String> = session
+            .devices()
+            .iter()
+            .filter(|d| d.kind == crate::store::DeviceKind::Imu)
+            .map(|d| d.name.clone())
+            .collect();
+        if imus.is_empty() {
+            bail!("{}: this session has no IMU to analyse", path.display());
+        }
+        out.extend(imus.into_iter().map(|d| (path.clone(), Some(d))));
+    }
+    Ok(out)
+}
+
 /// One opened input with its resolved channels.
 struct PlannedInput {
     path: PathBuf,
@@ -316,8 +345,9 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
     }
     let sensor = args.sensor.or(args.units.sensor());
     let mut plan: Vec<PlannedInput> = Vec::new();
-    for path in inputs {
-        let source = open_input(path, args)?;
+    for (path, device) in expand_sessions(inputs, args)? {
+        let path = &path;
+        let source = open_input(path, device.as_deref(), args)?;
         let is_session = path.is_dir();
         if is_session && (args.rate.is_some() || args.time_column.is_some()) {
             bail!(

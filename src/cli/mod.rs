@@ -17,6 +17,7 @@ pub fn init_logging() {
 }
 
 pub mod decode;
+pub mod demo;
 pub mod export;
 pub mod inspect;
 pub mod recover;
