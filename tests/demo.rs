@@ -11,7 +11,11 @@ fn demo_recovers_the_bench_presets_white_noise() {
         .arg(out.path())
         .output()
         .unwrap();
-    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
     let stdout = String::from_utf8_lossy(&status.stdout);
     assert!(stdout.contains("dear is"), "{stdout}");
     assert!(out.path().join("report.html").is_file());
