@@ -58,3 +58,51 @@ async fn vcan0_loopback() {
     let missing = SocketCanTransport::open("imulabnocan0", None).expect_err("no such interface");
     assert!(missing.is_retryable());
 }
+
+/// Brings a fresh vcan interface up, reads from it through the transport, takes the link
+/// down and expects `Vanished` promptly (the socketcan crate's own tokio reader never wakes
+/// there). Runs where vcan0 exists (the QEMU guest), skips elsewhere.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn link_down_while_waiting_is_vanished_not_a_hang() {
+    if !std::path::Path::new("/sys/class/net/vcan0").exists() {
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
+            "link_down_while_waiting_is_vanished_not_a_hang: SKIPPED: no vcan (this kernel has \
+             no CAN); run it in the QEMU guest of docs/vcan.md"
+        );
+        return;
+    }
+    let ip = |args: &[&str]| {
+        let status = std::process::Command::new("ip")
+            .args(args)
+            .status()
+            .expect("running ip");
+        assert!(status.success(), "ip {args:?} failed");
+    };
+    let iface = "vcandrv0";
+    ip(&["link", "add", "dev", iface, "type", "vcan"]);
+    ip(&["link", "set", "up", iface]);
+    let mut rx = SocketCanTransport::open(iface, None).expect("open rx");
+    let mut tx = SocketCanTransport::open(iface, None).expect("open tx");
+    let frame = CanFrame::data(0x123, false, &[1, 2, 3]).expect("valid");
+    tx.send(&frame).await.expect("send");
+    assert_eq!(rx.recv().await.expect("recv"), frame);
+    let waiting = tokio::spawn(async move { rx.recv().await });
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    ip(&["link", "set", "down", iface]);
+    let result = tokio::time::timeout(Duration::from_secs(10), waiting)
+        .await
+        .expect("the waiting reader hung after the link went down")
+        .expect("reader task");
+    let error = result.expect_err("a read on a downed link must fail");
+    assert!(error.is_retryable(), "{error}");
+    assert!(
+        matches!(
+            error,
+            imulab_drivers::transport::TransportError::Vanished { .. }
+        ),
+        "{error}"
+    );
+    ip(&["link", "del", "dev", iface]);
+}

@@ -1,12 +1,21 @@
-//! SocketCAN (Linux `can0`, `vcan0`, ...) through the `socketcan` crate's tokio socket,
+//! SocketCAN (Linux `can0`, `vcan0`, ...) through the `socketcan` crate's raw socket,
 //! classic and FD frames, converted to and from [`CanFrame`]. An interface that goes down or
 //! is removed surfaces as [`TransportError::Vanished`].
+//!
+//! Why not `socketcan::tokio::CanFdSocket::read_frame`: it waits for readability only, and a
+//! link going down makes the kernel raise a socket error without making the socket readable,
+//! so a reader waiting there never wakes (pinned by `tests/socketcan_guest.rs` in the QEMU
+//! guest). Here the socket is registered with tokio's `AsyncFd` and waited on for
+//! `READABLE | ERROR`, so the read returns `ENETDOWN` at once.
 
 use std::time::Duration;
 
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
+
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanRemoteFrame, EmbeddedFrame,
-    ExtendedId, Frame, Id, StandardId,
+    ExtendedId, Frame, Id, Socket, StandardId,
 };
 
 use socketcan::id::FdFlags;
@@ -16,7 +25,7 @@ use crate::codec::can::{CanFrame, CanKind};
 
 /// An open CAN (FD-capable) raw socket bound to one interface.
 pub struct SocketCanTransport {
-    socket: socketcan::tokio::CanFdSocket,
+    socket: AsyncFd<socketcan::CanFdSocket>,
     interface: String,
     idle_timeout: Option<Duration>,
 }
@@ -86,11 +95,16 @@ pub fn to_socketcan(frame: &CanFrame) -> Result<CanAnyFrame, String> {
 impl SocketCanTransport {
     /// Opens a raw CAN FD socket on `interface`. Must run inside a tokio runtime.
     pub fn open(interface: &str, idle_timeout: Option<Duration>) -> Result<Self, TransportError> {
+        let open_error = |source| TransportError::Open {
+            device: interface.to_string(),
+            source,
+        };
+        let socket = socketcan::CanFdSocket::open(interface).map_err(open_error)?;
+        socket.set_nonblocking(true).map_err(open_error)?;
+        // SAFETY: the CanFdSocket owns its descriptor and keeps it open, unchanged, until it
+        // is dropped; the AsyncFd owns the CanFdSocket and deregisters before dropping it.
         let socket =
-            socketcan::tokio::CanFdSocket::open(interface).map_err(|e| TransportError::Open {
-                device: interface.to_string(),
-                source: e,
-            })?;
+            unsafe { AsyncFd::register(socket) }.map_err(|e| open_error(e.into_parts().1))?;
         Ok(SocketCanTransport {
             socket,
             interface: interface.to_string(),
@@ -100,7 +114,9 @@ impl SocketCanTransport {
 
     /// Receives the next frame.
     pub async fn recv(&mut self) -> Result<CanFrame, TransportError> {
-        let read = self.socket.read_frame();
+        let read = self
+            .socket
+            .async_io(Interest::READABLE | Interest::ERROR, |s| s.read_frame());
         let result = match self.idle_timeout {
             Some(t) => {
                 tokio::time::timeout(t, read)
@@ -123,8 +139,11 @@ impl SocketCanTransport {
     pub async fn send(&mut self, frame: &CanFrame) -> Result<(), TransportError> {
         let frame = to_socketcan(frame).map_err(TransportError::Config)?;
         self.socket
-            .write_frame(&frame)
+            .async_io(Interest::WRITABLE | Interest::ERROR, |s| {
+                s.write_frame(&frame)
+            })
             .await
+            .map(|_| ())
             .map_err(|e| TransportError::from_io(&self.interface, e))
     }
 }
