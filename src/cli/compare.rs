@@ -10,11 +10,12 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example: imulab compare bench_a.csv bench_b.csv --time-column t --units rad/s --html compare.html"
+    after_help = "Examples:\n  imulab compare bench_a.csv bench_b.csv --time-column t --units rad/s --html compare.html\n  imulab compare /data/chamber            # every IMU of a session"
 )]
 pub struct CompareArgs {
-    /// Two or more inputs, one device each.
-    #[arg(required = true, num_args = 2..)]
+    /// Inputs: plain files (one device each) or sessions (every IMU in them); two or more
+    /// devices in all.
+    #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     #[command(flatten)]
     pub analysis: AnalysisArgs,
@@ -24,15 +25,21 @@ pub struct CompareArgs {
 }
 
 pub fn run(mut args: CompareArgs) -> anyhow::Result<()> {
-    if args.inputs.len() < 2 {
-        bail!("compare needs at least two inputs");
-    }
     if !args.analysis.kind.is_allan_variance() {
         bail!("compare fits the noise model: use --kind adev, oadev or totdev");
     }
     args.analysis.fit = true;
     args.analysis.device = None;
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
+    let mut devices: Vec<&str> = report.axes.iter().map(|a| a.device.as_str()).collect();
+    devices.sort_unstable();
+    devices.dedup();
+    if devices.len() < 2 {
+        bail!(
+            "compare needs at least two devices; the inputs hold {}",
+            devices.join(", ")
+        );
+    }
     let axes: Vec<&AxisResult> = report.axes.iter().collect();
     print!("{}", datasheet_table_text(&axes));
     if let Some(path) = &args.html {
