@@ -71,8 +71,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     super::inspect::run(sub_args(&[session_s])?)?;
 
     stage(3, "Allan deviation and noise-term fit per IMU and axis");
-    let analysis: super::allan::AnalysisArgs = sub_args(&[])?;
-    let mut analysis = analysis;
+    let mut analysis: super::allan::AnalysisArgs = sub_args(&[])?;
     analysis.fit = true;
     let report = super::allan::analyse_inputs(std::slice::from_ref(&session), &analysis)?;
     std::fs::write(
