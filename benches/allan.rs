@@ -211,7 +211,7 @@ fn main() {
     );
 
     // 5. Coverage of the fit's 95 % term intervals on independent simulated runs
-    //    (100 s crossover regime of tests/allan_fit.rs: 600 000 samples at 100 Hz).
+    //    (100 s crossover regime of tests/allan/fit.rs: 600 000 samples at 100 Hz).
     let mut covered = [0usize; 2];
     let mut identified = [0usize; 2];
     let runs = 100;

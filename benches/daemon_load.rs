@@ -11,7 +11,7 @@
 //! 1 ms bursts; a stream that cannot be read fast enough pushes back on the generator, which
 //! then falls behind its schedule: that counts as not holding the rate.
 
-#[path = "../tests/common/mod.rs"]
+#[path = "../tests/daemon/common/mod.rs"]
 mod common;
 
 use std::time::{Duration, Instant};

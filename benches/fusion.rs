@@ -4,7 +4,7 @@
 //! Prints markdown tables (copied into docs/bench/fusion.md). Run times are the thread's CPU
 //! time (CLOCK_THREAD_CPUTIME_ID), so a busy shared machine does not inflate them.
 
-#[path = "../tests/fusion_support/mod.rs"]
+#[path = "../tests/fusion/support.rs"]
 mod fusion_support;
 
 use fusion_support::{mems_errors, nav_from, simulate, SimData};

@@ -5,7 +5,7 @@
 //!
 //! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings).
 
-#[path = "../tests/sim_support/mod.rs"]
+#[path = "../tests/sim/support.rs"]
 mod sim_support;
 
 use std::path::Path;

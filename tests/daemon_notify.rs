@@ -3,6 +3,7 @@
 //! STOPPING=1 at shutdown. The test binds the notification socket itself and points
 //! NOTIFY_SOCKET/WATCHDOG_USEC at it (own test binary: the environment is process-wide).
 
+#[path = "daemon/common/mod.rs"]
 mod common;
 
 use std::os::unix::net::UnixDatagram;

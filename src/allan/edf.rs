@@ -278,7 +278,7 @@ mod tests {
 
     #[test]
     fn overlapping_estimators_have_more_degrees_of_freedom() {
-        // Stable32's PHASE.DAT tables (see tests/allan_reference.rs) pin the absolute values;
+        // Stable32's PHASE.DAT tables (see tests/allan/reference.rs) pin the absolute values;
         // here the structure: equal at m = 1, overlapping ≫ non-overlapping at m > 1.
         let adev1 = edf(DeviationKind::Adev, 0, 1, 1001).unwrap();
         let oadev1 = edf(DeviationKind::Oadev, 0, 1, 1001).unwrap();

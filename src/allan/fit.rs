@@ -248,7 +248,7 @@ fn weighted_system(
 
 /// Neighbouring points of overlapping estimators are strongly correlated, so the
 /// independent-point covariance understates the uncertainty; doubling it covers the
-/// simulated cases in `tests/allan_fit.rs`.
+/// simulated cases in `tests/allan/fit.rs`.
 const CORRELATION_INFLATION: f64 = 2.0;
 
 /// Exact NNLS with model selection for few parameters: least squares on every subset of

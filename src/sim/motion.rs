@@ -7,7 +7,7 @@
 //! acceleration are continuous and the IMU output has no jumps. Velocity, heading and pitch
 //! are closed-form functions of time; position is integrated from them with a classical
 //! Runge-Kutta step between samples, so a noise-free strapdown mechanisation of `gyro_b` and
-//! `accel_b` reproduces the trajectory (see `tests/fusion_mechanisation.rs`).
+//! `accel_b` reproduces the trajectory (see `tests/fusion/mechanisation.rs`).
 //!
 //! The vehicle has zero roll and no side-slip: the body x axis points along the velocity
 //! (pitch = flight-path angle while climbing), y to the right, z down (FRD).

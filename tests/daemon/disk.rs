@@ -3,12 +3,10 @@
 //! space falls under the reserve. The daemon must close the session cleanly, say why and exit
 //! non-zero, and every chunk file must read back without problems.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use common::{encode_imu, LineDecoder, QueueConnector};
+use crate::common::{encode_imu, LineDecoder, QueueConnector};
 use imulab::daemon::config::parse;
 use imulab::daemon::session::open_session_sink;
 use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};

@@ -1,11 +1,9 @@
 //! The daemon writing a real session through the session store: rows, events, the raw
 //! journal and the manifest read back with the store's reader, every chunk file finalised.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
+use crate::common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
 use imulab::daemon::config::parse;
 use imulab::daemon::session::open_session_sink;
 use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};

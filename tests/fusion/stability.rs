@@ -1,9 +1,7 @@
 //! Long-run stability: a 24 h static replay keeps the covariance symmetric and positive
 //! definite; hours without GNSS never produce a NaN; bad inputs are rejected and counted.
 
-mod fusion_support;
-
-use fusion_support::{nav_from, simulate, ImuErrors};
+use crate::support::{nav_from, simulate, ImuErrors};
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::mechanisation::ImuInput;
 use imulab::fusion::navigator::{replay, GnssObservation, Navigator, ReplayOptions, ReplayResult};

@@ -2,14 +2,12 @@
 //! symlink, as udev gives), the pty is closed mid-run and a new one appears under the same
 //! name: a disconnect event, a reconnect event, and the data resume in the same session.
 
-mod common;
-
 use std::io::Write;
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use common::{encode_imu, LineDecoder};
+use crate::common::{encode_imu, LineDecoder};
 use imulab::daemon::config::parse;
 use imulab::daemon::sink::MemorySink;
 use imulab::daemon::source::{connector_for, DecoderFactory, FrameDecoder};

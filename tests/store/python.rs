@@ -2,14 +2,11 @@
 //! Rust wrote, with a live `.partial` file, raw journal, truth and events, and compares every
 //! value. Skips with a message when Python or the packages cannot be had.
 
-#[path = "store_common.rs"]
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use common::*;
+use crate::common::*;
 use imulab::store::{
     EventKind, EventRecord, SessionWriter, TruthImuRecord, TruthNavRecord, WriterOptions,
 };

@@ -3,9 +3,7 @@
 //! --kf-gins` command; the navresult output compares with the truth line by line. A public
 //! dataset in that layout under the external data directory is replayed when present.
 
-mod fusion_support;
-
-use fusion_support::{city_drive, mems_errors, simulate, SimData};
+use crate::support::{city_drive, mems_errors, simulate, SimData};
 use imulab::fusion::kfgins::{self, format_nav_line, KfGinsConfig};
 use imulab::fusion::mechanisation::{ImuInput, NavState};
 use imulab::fusion::metrics::{errors, summarise};
@@ -69,7 +67,7 @@ fn write_dataset(dir: &Path) -> SimData {
     std::fs::write(dir.join("gnss.txt"), gnss).expect("write gnss");
     let mut truth = String::new();
     for t in d.truth.iter().step_by(10) {
-        let mut nav = fusion_support::nav_from(t);
+        let mut nav = crate::support::nav_from(t);
         nav.t_s += SOW0;
         writeln!(truth, "{}", format_nav_line(WEEK, &nav)).expect("fmt");
     }

@@ -1,10 +1,7 @@
 //! Writes a session with rotation and reads it back through `Session`: values, block
 //! boundaries across files, time ranges, events, summaries and the manifest.
 
-#[path = "store_common.rs"]
-mod common;
-
-use common::*;
+use crate::common::*;
 use imulab::store::{layout, Session, TimeRange};
 
 #[test]

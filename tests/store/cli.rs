@@ -1,13 +1,10 @@
 //! `imulab inspect/export/recover` on good and bad sessions, through the real binary:
 //! reported figures, CSV contents, and one-line errors naming the file for bad input.
 
-#[path = "store_common.rs"]
-mod common;
-
 use std::path::Path;
 use std::process::Command;
 
-use common::*;
+use crate::common::*;
 use imulab::store::{EventKind, EventRecord, SessionWriter};
 
 fn imulab(args: &[&str]) -> (bool, String, String) {

@@ -3,11 +3,9 @@
 //! tolerances of four standard errors derived from the equivalent degrees of freedom of the
 //! data length used.
 
-mod sim_support;
-
+use crate::support::{edf, fit_terms, log_factors, oadev, tolerance, Noise};
 use imulab::sim::imu_model::{Channels, ImuSimulator, ImuSpec};
 use nalgebra::Vector3;
-use sim_support::{edf, fit_terms, log_factors, oadev, tolerance, Noise};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 const G0: f64 = 9.806_65;

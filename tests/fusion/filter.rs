@@ -1,9 +1,7 @@
 //! The error-state filter on simulated drives: NEES consistency, bias (and scale) convergence,
 //! outage drift inside the predicted 3σ, the RTS smoother's gain, alignment from GNSS track.
 
-mod fusion_support;
-
-use fusion_support::{city_drive, mems_errors, nav_from, simulate, SimData};
+use crate::support::{city_drive, mems_errors, nav_from, simulate, SimData};
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::metrics::{errors, summarise, ErrorSummary};
 use imulab::fusion::navigator::{replay, ReplayOptions, ReplayResult};

@@ -4,13 +4,11 @@
 //! status, a slow writer's losses are counted and logged, and the disk reserve stops the
 //! session cleanly with a non-zero exit.
 
-mod common;
-
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
+use crate::common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
 use imulab::daemon::config::{parse, CheckedConfig};
 use imulab::daemon::sink::{MemorySink, MemoryStore};
 use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};

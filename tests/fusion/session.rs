@@ -2,9 +2,7 @@
 //! MEMS IMU (rates), a GNSS receiver with its accuracies, and the truth trajectory; the replay
 //! aligns itself, and its errors against the stored truth must be small and consistent.
 
-mod fusion_support;
-
-use fusion_support::{city_drive, mems_errors};
+use crate::support::{city_drive, mems_errors};
 use imulab::sim::motion::MotionGenerator;
 use imulab::store::{
     DeviceInfo, DeviceKind, GnssRecord, ImuRecord, Manifest, SessionWriter, TruthNavRecord,

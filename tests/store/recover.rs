@@ -2,14 +2,11 @@
 //! make the partial file readable, completed chunks must be intact, and at most one flush
 //! interval of data may be lost. The child is this same test binary, re-run with an env var.
 
-#[path = "store_common.rs"]
-mod common;
-
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::*;
+use crate::common::*;
 use imulab::store::{recover, Session, SessionWriter, TimeRange, WriterOptions};
 
 const CHILD_ENV: &str = "IMULAB_STORE_TEST_CHILD_DIR";
@@ -47,7 +44,7 @@ fn kill_9_then_recover_loses_at_most_one_flush_interval() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("killed");
     let mut child = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "child_writer", "--nocapture", "--test-threads=1"])
+        .args(["--exact", "recover::child_writer", "--nocapture", "--test-threads=1"])
         .env(CHILD_ENV, &dir)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())

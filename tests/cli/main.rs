@@ -1,0 +1,4 @@
+//! cli integration tests, one binary (fewer, smaller links).
+
+mod decode;
+mod demo;

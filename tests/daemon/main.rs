@@ -1,0 +1,8 @@
+//! daemon integration tests, one binary (fewer, smaller links).
+
+mod common;
+mod config;
+mod disk;
+mod pipeline;
+mod pty;
+mod store;

@@ -1,0 +1,9 @@
+//! fusion integration tests, one binary (fewer, smaller links).
+
+mod filter;
+mod fuzz;
+mod kfgins;
+mod mechanisation;
+mod session;
+mod stability;
+mod support;

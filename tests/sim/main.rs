@@ -1,0 +1,6 @@
+//! sim integration tests, one binary (fewer, smaller links).
+
+mod allan;
+mod scenes;
+mod session;
+mod support;
