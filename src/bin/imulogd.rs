@@ -58,7 +58,8 @@ fn main() -> ExitCode {
     }
 }
 
-/// Devices this build cannot open or decode, as one message.
+/// Devices that cannot run (e.g. a DBC file that is missing or does not hold the mapped
+/// signals), as one message.
 fn unsupported(config: &config::CheckedConfig) -> Result<(), String> {
     let problems: Vec<String> = config
         .devices
@@ -114,7 +115,7 @@ fn check_config(path: &Path) -> ExitCode {
     match unsupported(&config) {
         Ok(()) => ExitCode::SUCCESS,
         Err(problems) => {
-            eprintln!("imulogd: valid, but this build cannot run it: {problems}");
+            eprintln!("imulogd: valid, but it cannot run: {problems}");
             ExitCode::from(EXIT_BAD_CONFIG)
         }
     }

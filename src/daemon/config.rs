@@ -10,6 +10,7 @@ use std::collections::HashSet;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use imulab_drivers::codec::csv_line::CsvLineConfig;
 use nalgebra::Matrix3;
 
 use crate::store::manifest::MAX_DEVICE_NAME_LEN;
@@ -221,17 +222,14 @@ pub const SLCAN_BITRATES: [u32; 9] = [
     10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000,
 ];
 
-/// `[device.dbc]`: which DBC signals carry the IMU quantities.
+/// `[device.dbc]`: the DBC file of a CAN IMU and the signal mapping (TOML, the drivers'
+/// format: `fixtures/imu_can_mapping.toml`, `docs/protocols-imu-can.md`). Relative paths are
+/// relative to the configuration file.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DbcConfig {
     pub file: PathBuf,
-    /// Signal names for gyro x, y, z (`MESSAGE.SIGNAL`).
-    pub gyro: [String; 3],
-    /// Signal names for accel x, y, z.
-    pub accel: [String; 3],
-    #[serde(default)]
-    pub temp: Option<String>,
+    pub mapping: PathBuf,
 }
 
 /// `[device.axes]`: how the sensor's axes map into the body frame. Give one of the two.
@@ -327,6 +325,10 @@ pub struct DeviceConfig {
     pub slcan: Option<SlcanConfig>,
     #[serde(default)]
     pub dbc: Option<DbcConfig>,
+    /// The line format of a `csv` device (the drivers' [`CsvLineConfig`]); default layout
+    /// `time,gx,gy,gz,ax,ay,az,temp` in SI units when absent.
+    #[serde(default)]
+    pub csv: Option<CsvLineConfig>,
     #[serde(default)]
     pub axes: Option<AxesConfig>,
     #[serde(default)]
@@ -383,6 +385,7 @@ pub struct DeviceSpec {
     pub gyro_scale: f64,
     pub accel_scale: f64,
     pub dbc: Option<DbcConfig>,
+    pub csv: Option<CsvLineConfig>,
     pub retry_initial_ms: u64,
     pub retry_max_ms: u64,
 }
@@ -417,7 +420,17 @@ pub fn load(path: &Path) -> Result<CheckedConfig, ConfigError> {
             hint: Some("give the path of an existing, readable TOML file".into()),
         }],
     })?;
-    parse(&text, &source_name)
+    let mut checked = parse(&text, &source_name)?;
+    // DBC files are named relative to the configuration file, not the working directory
+    // (which is `/` under systemd).
+    let base = path.parent().unwrap_or(Path::new(""));
+    for device in &mut checked.devices {
+        if let Some(dbc) = &mut device.dbc {
+            dbc.file = base.join(&dbc.file);
+            dbc.mapping = base.join(&dbc.mapping);
+        }
+    }
+    Ok(checked)
 }
 
 /// Parses and validates configuration text; `source_name` is used in the error.
@@ -673,6 +686,7 @@ fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<
 
     let transport = validate_transport(d, path, issues);
     validate_dbc(d, path, issues);
+    validate_csv(d, path, issues);
     let body_from_sensor = match &d.axes {
         None => Matrix3::identity(),
         Some(axes) => validate_axes(axes, &format!("{path}.axes"), issues),
@@ -691,6 +705,7 @@ fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<
         gyro_scale: units.gyro.to_si(),
         accel_scale: units.accel.to_si(),
         dbc: d.dbc.clone(),
+        csv: d.csv.clone(),
         retry_initial_ms: d.retry_initial_ms,
         retry_max_ms: d.retry_max_ms,
     })
@@ -810,7 +825,7 @@ fn validate_dbc(d: &DeviceConfig, path: &str, issues: &mut Issues) {
         (None, true) => issues.add(
             format!("{path}.dbc"),
             "protocol `can-dbc` needs a DBC mapping",
-            "add [device.dbc] with file, gyro = [3 signals] and accel = [3 signals]",
+            "add dbc = { file = \"imu.dbc\", mapping = \"imu_mapping.toml\" }",
         ),
         (Some(_), false) => issues.add(
             format!("{path}.dbc"),
@@ -818,32 +833,47 @@ fn validate_dbc(d: &DeviceConfig, path: &str, issues: &mut Issues) {
             "remove [device.dbc] or set protocol = \"can-dbc\"",
         ),
         (Some(dbc), true) => {
-            if dbc.file.as_os_str().is_empty() {
-                issues.add(
-                    format!("{path}.dbc.file"),
-                    "is empty",
-                    "path of the DBC file",
-                );
-            }
-            let signals = dbc
-                .gyro
-                .iter()
-                .chain(dbc.accel.iter())
-                .chain(dbc.temp.iter());
-            for signal in signals {
-                let well_formed = signal
-                    .split_once('.')
-                    .is_some_and(|(m, s)| !m.is_empty() && !s.is_empty());
-                if !well_formed {
+            for (key, file) in [("file", &dbc.file), ("mapping", &dbc.mapping)] {
+                if file.as_os_str().is_empty() {
                     issues.add(
-                        format!("{path}.dbc"),
-                        format!("signal `{signal}` is not MESSAGE.SIGNAL"),
-                        "name each signal with its message, e.g. \"IMU_RATE.GyroX\"",
+                        format!("{path}.dbc.{key}"),
+                        "is empty",
+                        "path of the DBC file and of its signal mapping (TOML)",
                     );
                 }
             }
         }
         (None, false) => {}
+    }
+}
+
+fn validate_csv(d: &DeviceConfig, path: &str, issues: &mut Issues) {
+    match (&d.csv, d.protocol) {
+        (Some(csv), Protocol::Csv) => {
+            if let Err(e) = csv.validate() {
+                // The drivers' message starts with the key (`csv.separator: ...`).
+                let (key, message) = match e.split_once(": ") {
+                    Some((key, message)) if key.starts_with("csv") => {
+                        (key.to_string(), message.to_string())
+                    }
+                    _ => ("csv".to_string(), e.clone()),
+                };
+                issues.add(
+                    format!("{path}.{key}"),
+                    message,
+                    "see [device.csv] in docs/daemon.md: separator, comment_prefix, time, gyro, accel, temp, status",
+                );
+            }
+        }
+        (Some(_), protocol) => issues.add(
+            format!("{path}.csv"),
+            format!(
+                "protocol `{}` does not use a CSV line format",
+                protocol.name()
+            ),
+            "remove [device.csv] or set protocol = \"csv\"",
+        ),
+        (None, _) => {}
     }
 }
 

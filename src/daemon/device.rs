@@ -7,8 +7,9 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use imulab_drivers::codec::candump::{CandumpEncoder, CandumpRecord, IfName};
+use imulab_drivers::codec::Encoder;
 use imulab_drivers::types::DecoderStats;
-use tokio::io::AsyncReadExt;
 use tokio::sync::{mpsc, watch};
 
 use crate::store::{EventKind, EventRecord};
@@ -18,7 +19,7 @@ use super::clock::{self, Arrival};
 use super::config::DeviceSpec;
 use super::gap::{Gap, GapDetector};
 use super::mapping::{gnss_record, ImuMapping};
-use super::source::{ByteStream, Connector, DecoderFactory, Frame, FrameDecoder};
+use super::source::{Connector, DecoderFactory, Frame, FrameDecoder, Input, Link, Received};
 use super::status::{DeviceShared, DeviceState};
 use super::timerel::{gps_time_ns, TimeRelationTracker};
 use super::writer::{Batch, QueueSender};
@@ -67,8 +68,10 @@ async fn stopped(rx: &mut watch::Receiver<bool>) {
 /// Per-connection decoding state.
 struct Decoding {
     decoder: Box<dyn FrameDecoder>,
-    /// Counters of the previous connections' decoders.
+    /// Counters of the previous connections' decoders and links.
     base: DecoderStats,
+    /// Counters of the current link's own decoding (an slcan adapter's lines).
+    link: DecoderStats,
     /// Counters already turned into events.
     reported: DecoderStats,
 }
@@ -77,6 +80,7 @@ impl Decoding {
     fn total(&self) -> DecoderStats {
         let mut total = self.base;
         total.add(&self.decoder.stats());
+        total.add(&self.link);
         total
     }
 }
@@ -117,6 +121,7 @@ impl DeviceTask {
         let mut decoding = Decoding {
             decoder: (self.decoders)(),
             base: DecoderStats::default(),
+            link: DecoderStats::default(),
             reported: DecoderStats::default(),
         };
         let mut ever_connected = false;
@@ -161,6 +166,7 @@ impl DeviceTask {
                     failed_attempts = 0;
                     // A fresh decoder: a frame cut by the disconnect is not glued to new bytes.
                     decoding.base = decoding.total();
+                    decoding.link = DecoderStats::default();
                     decoding.decoder = (self.decoders)();
                     gaps.restart();
                     let end = self
@@ -175,7 +181,7 @@ impl DeviceTask {
                         .await;
                     // Frames the decoder held back (an epoch waiting for its cycle to close).
                     let held = self.decode_chunk(
-                        &[],
+                        Input::Bytes(&[]),
                         clock::now(),
                         &mut decoding,
                         &mapping,
@@ -235,7 +241,7 @@ impl DeviceTask {
 
     async fn read_connection(
         &self,
-        mut stream: ByteStream,
+        mut link: Box<dyn Link>,
         decoding: &mut Decoding,
         mapping: &ImuMapping,
         gaps: &mut GapDetector,
@@ -244,21 +250,66 @@ impl DeviceTask {
     ) -> ConnectionEnd {
         let mut buffer = vec![0u8; READ_BUFFER_BYTES];
         loop {
-            let read = tokio::select! {
-                r = stream.read(&mut buffer) => r,
+            let received = tokio::select! {
+                r = link.receive(&mut buffer) => r,
                 _ = stopped(shutdown) => return ConnectionEnd::Stop,
             };
-            let n = match read {
-                Ok(0) => return ConnectionEnd::Vanished("end of stream".to_string()),
-                Ok(n) => n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(e) => return ConnectionEnd::Vanished(e.to_string()),
-            };
             let at = clock::now();
-            let bytes = &buffer[..n];
-            let batch = self.decode_chunk(bytes, at, decoding, mapping, gaps, time_relation, false);
+            decoding.link = link.stats();
+            let batch = match received {
+                Ok(Received::Bytes(n)) => {
+                    let bytes = buffer.get(..n).unwrap_or(&buffer[..]);
+                    self.decode_chunk(
+                        Input::Bytes(bytes),
+                        at,
+                        decoding,
+                        mapping,
+                        gaps,
+                        time_relation,
+                        false,
+                    )
+                }
+                Ok(Received::Can(frame)) => self.decode_chunk(
+                    Input::Can(&frame),
+                    at,
+                    decoding,
+                    mapping,
+                    gaps,
+                    time_relation,
+                    false,
+                ),
+                Err(e) if e.is_retryable() => return ConnectionEnd::Vanished(e.to_string()),
+                // Not a vanish (an I/O or protocol error on an open device): reopening is
+                // still the only way to carry on, so it is retried the same way.
+                Err(e) => return ConnectionEnd::Vanished(format!("error: {e}")),
+            };
             if self.queue.send(batch).is_err() {
                 return ConnectionEnd::WriterGone;
+            }
+        }
+    }
+
+    /// The raw journal entry for one input: the bytes as read, or a CAN frame as one candump
+    /// log line (the format `imulab decode --protocol candump --dbc` reads back).
+    fn journal_entry(&self, input: Input<'_>, at: Arrival) -> Option<Vec<u8>> {
+        match input {
+            Input::Bytes([]) => None,
+            Input::Bytes(bytes) => Some(bytes.to_vec()),
+            Input::Can(frame) => {
+                let interface = match &self.spec.transport {
+                    super::config::Transport::Can(c) => c.interface.as_str(),
+                    _ => "slcan0",
+                };
+                let record = CandumpRecord {
+                    timestamp_us: u64::try_from(at.wall_ns / 1000).unwrap_or(0),
+                    interface: IfName::new(interface)
+                        .or_else(|_| IfName::new("can"))
+                        .ok()?,
+                    frame: *frame,
+                };
+                let mut line = Vec::with_capacity(48);
+                CandumpEncoder.encode(&record, &mut line).ok()?;
+                Some(line)
             }
         }
     }
@@ -268,7 +319,7 @@ impl DeviceTask {
     #[allow(clippy::too_many_arguments)]
     fn decode_chunk(
         &self,
-        bytes: &[u8],
+        input: Input<'_>,
         at: Arrival,
         decoding: &mut Decoding,
         mapping: &ImuMapping,
@@ -277,10 +328,21 @@ impl DeviceTask {
         finish: bool,
     ) -> Batch {
         let mut batch = Batch::new(self.index);
-        if self.raw_journal && !bytes.is_empty() {
-            batch.raw = Some((at.mono_ns, bytes.to_vec()));
+        if self.raw_journal {
+            batch.raw = self.journal_entry(input, at).map(|raw| (at.mono_ns, raw));
         }
-        decoding.decoder.push(bytes);
+        let input_len = match input {
+            Input::Bytes(bytes) => {
+                if !bytes.is_empty() {
+                    decoding.decoder.push(input);
+                }
+                bytes.len()
+            }
+            Input::Can(frame) => {
+                decoding.decoder.push(input);
+                frame.len()
+            }
+        };
         let mut new_gaps: Vec<Gap> = Vec::new();
         let mut ignored = 0u64;
         let gnss_device = self.spec.protocol.is_gnss();
@@ -358,7 +420,7 @@ impl DeviceTask {
         }
         decoding.reported = total;
         let mut c = self.shared.counters();
-        c.bytes += bytes.len() as u64;
+        c.bytes += input_len as u64;
         c.frames_ok = total.frames_ok;
         c.frames_bad = total.checksum_errors + total.frames_malformed + total.frames_too_long;
         c.resyncs = total.resyncs;

@@ -4,7 +4,8 @@
 //! - [`device`]: one tokio task per device (open, read, timestamp, decode, gaps, retry).
 //! - [`writer`]: the blocking writer thread behind a bounded, never-blocking queue.
 //! - [`sink`]: the [`sink::RecordSink`] the writer writes to (session store or memory).
-//! - [`source`]: byte sources ([`source::Connector`]) and decoders ([`source::FrameDecoder`]).
+//! - [`source`]: device links through the drivers' transports ([`source::Connector`], bytes or
+//!   CAN frames) and the drivers' codecs behind [`source::FrameDecoder`].
 //! - [`mapping`]: frames to rows, units and the axis rotation into the body frame.
 //! - [`timerel`]: the GNSS-time ↔ host-time relation.
 //! - [`status`]: live counters and the status file.

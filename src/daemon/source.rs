@@ -1,18 +1,40 @@
-//! What a device task reads from: a [`Connector`] that opens a byte stream (serial port,
-//! pty, TCP, or an in-memory stream in tests) and a [`FrameDecoder`] that turns the bytes
-//! into frames. Both are traits so the pipeline can be tested without hardware or codecs.
+//! What a device task reads from, and how it decodes it.
+//!
+//! - A [`Connector`] opens (and after a vanish, reopens) a [`Link`]: the drivers' transports
+//!   (serial port or pty, TCP, slcan adapter, SocketCAN), or an in-memory stream in tests.
+//! - A [`Link`] delivers [`Input`]: bytes from a byte stream, or CAN frames from a CAN
+//!   transport. CAN frames go to the DBC decoder as frames; they are never turned into text.
+//! - A [`FrameDecoder`] turns the input into [`Frame`]s: the drivers' codecs (WitMotion,
+//!   Xbus, CSV lines, NMEA/UBX, a CAN IMU through a DBC file) behind one small trait.
+//!
+//! Link and decoder are traits so the pipeline can also be tested without hardware.
 
+use std::collections::VecDeque;
 use std::future::Future;
-use std::io;
-use std::path::PathBuf;
+use std::path::Path;
 use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
 
+use imulab_drivers::codec::can::CanFrame;
+use imulab_drivers::codec::csv_line::CsvLineDecoder;
+use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
 use imulab_drivers::codec::gnss::{GnssDecoder, GnssFrame};
+use imulab_drivers::codec::witmotion::WitImuDecoder;
+use imulab_drivers::codec::xbus::{XbusDecoder, XbusMessage};
 use imulab_drivers::codec::Decoder;
+use imulab_drivers::transport::serial::{open_serial, SerialConfig as DriverSerialConfig};
+use imulab_drivers::transport::slcan::SlcanTransport;
+use imulab_drivers::transport::socketcan::SocketCanTransport;
+use imulab_drivers::transport::tcp::connect_tcp;
+use imulab_drivers::transport::{ByteSource, StreamTransport, TransportError};
 use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
-use tokio::io::AsyncRead;
+use tokio::io::{AsyncRead, AsyncWrite};
 
 use super::config::{DeviceSpec, Protocol, Transport};
+
+/// How long a TCP connect may take before the attempt counts as failed (and is retried).
+const TCP_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// One decoded frame, in the drivers crate's device-independent types.
 #[derive(Debug, Clone, PartialEq)]
@@ -21,10 +43,21 @@ pub enum Frame {
     Gnss(GnssFix),
 }
 
+/// What one receive from a device delivered.
+#[derive(Debug, Clone, Copy)]
+pub enum Input<'a> {
+    /// Bytes from a byte stream (serial, pty, TCP).
+    Bytes(&'a [u8]),
+    /// One CAN frame (SocketCAN, or an slcan adapter's decoded line).
+    Can(&'a CanFrame),
+}
+
 /// A sans-IO decoder as the daemon sees it: the codecs' `push`/`poll`/`stats`, with frames
 /// already converted to [`Frame`].
 pub trait FrameDecoder: Send {
-    fn push(&mut self, bytes: &[u8]);
+    /// Feeds one input. Input of the wrong kind (CAN frames to a byte decoder or the reverse)
+    /// is counted as malformed; configuration validation keeps it from happening.
+    fn push(&mut self, input: Input<'_>);
     fn poll(&mut self) -> Option<Frame>;
     fn stats(&self) -> DecoderStats;
     /// The input ended (device vanished, shutdown): frames the decoder held back.
@@ -33,33 +66,113 @@ pub trait FrameDecoder: Send {
     }
 }
 
-/// The drivers' mixed NMEA + UBX decoder, yielding its merged navigation epochs. (Raw
-/// sentences and messages are not rows; they stay in the raw journal.)
-struct GnssEpochs(GnssDecoder);
+/// Any drivers' byte decoder, with a function that picks the frames the daemon logs.
+struct ByteDecoder<D: Decoder> {
+    inner: D,
+    convert: fn(D::Frame) -> Option<Frame>,
+    /// CAN frames pushed to this byte decoder (never with a validated config).
+    wrong_input: u64,
+}
 
-impl FrameDecoder for GnssEpochs {
-    fn push(&mut self, bytes: &[u8]) {
-        Decoder::push(&mut self.0, bytes);
+impl<D: Decoder + Send> FrameDecoder for ByteDecoder<D> {
+    fn push(&mut self, input: Input<'_>) {
+        match input {
+            Input::Bytes(bytes) => self.inner.push(bytes),
+            Input::Can(_) => self.wrong_input += 1,
+        }
     }
 
     fn poll(&mut self) -> Option<Frame> {
         loop {
-            if let GnssFrame::Fix(epoch) = Decoder::poll(&mut self.0)? {
-                return Some(Frame::Gnss(epoch.fix));
+            let frame = self.inner.poll()?;
+            if let Some(frame) = (self.convert)(frame) {
+                return Some(frame);
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        Decoder::stats(&self.0)
+        let mut stats = self.inner.stats();
+        stats.frames_malformed += self.wrong_input;
+        stats
     }
 
     fn finish(&mut self) -> Option<Frame> {
         loop {
-            if let GnssFrame::Fix(epoch) = Decoder::finish(&mut self.0)? {
-                return Some(Frame::Gnss(epoch.fix));
+            let frame = self.inner.finish()?;
+            if let Some(frame) = (self.convert)(frame) {
+                return Some(frame);
             }
         }
+    }
+}
+
+fn boxed<D: Decoder + Send + 'static>(
+    inner: D,
+    convert: fn(D::Frame) -> Option<Frame>,
+) -> Box<dyn FrameDecoder> {
+    Box::new(ByteDecoder {
+        inner,
+        convert,
+        wrong_input: 0,
+    })
+}
+
+/// Merged navigation epochs are the rows; raw sentences and messages stay in the journal.
+fn gnss_epoch(frame: GnssFrame) -> Option<Frame> {
+    match frame {
+        GnssFrame::Fix(epoch) => Some(Frame::Gnss(epoch.fix)),
+        _ => None,
+    }
+}
+
+fn imu_sample(sample: ImuSample) -> Option<Frame> {
+    Some(Frame::Imu(sample))
+}
+
+/// MTData2 messages are samples; other Xbus messages (acks, errors) are not rows.
+fn xbus_sample(message: XbusMessage) -> Option<Frame> {
+    match message {
+        XbusMessage::MtData2 { data, .. } => Some(Frame::Imu(data.to_imu_sample())),
+        _ => None,
+    }
+}
+
+/// A CAN IMU: CAN frames through the DBC mapping into samples.
+struct CanImuDecoder {
+    imu: DbcImu,
+    ready: VecDeque<ImuSample>,
+    /// Byte input pushed to this CAN decoder (never with a validated config).
+    wrong_input: u64,
+}
+
+impl FrameDecoder for CanImuDecoder {
+    fn push(&mut self, input: Input<'_>) {
+        match input {
+            Input::Can(frame) => {
+                if let Some(sample) = self.imu.push_frame(frame) {
+                    self.ready.push_back(sample);
+                }
+            }
+            Input::Bytes(_) => self.wrong_input += 1,
+        }
+    }
+
+    fn poll(&mut self) -> Option<Frame> {
+        self.ready.pop_front().map(Frame::Imu)
+    }
+
+    fn stats(&self) -> DecoderStats {
+        let mut stats = self.imu.stats();
+        stats.frames_malformed += self.wrong_input;
+        stats
+    }
+
+    fn finish(&mut self) -> Option<Frame> {
+        self.ready
+            .pop_front()
+            .or_else(|| self.imu.finish())
+            .map(Frame::Imu)
     }
 }
 
@@ -67,87 +180,159 @@ impl FrameDecoder for GnssEpochs {
 /// is not glued to the bytes after it).
 pub type DecoderFactory = Box<dyn Fn() -> Box<dyn FrameDecoder> + Send + Sync>;
 
-/// An open byte stream from a device.
-pub type ByteStream = Box<dyn AsyncRead + Send + Unpin>;
-
-/// A boxed future, so connectors can be trait objects.
+/// A boxed future, so links and connectors can be trait objects.
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 
-/// Opens (and after a vanish, reopens) a device's byte stream.
+/// What [`Link::receive`] got.
+#[derive(Debug, Clone, Copy)]
+pub enum Received {
+    /// This many bytes, at the front of the buffer passed in.
+    Bytes(usize),
+    /// One CAN frame.
+    Can(CanFrame),
+}
+
+/// An open device.
+pub trait Link: Send {
+    /// Waits for the next data. Must be cancel-safe (the daemon races it against shutdown):
+    /// nothing is consumed unless it is returned. A device that went away is
+    /// [`TransportError::Vanished`].
+    fn receive<'a>(
+        &'a mut self,
+        buffer: &'a mut [u8],
+    ) -> BoxFuture<'a, Result<Received, TransportError>>;
+    /// Counters of decoding done inside the link (an slcan adapter's line decoder).
+    fn stats(&self) -> DecoderStats {
+        DecoderStats::default()
+    }
+}
+
+/// A byte stream (serial port, pty, TCP, or an in-memory stream in tests).
+impl<S: AsyncRead + AsyncWrite + Unpin + Send> Link for StreamTransport<S> {
+    fn receive<'a>(
+        &'a mut self,
+        buffer: &'a mut [u8],
+    ) -> BoxFuture<'a, Result<Received, TransportError>> {
+        Box::pin(async move { ByteSource::read(self, buffer).await.map(Received::Bytes) })
+    }
+}
+
+impl Link for SocketCanTransport {
+    fn receive<'a>(
+        &'a mut self,
+        _: &'a mut [u8],
+    ) -> BoxFuture<'a, Result<Received, TransportError>> {
+        Box::pin(async move { self.recv().await.map(Received::Can) })
+    }
+}
+
+impl Link for SlcanTransport {
+    fn receive<'a>(
+        &'a mut self,
+        _: &'a mut [u8],
+    ) -> BoxFuture<'a, Result<Received, TransportError>> {
+        // The adapter's own timestamp (if enabled) is coarse (ms, wrapping each minute); the
+        // host arrival time is what the rows carry.
+        Box::pin(async move { self.recv().await.map(|(frame, _)| Received::Can(frame)) })
+    }
+
+    fn stats(&self) -> DecoderStats {
+        SlcanTransport::stats(self)
+    }
+}
+
+/// Opens (and after a vanish, reopens) a device.
 pub trait Connector: Send + Sync {
-    fn connect(&self) -> BoxFuture<'_, io::Result<ByteStream>>;
-    /// Where the bytes come from, for logs and events.
+    fn connect(&self) -> BoxFuture<'_, Result<Box<dyn Link>, TransportError>>;
+    /// Where the data come from, for logs and events.
     fn describe(&self) -> String;
 }
 
-/// A serial port, or a pty standing in for one (the baud rate is a no-op there).
-pub struct SerialConnector {
-    pub port: PathBuf,
-    pub baud: u32,
+/// Opens a configured transport through the drivers crate.
+struct TransportConnector {
+    transport: Transport,
 }
 
-impl Connector for SerialConnector {
-    fn connect(&self) -> BoxFuture<'_, io::Result<ByteStream>> {
+fn serial_config(port: &Path, baud: u32) -> DriverSerialConfig {
+    DriverSerialConfig::new(port.to_string_lossy().into_owned(), baud)
+}
+
+impl Connector for TransportConnector {
+    fn connect(&self) -> BoxFuture<'_, Result<Box<dyn Link>, TransportError>> {
         Box::pin(async move {
-            let path = self.port.to_string_lossy().into_owned();
-            let builder = tokio_serial::new(path, self.baud);
-            let stream = tokio_serial::SerialStream::open(&builder).map_err(io::Error::from)?;
-            Ok(Box::new(stream) as ByteStream)
+            Ok(match &self.transport {
+                Transport::Serial(s) => {
+                    Box::new(open_serial(&serial_config(&s.port, s.baud))?) as Box<dyn Link>
+                }
+                Transport::Tcp(t) => {
+                    Box::new(connect_tcp(&t.address, TCP_CONNECT_TIMEOUT, None).await?)
+                }
+                Transport::Slcan(s) => Box::new(
+                    SlcanTransport::open(&serial_config(&s.port, s.baud), s.bitrate, false).await?,
+                ),
+                Transport::Can(c) => Box::new(SocketCanTransport::open(&c.interface, None)?),
+            })
         })
     }
 
     fn describe(&self) -> String {
-        format!("serial {} @ {}", self.port.display(), self.baud)
+        self.transport.describe()
     }
 }
 
-/// A TCP client (ser2net and the like).
-pub struct TcpConnector {
-    pub address: String,
-}
-
-impl Connector for TcpConnector {
-    fn connect(&self) -> BoxFuture<'_, io::Result<ByteStream>> {
-        Box::pin(async move {
-            let stream = tokio::net::TcpStream::connect(&self.address).await?;
-            stream.set_nodelay(true)?;
-            Ok(Box::new(stream) as ByteStream)
-        })
-    }
-
-    fn describe(&self) -> String {
-        format!("tcp {}", self.address)
-    }
-}
-
-/// The connector for a configured transport, or why this build cannot open it.
+/// The connector for a configured transport. Every transport the configuration accepts has
+/// one; the `Result` is kept for transports a build may lack.
 pub fn connector_for(device: &DeviceSpec) -> Result<Box<dyn Connector>, String> {
-    match &device.transport {
-        Transport::Serial(s) => Ok(Box::new(SerialConnector {
-            port: s.port.clone(),
-            baud: s.baud,
-        })),
-        Transport::Tcp(t) => Ok(Box::new(TcpConnector {
-            address: t.address.clone(),
-        })),
-        Transport::Can(_) | Transport::Slcan(_) => Err(format!(
-            "{} is not supported by this build of imulogd yet (CAN transports come with the \
-             drivers' CAN support)",
-            device.transport.describe()
-        )),
-    }
+    Ok(Box::new(TransportConnector {
+        transport: device.transport.clone(),
+    }))
 }
 
-/// The decoder for a configured protocol, or why this build cannot decode it.
+fn read_text(what: &str, path: &Path) -> Result<String, String> {
+    std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read the {what} {}: {e}", path.display()))
+}
+
+/// The decoder factory for a configured protocol. Reads and checks the files a protocol
+/// needs (the DBC and its signal mapping) once, so a bad file is reported at start-up and by
+/// `--check-config`, not on every connection.
 pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
-    match device.protocol {
+    Ok(match device.protocol {
         // One decoder for all three: it takes NMEA, UBX or both interleaved.
-        Protocol::Nmea | Protocol::Ubx | Protocol::Gnss => Ok(Box::new(|| {
-            Box::new(GnssEpochs(GnssDecoder::new())) as Box<dyn FrameDecoder>
-        })),
-        Protocol::Wit | Protocol::Xbus | Protocol::Csv | Protocol::CanDbc => Err(format!(
-            "protocol `{}` has no decoder in this build of imulab-drivers yet",
-            device.protocol.name()
-        )),
-    }
+        Protocol::Nmea | Protocol::Ubx | Protocol::Gnss => {
+            Box::new(|| boxed(GnssDecoder::new(), gnss_epoch))
+        }
+        Protocol::Wit => Box::new(|| boxed(WitImuDecoder::new(), imu_sample)),
+        Protocol::Xbus => Box::new(|| boxed(XbusDecoder::new(), xbus_sample)),
+        Protocol::Csv => {
+            let config = device.csv.clone().unwrap_or_default();
+            // Checked once here so the factory below cannot fail.
+            let template = CsvLineDecoder::new(config).map_err(|e| format!("device.{e}"))?;
+            Box::new(move || boxed(template.clone(), imu_sample))
+        }
+        Protocol::CanDbc => {
+            let dbc = device
+                .dbc
+                .as_ref()
+                .ok_or("protocol `can-dbc` needs [device.dbc]")?;
+            let dbc_text = read_text("DBC file", &dbc.file)?;
+            let mapping_text = read_text("DBC signal mapping", &dbc.mapping)?;
+            let mapping = DbcImuMapping::from_toml_str(&mapping_text)
+                .map_err(|e| format!("{}: {e}", dbc.mapping.display()))?;
+            let template = Arc::new(DbcImu::new(&dbc_text, &mapping).map_err(|e| {
+                format!(
+                    "{} with mapping {}: {e}",
+                    dbc.file.display(),
+                    dbc.mapping.display()
+                )
+            })?);
+            Box::new(move || {
+                Box::new(CanImuDecoder {
+                    imu: (*template).clone(),
+                    ready: VecDeque::new(),
+                    wrong_input: 0,
+                }) as Box<dyn FrameDecoder>
+            })
+        }
+    })
 }

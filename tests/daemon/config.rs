@@ -251,7 +251,7 @@ fn bad_tcp_address() {
     .is_ok());
 }
 
-const DBC: &str = "dbc = { file = \"/etc/imu.dbc\", gyro = [\"R.X\", \"R.Y\", \"R.Z\"], accel = [\"A.X\", \"A.Y\", \"A.Z\"] }";
+const DBC: &str = "dbc = { file = \"/etc/imu.dbc\", mapping = \"/etc/imu_mapping.toml\" }";
 
 fn can_device(extra: &str) -> String {
     format!("[[device]]\nname = \"canimu\"\nprotocol = \"can-dbc\"\nrate_hz = 100\n{extra}\n")
@@ -302,12 +302,100 @@ fn dbc_required_for_can_and_refused_otherwise() {
             "",
             &can_device(&format!(
                 "can = {{ interface = \"can0\" }}\n{}",
-                DBC.replace("\"R.X\"", "\"RX\"")
+                DBC.replace("/etc/imu_mapping.toml", "")
             )),
         ),
-        "device[0].dbc",
-        "signal `RX` is not MESSAGE.SIGNAL",
+        "device[0].dbc.mapping",
+        "is empty",
     );
+    assert_issue(
+        &with_session(
+            "",
+            &can_device(&format!(
+                "can = {{ interface = \"can0\" }}\n{}",
+                DBC.replace("mapping", "gyro")
+            )),
+        ),
+        "device[0].dbc.gyro",
+        "unknown field `gyro`",
+    );
+}
+
+#[test]
+fn csv_line_format_is_checked_and_only_for_csv() {
+    assert_issue(
+        &with_session(
+            "",
+            &device("serial = { port = \"/dev/x\" }\ncsv = { separator = \";\" }"),
+        ),
+        "device[0].csv",
+        "does not use a CSV line format",
+    );
+    let csv_device = |table: &str| {
+        format!(
+            "[[device]]\nname = \"home\"\nprotocol = \"csv\"\nrate_hz = 100\nserial = {{ port = \"/dev/x\" }}\n{table}\n"
+        )
+    };
+    assert_issue(
+        &with_session("", &csv_device("csv = { separator = \"\\n\" }")),
+        "device[0].csv.separator",
+        "must be one ASCII character",
+    );
+    assert_issue(
+        &with_session(
+            "",
+            &csv_device("csv = { gyro = [{ index = 1 }, { index = 1 }, { index = 2 }] }"),
+        ),
+        "device[0].csv",
+        "same column index",
+    );
+    assert_issue(
+        &with_session("", &csv_device("csv = { colums = 3 }")),
+        "device[0].csv.colums",
+        "unknown field",
+    );
+    assert!(parse(
+        &with_session(
+            "",
+            &csv_device("csv = { separator = \"\\t\", time = { index = 0, scale = 1e-6 } }")
+        ),
+        "t"
+    )
+    .is_ok());
+}
+
+#[test]
+fn bad_dbc_or_mapping_file_is_refused_before_the_daemon_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    let mapping = dir.path().join("mapping.toml");
+    std::fs::write(
+        &mapping,
+        "gyro = [ { message = \"IMU_Rate\", signal = \"RateX\" }, { message = \"IMU_Rate\", signal = \"RateY\" }, { message = \"IMU_Rate\", signal = \"NoSuchSignal\" } ]\n",
+    )
+    .unwrap();
+    let text = with_session(
+        "",
+        &can_device(&format!(
+            "can = {{ interface = \"can0\" }}\ndbc = {{ file = \"{}\", mapping = \"{}\" }}",
+            fixtures.join("imu_can.dbc").display(),
+            mapping.display()
+        )),
+    );
+    let config = parse(&text, "t").unwrap();
+    let err = imulab::daemon::source::decoder_for(&config.devices[0])
+        .err()
+        .expect("an unknown signal is refused");
+    assert!(
+        err.contains("gyro[2]") && err.contains("NoSuchSignal"),
+        "{err}"
+    );
+    let missing = text.replace("imu_can.dbc", "no_such.dbc");
+    let config = parse(&missing, "t").unwrap();
+    let err = imulab::daemon::source::decoder_for(&config.devices[0])
+        .err()
+        .expect("a missing DBC file is refused");
+    assert!(err.contains("no_such.dbc"), "{err}");
 }
 
 #[test]

@@ -5,4 +5,5 @@ mod config;
 mod disk;
 mod pipeline;
 mod pty;
+mod serial;
 mod store;

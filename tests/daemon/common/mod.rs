@@ -1,13 +1,17 @@
 //! Test helpers for the daemon tests: a tiny checksummed line protocol with its decoder
-//! (standing in for the real codecs, which the daemon sees through the same trait), and
+//! (for the pipeline tests that check the daemon's own logic: queueing, gaps, back-off,
+//! losses; the real codecs are tested over ptys in `serial.rs` and `end_to_end.rs`), and
 //! connectors that hand out in-memory streams.
 #![allow(dead_code)]
+
+pub mod pty;
 
 use std::collections::VecDeque;
 use std::io;
 use std::sync::{Arc, Mutex};
 
-use imulab::daemon::source::{BoxFuture, ByteStream, Connector, Frame, FrameDecoder};
+use imulab::daemon::source::{BoxFuture, Connector, Frame, FrameDecoder, Input, Link};
+use imulab_drivers::transport::{StreamTransport, TransportError};
 use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
 
 /// Encodes an IMU sample as `$I,seq,gx,gy,gz,ax,ay,az*CS\n` (CS = XOR of the body, hex).
@@ -63,8 +67,11 @@ impl LineDecoder {
 }
 
 impl FrameDecoder for LineDecoder {
-    fn push(&mut self, bytes: &[u8]) {
-        self.buffer.extend_from_slice(bytes);
+    fn push(&mut self, input: Input<'_>) {
+        match input {
+            Input::Bytes(bytes) => self.buffer.extend_from_slice(bytes),
+            Input::Can(_) => self.stats.frames_malformed += 1,
+        }
     }
 
     fn poll(&mut self) -> Option<Frame> {
@@ -153,15 +160,18 @@ impl QueueConnector {
 }
 
 impl Connector for QueueConnector {
-    fn connect(&self) -> BoxFuture<'_, io::Result<ByteStream>> {
+    fn connect(&self) -> BoxFuture<'_, Result<Box<dyn Link>, TransportError>> {
         Box::pin(async move {
             self.attempts
                 .lock()
                 .unwrap()
                 .push(std::time::Instant::now());
             match self.streams.lock().unwrap().pop_front() {
-                Some(s) => Ok(Box::new(s) as ByteStream),
-                None => Err(io::Error::new(io::ErrorKind::NotFound, "no such device")),
+                Some(s) => Ok(Box::new(StreamTransport::new(s, "memory", None)) as Box<dyn Link>),
+                None => Err(TransportError::Open {
+                    device: "memory".into(),
+                    source: io::Error::new(io::ErrorKind::NotFound, "no such device"),
+                }),
             }
         })
     }
