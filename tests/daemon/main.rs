@@ -1,5 +1,6 @@
 //! daemon integration tests, one binary (fewer, smaller links).
 
+mod binary;
 mod common;
 mod config;
 mod disk;
