@@ -820,3 +820,191 @@ fn candump_line_parser_rejects_malformed_lines() {
         );
     }
 }
+
+/// Seconds the daemon logs the CAN IMU before the interface is removed (issue 10: at least 60).
+/// `IMULAB_VCAN_DAEMON_SECS` shortens it for a quick local look.
+fn daemon_log_secs() -> u64 {
+    std::env::var("IMULAB_VCAN_DAEMON_SECS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(60)
+}
+
+/// Sends the fixture CAN IMU's frames (fixtures/imu_can.dbc through imu_can_mapping.toml) at
+/// 150 Hz on `iface`, sample numbers `from..to`, on schedule. Returns how many were sent whole.
+fn send_can_imu(
+    iface: &str,
+    imu: &imulab_drivers::codec::dbc::DbcImu,
+    seqs: std::ops::Range<u64>,
+) -> u64 {
+    let socket = CanSocket::open(iface).expect("sender socket");
+    let start = Instant::now();
+    let first = seqs.start;
+    let mut sent = 0;
+    for seq in seqs {
+        let sample = imulab_drivers::ImuSample {
+            sensor_time: Some(seq as f64 / 150.0),
+            gyro: Some([0.01 * (seq % 100) as f64, -0.2, 0.3]),
+            accel: Some([0.1, -0.1 * (seq % 50) as f64, 9.80665]),
+            temp_c: Some(25.0 + 0.01 * (seq % 1000) as f64),
+            status: (seq % 7) as u32,
+        };
+        for frame in imu.encode(&sample).expect("encodable sample") {
+            let data = CanDataFrame::new(
+                if frame.is_extended() {
+                    Id::Extended(ExtendedId::new(frame.id()).expect("29-bit id"))
+                } else {
+                    Id::Standard(StandardId::new(frame.id() as u16).expect("11-bit id"))
+                },
+                frame.payload(),
+            )
+            .expect("classic frame");
+            // vcan drops nothing, but a full socket buffer says ENOBUFS: wait and retry.
+            loop {
+                match socket.write_frame(&data) {
+                    Ok(()) => break,
+                    Err(e) if e.raw_os_error() == Some(libc::ENOBUFS) => {
+                        std::thread::sleep(Duration::from_micros(200))
+                    }
+                    Err(e) => panic!("sending on {iface}: {e}"),
+                }
+            }
+        }
+        sent += 1;
+        let next = start + Duration::from_micros((seq - first + 1) * 1_000_000 / 150);
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+    }
+    sent
+}
+
+/// The daemon (as a library, through the same `connector_for`/`decoder_for` as `imulogd`)
+/// logging a simulated CAN IMU at 150 Hz on a vcan interface through the fixture DBC for at
+/// least 60 s: every sample in the session, in order, with its values; then the interface is
+/// removed and re-added: a disconnect, a gap and a reconnect event, and the data resume.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn daemon_logs_a_can_imu_through_the_dbc_and_survives_the_interface_going_away() {
+    use imulab::daemon::config::parse;
+    use imulab::daemon::sink::MemorySink;
+    use imulab::daemon::source::{connector_for, decoder_for};
+    use imulab::daemon::{run, DaemonParts};
+    use imulab::store::EventKind;
+    use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
+
+    let test = "daemon_logs_a_can_imu_through_the_dbc_and_survives_the_interface_going_away";
+    if !vcan_present(test) {
+        return;
+    }
+    const IFACE: &str = "vcand";
+    let mut iface = TestInterface::create(IFACE);
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
+    let dir = std::env::temp_dir().join(format!("imulab-vcan-daemon-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nflush_interval_ms = 200\n\
+         [[device]]\nname = \"canimu\"\nprotocol = \"can-dbc\"\nrate_hz = 150\nretry_initial_ms = 50\nretry_max_ms = 200\n\
+         can = {{ interface = \"{IFACE}\" }}\n\
+         dbc = {{ file = \"{}\", mapping = \"{}\" }}\n",
+        dir.display(),
+        fixtures.join("imu_can.dbc").display(),
+        fixtures.join("imu_can_mapping.toml").display()
+    );
+    let config = parse(&text, "vcan test").unwrap_or_else(|e| panic!("{e}"));
+    let sink = MemorySink::new();
+    let parts = DaemonParts {
+        sink: Box::new(sink.clone()),
+        session_dir: dir.join("session"),
+        connectors: vec![connector_for(&config.devices[0]).unwrap()],
+        decoders: vec![decoder_for(&config.devices[0]).unwrap_or_else(|e| panic!("{e}"))],
+        free_space: Box::new(|| Ok(u64::MAX / 2)),
+        status_path: dir.join("status.json"),
+    };
+    let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+    tokio::time::sleep(Duration::from_millis(300)).await;
+
+    let imu = Arc::new(
+        DbcImu::new(
+            &std::fs::read_to_string(fixtures.join("imu_can.dbc")).unwrap(),
+            &DbcImuMapping::from_toml_str(
+                &std::fs::read_to_string(fixtures.join("imu_can_mapping.toml")).unwrap(),
+            )
+            .unwrap(),
+        )
+        .unwrap(),
+    );
+    let first_run = 150 * daemon_log_secs();
+    let sent = {
+        let imu = imu.clone();
+        tokio::task::spawn_blocking(move || send_can_imu(IFACE, &imu, 0..first_run))
+            .await
+            .unwrap()
+    };
+    assert_eq!(sent, first_run);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let before_unplug = sink.snapshot().imu.get("canimu").map_or(0, Vec::len) as u64;
+    // The last sample waits for the next sample's first message (the DBC grouping rule).
+    assert!(
+        before_unplug + 1 >= first_run,
+        "{before_unplug} of {first_run} samples logged before the unplug"
+    );
+
+    iface.delete();
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let iface = TestInterface::create(IFACE);
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    let second_run = 300;
+    {
+        let imu = imu.clone();
+        tokio::task::spawn_blocking(move || {
+            send_can_imu(IFACE, &imu, first_run..first_run + second_run)
+        })
+        .await
+        .unwrap();
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let _ = stop.send(true);
+    let outcome = daemon.await.unwrap();
+    drop(iface);
+    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
+    let store = sink.snapshot();
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let rows = &store.imu["canimu"];
+    let seqs: Vec<u64> = rows
+        .iter()
+        .map(|r| (r.t_sensor * 150.0).round() as u64)
+        .collect();
+    let want: Vec<u64> = (0..first_run + second_run).collect();
+    if seqs != want {
+        let missing: Vec<u64> = want.iter().filter(|s| !seqs.contains(s)).copied().collect();
+        panic!(
+            "{} rows for {} samples sent; missing {:?}",
+            seqs.len(),
+            want.len(),
+            &missing[..missing.len().min(20)]
+        );
+    }
+    let d2r = std::f64::consts::PI / 180.0;
+    for (seq, row) in want.iter().zip(rows) {
+        let g = 0.01 * (seq % 100) as f64;
+        assert!(
+            (row.gyro[0] - g).abs() <= 0.005 * d2r + 1e-12,
+            "sample {seq}: {row:?}"
+        );
+        assert_eq!(row.status, (seq % 7) as u32, "sample {seq}");
+    }
+    let kinds: Vec<EventKind> = store
+        .events
+        .iter()
+        .filter(|e| e.device == "canimu")
+        .map(|e| e.kind)
+        .collect();
+    for kind in [
+        EventKind::Connect,
+        EventKind::Disconnect,
+        EventKind::Gap,
+        EventKind::Reconnect,
+    ] {
+        assert!(kinds.contains(&kind), "{kind:?} missing from {kinds:?}");
+    }
+}
