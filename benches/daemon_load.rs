@@ -7,8 +7,10 @@
 //! Run: `cargo bench --bench daemon_load -- [--secs S] [RATE_HZ ...]`
 //! (default: 10 s at 150, 1500, 15000, 30000 and 60000 Hz per IMU).
 //!
-//! The devices are in-memory streams fed by a generator thread with pre-encoded frames in
-//! 1 ms bursts; a stream that cannot be read fast enough pushes back on the generator, which
+//! The devices speak real protocols (imu0 WitMotion, imu1 Xsens Xbus MTData2, the receiver
+//! NMEA GGA + RMC and UBX NAV-PVT + NAV-EOE each cycle), encoded with the drivers' encoders
+//! and decoded with the daemon's own decoders. They are in-memory streams fed by a generator
+//! thread with pre-encoded frames in 1 ms bursts; a stream that cannot be read fast enough pushes back on the generator, which
 //! then falls behind its schedule: that counts as not holding the rate.
 
 #[path = "../tests/daemon/common/mod.rs"]
@@ -16,10 +18,11 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
+use common::encode::{gnss_cycle, wit_sample, xbus_sample};
+use common::QueueConnector;
 use imulab::daemon::config::parse;
 use imulab::daemon::session::open_session_sink;
-use imulab::daemon::source::{Connector, DecoderFactory, FrameDecoder};
+use imulab::daemon::source::{decoder_for, Connector};
 use imulab::daemon::status::read_status_file;
 use imulab::daemon::{run, DaemonParts};
 use imulab::store::{Session, TimeRange};
@@ -75,8 +78,8 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
     let dir = tempfile::tempdir().expect("temp dir");
     let text = format!(
         "[session]\noutput_dir = \"{}\"\nraw_journal = true\ndeflate_level = 4\nqueue_capacity = 1024\n\
-         [[device]]\nname = \"imu0\"\nprotocol = \"csv\"\nrate_hz = {rate_hz}\nserial = {{ port = \"/dev/a\" }}\n\
-         [[device]]\nname = \"imu1\"\nprotocol = \"csv\"\nrate_hz = {rate_hz}\nserial = {{ port = \"/dev/b\" }}\n\
+         [[device]]\nname = \"imu0\"\nprotocol = \"wit\"\nrate_hz = {rate_hz}\nserial = {{ port = \"/dev/a\" }}\n\
+         [[device]]\nname = \"imu1\"\nprotocol = \"xbus\"\nrate_hz = {rate_hz}\nserial = {{ port = \"/dev/b\" }}\n\
          [[device]]\nname = \"gnss\"\nprotocol = \"gnss\"\nrate_hz = 10\nserial = {{ port = \"/dev/c\" }}\n",
         dir.path().display()
     );
@@ -93,10 +96,10 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
             .into_iter()
             .map(|c| Box::new(c) as Box<dyn Connector>)
             .collect(),
-        decoders: (0..3)
-            .map(|_| -> DecoderFactory {
-                Box::new(|| Box::new(LineDecoder::default()) as Box<dyn FrameDecoder>)
-            })
+        decoders: config
+            .devices
+            .iter()
+            .map(|d| decoder_for(d).expect("decoder"))
             .collect(),
         free_space: Box::new(|| Ok(u64::MAX / 2)),
         status_path: status_path.clone(),
@@ -114,13 +117,11 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
         let due_gnss = ((ms + 1) / 100).min(gnss_frames);
         let mut burst: [Vec<u8>; 3] = Default::default();
         for seq in done_imu..due_imu {
-            let g = [seq as f64 * 1e-6, -2e-3, 5e-4];
-            let a = [0.01, -0.02, 9.80665];
-            burst[0].extend_from_slice(&encode_imu(seq, g, a));
-            burst[1].extend_from_slice(&encode_imu(seq, a, g));
+            burst[0].extend_from_slice(&wit_sample(seq));
+            burst[1].extend_from_slice(&xbus_sample(seq));
         }
         for k in done_gnss..due_gnss {
-            burst[2].extend_from_slice(&encode_gnss(2400, 3600.0 + k as f64 * 0.1, 48.1, 11.6));
+            burst[2].extend_from_slice(&gnss_cycle(k).0);
         }
         done_imu = due_imu;
         done_gnss = due_gnss;
@@ -198,7 +199,8 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
         clean_stop,
         rate_hz,
         secs,
-        sent: 2 * imu_frames + gnss_frames,
+        // Each GNSS cycle is an NMEA epoch and a UBX epoch: two rows.
+        sent: 2 * imu_frames + 2 * gnss_frames,
         written,
         dropped,
         generator_lag_s: lag,

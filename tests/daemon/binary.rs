@@ -8,8 +8,8 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::common::encode::wit_sample;
 use crate::common::pty::Pty;
-use crate::serial::wit_sample;
 use imulab::daemon::status::{read_status_file, DeviceState};
 use imulab::store::{Session, TimeRange};
 use nix::sys::signal::{kill, Signal};

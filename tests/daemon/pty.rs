@@ -6,8 +6,9 @@
 use std::path::Path;
 use std::time::Duration;
 
+use crate::common::encode::wit_sample;
 use crate::common::pty::{point_link, Pty};
-use crate::serial::{config, start, wit_sample};
+use crate::serial::{config, start};
 use imulab::store::EventKind;
 
 fn print_pty_paths(old: &Path, new: &Path) {

@@ -4,6 +4,7 @@
 //! connectors that hand out in-memory streams.
 #![allow(dead_code)]
 
+pub mod encode;
 pub mod pty;
 
 use std::collections::VecDeque;
