@@ -7,22 +7,23 @@ use imulab_drivers::codec::witmotion::{WitEncoder, WitPacket};
 use imulab_drivers::codec::xbus::{data_id, MtData2, XbusEncoder, XbusMessage, XbusValue};
 use imulab_drivers::codec::Encoder;
 
-/// Device `i`'s test signal at sample `seq`: distinct per axis and sample, within every
+/// Device `i`'s test signal at sample `seq`: distinct per axis and sample (periodic, so it
+/// stays in range at any rate), within every
 /// protocol's range (rad/s, m/s², °C).
 pub fn gyro_of(i: u64, seq: u64) -> [f64; 3] {
     let t = seq as f64 * 0.01 + i as f64;
     [
         0.3 * t.sin(),
         -0.2 * (1.3 * t).cos(),
-        0.05 + 0.001 * seq as f64,
+        0.05 + 0.001 * (seq % 1000) as f64,
     ]
 }
 pub fn accel_of(i: u64, seq: u64) -> [f64; 3] {
     let t = seq as f64 * 0.01 + i as f64;
-    [0.5 * t.cos(), 0.4 * t.sin(), 9.80665 - 0.01 * seq as f64]
+    [0.5 * t.cos(), 0.4 * t.sin(), 9.80665 - 0.01 * (seq % 1000) as f64]
 }
 pub fn temp_of(seq: u64) -> f64 {
-    25.0 + 0.01 * seq as f64
+    25.0 + 0.01 * (seq % 1000) as f64
 }
 
 /// WitMotion: one time, accel and gyro packet per sample; time of day = seq × 10 ms.
