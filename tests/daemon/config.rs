@@ -577,3 +577,21 @@ fn missing_file_is_an_error_not_a_panic() {
     let e = imulab::daemon::config::load(Path::new("/no/such/imulogd.toml")).unwrap_err();
     assert!(e.to_string().contains("cannot read the file"), "{e}");
 }
+
+#[test]
+fn dbc_paths_are_relative_to_the_config_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("imulogd.toml");
+    std::fs::write(
+        &path,
+        with_session(
+            "",
+            &can_device("can = { interface = \"can0\" }\ndbc = { file = \"imu.dbc\", mapping = \"/etc/m.toml\" }"),
+        ),
+    )
+    .unwrap();
+    let config = imulab::daemon::config::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let dbc = config.devices[0].dbc.as_ref().unwrap();
+    assert_eq!(dbc.file, dir.path().join("imu.dbc"));
+    assert_eq!(dbc.mapping, std::path::Path::new("/etc/m.toml"));
+}

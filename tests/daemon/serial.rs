@@ -403,3 +403,37 @@ async fn a_serial_device_that_never_exists_is_an_error_in_the_status() {
     let store = daemon.stop().await;
     assert!(store.imu.get("ghost").is_none_or(|r| r.is_empty()));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tcp_device_is_read_through_the_drivers_tcp_transport() {
+    let dir = tempfile::tempdir().unwrap();
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    let devices = format!(
+        "[[device]]\nname = \"ser2net\"\nprotocol = \"wit\"\nrate_hz = 100\ntcp = {{ address = \"{address}\" }}\n"
+    );
+    let daemon = start(config(dir.path(), &devices));
+    let (mut socket, _) = tokio::time::timeout(Duration::from_secs(5), listener.accept())
+        .await
+        .expect("the daemon connects")
+        .unwrap();
+    use tokio::io::AsyncWriteExt;
+    for seq in 0..SAMPLES {
+        socket.write_all(&wit_sample(seq)).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let store = daemon.stop().await;
+    drop(socket);
+    let wit_gyro = 2000f64.to_radians() / 32768.0 / 2.0 + 1e-12;
+    let wit_accel = 16.0 * 9.80665 / 32768.0 / 2.0 + 1e-12;
+    check_rows(
+        "ser2net",
+        &store.imu["ser2net"],
+        0,
+        0..SAMPLES,
+        |s| s as f64 * 0.01,
+        wit_gyro,
+        wit_accel,
+    );
+}

@@ -20,7 +20,11 @@ pub fn gyro_of(i: u64, seq: u64) -> [f64; 3] {
 }
 pub fn accel_of(i: u64, seq: u64) -> [f64; 3] {
     let t = seq as f64 * 0.01 + i as f64;
-    [0.5 * t.cos(), 0.4 * t.sin(), 9.80665 - 0.01 * (seq % 1000) as f64]
+    [
+        0.5 * t.cos(),
+        0.4 * t.sin(),
+        9.80665 - 0.01 * (seq % 1000) as f64,
+    ]
 }
 pub fn temp_of(seq: u64) -> f64 {
     25.0 + 0.01 * (seq % 1000) as f64
