@@ -217,12 +217,34 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> Link for StreamTransport<S> {
     }
 }
 
-impl Link for SocketCanTransport {
+/// A SocketCAN interface. A frame the kernel hands over that is not a valid CAN frame (the
+/// transport's `Protocol` error) is counted as malformed and skipped, not a reason to reopen.
+struct SocketCanLink {
+    transport: SocketCanTransport,
+    stats: DecoderStats,
+}
+
+impl Link for SocketCanLink {
     fn receive<'a>(
         &'a mut self,
         _: &'a mut [u8],
     ) -> BoxFuture<'a, Result<Received, TransportError>> {
-        Box::pin(async move { self.recv().await.map(Received::Can) })
+        Box::pin(async move {
+            loop {
+                match self.transport.recv().await {
+                    Ok(frame) => return Ok(Received::Can(frame)),
+                    Err(TransportError::Protocol { device, reason }) => {
+                        self.stats.frames_malformed += 1;
+                        tracing::debug!("{device}: skipped a frame: {reason}");
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+        })
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.stats
     }
 }
 
@@ -270,7 +292,10 @@ impl Connector for TransportConnector {
                 Transport::Slcan(s) => Box::new(
                     SlcanTransport::open(&serial_config(&s.port, s.baud), s.bitrate, false).await?,
                 ),
-                Transport::Can(c) => Box::new(SocketCanTransport::open(&c.interface, None)?),
+                Transport::Can(c) => Box::new(SocketCanLink {
+                    transport: SocketCanTransport::open(&c.interface, None)?,
+                    stats: DecoderStats::default(),
+                }),
             })
         })
     }
