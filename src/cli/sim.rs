@@ -1,5 +1,6 @@
 //! `imulab sim`: runs a scene file through the simulator, optionally writing a session
-//! (`-o`, the daemon's HDF5 format plus `/truth`), and reports what it produced.
+//! (`-o`, the daemon's HDF5 format plus `/truth`), and reports what it produced; with
+//! `--serve`, serves the scene's sensors as device byte streams on ptys instead.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -11,10 +12,11 @@ use crate::sim::outputs::{SessionSink, SummarySink, Tee};
 use crate::sim::presets::IMU_PRESETS;
 use crate::sim::runner::run as run_scene;
 use crate::sim::scene::Scene;
+use crate::sim::serve::{ServeOptions, Server, Speed, StartWhen};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example: imulab sim fixtures/scenes/chamber_6h.toml -o /data/sim-chamber --seed 7"
+    after_help = "Examples:\n  imulab sim fixtures/scenes/chamber_6h.toml -o /data/sim-chamber --seed 7\n  imulab sim fixtures/scenes/serve_bench.toml --serve --speed 10 --link-dir /tmp/imulab-dev --json"
 )]
 pub struct SimArgs {
     /// The scene file (TOML; see docs/simulator.md).
@@ -29,6 +31,25 @@ pub struct SimArgs {
     /// List the IMU and GNSS presets with their sources, and exit.
     #[arg(long)]
     pub list_presets: bool,
+    /// Serve each sensor in its device protocol on a pty (paths printed) instead of writing
+    /// a session.
+    #[arg(long, conflicts_with = "output")]
+    pub serve: bool,
+    /// Serving speed: a factor (1 = real time, 100 = 100x faster) or `max`.
+    #[arg(long, default_value = "1", requires = "serve")]
+    pub speed: Speed,
+    /// Create stable symlinks DIR/<sensor> to the ptys (kept across reopen faults).
+    #[arg(long, requires = "serve")]
+    pub link_dir: Option<PathBuf>,
+    /// Print one JSON object per endpoint (sensor, protocol, path, pty) instead of text.
+    #[arg(long, requires = "serve")]
+    pub json: bool,
+    /// Start writing only once a reader has opened every pty.
+    #[arg(long, requires = "serve")]
+    pub wait_readers: bool,
+    /// Seconds to keep the ptys open after the last frame, so readers can drain them.
+    #[arg(long, default_value_t = 1.0, requires = "serve")]
+    pub linger_s: f64,
 }
 
 pub fn run(args: SimArgs) -> Result<()> {
@@ -43,12 +64,15 @@ pub fn run(args: SimArgs) -> Result<()> {
         }
         return Ok(());
     }
-    let Some(path) = args.scene else {
+    let Some(path) = args.scene.clone() else {
         anyhow::bail!("a scene file is required");
     };
     let mut scene = Scene::load(&path)?;
     if let Some(seed) = args.seed {
         scene.set_seed(seed);
+    }
+    if args.serve {
+        return serve(scene, &args);
     }
     let mut sink = SummarySink::default();
     let started = Instant::now();
@@ -86,5 +110,97 @@ pub fn run(args: SimArgs) -> Result<()> {
         "  truth: {} nav rows, {} imu rows",
         sink.truth_nav_rows, sink.truth_imu_rows
     );
+    Ok(())
+}
+
+fn serve(scene: Scene, args: &SimArgs) -> Result<()> {
+    use std::io::Write;
+    if !(args.linger_s.is_finite() && args.linger_s >= 0.0) {
+        anyhow::bail!("--linger-s must be >= 0, got {}", args.linger_s);
+    }
+    let options = ServeOptions {
+        speed: args.speed,
+        link_dir: args.link_dir.clone(),
+        start: if args.wait_readers {
+            StartWhen::ReadersAttached
+        } else {
+            StartWhen::Now
+        },
+        record_sent: false,
+        faults: Vec::new(),
+    };
+    let mut server = Server::start(scene, options)?;
+    let mut out = std::io::stdout().lock();
+    for e in server.endpoints() {
+        if args.json {
+            let line = serde_json::json!({
+                "sensor": e.sensor,
+                "protocol": e.protocol.name(),
+                "path": e.path(),
+                "pty": e.pty,
+            });
+            writeln!(out, "{line}")?;
+        } else {
+            writeln!(
+                out,
+                "{} ({}): {}{}",
+                e.sensor,
+                e.protocol.name(),
+                e.path().display(),
+                if e.link.is_some() {
+                    format!(" -> {}", e.pty.display())
+                } else {
+                    String::new()
+                }
+            )?;
+        }
+    }
+    out.flush()?;
+    drop(out);
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let interrupted = runtime.block_on(async {
+        loop {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => return true,
+                _ = tokio::time::sleep(std::time::Duration::from_millis(50)) => {
+                    if server.is_finished() {
+                        return false;
+                    }
+                }
+            }
+        }
+    });
+    if interrupted {
+        server.stop();
+    }
+    let report = server.finish()?;
+    for s in &report.streams {
+        eprintln!(
+            "{} ({}): {} frames, {} bytes, {} garbage bytes, {} unplugged, {} overflowed, {} encode errors{}",
+            s.sensor,
+            s.protocol.name(),
+            s.frames,
+            s.bytes,
+            s.garbage_bytes,
+            s.frames_unplugged,
+            s.frames_overflowed,
+            s.encode_errors,
+            s.first_encode_error
+                .as_ref()
+                .map(|e| format!(" (first: {e})"))
+                .unwrap_or_default()
+        );
+    }
+    eprintln!(
+        "served {:.3} s of scene in {:.3} s{}",
+        report.scene_end_s,
+        report.elapsed.as_secs_f64(),
+        if report.stopped { " (interrupted)" } else { "" }
+    );
+    if !interrupted {
+        std::thread::sleep(std::time::Duration::from_secs_f64(args.linger_s));
+    }
     Ok(())
 }

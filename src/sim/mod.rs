@@ -10,6 +10,8 @@
 //! - [`temperature`]: temperature profiles.
 //! - [`truth_file`]: truth trajectories read from CSV.
 //! - [`motion`]: the truth trajectory generator (segments) and the static truth.
+//! - [`wire`]: records to device protocol bytes (and back, for the reference).
+//! - [`serve`]: a scene served as byte streams on ptys (`imulab sim --serve`).
 
 pub mod flicker;
 pub mod gnss_model;
@@ -20,5 +22,7 @@ pub mod presets;
 pub mod rng;
 pub mod runner;
 pub mod scene;
+pub mod serve;
 pub mod temperature;
 pub mod truth_file;
+pub mod wire;

@@ -13,7 +13,10 @@ use super::gnss_model::{GnssSpec, GNSS_PRESETS};
 use super::imu_model::{Channels, ImuSpec};
 use super::motion::{MotionSpec, Segment};
 use super::presets::{imu_preset, imu_preset_names};
+use super::serve::Fault;
 use super::temperature::TemperatureProfile;
+use super::wire::protocol_for;
+use imulab_drivers::codec::Protocol;
 
 /// Default start of simulated wall-clock time: 2026-01-05T00:00:00Z (a GPS week start is
 /// not needed; any fixed instant keeps runs reproducible).
@@ -39,6 +42,8 @@ struct SceneFile {
     gnss: Vec<SensorEntry>,
     #[serde(default)]
     outputs: Outputs,
+    #[serde(default)]
+    fault: Vec<Fault>,
 }
 
 /// Where the scene takes place.
@@ -122,6 +127,8 @@ pub struct ImuEntry {
     pub name: String,
     pub spec: ImuSpec,
     pub channels: Channels,
+    /// Protocol it is served in by `imulab sim --serve` (see [`super::wire`]).
+    pub protocol: Protocol,
 }
 
 /// One GNSS receiver of a scene.
@@ -129,6 +136,8 @@ pub struct ImuEntry {
 pub struct GnssEntry {
     pub name: String,
     pub spec: GnssSpec,
+    /// Protocol it is served in by `imulab sim --serve` (see [`super::wire`]).
+    pub protocol: Protocol,
 }
 
 /// A checked scene, ready to run.
@@ -145,6 +154,8 @@ pub struct Scene {
     pub imus: Vec<ImuEntry>,
     pub gnss: Vec<GnssEntry>,
     pub outputs: Outputs,
+    /// Faults a byte-stream serve injects (`[[fault]]` tables; see [`super::serve`]).
+    pub faults: Vec<Fault>,
     /// The scene file as written (kept in the session manifest).
     pub source: toml::Table,
 }
@@ -248,6 +259,11 @@ impl Scene {
             names.push(&entry.name);
             gnss.push(gnss_entry(entry, file.rate_hz).with_context(|| at.clone())?);
         }
+        for (i, fault) in file.fault.iter().enumerate() {
+            fault
+                .check(&names)
+                .with_context(|| format!("fault[{i}] ({})", fault.sensor))?;
+        }
         Ok(Scene {
             duration_s: file.duration_s,
             rate_hz: file.rate_hz,
@@ -259,6 +275,7 @@ impl Scene {
             imus,
             gnss,
             outputs: file.outputs,
+            faults: file.fault,
             source,
         })
     }
@@ -324,6 +341,7 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
         })?,
     };
     let mut overrides = entry.overrides.clone();
+    let protocol = take_protocol(&mut overrides, false)?;
     let channels = match overrides.remove("channels") {
         None => Channels {
             gyro: true,
@@ -362,7 +380,7 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
             "timing" => spec.timing = value.try_into().map_err(at)?,
             "reference_temp_c" => spec.reference_temp_c = value.try_into().map_err(at)?,
             _ => bail!(
-                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `gyro`, `accel`, `timing`, `reference_temp_c`"
+                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `protocol`, `gyro`, `accel`, `timing`, `reference_temp_c`"
             ),
         }
     }
@@ -371,7 +389,18 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
         name: entry.name.clone(),
         spec,
         channels,
+        protocol,
     })
+}
+
+/// Removes the `protocol` key from a sensor table and checks it for the sensor kind.
+fn take_protocol(overrides: &mut toml::Table, gnss: bool) -> Result<Protocol> {
+    let name = match overrides.remove("protocol") {
+        None => None,
+        Some(toml::Value::String(s)) => Some(s),
+        Some(other) => bail!("protocol: expected a string, got {other}"),
+    };
+    protocol_for(name.as_deref(), gnss)
 }
 
 fn gnss_entry(entry: &SensorEntry, rate_hz: f64) -> Result<GnssEntry> {
@@ -383,8 +412,10 @@ fn gnss_entry(entry: &SensorEntry, rate_hz: f64) -> Result<GnssEntry> {
             known.join(", ")
         )
     })?;
+    let mut overrides = entry.overrides.clone();
+    let protocol = take_protocol(&mut overrides, true)?;
     let mut table = toml::Table::try_from(&base).context("internal: preset to TOML")?;
-    merge(&mut table, &entry.overrides);
+    merge(&mut table, &overrides);
     let spec: GnssSpec = toml::Value::Table(table)
         .try_into()
         .map_err(|e| anyhow!("{}", one_line(&e)))?;
@@ -399,6 +430,7 @@ fn gnss_entry(entry: &SensorEntry, rate_hz: f64) -> Result<GnssEntry> {
     Ok(GnssEntry {
         name: entry.name.clone(),
         spec,
+        protocol,
     })
 }
 

@@ -2,5 +2,6 @@
 
 mod allan;
 mod scenes;
+mod serve;
 mod session;
 mod support;
