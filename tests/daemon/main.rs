@@ -4,6 +4,7 @@ mod binary;
 mod common;
 mod config;
 mod disk;
+mod end_to_end;
 mod pipeline;
 mod pty;
 mod serial;

@@ -1,0 +1,337 @@
+//! The acceptance test of the daemon (issue 7): the simulator serves a bench over ptys (two
+//! IMUs at 150 Hz, WitMotion and Xsens Xbus, and a u-blox-like receiver sending UBX and NMEA
+//! mixed at 10 Hz), accelerated; the daemon, built from its configuration exactly as
+//! `imulogd` builds it (drivers' serial transport and codecs), logs them into an HDF5
+//! session; the test reads the session back with the store reader. Every frame the
+//! simulator sent is there exactly once, in order, with the values the drivers' decoders
+//! make of the sent bytes (so equal to what was encoded, to the encoding's resolution),
+//! arrival times are monotonic, and the rates are right.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use imulab::daemon::config::parse;
+use imulab::daemon::mapping::{gnss_record, ImuMapping};
+use imulab::daemon::session::open_session_sink;
+use imulab::daemon::source::{connector_for, decoder_for};
+use imulab::daemon::status::{read_status_file, DeviceState};
+use imulab::daemon::{run, DaemonParts};
+use imulab::sim::scene::Scene;
+use imulab::sim::serve::{Sent, ServeOptions, Server, Speed, StartWhen};
+use imulab::store::{EventKind, GnssRecord, ImuRecord, Session, TimeRange};
+
+/// Scene seconds served; at [`SPEED`] this is a little over 2 s of wall time.
+const SCENE_S: f64 = 16.0;
+const SPEED: f64 = 8.0;
+const IMU_HZ: f64 = 150.0;
+const GNSS_HZ: f64 = 10.0;
+
+fn bench_scene() -> Scene {
+    let text = format!(
+        "duration_s = {SCENE_S}\nrate_hz = {IMU_HZ}\nseed = 7\n\
+         [location]\nlat_deg = 48.1\nlon_deg = 11.6\nheight_m = 520.0\n\
+         [motion]\nkind = \"static\"\n\
+         [[imu]]\nname = \"wit\"\npreset = \"bench-cheap\"\nprotocol = \"wit\"\n\
+         [[imu]]\nname = \"mti\"\npreset = \"industrial\"\nprotocol = \"xbus\"\n\
+         [[gnss]]\nname = \"rx\"\npreset = \"standalone\"\nrate_hz = {GNSS_HZ}\nprotocol = \"gnss\"\n"
+    );
+    Scene::parse(&text, Path::new(".")).unwrap_or_else(|e| panic!("{e:#}"))
+}
+
+/// Row equality with the arrival times left out; NaN equals NaN (the debug form compares
+/// every value exactly, bit for bit up to the sign of zero).
+fn same<T: std::fmt::Debug>(a: &T, b: &T) -> bool {
+    format!("{a:?}") == format!("{b:?}")
+}
+
+fn without_times_imu(mut r: ImuRecord) -> ImuRecord {
+    r.t_mono_ns = 0;
+    r.t_wall_ns = 0;
+    r
+}
+
+fn without_times_gnss(mut r: GnssRecord) -> GnssRecord {
+    r.t_mono_ns = 0;
+    r.t_wall_ns = 0;
+    r
+}
+
+/// Rows per second of arrival time over the stream, without its last row: a WitMotion
+/// sample or a NMEA epoch is complete only when the next one starts, so the last one is
+/// written when the input ends (here: when the daemon stops).
+fn arrival_rate(t_mono_ns: &[i64]) -> f64 {
+    let n = t_mono_ns.len() - 1;
+    let span = (t_mono_ns[n - 1] - t_mono_ns[0]) as f64 * 1e-9;
+    (n - 1) as f64 / span
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn simulated_bench_is_logged_completely_exactly_once_with_its_values() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut server = Server::start(
+        bench_scene(),
+        ServeOptions {
+            speed: Speed::Factor(SPEED),
+            link_dir: Some(dir.path().join("dev")),
+            start: StartWhen::OnDemand,
+            record_sent: true,
+            faults: Vec::new(),
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e:#}"));
+
+    let mut devices = String::new();
+    for e in server.endpoints() {
+        // Accelerated, the devices really do send SPEED times faster; the configured rate
+        // sizes the store's chunks (one flush interval each) and the gap detector.
+        let rate = SPEED * if e.sensor == "rx" { GNSS_HZ } else { IMU_HZ };
+        devices.push_str(&format!(
+            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {rate}\nserial = {{ port = \"{}\", baud = 921600 }}\n",
+            e.sensor,
+            e.protocol.name(),
+            e.path().display()
+        ));
+    }
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nname = \"bench\"\nflush_interval_ms = 100\n\n{devices}",
+        dir.path().display()
+    );
+    let config = parse(&text, "end-to-end").unwrap_or_else(|e| panic!("{e}"));
+    let session_dir = dir.path().join("bench");
+    let status_path = config.status_path();
+    let parts = DaemonParts {
+        sink: Box::new(open_session_sink(&config, &session_dir).unwrap()),
+        session_dir: session_dir.clone(),
+        connectors: config
+            .devices
+            .iter()
+            .map(|d| connector_for(d).unwrap())
+            .collect(),
+        decoders: config
+            .devices
+            .iter()
+            .map(|d| decoder_for(d).unwrap_or_else(|e| panic!("{e}")))
+            .collect(),
+        free_space: Box::new(|| Ok(u64::MAX / 2)),
+        status_path: status_path.clone(),
+    };
+    let device_names: Vec<String> = config.devices.iter().map(|d| d.name.clone()).collect();
+    let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+
+    // Start the scene once the daemon has every device open (the status file says so).
+    let t = Instant::now();
+    loop {
+        let open = read_status_file(&status_path).is_ok_and(|s| {
+            s.devices.len() == 3 && s.devices.iter().all(|d| d.state == DeviceState::Connected)
+        });
+        if open {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "the daemon did not open the ptys"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    server.begin();
+    let served_at = Instant::now();
+    while !server.is_finished() {
+        assert!(
+            served_at.elapsed() < Duration::from_secs(60),
+            "serve did not finish"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let report = server.finish().unwrap_or_else(|e| panic!("{e:#}"));
+    let wall_s = served_at.elapsed().as_secs_f64();
+    // Let the daemon read the last bytes, then stop it before the ptys close.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let _ = stop.send(true);
+    let outcome = daemon.await.unwrap();
+    drop(server);
+    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
+    println!(
+        "served {SCENE_S} s of scene in {wall_s:.2} s (×{SPEED}); undelivered bytes {}",
+        report.undelivered_bytes
+    );
+    assert_eq!(report.undelivered_bytes, 0);
+
+    let session = Session::open(&session_dir).expect("the session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    assert!(
+        session.files().iter().all(|f| !f.partial),
+        "{:?}",
+        session.files()
+    );
+    let (events, problems) = session.events();
+    assert!(problems.is_empty(), "{problems:?}");
+    for name in &device_names {
+        let bad: Vec<_> = events
+            .iter()
+            .filter(|e| &e.device == name)
+            .filter(|e| {
+                matches!(
+                    e.kind,
+                    EventKind::Resync
+                        | EventKind::ChecksumError
+                        | EventKind::Disconnect
+                        | EventKind::QueueOverflow
+                )
+            })
+            .collect();
+        assert!(bad.is_empty(), "{name}: {bad:?}");
+    }
+
+    let identity = ImuMapping {
+        body_from_sensor: nalgebra::Matrix3::identity(),
+        gyro_scale: 1.0,
+        accel_scale: 1.0,
+    };
+    let no_time = imulab::daemon::clock::Arrival {
+        mono_ns: 0,
+        wall_ns: 0,
+    };
+    for stream in &report.streams {
+        assert_eq!(
+            stream.encode_errors, 0,
+            "{}: {:?}",
+            stream.sensor, stream.first_encode_error
+        );
+        assert_eq!(stream.frames_overflowed, 0, "{}", stream.sensor);
+        match &stream.sent {
+            Sent::Imu(sent) => {
+                let mut rows = Vec::new();
+                for block in session
+                    .imu_blocks(&stream.sensor, TimeRange::all(), 4096)
+                    .unwrap()
+                {
+                    let block = block.unwrap();
+                    rows.extend((0..block.len()).map(|i| block.record(i)));
+                }
+                assert_eq!(
+                    rows.len(),
+                    sent.len(),
+                    "{}: {} rows for {} frames sent",
+                    stream.sensor,
+                    rows.len(),
+                    sent.len()
+                );
+                assert_eq!(sent.len() as f64, SCENE_S * IMU_HZ, "{}", stream.sensor);
+                for (k, (row, frame)) in rows.iter().zip(sent).enumerate() {
+                    let sample = frame.sample.as_ref().unwrap_or_else(|| {
+                        panic!("{} frame {k}: the drivers do not decode it", stream.sensor)
+                    });
+                    let want = without_times_imu(identity.imu_record(sample, no_time));
+                    assert!(
+                        same(&without_times_imu(*row), &want),
+                        "{} frame {k}: logged {row:?}, sent {want:?}",
+                        stream.sensor
+                    );
+                    // And what was encoded is the simulated record, to the wire's resolution
+                    // (a loose bound here: the simulator's tests check it per protocol).
+                    for axis in 0..3 {
+                        assert!(
+                            (row.gyro[axis] - frame.record.gyro[axis]).abs() < 2e-3,
+                            "{} frame {k} gyro: {row:?} vs {:?}",
+                            stream.sensor,
+                            frame.record
+                        );
+                        assert!(
+                            (row.accel[axis] - frame.record.accel[axis]).abs() < 3e-3,
+                            "{} frame {k} accel: {row:?} vs {:?}",
+                            stream.sensor,
+                            frame.record
+                        );
+                    }
+                }
+                let t: Vec<i64> = rows.iter().map(|r| r.t_mono_ns).collect();
+                assert!(
+                    t.windows(2).all(|w| w[0] <= w[1]),
+                    "{}: arrival times",
+                    stream.sensor
+                );
+                let rate = arrival_rate(&t);
+                // The sensor's own clock runs at scene time: the nominal rate.
+                let sensor_span = rows[rows.len() - 1].t_sensor - rows[0].t_sensor;
+                let sensor_rate = (rows.len() - 1) as f64 / sensor_span;
+                println!(
+                    "{}: {} rows, arrival rate {rate:.0} /s (nominal {}), sensor-time rate {sensor_rate:.2} Hz",
+                    stream.sensor,
+                    rows.len(),
+                    IMU_HZ * SPEED
+                );
+                assert!(
+                    (sensor_rate / IMU_HZ - 1.0).abs() < 0.01,
+                    "{}: sensor time says {sensor_rate} Hz",
+                    stream.sensor
+                );
+                assert!(
+                    (rate / (IMU_HZ * SPEED) - 1.0).abs() < 0.25,
+                    "{}: rows arrived at {rate:.0}/s, expected {} (×{SPEED})",
+                    stream.sensor,
+                    IMU_HZ * SPEED
+                );
+            }
+            Sent::Gnss(sent) => {
+                let mut rows = Vec::new();
+                for block in session
+                    .gnss_blocks(&stream.sensor, TimeRange::all(), 4096)
+                    .unwrap()
+                {
+                    let block = block.unwrap();
+                    rows.extend((0..block.len()).map(|i| block.record(i)));
+                }
+                // The mixed receiver's UBX and NMEA epochs, in the order they were sent.
+                let fixes: Vec<GnssRecord> = sent
+                    .iter()
+                    .flat_map(|s| s.fixes.iter())
+                    .map(|f| without_times_gnss(gnss_record(&f.fix, no_time)))
+                    .collect();
+                assert_eq!(sent.len() as f64, SCENE_S * GNSS_HZ, "{}", stream.sensor);
+                assert_eq!(
+                    fixes.len(),
+                    2 * sent.len(),
+                    "a UBX and an NMEA epoch per cycle"
+                );
+                assert_eq!(
+                    rows.len(),
+                    fixes.len(),
+                    "{}: rows vs epochs sent",
+                    stream.sensor
+                );
+                for (k, (row, want)) in rows.iter().zip(&fixes).enumerate() {
+                    assert!(
+                        same(&without_times_gnss(*row), want),
+                        "{} epoch {k}: logged {row:?}, sent {want:?}",
+                        stream.sensor
+                    );
+                }
+                let t: Vec<i64> = rows.iter().map(|r| r.t_mono_ns).collect();
+                assert!(
+                    t.windows(2).all(|w| w[0] <= w[1]),
+                    "{}: arrival times",
+                    stream.sensor
+                );
+                let ubx_t: Vec<i64> = rows
+                    .iter()
+                    .filter(|r| r.tow_s.is_finite())
+                    .map(|r| r.t_mono_ns)
+                    .collect();
+                let rate = arrival_rate(&ubx_t);
+                println!(
+                    "{}: {} rows, UBX epoch rate {rate:.1} /s (nominal {})",
+                    stream.sensor,
+                    rows.len(),
+                    GNSS_HZ * SPEED
+                );
+                assert!(
+                    (rate / (GNSS_HZ * SPEED) - 1.0).abs() < 0.25,
+                    "{}: epochs arrived at {rate:.1}/s, expected {}",
+                    stream.sensor,
+                    GNSS_HZ * SPEED
+                );
+            }
+        }
+    }
+}
