@@ -168,7 +168,9 @@ impl DeviceTask {
                     decoding.base = decoding.total();
                     decoding.link = DecoderStats::default();
                     decoding.decoder = (self.decoders)();
-                    gaps.restart();
+                    // The gap detector keeps the last arrival: the outage, from the last
+                    // sample before the vanish to the first after the reopen, is a gap event
+                    // (with its estimate of missing samples) besides the reconnect event.
                     let end = self
                         .read_connection(
                             stream,

@@ -52,8 +52,8 @@ impl GapDetector {
         })
     }
 
-    /// Forget the last arrival (the device reconnected: the pause is a reconnect, reported
-    /// on its own, and the next gap is measured from the new stream).
+    /// Forget the last arrival, so the next gap is measured from the next sample. (Not used
+    /// on a reconnect: there the outage is reported as a gap too.)
     pub fn restart(&mut self) {
         self.last_mono_ns = None;
     }
