@@ -76,7 +76,7 @@ fn utc_ns(date: Date, ms_of_day: i64) -> Option<i64> {
 }
 
 /// Accumulates NMEA sentences of one epoch.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct NmeaEpoch {
     key_ms: Option<i64>,
     fix: GnssFix,
@@ -242,7 +242,7 @@ fn sentence_time(sentence: &NmeaSentence) -> Option<TimeOfDay> {
 }
 
 /// Accumulates UBX messages of one epoch (same iTOW).
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct UbxEpoch {
     itow_ms: Option<u32>,
     fix: GnssFix,
@@ -391,7 +391,7 @@ fn ubx_itow(msg: &UbxMessage) -> Option<u32> {
 }
 
 /// Streaming decoder for NMEA + UBX on one port.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 pub struct GnssDecoder {
     buffer: StreamBuffer,
     stats: DecoderStats,
