@@ -15,7 +15,10 @@
 //!   bytes from `$` to the checksum: rejected as too long; decoding resumes after the `$`.
 //! - Bad checksum: counted, skipped through the checksum.
 //! - Checksum fine but a known sentence's field is unparsable: counted as malformed, dropped
-//!   (exception: an invalid RMC date becomes `None`, keeping the fix).
+//!   without losing sync (exception: an invalid RMC date becomes `None`, keeping the fix).
+//!
+//! Counting (skipped bytes, resyncs) follows the one rule of [`StreamBuffer`]; CR and LF
+//! between sentences are framing, not garbage.
 
 use std::fmt;
 use std::io::Write as _;
@@ -537,7 +540,7 @@ pub(crate) fn scan_sentence(buf: &[u8]) -> Scan<NmeaSentence> {
         Some(frame) => Scan::Frame { len, frame },
         None => Scan::Reject {
             len,
-            reject: Reject::Malformed,
+            reject: Reject::BadContent,
         },
     }
 }
@@ -882,12 +885,17 @@ fn parse_gns(talker: Talker, f: &mut Fields) -> Result<Gns, ()> {
     })
 }
 
-/// Streaming NMEA decoder (see the module docs for the framing rule).
-#[derive(Debug, Default)]
+/// Streaming NMEA decoder (see the module docs for the framing rule and
+/// [`StreamBuffer`] for the counting rule).
+#[derive(Debug)]
 pub struct NmeaDecoder {
     buffer: StreamBuffer,
-    stats: DecoderStats,
-    in_sync: bool,
+}
+
+impl Default for NmeaDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl NmeaDecoder {
@@ -898,8 +906,7 @@ impl NmeaDecoder {
 
     pub fn new() -> Self {
         NmeaDecoder {
-            in_sync: true,
-            ..Default::default()
+            buffer: StreamBuffer::text(),
         }
     }
 }
@@ -917,58 +924,26 @@ impl Decoder for NmeaDecoder {
             let Some(start) = memchr::memchr2(b'$', b'!', data) else {
                 // Keep nothing: no start character in the buffer.
                 let skipped = data.len();
-                self.skip(skipped);
+                self.buffer.skip(skipped);
                 return None;
             };
             if start > 0 {
-                self.skip(start);
+                self.buffer.skip(start);
                 continue;
             }
             match scan_sentence(data) {
                 Scan::Incomplete => return None,
                 Scan::Frame { len, frame } => {
-                    self.buffer.consume(len);
-                    self.stats.frames_ok += 1;
-                    self.in_sync = true;
+                    self.buffer.accept(len);
                     return Some(frame);
                 }
-                Scan::Reject { len, reject } => {
-                    reject.count(&mut self.stats);
-                    self.buffer.consume(len);
-                    self.lose_sync();
-                }
+                Scan::Reject { len, reject } => self.buffer.reject(len, reject),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
-    }
-}
-
-impl NmeaDecoder {
-    fn skip(&mut self, n: usize) {
-        if n == 0 {
-            return;
-        }
-        // Line ends between sentences are framing, not garbage.
-        let skipped = &self.buffer.data()[..n];
-        let garbage = skipped
-            .iter()
-            .filter(|&&b| b != b'\r' && b != b'\n')
-            .count();
-        self.stats.bytes_skipped += garbage as u64;
-        if garbage > 0 {
-            self.lose_sync();
-        }
-        self.buffer.consume(n);
-    }
-
-    fn lose_sync(&mut self) {
-        if self.in_sync {
-            self.stats.resyncs += 1;
-            self.in_sync = false;
-        }
+        self.buffer.stats()
     }
 }
 
