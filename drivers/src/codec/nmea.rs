@@ -2,9 +2,11 @@
 //! any talker; proprietary `$P…` and every other sentence kept raw.
 //!
 //! Numbers are kept as exact decimals ([`Decimal`]) so the text a receiver sent is recoverable
-//! and encode → decode is the identity; they serialise to JSON as plain numbers in the
-//! sentence's unit, with lat/lon as signed degrees, time of day in seconds and speed in knots
-//! or km/h exactly as the sentence says (SI accessors convert).
+//! and encode → decode is the identity. In JSON every value is SI: lat/lon in signed degrees,
+//! time of day in seconds, lengths in m, speeds in m/s (`speed_mps`, converted from the
+//! sentence's knots or km/h), angles in degrees; and every sentence carries its own text in
+//! `raw` (re-encoded, so field for field what the receiver sent), from which the original
+//! units are recoverable.
 //!
 //! Framing rule (documented in `docs/protocols.md`): a sentence starts at `$` or `!` and ends
 //! at `*hh` (hex checksum, either case); the line end after it may be CRLF, LF or absent.
@@ -263,8 +265,10 @@ pub struct Gga {
     pub dgps_station: Option<u16>,
 }
 
-/// RMC: recommended minimum (time, date, position, speed, track).
+/// RMC: recommended minimum (time, date, position, speed, track). JSON has the speed in
+/// m/s (`speed_mps`), see [`RmcJson`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(into = "RmcJson")]
 pub struct Rmc {
     pub talker: Talker,
     pub time: Option<TimeOfDay>,
@@ -321,8 +325,9 @@ pub struct Gsv {
     pub signal_id: Option<char>,
 }
 
-/// VTG: track and ground speed.
+/// VTG: track and ground speed. JSON has the speed in m/s (`speed_mps`), see [`VtgJson`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(into = "VtgJson")]
 pub struct Vtg {
     pub talker: Talker,
     pub track_true_deg: Option<Decimal>,
@@ -423,10 +428,97 @@ pub struct RawSentence {
     pub body: String,
 }
 
-/// One decoded sentence.
+/// One decoded sentence. Serialises as its fields with a `sentence` tag plus `raw`, the
+/// sentence's text (see the module docs).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(tag = "sentence")]
+#[serde(into = "SentenceJson")]
 pub enum NmeaSentence {
+    Gga(Gga),
+    Rmc(Rmc),
+    Gsa(Gsa),
+    Gsv(Gsv),
+    Vtg(Vtg),
+    Zda(Zda),
+    Gst(Gst),
+    Gns(Gns),
+    Hdt(Hdt),
+    Gll(Gll),
+    Proprietary(RawSentence),
+    Other(RawSentence),
+}
+
+/// The JSON form of [`Rmc`]: the same fields with the speed in m/s instead of knots.
+#[derive(Serialize)]
+pub struct RmcJson {
+    pub talker: Talker,
+    pub time: Option<TimeOfDay>,
+    pub status: Option<char>,
+    pub lat: Option<Coordinate>,
+    pub lon: Option<Coordinate>,
+    pub speed_mps: Option<f64>,
+    pub track_deg: Option<Decimal>,
+    pub date: Option<Date>,
+    pub mag_var_deg: Option<Decimal>,
+    pub mag_var_dir: Option<char>,
+    pub mode: Option<char>,
+    pub nav_status: Option<char>,
+}
+
+impl From<Rmc> for RmcJson {
+    fn from(s: Rmc) -> Self {
+        RmcJson {
+            talker: s.talker,
+            time: s.time,
+            status: s.status,
+            lat: s.lat,
+            lon: s.lon,
+            speed_mps: s.speed_mps(),
+            track_deg: s.track_deg,
+            date: s.date,
+            mag_var_deg: s.mag_var_deg,
+            mag_var_dir: s.mag_var_dir,
+            mode: s.mode,
+            nav_status: s.nav_status,
+        }
+    }
+}
+
+/// The JSON form of [`Vtg`]: one speed in m/s (from knots, else km/h) instead of both.
+#[derive(Serialize)]
+pub struct VtgJson {
+    pub talker: Talker,
+    pub track_true_deg: Option<Decimal>,
+    pub track_mag_deg: Option<Decimal>,
+    pub speed_mps: Option<f64>,
+    pub mode: Option<char>,
+}
+
+impl From<Vtg> for VtgJson {
+    fn from(s: Vtg) -> Self {
+        VtgJson {
+            talker: s.talker,
+            track_true_deg: s.track_true_deg,
+            track_mag_deg: s.track_mag_deg,
+            speed_mps: s.speed_mps(),
+            mode: s.mode,
+        }
+    }
+}
+
+/// The JSON form of [`NmeaSentence`]: its fields (tagged with `sentence`) plus `raw`.
+#[derive(Serialize)]
+struct SentenceJson {
+    #[serde(flatten)]
+    fields: SentenceFields,
+    /// The sentence as text, `$…*hh` without the line end.
+    raw: String,
+}
+
+/// [`NmeaSentence`]'s fields under their `sentence` tag (the enum itself serialises through
+/// `into`, so its variants are listed again here with their JSON names).
+#[derive(Serialize)]
+#[serde(tag = "sentence")]
+enum SentenceFields {
     #[serde(rename = "GGA")]
     Gga(Gga),
     #[serde(rename = "RMC")]
@@ -451,6 +543,36 @@ pub enum NmeaSentence {
     Proprietary(RawSentence),
     #[serde(rename = "other")]
     Other(RawSentence),
+}
+
+impl From<NmeaSentence> for SentenceJson {
+    fn from(sentence: NmeaSentence) -> Self {
+        let mut text = Vec::new();
+        // A decoded sentence always re-encodes (encode → decode is the identity); should it
+        // ever fail, `raw` is left empty rather than failing the whole JSON line.
+        let _ = NmeaEncoder.encode(&sentence, &mut text);
+        while text.last().is_some_and(|b| *b == b'\r' || *b == b'\n') {
+            text.pop();
+        }
+        let fields = match sentence {
+            NmeaSentence::Gga(s) => SentenceFields::Gga(s),
+            NmeaSentence::Rmc(s) => SentenceFields::Rmc(s),
+            NmeaSentence::Gsa(s) => SentenceFields::Gsa(s),
+            NmeaSentence::Gsv(s) => SentenceFields::Gsv(s),
+            NmeaSentence::Vtg(s) => SentenceFields::Vtg(s),
+            NmeaSentence::Zda(s) => SentenceFields::Zda(s),
+            NmeaSentence::Gst(s) => SentenceFields::Gst(s),
+            NmeaSentence::Gns(s) => SentenceFields::Gns(s),
+            NmeaSentence::Hdt(s) => SentenceFields::Hdt(s),
+            NmeaSentence::Gll(s) => SentenceFields::Gll(s),
+            NmeaSentence::Proprietary(s) => SentenceFields::Proprietary(s),
+            NmeaSentence::Other(s) => SentenceFields::Other(s),
+        };
+        SentenceJson {
+            fields,
+            raw: String::from_utf8_lossy(&text).into_owned(),
+        }
+    }
 }
 
 impl Rmc {
