@@ -10,13 +10,15 @@ pub struct DecoderStats {
     pub frames_ok: u64,
     /// Frames whose checksum did not match (dropped).
     pub checksum_errors: u64,
-    /// Bytes discarded while searching for the next frame start.
+    /// Bytes that ended up in no accepted frame (garbage and rejected frames), line framing
+    /// of text protocols excepted.
     pub bytes_skipped: u64,
     /// Frames rejected for exceeding the protocol's maximum length.
     pub frames_too_long: u64,
     /// Frames rejected for being shorter than their header says or malformed.
     pub frames_malformed: u64,
-    /// Number of times the decoder lost and regained frame sync.
+    /// Number of times the decoder lost frame sync after having accepted a frame (see
+    /// `codec::StreamBuffer` for the rule).
     pub resyncs: u64,
 }
 

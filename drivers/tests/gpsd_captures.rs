@@ -129,6 +129,76 @@ fn mismatch(ours: &EpochFix, tpv: &Tpv, log_reports_speed: bool) -> Option<Strin
     None
 }
 
+/// The log's lines (without CR/LF), to find where gpsd read each passed-through sentence.
+struct LogLines<'a> {
+    /// Line text → (line index, byte offset just past its line end), in log order.
+    by_text: std::collections::HashMap<&'a [u8], Vec<(usize, usize)>>,
+}
+
+impl<'a> LogLines<'a> {
+    fn new(bytes: &'a [u8]) -> Self {
+        let mut by_text: std::collections::HashMap<&[u8], Vec<(usize, usize)>> = Default::default();
+        let mut start = 0;
+        for (index, line) in bytes.split(|&b| b == b'\n').enumerate() {
+            let end = (start + line.len() + 1).min(bytes.len());
+            let text = line.strip_suffix(b"\r").unwrap_or(line);
+            by_text.entry(text).or_default().push((index, end));
+            start = end;
+        }
+        LogLines { by_text }
+    }
+
+    /// The first occurrence of `text` at line `from` or later: (line index, end offset).
+    fn find_from(&self, text: &[u8], from: usize) -> Option<(usize, usize)> {
+        let lines = self.by_text.get(text)?;
+        let at = lines.partition_point(|&(index, _)| index < from);
+        lines.get(at).copied()
+    }
+}
+
+/// For each (time of day, byte offset): the fixes our decoder has for that time after
+/// reading exactly `bytes[..offset]` (closed epochs plus the one in progress, flushed on a
+/// copy of the decoder).
+fn fixes_at_offsets(
+    bytes: &[u8],
+    reports: impl Iterator<Item = (i64, usize)>,
+) -> Vec<Vec<EpochFix>> {
+    let reports: Vec<(i64, usize)> = reports.collect();
+    let mut order: Vec<usize> = (0..reports.len()).collect();
+    order.sort_by_key(|&i| reports[i].1);
+    let mut result = vec![Vec::new(); reports.len()];
+    let mut decoder = GnssDecoder::new();
+    let mut closed: Vec<EpochFix> = Vec::new();
+    let mut read = 0;
+    for i in order {
+        let (time_ms, offset) = reports[i];
+        let offset = offset.min(bytes.len()).max(read);
+        decoder.decode(&bytes[read..offset], |frame| {
+            if let GnssFrame::Fix(fix) = frame {
+                closed.push(fix);
+            }
+        });
+        read = offset;
+        let mut copy = decoder.clone();
+        let mut flushed = Vec::new();
+        while let Some(frame) = copy.finish() {
+            if let GnssFrame::Fix(fix) = frame {
+                flushed.push(fix);
+            }
+        }
+        // Epochs are emitted in time order, so a matching closed one is among the latest.
+        result[i] = closed
+            .iter()
+            .rev()
+            .take(8)
+            .chain(&flushed)
+            .filter(|f| f.time_of_day_ms == Some(time_ms))
+            .copied()
+            .collect();
+    }
+    result
+}
+
 struct FileResult {
     sentences_checked: usize,
     epochs_compared: usize,
@@ -211,29 +281,63 @@ fn check_file(log: &Path) -> FileResult {
     }
 
     // gpsd reports a cycle several times as sentences arrive; its last TPV for a time is
-    // the merged cycle, which is what our epoch fix is compared with.
-    let mut last_tpv: Vec<(i64, serde_json::Value)> = Vec::new();
-    for line in chk.lines().filter(|l| l.contains("\"class\":\"TPV\"")) {
+    // what our epoch fix is compared with. gpsd prints that report at the sentence it has
+    // learned ends the cycle; sentences of the same cycle after it (e.g. an RMC after the
+    // GSV gpsd took for the cycle end) are not in it. The .chk interleaves passed-through
+    // sentences with reports, so for NMEA logs each report is compared with our merge of
+    // exactly the bytes gpsd had read when it printed it (`log_offset`).
+    let log_line_index = LogLines::new(&bytes);
+    let mut cursor = 0usize;
+    let mut log_offset = 0usize;
+    let mut previous_sentence = "";
+    let mut last_tpv: Vec<(i64, serde_json::Value, usize)> = Vec::new();
+    let mut proprietary_positions = 0usize;
+    for line in chk.lines() {
+        if line.starts_with('$') || line.starts_with('!') {
+            if let Some((index, end)) = log_line_index.find_from(line.as_bytes(), cursor) {
+                cursor = index + 1;
+                log_offset = end;
+            }
+            previous_sentence = line;
+            continue;
+        }
+        if !line.contains("\"class\":\"TPV\"") {
+            continue;
+        }
+        // Ericsson timing receivers send an averaged position in the proprietary
+        // `$PERC,GPavp`; gpsd puts it into the TPV, we keep proprietary sentences raw.
+        if previous_sentence.starts_with("$PERC,GPavp") {
+            proprietary_positions += 1;
+            continue;
+        }
         let Ok(v) = serde_json::from_str::<serde_json::Value>(line) else {
             continue;
         };
         let Some(time_ms) = v["time"].as_str().and_then(iso_time_of_day_ms) else {
             continue;
         };
-        match last_tpv.iter_mut().rev().find(|(t, _)| *t == time_ms) {
-            Some(slot) => slot.1 = v,
-            None => last_tpv.push((time_ms, v)),
+        match last_tpv.iter_mut().rev().find(|(t, _, _)| *t == time_ms) {
+            Some(slot) => *slot = (time_ms, v, log_offset),
+            None => last_tpv.push((time_ms, v, log_offset)),
         }
     }
     let contains = |needle: &[u8]| bytes.windows(needle.len()).any(|w| w == needle);
     let log_reports_speed = contains(b"RMC,") || contains(b"VTG,") || contains(&[0xB5, 0x62]);
+    // NMEA-only logs: our fixes as of each report's position in the log. Logs with UBX keep
+    // the whole merged epoch (gpsd's binary drivers report at the epoch's end).
+    let nmea_only = !contains(&[0xB5, 0x62]);
+    let snapshots: Vec<Vec<EpochFix>> = if nmea_only {
+        fixes_at_offsets(&bytes, last_tpv.iter().map(|(t, _, o)| (*t, *o)))
+    } else {
+        Vec::new()
+    };
     let mut epochs_compared = 0;
     let mut unmatched_unlisted = 0;
     if foreign {
         eprintln!("  {name}: mostly not NMEA/UBX ({skipped} bytes skipped), fixes not compared");
         last_tpv.clear();
     }
-    for (time_ms, v) in &last_tpv {
+    for (report, (time_ms, v, _)) in last_tpv.iter().enumerate() {
         let mode = v["mode"].as_u64().unwrap_or(0) as u8;
         if mode < 2 {
             continue;
@@ -255,7 +359,8 @@ fn check_file(log: &Path) -> FileResult {
             track: v["track"].as_f64(),
         };
         epochs_compared += 1;
-        let candidates: Vec<&EpochFix> = fixes
+        let pool: &[EpochFix] = snapshots.get(report).map_or(&fixes, Vec::as_slice);
+        let candidates: Vec<&EpochFix> = pool
             .iter()
             .filter(|f| {
                 f.time_of_day_ms == Some(tpv.time_ms)
@@ -280,6 +385,12 @@ fn check_file(log: &Path) -> FileResult {
         if reasons.len() == candidates.len() {
             failures.push(format!("{name} {}: {}", v["time"], reasons.join("; ")));
         }
+    }
+    if proprietary_positions > 0 {
+        eprintln!(
+            "  {name}: {proprietary_positions} gpsd reports take their position from $PERC,GPavp \
+             (proprietary, kept raw here); compared as printed before it"
+        );
     }
     if unmatched_unlisted > 0 {
         eprintln!(
@@ -312,6 +423,20 @@ fn gpsd_real_captures_decode_like_gpsd() {
     let (mut sentences, mut epochs, mut failures) = (0, 0, Vec::new());
     for log in &logs {
         let result = check_file(log);
+        if result.epochs_compared > 0 {
+            eprintln!(
+                "  {}: {} fix epochs compared, {} differ",
+                log.file_name()
+                    .map(|n| n.to_string_lossy())
+                    .unwrap_or_default(),
+                result.epochs_compared,
+                result
+                    .failures
+                    .iter()
+                    .filter(|f| !f.contains("intact sentence"))
+                    .count()
+            );
+        }
         sentences += result.sentences_checked;
         epochs += result.epochs_compared;
         failures.extend(result.failures);
@@ -328,15 +453,17 @@ fn gpsd_real_captures_decode_like_gpsd() {
         per_file.entry(file).or_default().push(f);
     }
     for (file, list) in &per_file {
-        eprintln!("  {file}: {} failures, e.g.", list.len());
-        for f in list.iter().take(2) {
+        eprintln!("  {file}: {} differences:", list.len());
+        for f in list {
             eprintln!("    {f}");
         }
     }
-    // Sentences gpsd accepted must all decode; fix epochs must agree with gpsd's merged
-    // report except where gpsd's cycle heuristics differ from time-keyed merging (receivers
-    // whose GGA lags RMC by a cycle, GSA/GGA mode conflicts, speed gpsd derives from
-    // position deltas). Those are listed above; the bound keeps regressions visible.
+    // Sentences gpsd accepted must all decode; fix epochs must agree with gpsd's report as
+    // printed (see `check_file` for the rules applied: the report is compared with our merge
+    // of the bytes gpsd had read when printing it). Six epochs still differ for reasons not
+    // yet explained (garmin25lp, sl869: GGA-with-altitude 3D vs GSA 2D within one cycle;
+    // ublox-neo-f9v: mm/s speeds; ublox-neo-m8l: one position); the bound keeps any new
+    // difference visible until those are resolved.
     let rejected: Vec<&String> = failures
         .iter()
         .filter(|f| f.contains("intact sentence"))
@@ -346,8 +473,9 @@ fn gpsd_real_captures_decode_like_gpsd() {
         "intact sentences rejected: {rejected:#?}"
     );
     let fix_failures = failures.len() - rejected.len();
+    const UNEXPLAINED: usize = 6;
     assert!(
-        fix_failures * 100 <= epochs * 3,
-        "{fix_failures} of {epochs} fix epochs disagree with gpsd (more than 3%)"
+        fix_failures <= UNEXPLAINED,
+        "{fix_failures} of {epochs} fix epochs disagree with gpsd (known unexplained: {UNEXPLAINED})"
     );
 }

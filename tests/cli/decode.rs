@@ -1,12 +1,13 @@
 //! `imulab decode` end to end: a mixed NMEA + UBX capture (built with the encoders) comes
-//! out as one JSON object per frame plus merged fixes, with the counters on stderr; a bad
-//! protocol name and an undecodable file fail with a clear message.
+//! out as one JSON object per frame plus merged fixes, with the counters on stderr; NMEA
+//! values come out in SI units with the sentence text kept in `raw`; a bad protocol name and
+//! an undecodable file fail with a clear message.
 
 use std::process::Command;
 
-use imulab_drivers::codec::nmea::{Decimal, Hdt, NmeaEncoder, NmeaSentence, Talker};
+use imulab_drivers::codec::nmea::{Decimal, Hdt, NmeaDecoder, NmeaEncoder, NmeaSentence, Talker};
 use imulab_drivers::codec::ubx::{parse_message, UbxEncoder};
-use imulab_drivers::codec::Encoder;
+use imulab_drivers::codec::{Decoder, Encoder};
 
 fn imulab() -> Command {
     Command::new(env!("CARGO_BIN_EXE_imulab"))
@@ -59,6 +60,78 @@ fn decodes_mixed_capture_to_json_lines() {
     assert_eq!(summary["protocol"], "gnss");
     assert_eq!(summary["stats"]["frames_ok"], 6);
     assert_eq!(summary["stats"]["bytes_skipped"], 7);
+}
+
+/// `$body*hh\r\n` with the checksum computed.
+fn sentence(body: &str) -> String {
+    let checksum = body.bytes().fold(0u8, |acc, b| acc ^ b);
+    format!("${body}*{checksum:02X}\r\n")
+}
+
+fn decode_one(text: &str) -> NmeaSentence {
+    let mut decoder = NmeaDecoder::new();
+    let mut frames = Vec::new();
+    decoder.decode(text.as_bytes(), |f| frames.push(f));
+    assert_eq!(frames.len(), 1, "{text}");
+    frames.remove(0)
+}
+
+#[test]
+fn nmea_json_is_si_with_the_sentence_text_kept() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("speeds.nmea");
+    let rmc = sentence("GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W");
+    // km/h only: the knots field is empty.
+    let vtg = sentence("GPVTG,054.7,T,034.4,M,,N,010.8,K");
+    let gga = sentence("GPGGA,123519,4807.038,S,01131.000,W,1,08,0.9,545.4,M,46.9,M,,");
+    std::fs::write(&path, format!("{rmc}{vtg}{gga}")).expect("write capture");
+
+    let out = imulab()
+        .args(["decode", "--protocol", "nmea"])
+        .arg(&path)
+        .output()
+        .expect("run imulab");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let lines: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
+        .collect();
+    assert_eq!(lines.len(), 3, "{stdout}");
+    let close = |v: &serde_json::Value, want: f64| {
+        let got = v.as_f64().unwrap_or(f64::NAN);
+        assert!((got - want).abs() < 1e-9, "{got} vs {want}: {stdout}");
+    };
+
+    let (rmc_json, vtg_json, gga_json) = (&lines[0], &lines[1], &lines[2]);
+    assert_eq!(rmc_json["sentence"], "RMC");
+    close(&rmc_json["speed_mps"], 22.4 * 1852.0 / 3600.0);
+    assert!(rmc_json.get("speed_knots").is_none(), "{stdout}");
+    close(&rmc_json["lat"], 48.0 + 7.038 / 60.0);
+    close(&rmc_json["lon"], 11.0 + 31.0 / 60.0);
+    assert_eq!(vtg_json["sentence"], "VTG");
+    close(&vtg_json["speed_mps"], 3.0);
+    assert!(vtg_json.get("speed_kmh").is_none(), "{stdout}");
+    close(&gga_json["lat"], -(48.0 + 7.038 / 60.0));
+    close(&gga_json["lon"], -(11.0 + 31.0 / 60.0));
+    close(&gga_json["alt_msl_m"], 545.4);
+    close(&gga_json["time"], 12.0 * 3600.0 + 35.0 * 60.0 + 19.0);
+
+    // The raw values stay recoverable: `raw` is the sentence's text, which decodes to the
+    // same sentence as what the receiver sent (knots and km/h included).
+    for (json, original) in [(rmc_json, &rmc), (vtg_json, &vtg), (gga_json, &gga)] {
+        let raw = json["raw"].as_str().expect("raw text");
+        assert_eq!(decode_one(raw), decode_one(original), "{raw} vs {original}");
+    }
+    let raw_vtg = vtg_json["raw"].as_str().unwrap_or("");
+    assert!(
+        raw_vtg.contains(",010.8,K") || raw_vtg.contains(",10.8,K"),
+        "{raw_vtg}"
+    );
 }
 
 #[test]

@@ -10,7 +10,7 @@
 //! lines and lines starting with `#` are skipped silently.
 
 use super::can::{hex_value, parse_hex_u32, write_hex, CanFrame, CanKind};
-use super::{Decoder, EncodeError, Encoder, StreamBuffer};
+use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Longest accepted line (FD frame with 64 bytes plus a long timestamp and name fits).
@@ -173,17 +173,26 @@ pub fn parse_line(line: &[u8]) -> Option<CandumpRecord> {
     })
 }
 
-/// Streaming candump log decoder.
-#[derive(Debug, Default, Clone)]
+/// Streaming candump log decoder. Counting follows the one rule of [`StreamBuffer`] (line
+/// ends, blank lines and `#` comments are framing, never skipped bytes).
+#[derive(Debug, Clone)]
 pub struct CandumpDecoder {
     buf: StreamBuffer,
-    stats: DecoderStats,
     discarding: bool,
+}
+
+impl Default for CandumpDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl CandumpDecoder {
     pub fn new() -> Self {
-        Self::default()
+        CandumpDecoder {
+            buf: StreamBuffer::text(),
+            discarding: false,
+        }
     }
 }
 
@@ -200,24 +209,22 @@ impl Decoder for CandumpDecoder {
             let newline = memchr::memchr(b'\n', data);
             if self.discarding {
                 let n = newline.map_or(data.len(), |p| p + 1);
-                self.stats.bytes_skipped += n as u64;
-                self.buf.consume(n);
+                self.buf.skip(n);
                 newline?;
                 self.discarding = false;
                 continue;
             }
             let Some(pos) = newline else {
                 if data.len() > MAX_LINE {
-                    self.stats.frames_too_long += 1;
+                    // Counted now; its bytes are skipped as they arrive.
+                    self.buf.reject(0, Reject::TooLong);
                     self.discarding = true;
                     continue;
                 }
                 return None;
             };
             if pos > MAX_LINE {
-                self.stats.frames_too_long += 1;
-                self.stats.bytes_skipped += pos as u64 + 1;
-                self.buf.consume(pos + 1);
+                self.buf.reject(pos + 1, Reject::TooLong);
                 continue;
             }
             let mut line = &data[..pos];
@@ -225,25 +232,22 @@ impl Decoder for CandumpDecoder {
                 line = stripped;
             }
             let blank = line.iter().all(|b| b.is_ascii_whitespace());
-            let skip = blank || line.first() == Some(&b'#');
-            let parsed = if skip { None } else { parse_line(line) };
-            self.buf.consume(pos + 1);
-            match parsed {
+            if blank || line.first() == Some(&b'#') {
+                self.buf.pass(pos + 1);
+                continue;
+            }
+            match parse_line(line) {
                 Some(record) => {
-                    self.stats.frames_ok += 1;
+                    self.buf.accept(pos + 1);
                     return Some(record);
                 }
-                None if skip => {}
-                None => {
-                    self.stats.frames_malformed += 1;
-                    self.stats.bytes_skipped += pos as u64 + 1;
-                }
+                None => self.buf.reject(pos + 1, Reject::Malformed),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buf.stats()
     }
 }
 

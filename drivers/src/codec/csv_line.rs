@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Decoder, EncodeError, Encoder, StreamBuffer};
+use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Where one quantity is in the line and how to turn it into SI.
@@ -174,7 +174,6 @@ const MAX_FIELDS: usize = 64;
 pub struct CsvLineDecoder {
     config: CsvLineConfig,
     buf: StreamBuffer,
-    stats: DecoderStats,
     /// True while discarding the rest of an over-long line.
     discarding: bool,
 }
@@ -188,8 +187,7 @@ impl CsvLineDecoder {
         }
         Ok(CsvLineDecoder {
             config,
-            buf: StreamBuffer::default(),
-            stats: DecoderStats::default(),
+            buf: StreamBuffer::text(),
             discarding: false,
         })
     }
@@ -266,53 +264,38 @@ impl Decoder for CsvLineDecoder {
             let data = self.buf.data();
             let newline = memchr::memchr(b'\n', data);
             if self.discarding {
-                match newline {
-                    Some(pos) => {
-                        self.stats.bytes_skipped += pos as u64 + 1;
-                        self.buf.consume(pos + 1);
-                        self.discarding = false;
-                        continue;
-                    }
-                    None => {
-                        self.stats.bytes_skipped += data.len() as u64;
-                        let n = data.len();
-                        self.buf.consume(n);
-                        return None;
-                    }
-                }
+                let n = newline.map_or(data.len(), |pos| pos + 1);
+                self.buf.skip(n);
+                newline?;
+                self.discarding = false;
+                continue;
             }
             let Some(pos) = newline else {
                 if data.len() > self.config.max_line_len {
-                    self.stats.frames_too_long += 1;
+                    // Counted now; its bytes are skipped as they arrive.
+                    self.buf.reject(0, Reject::TooLong);
                     self.discarding = true;
                     continue;
                 }
                 return None;
             };
             if pos > self.config.max_line_len {
-                self.stats.frames_too_long += 1;
-                self.stats.bytes_skipped += pos as u64 + 1;
-                self.buf.consume(pos + 1);
+                self.buf.reject(pos + 1, Reject::TooLong);
                 continue;
             }
-            let parsed = self.parse_line(&data[..pos]);
-            self.buf.consume(pos + 1);
-            match parsed {
+            match self.parse_line(&data[..pos]) {
                 Ok(Some(sample)) => {
-                    self.stats.frames_ok += 1;
+                    self.buf.accept(pos + 1);
                     return Some(sample);
                 }
-                Ok(None) => {}
-                Err(()) => {
-                    self.stats.frames_malformed += 1;
-                    self.stats.bytes_skipped += pos as u64 + 1;
-                }
+                Ok(None) => self.buf.pass(pos + 1),
+                Err(()) => self.buf.reject(pos + 1, Reject::Malformed),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buf.stats()
     }
 }
 

@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use super::nmea::{self, Date, NmeaSentence, TimeOfDay};
 use super::ubx::{self, UbxMessage};
-use super::{Decoder, Reject, Scan, StreamBuffer};
+use super::{Decoder, Scan, StreamBuffer};
 use crate::types::{DecoderStats, FixType, GnssFix};
 
 /// Which protocol an epoch was merged from.
@@ -76,7 +76,7 @@ fn utc_ns(date: Date, ms_of_day: i64) -> Option<i64> {
 }
 
 /// Accumulates NMEA sentences of one epoch.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct NmeaEpoch {
     key_ms: Option<i64>,
     fix: GnssFix,
@@ -242,7 +242,7 @@ fn sentence_time(sentence: &NmeaSentence) -> Option<TimeOfDay> {
 }
 
 /// Accumulates UBX messages of one epoch (same iTOW).
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct UbxEpoch {
     itow_ms: Option<u32>,
     fix: GnssFix,
@@ -391,11 +391,9 @@ fn ubx_itow(msg: &UbxMessage) -> Option<u32> {
 }
 
 /// Streaming decoder for NMEA + UBX on one port.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone)]
 pub struct GnssDecoder {
     buffer: StreamBuffer,
-    stats: DecoderStats,
-    out_of_sync: bool,
     ready: VecDeque<GnssFrame>,
     nmea_epoch: NmeaEpoch,
     nmea_date: Option<Date>,
@@ -414,8 +412,14 @@ impl GnssDecoder {
 
     pub fn new() -> Self {
         GnssDecoder {
+            buffer: StreamBuffer::text(),
             ready: VecDeque::with_capacity(4),
-            ..Default::default()
+            nmea_epoch: NmeaEpoch::default(),
+            nmea_date: None,
+            nmea_last_fix: FixType::NoFix,
+            ubx_epoch: UbxEpoch::default(),
+            ubx_week: None,
+            finished: false,
         }
     }
 
@@ -423,28 +427,6 @@ impl GnssDecoder {
     pub fn with_date(mut self, date: Date) -> Self {
         self.nmea_date = Some(date);
         self
-    }
-
-    fn skip(&mut self, n: usize) {
-        if n == 0 {
-            return;
-        }
-        let garbage = self.buffer.data()[..n]
-            .iter()
-            .filter(|&&b| b != b'\r' && b != b'\n')
-            .count();
-        self.stats.bytes_skipped += garbage as u64;
-        if garbage > 0 {
-            self.lose_sync();
-        }
-        self.buffer.consume(n);
-    }
-
-    fn lose_sync(&mut self) {
-        if !self.out_of_sync {
-            self.stats.resyncs += 1;
-            self.out_of_sync = true;
-        }
     }
 
     fn on_nmea(&mut self, sentence: NmeaSentence) {
@@ -496,6 +478,12 @@ impl GnssDecoder {
     }
 }
 
+impl Default for GnssDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl Decoder for GnssDecoder {
     type Frame = GnssFrame;
 
@@ -512,11 +500,11 @@ impl Decoder for GnssDecoder {
             let data = self.buffer.data();
             let Some(start) = memchr::memchr3(b'$', b'!', 0xB5, data) else {
                 let n = data.len();
-                self.skip(n);
+                self.buffer.skip(n);
                 return None;
             };
             if start > 0 {
-                self.skip(start);
+                self.buffer.skip(start);
                 continue;
             }
             let (len, outcome) = if data[0] == 0xB5 {
@@ -534,21 +522,14 @@ impl Decoder for GnssDecoder {
             };
             match outcome {
                 Ok(frame) => {
-                    self.buffer.consume(len);
-                    self.stats.frames_ok += 1;
-                    self.out_of_sync = false;
+                    self.buffer.accept(len);
                     match frame {
                         GnssFrame::Nmea(s) => self.on_nmea(s),
                         GnssFrame::Ubx(m) => self.on_ubx(m),
                         GnssFrame::Fix(_) => {}
                     }
                 }
-                Err(Reject::NoSync) => self.skip(len),
-                Err(reject) => {
-                    reject.count(&mut self.stats);
-                    self.buffer.consume(len);
-                    self.lose_sync();
-                }
+                Err(reject) => self.buffer.reject(len, reject),
             }
         }
     }
@@ -574,7 +555,7 @@ impl Decoder for GnssDecoder {
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buffer.stats()
     }
 }
 

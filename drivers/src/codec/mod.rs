@@ -269,33 +269,61 @@ pub(crate) enum Scan<F> {
 pub(crate) enum Reject {
     Checksum,
     TooLong,
+    /// Framing broken (missing checksum, noise inside a frame, a line that does not parse).
     Malformed,
+    /// Framing and checksum were right but the content is unusable (e.g. an NMEA field that
+    /// does not parse): counted as malformed, but the decoder stays in sync.
+    BadContent,
     /// Not a frame start after all (e.g. 0xB5 not followed by 0x62): plain garbage.
     NoSync,
 }
 
-impl Reject {
-    pub(crate) fn count(self, stats: &mut DecoderStats) {
-        match self {
-            Reject::Checksum => stats.checksum_errors += 1,
-            Reject::TooLong => stats.frames_too_long += 1,
-            Reject::Malformed => stats.frames_malformed += 1,
-            Reject::NoSync => {}
-        }
-    }
+/// Which bytes a stream may carry between frames without them counting as garbage.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Filler {
+    /// Binary protocols: every byte outside a frame is garbage.
+    #[default]
+    None,
+    /// Text protocols (NMEA, CSV lines, slcan, candump): CR and LF are line framing.
+    LineEnds,
 }
 
-/// The byte buffer behind a streaming decoder: appended at the back, consumed at the front,
-/// compacted so it never holds more than the unconsumed bytes.
+/// The byte buffer behind every streaming decoder, with its counters and the one resync rule
+/// all decoders share (documented in `docs/protocols.md`, "Resynchronisation"):
+///
+/// - Every input byte ends up in exactly one place: an accepted frame (`frames_ok`), filler
+///   the format allows between frames (CR/LF in text protocols, blank and comment lines where
+///   the format has them), `bytes_skipped`, or the buffer (an unfinished frame). So the bytes
+///   of a rejected frame are skipped bytes too, and the reason (`checksum_errors`,
+///   `frames_too_long`, `frames_malformed`) is counted once per rejected frame.
+/// - A decoder starts out of sync. Garbage before the first frame is skipped but is no
+///   resync (a port opened mid-frame is normal). `resyncs` counts the times a decoder that
+///   had accepted a frame dropped bytes it could not frame (garbage or a rejected frame); the
+///   next accepted frame puts it back in sync. A frame whose checksum matched but whose
+///   content is unusable is dropped without losing sync.
+/// - Appended at the back, consumed at the front, compacted so it never holds more than the
+///   unconsumed bytes.
 #[derive(Debug, Default, Clone)]
 pub struct StreamBuffer {
     bytes: Vec<u8>,
     start: usize,
+    stats: DecoderStats,
+    synced: bool,
+    filler: Filler,
 }
 
 impl StreamBuffer {
+    /// A buffer for a binary protocol.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A buffer for a text protocol: CR and LF outside frames are framing, not garbage.
+    pub fn text() -> Self {
+        StreamBuffer {
+            filler: Filler::LineEnds,
+            ..Self::default()
+        }
     }
 
     /// Appends bytes, first dropping the consumed front when that frees enough room.
@@ -315,17 +343,84 @@ impl StreamBuffer {
         &self.bytes[self.start..]
     }
 
-    /// Marks `n` bytes at the front as consumed (clamped to what is there).
-    pub fn consume(&mut self, n: usize) {
-        self.start = (self.start + n).min(self.bytes.len());
-    }
-
     pub fn len(&self) -> usize {
         self.bytes.len() - self.start
     }
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+
+    /// Counters since construction.
+    pub fn stats(&self) -> DecoderStats {
+        self.stats
+    }
+
+    /// Consumes `n` bytes (clamped to what is there) and returns them.
+    fn consume(&mut self, n: usize) -> &[u8] {
+        let from = self.start;
+        self.start = (self.start + n).min(self.bytes.len());
+        &self.bytes[from..self.start]
+    }
+
+    /// The first `len` bytes were a frame, handed out: counted, and the decoder is in sync.
+    pub(crate) fn accept(&mut self, len: usize) {
+        self.consume(len);
+        self.stats.frames_ok += 1;
+        self.synced = true;
+    }
+
+    /// Drops `len` bytes that belong to no frame. Filler is not counted and does not
+    /// break sync; anything else is `bytes_skipped` and loses sync.
+    pub(crate) fn skip(&mut self, len: usize) {
+        if self.count_skipped(len) > 0 {
+            self.lose_sync();
+        }
+    }
+
+    /// Drops `len` bytes, adds those that are not filler to `bytes_skipped` and returns
+    /// how many that was.
+    fn count_skipped(&mut self, len: usize) -> usize {
+        let filler = self.filler;
+        let dropped = self.consume(len);
+        let garbage = match filler {
+            Filler::None => dropped.len(),
+            Filler::LineEnds => dropped
+                .iter()
+                .filter(|&&b| b != b'\r' && b != b'\n')
+                .count(),
+        };
+        self.stats.bytes_skipped += garbage as u64;
+        garbage
+    }
+
+    /// Drops the first `len` bytes (may be 0 when a too-long frame's bytes are skipped as
+    /// they arrive) of a frame rejected for `reason`: counts the reason, skips the bytes and,
+    /// unless only the content was bad, loses sync.
+    pub(crate) fn reject(&mut self, len: usize, reason: Reject) {
+        match reason {
+            Reject::Checksum => self.stats.checksum_errors += 1,
+            Reject::TooLong => self.stats.frames_too_long += 1,
+            Reject::Malformed | Reject::BadContent => self.stats.frames_malformed += 1,
+            Reject::NoSync => {}
+        }
+        self.count_skipped(len);
+        if reason != Reject::BadContent {
+            self.lose_sync();
+        }
+    }
+
+    /// Drops `len` bytes the format allows between frames (blank or comment lines): neither
+    /// a frame nor garbage.
+    pub(crate) fn pass(&mut self, len: usize) {
+        self.consume(len);
+    }
+
+    fn lose_sync(&mut self) {
+        if self.synced {
+            self.stats.resyncs += 1;
+            self.synced = false;
+        }
     }
 }
 
@@ -348,11 +443,39 @@ mod tests {
     fn stream_buffer_consumes_and_compacts() {
         let mut buf = StreamBuffer::new();
         buf.push(b"abcdef");
-        buf.consume(4);
+        buf.accept(4);
         assert_eq!(buf.data(), b"ef");
         buf.push(b"gh");
         assert_eq!(buf.data(), b"efgh");
-        buf.consume(100);
+        buf.pass(100);
         assert!(buf.is_empty());
     }
+
+    #[test]
+    fn resync_rule_counts() {
+        let mut buf = StreamBuffer::text();
+        buf.push(b"xx\r\nFRAME\r\nyyBADZFRAME\n");
+        // Garbage before the first frame: skipped, no resync; line ends are filler.
+        buf.skip(4);
+        buf.accept(5);
+        buf.skip(2);
+        assert_eq!((buf.stats().bytes_skipped, buf.stats().resyncs), (2, 0));
+        // Garbage after a frame: one resync for the whole run, rejected frame included.
+        buf.skip(2);
+        buf.reject(3, Reject::Checksum);
+        let s = buf.stats();
+        assert_eq!((s.bytes_skipped, s.resyncs, s.checksum_errors), (7, 1, 1));
+        // A frame with bad content after a good one: counted and skipped, sync kept.
+        buf.pass(1);
+        buf.accept(5);
+        buf.push(b"BAD");
+        buf.pass(1);
+        buf.reject(3, Reject::BadContent);
+        let s = buf.stats();
+        assert_eq!((s.bytes_skipped, s.resyncs, s.frames_malformed), (10, 1, 1));
+        assert_eq!(s.frames_ok, 2);
+    }
 }
+
+#[cfg(test)]
+mod resync_tests;

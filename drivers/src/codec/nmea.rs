@@ -2,9 +2,11 @@
 //! any talker; proprietary `$P…` and every other sentence kept raw.
 //!
 //! Numbers are kept as exact decimals ([`Decimal`]) so the text a receiver sent is recoverable
-//! and encode → decode is the identity; they serialise to JSON as plain numbers in the
-//! sentence's unit, with lat/lon as signed degrees, time of day in seconds and speed in knots
-//! or km/h exactly as the sentence says (SI accessors convert).
+//! and encode → decode is the identity. In JSON every value is SI: lat/lon in signed degrees,
+//! time of day in seconds, lengths in m, speeds in m/s (`speed_mps`, converted from the
+//! sentence's knots or km/h), angles in degrees; and every sentence carries its own text in
+//! `raw` (re-encoded, so field for field what the receiver sent), from which the original
+//! units are recoverable.
 //!
 //! Framing rule (documented in `docs/protocols.md`): a sentence starts at `$` or `!` and ends
 //! at `*hh` (hex checksum, either case); the line end after it may be CRLF, LF or absent.
@@ -15,7 +17,10 @@
 //!   bytes from `$` to the checksum: rejected as too long; decoding resumes after the `$`.
 //! - Bad checksum: counted, skipped through the checksum.
 //! - Checksum fine but a known sentence's field is unparsable: counted as malformed, dropped
-//!   (exception: an invalid RMC date becomes `None`, keeping the fix).
+//!   without losing sync (exception: an invalid RMC date becomes `None`, keeping the fix).
+//!
+//! Counting (skipped bytes, resyncs) follows the one rule of [`StreamBuffer`]; CR and LF
+//! between sentences are framing, not garbage.
 
 use std::fmt;
 use std::io::Write as _;
@@ -260,8 +265,10 @@ pub struct Gga {
     pub dgps_station: Option<u16>,
 }
 
-/// RMC: recommended minimum (time, date, position, speed, track).
+/// RMC: recommended minimum (time, date, position, speed, track). JSON has the speed in
+/// m/s (`speed_mps`), see [`RmcJson`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(into = "RmcJson")]
 pub struct Rmc {
     pub talker: Talker,
     pub time: Option<TimeOfDay>,
@@ -318,8 +325,9 @@ pub struct Gsv {
     pub signal_id: Option<char>,
 }
 
-/// VTG: track and ground speed.
+/// VTG: track and ground speed. JSON has the speed in m/s (`speed_mps`), see [`VtgJson`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(into = "VtgJson")]
 pub struct Vtg {
     pub talker: Talker,
     pub track_true_deg: Option<Decimal>,
@@ -420,10 +428,97 @@ pub struct RawSentence {
     pub body: String,
 }
 
-/// One decoded sentence.
+/// One decoded sentence. Serialises as its fields with a `sentence` tag plus `raw`, the
+/// sentence's text (see the module docs).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(tag = "sentence")]
+#[serde(into = "SentenceJson")]
 pub enum NmeaSentence {
+    Gga(Gga),
+    Rmc(Rmc),
+    Gsa(Gsa),
+    Gsv(Gsv),
+    Vtg(Vtg),
+    Zda(Zda),
+    Gst(Gst),
+    Gns(Gns),
+    Hdt(Hdt),
+    Gll(Gll),
+    Proprietary(RawSentence),
+    Other(RawSentence),
+}
+
+/// The JSON form of [`Rmc`]: the same fields with the speed in m/s instead of knots.
+#[derive(Serialize)]
+pub struct RmcJson {
+    pub talker: Talker,
+    pub time: Option<TimeOfDay>,
+    pub status: Option<char>,
+    pub lat: Option<Coordinate>,
+    pub lon: Option<Coordinate>,
+    pub speed_mps: Option<f64>,
+    pub track_deg: Option<Decimal>,
+    pub date: Option<Date>,
+    pub mag_var_deg: Option<Decimal>,
+    pub mag_var_dir: Option<char>,
+    pub mode: Option<char>,
+    pub nav_status: Option<char>,
+}
+
+impl From<Rmc> for RmcJson {
+    fn from(s: Rmc) -> Self {
+        RmcJson {
+            talker: s.talker,
+            time: s.time,
+            status: s.status,
+            lat: s.lat,
+            lon: s.lon,
+            speed_mps: s.speed_mps(),
+            track_deg: s.track_deg,
+            date: s.date,
+            mag_var_deg: s.mag_var_deg,
+            mag_var_dir: s.mag_var_dir,
+            mode: s.mode,
+            nav_status: s.nav_status,
+        }
+    }
+}
+
+/// The JSON form of [`Vtg`]: one speed in m/s (from knots, else km/h) instead of both.
+#[derive(Serialize)]
+pub struct VtgJson {
+    pub talker: Talker,
+    pub track_true_deg: Option<Decimal>,
+    pub track_mag_deg: Option<Decimal>,
+    pub speed_mps: Option<f64>,
+    pub mode: Option<char>,
+}
+
+impl From<Vtg> for VtgJson {
+    fn from(s: Vtg) -> Self {
+        VtgJson {
+            talker: s.talker,
+            track_true_deg: s.track_true_deg,
+            track_mag_deg: s.track_mag_deg,
+            speed_mps: s.speed_mps(),
+            mode: s.mode,
+        }
+    }
+}
+
+/// The JSON form of [`NmeaSentence`]: its fields (tagged with `sentence`) plus `raw`.
+#[derive(Serialize)]
+struct SentenceJson {
+    #[serde(flatten)]
+    fields: SentenceFields,
+    /// The sentence as text, `$…*hh` without the line end.
+    raw: String,
+}
+
+/// [`NmeaSentence`]'s fields under their `sentence` tag (the enum itself serialises through
+/// `into`, so its variants are listed again here with their JSON names).
+#[derive(Serialize)]
+#[serde(tag = "sentence")]
+enum SentenceFields {
     #[serde(rename = "GGA")]
     Gga(Gga),
     #[serde(rename = "RMC")]
@@ -448,6 +543,36 @@ pub enum NmeaSentence {
     Proprietary(RawSentence),
     #[serde(rename = "other")]
     Other(RawSentence),
+}
+
+impl From<NmeaSentence> for SentenceJson {
+    fn from(sentence: NmeaSentence) -> Self {
+        let mut text = Vec::new();
+        // A decoded sentence always re-encodes (encode → decode is the identity); should it
+        // ever fail, `raw` is left empty rather than failing the whole JSON line.
+        let _ = NmeaEncoder.encode(&sentence, &mut text);
+        while text.last().is_some_and(|b| *b == b'\r' || *b == b'\n') {
+            text.pop();
+        }
+        let fields = match sentence {
+            NmeaSentence::Gga(s) => SentenceFields::Gga(s),
+            NmeaSentence::Rmc(s) => SentenceFields::Rmc(s),
+            NmeaSentence::Gsa(s) => SentenceFields::Gsa(s),
+            NmeaSentence::Gsv(s) => SentenceFields::Gsv(s),
+            NmeaSentence::Vtg(s) => SentenceFields::Vtg(s),
+            NmeaSentence::Zda(s) => SentenceFields::Zda(s),
+            NmeaSentence::Gst(s) => SentenceFields::Gst(s),
+            NmeaSentence::Gns(s) => SentenceFields::Gns(s),
+            NmeaSentence::Hdt(s) => SentenceFields::Hdt(s),
+            NmeaSentence::Gll(s) => SentenceFields::Gll(s),
+            NmeaSentence::Proprietary(s) => SentenceFields::Proprietary(s),
+            NmeaSentence::Other(s) => SentenceFields::Other(s),
+        };
+        SentenceJson {
+            fields,
+            raw: String::from_utf8_lossy(&text).into_owned(),
+        }
+    }
 }
 
 impl Rmc {
@@ -537,7 +662,7 @@ pub(crate) fn scan_sentence(buf: &[u8]) -> Scan<NmeaSentence> {
         Some(frame) => Scan::Frame { len, frame },
         None => Scan::Reject {
             len,
-            reject: Reject::Malformed,
+            reject: Reject::BadContent,
         },
     }
 }
@@ -882,12 +1007,17 @@ fn parse_gns(talker: Talker, f: &mut Fields) -> Result<Gns, ()> {
     })
 }
 
-/// Streaming NMEA decoder (see the module docs for the framing rule).
-#[derive(Debug, Default)]
+/// Streaming NMEA decoder (see the module docs for the framing rule and
+/// [`StreamBuffer`] for the counting rule).
+#[derive(Debug)]
 pub struct NmeaDecoder {
     buffer: StreamBuffer,
-    stats: DecoderStats,
-    in_sync: bool,
+}
+
+impl Default for NmeaDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl NmeaDecoder {
@@ -898,8 +1028,7 @@ impl NmeaDecoder {
 
     pub fn new() -> Self {
         NmeaDecoder {
-            in_sync: true,
-            ..Default::default()
+            buffer: StreamBuffer::text(),
         }
     }
 }
@@ -917,58 +1046,26 @@ impl Decoder for NmeaDecoder {
             let Some(start) = memchr::memchr2(b'$', b'!', data) else {
                 // Keep nothing: no start character in the buffer.
                 let skipped = data.len();
-                self.skip(skipped);
+                self.buffer.skip(skipped);
                 return None;
             };
             if start > 0 {
-                self.skip(start);
+                self.buffer.skip(start);
                 continue;
             }
             match scan_sentence(data) {
                 Scan::Incomplete => return None,
                 Scan::Frame { len, frame } => {
-                    self.buffer.consume(len);
-                    self.stats.frames_ok += 1;
-                    self.in_sync = true;
+                    self.buffer.accept(len);
                     return Some(frame);
                 }
-                Scan::Reject { len, reject } => {
-                    reject.count(&mut self.stats);
-                    self.buffer.consume(len);
-                    self.lose_sync();
-                }
+                Scan::Reject { len, reject } => self.buffer.reject(len, reject),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
-    }
-}
-
-impl NmeaDecoder {
-    fn skip(&mut self, n: usize) {
-        if n == 0 {
-            return;
-        }
-        // Line ends between sentences are framing, not garbage.
-        let skipped = &self.buffer.data()[..n];
-        let garbage = skipped
-            .iter()
-            .filter(|&&b| b != b'\r' && b != b'\n')
-            .count();
-        self.stats.bytes_skipped += garbage as u64;
-        if garbage > 0 {
-            self.lose_sync();
-        }
-        self.buffer.consume(n);
-    }
-
-    fn lose_sync(&mut self) {
-        if self.in_sync {
-            self.stats.resyncs += 1;
-            self.in_sync = false;
-        }
+        self.buffer.stats()
     }
 }
 

@@ -13,7 +13,7 @@
 //! not an slcan command, is dropped (`frames_malformed`, its bytes in `bytes_skipped`).
 
 use super::can::{parse_hex_bytes, parse_hex_u32, write_hex, CanFrame, CanKind};
-use super::{Decoder, EncodeError, Encoder, StreamBuffer};
+use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Longest valid line without its `\r`: `T` + 8 id + 1 dlc + 16 data + 4 timestamp.
@@ -122,17 +122,26 @@ fn parse_line(line: &[u8]) -> Option<SlcanMessage> {
     }
 }
 
-/// Streaming slcan decoder.
-#[derive(Debug, Default, Clone)]
+/// Streaming slcan decoder. Counting follows the one rule of [`StreamBuffer`] (CR and LF
+/// are line framing, never skipped bytes).
+#[derive(Debug, Clone)]
 pub struct SlcanDecoder {
     buf: StreamBuffer,
-    stats: DecoderStats,
     discarding: bool,
+}
+
+impl Default for SlcanDecoder {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl SlcanDecoder {
     pub fn new() -> Self {
-        Self::default()
+        SlcanDecoder {
+            buf: StreamBuffer::text(),
+            discarding: false,
+        }
     }
 }
 
@@ -147,21 +156,21 @@ impl Decoder for SlcanDecoder {
         loop {
             let data = self.buf.data();
             if !self.discarding && data.first() == Some(&b'\n') {
-                self.buf.consume(1);
+                self.buf.pass(1);
                 continue;
             }
             let end = memchr::memchr2(CR, BEL, data);
             if self.discarding {
                 let n = end.map_or(data.len(), |e| e + usize::from(data[e] == CR));
-                self.stats.bytes_skipped += n as u64;
-                self.buf.consume(n);
+                self.buf.skip(n);
                 end?;
                 self.discarding = false;
                 continue;
             }
             let Some(end) = end else {
                 if data.len() > MAX_LINE {
-                    self.stats.frames_too_long += 1;
+                    // Counted now; its bytes are skipped as they arrive.
+                    self.buf.reject(0, Reject::TooLong);
                     self.discarding = true;
                     continue;
                 }
@@ -170,40 +179,30 @@ impl Decoder for SlcanDecoder {
             if data[end] == BEL {
                 if end > MAX_LINE {
                     // Counted like a long line seen in pieces, so splits do not matter.
-                    self.stats.frames_too_long += 1;
-                    self.stats.bytes_skipped += end as u64;
+                    self.buf.reject(end, Reject::TooLong);
                 } else if end > 0 {
                     // Bytes before a BEL with no CR: an unterminated line, dropped.
-                    self.stats.frames_malformed += 1;
-                    self.stats.bytes_skipped += end as u64;
+                    self.buf.reject(end, Reject::Malformed);
                 }
-                self.buf.consume(end + 1);
-                self.stats.frames_ok += 1;
+                self.buf.accept(1);
                 return Some(SlcanMessage::Error);
             }
             if end > MAX_LINE {
-                self.stats.frames_too_long += 1;
-                self.stats.bytes_skipped += end as u64 + 1;
-                self.buf.consume(end + 1);
+                self.buf.reject(end + 1, Reject::TooLong);
                 continue;
             }
-            let parsed = parse_line(&data[..end]);
-            self.buf.consume(end + 1);
-            match parsed {
+            match parse_line(&data[..end]) {
                 Some(message) => {
-                    self.stats.frames_ok += 1;
+                    self.buf.accept(end + 1);
                     return Some(message);
                 }
-                None => {
-                    self.stats.frames_malformed += 1;
-                    self.stats.bytes_skipped += end as u64 + 1;
-                }
+                None => self.buf.reject(end + 1, Reject::Malformed),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buf.stats()
     }
 }
 

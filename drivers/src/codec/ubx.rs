@@ -709,12 +709,11 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
     })
 }
 
-/// Streaming UBX decoder (see the module docs for the framing rule).
+/// Streaming UBX decoder (see the module docs for the framing rule and
+/// [`StreamBuffer`] for the counting rule).
 #[derive(Debug, Default)]
 pub struct UbxDecoder {
     buffer: StreamBuffer,
-    stats: DecoderStats,
-    out_of_sync: bool,
 }
 
 impl UbxDecoder {
@@ -725,21 +724,6 @@ impl UbxDecoder {
 
     pub fn new() -> Self {
         Self::default()
-    }
-
-    fn skip(&mut self, n: usize) {
-        if n > 0 {
-            self.stats.bytes_skipped += n as u64;
-            self.lose_sync();
-            self.buffer.consume(n);
-        }
-    }
-
-    fn lose_sync(&mut self) {
-        if !self.out_of_sync {
-            self.stats.resyncs += 1;
-            self.out_of_sync = true;
-        }
     }
 }
 
@@ -755,36 +739,26 @@ impl Decoder for UbxDecoder {
             let data = self.buffer.data();
             let Some(start) = memchr::memchr(SYNC[0], data) else {
                 let n = data.len();
-                self.skip(n);
+                self.buffer.skip(n);
                 return None;
             };
             if start > 0 {
-                self.skip(start);
+                self.buffer.skip(start);
                 continue;
             }
             match scan_frame(data) {
                 Scan::Incomplete => return None,
                 Scan::Frame { len, frame } => {
-                    self.buffer.consume(len);
-                    self.stats.frames_ok += 1;
-                    self.out_of_sync = false;
+                    self.buffer.accept(len);
                     return Some(frame);
                 }
-                Scan::Reject { len, reject } => {
-                    if reject == Reject::NoSync {
-                        self.skip(len);
-                    } else {
-                        reject.count(&mut self.stats);
-                        self.buffer.consume(len);
-                        self.lose_sync();
-                    }
-                }
+                Scan::Reject { len, reject } => self.buffer.reject(len, reject),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buffer.stats()
     }
 }
 

@@ -9,7 +9,7 @@
 //! Converted values use standard gravity 9.80665 m/s² for "g" (the datasheet writes 9.8);
 //! the raw int16 words stay in the [`WitPacket`] so nothing is lost.
 
-use super::{Decoder, EncodeError, Encoder, StreamBuffer};
+use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Packet header byte.
@@ -234,31 +234,18 @@ fn checksum(bytes: &[u8]) -> u8 {
 
 /// Streaming decoder for WitMotion packets.
 ///
-/// Resynchronisation rule: look for `0x55` followed by a type byte in 0x50..=0x5F; if the
-/// checksum fails, count it, drop only the `0x55` and search again from the next byte, so a
-/// real packet that starts inside a corrupt one is still found.
+/// Framing rule: look for `0x55` followed by a type byte in 0x50..=0x5F; if the checksum
+/// fails, count it, drop only the `0x55` and search again from the next byte, so a real
+/// packet that starts inside a corrupt one is still found. Counting follows the one rule of
+/// [`StreamBuffer`].
 #[derive(Debug, Default, Clone)]
 pub struct WitDecoder {
     buf: StreamBuffer,
-    stats: DecoderStats,
-    in_sync: bool,
 }
 
 impl WitDecoder {
     pub fn new() -> Self {
         Self::default()
-    }
-
-    fn skip(&mut self, n: usize) {
-        if n == 0 {
-            return;
-        }
-        if self.in_sync {
-            self.stats.resyncs += 1;
-            self.in_sync = false;
-        }
-        self.stats.bytes_skipped += n as u64;
-        self.buf.consume(n);
     }
 }
 
@@ -280,18 +267,18 @@ impl Decoder for WitDecoder {
             };
             let Some(pos) = found else {
                 let n = data.len();
-                self.skip(n);
+                self.buf.skip(n);
                 return None;
             };
             if pos > 0 {
-                self.skip(pos);
+                self.buf.skip(pos);
                 continue;
             }
             if data.len() < 2 {
                 return None;
             }
             if !is_packet_kind(data[1]) {
-                self.skip(1);
+                self.buf.reject(1, Reject::NoSync);
                 continue;
             }
             if data.len() < PACKET_LEN {
@@ -299,22 +286,19 @@ impl Decoder for WitDecoder {
             }
             let frame = &data[..PACKET_LEN];
             if checksum(&frame[..PACKET_LEN - 1]) != frame[PACKET_LEN - 1] {
-                self.stats.checksum_errors += 1;
-                self.skip(1);
+                self.buf.reject(1, Reject::Checksum);
                 continue;
             }
             let mut payload = [0u8; 8];
             payload.copy_from_slice(&frame[2..10]);
             let packet = WitPacket::from_wire(frame[1], &payload);
-            self.buf.consume(PACKET_LEN);
-            self.stats.frames_ok += 1;
-            self.in_sync = true;
+            self.buf.accept(PACKET_LEN);
             return Some(packet);
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buf.stats()
     }
 }
 

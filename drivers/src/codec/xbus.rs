@@ -10,7 +10,7 @@
 //! the coordinate frame. Values are big-endian and already SI (m/s², rad/s, m/s, °C).
 //! The data id is kept with each value, so the wire form is recoverable exactly.
 
-use super::{Decoder, EncodeError, Encoder, StreamBuffer};
+use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Frame preamble.
@@ -293,32 +293,19 @@ pub fn write_mtdata2(data: &MtData2, out: &mut Vec<u8>) -> Result<(), EncodeErro
 
 /// Streaming Xbus decoder.
 ///
-/// Resynchronisation rule: look for `0xFA`; if the declared length exceeds
-/// [`MAX_PAYLOAD`] or the checksum fails, count it, drop only the preamble byte and search
-/// again, so a real frame inside a false one is still found. A frame whose checksum is
-/// right but whose MTData2 items do not add up is consumed and counted as malformed.
+/// Framing rule: look for `0xFA`; if the declared length exceeds [`MAX_PAYLOAD`] or the
+/// checksum fails, count it, drop only the preamble byte and search again, so a real frame
+/// inside a false one is still found. A frame whose checksum is right but whose MTData2
+/// items do not add up is dropped whole and counted as malformed, without losing sync.
+/// Counting follows the one rule of [`StreamBuffer`].
 #[derive(Debug, Default, Clone)]
 pub struct XbusDecoder {
     buf: StreamBuffer,
-    stats: DecoderStats,
-    in_sync: bool,
 }
 
 impl XbusDecoder {
     pub fn new() -> Self {
         Self::default()
-    }
-
-    fn skip(&mut self, n: usize) {
-        if n == 0 {
-            return;
-        }
-        if self.in_sync {
-            self.stats.resyncs += 1;
-            self.in_sync = false;
-        }
-        self.stats.bytes_skipped += n as u64;
-        self.buf.consume(n);
     }
 }
 
@@ -340,11 +327,11 @@ impl Decoder for XbusDecoder {
             };
             let Some(pos) = found else {
                 let n = data.len();
-                self.skip(n);
+                self.buf.skip(n);
                 return None;
             };
             if pos > 0 {
-                self.skip(pos);
+                self.buf.skip(pos);
                 continue;
             }
             if data.len() < 4 {
@@ -359,8 +346,7 @@ impl Decoder for XbusDecoder {
                 (4, usize::from(data[3]))
             };
             if len > MAX_PAYLOAD {
-                self.stats.frames_too_long += 1;
-                self.skip(1);
+                self.buf.reject(1, Reject::TooLong);
                 continue;
             }
             let total = header_len + len + 1;
@@ -369,8 +355,7 @@ impl Decoder for XbusDecoder {
             }
             let sum = data[1..total].iter().fold(0u8, |s, &b| s.wrapping_add(b));
             if sum != 0 {
-                self.stats.checksum_errors += 1;
-                self.skip(1);
+                self.buf.reject(1, Reject::Checksum);
                 continue;
             }
             let (bus_id, mid) = (data[1], data[2]);
@@ -393,20 +378,18 @@ impl Decoder for XbusDecoder {
                     payload: payload.to_vec(),
                 })
             };
-            self.buf.consume(total);
-            self.in_sync = true;
             match message {
                 Some(m) => {
-                    self.stats.frames_ok += 1;
+                    self.buf.accept(total);
                     return Some(m);
                 }
-                None => self.stats.frames_malformed += 1,
+                None => self.buf.reject(total, Reject::BadContent),
             }
         }
     }
 
     fn stats(&self) -> DecoderStats {
-        self.stats
+        self.buf.stats()
     }
 }
 
