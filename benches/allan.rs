@@ -1,14 +1,25 @@
 //! Allan analyser benchmark: run time per deviation type on 6 h × 150 Hz (3.24 M samples),
-//! one and six axes; a full six-axis OADEV report with fit; and run time against error
-//! (dense vs octave grid for the fitted terms, f32 vs f64 input and accumulation).
-//! Writes the simulated data to `target/allan-bench/data.npy` for
-//! `benches/allan_vs_allantools.sh`. Run: `cargo bench --bench allan`.
+//! one and six axes; a full six-axis OADEV report with fit (in memory and end to end from
+//! the .npy file); and run time against error (dense vs octave grid for the fitted terms,
+//! f32 vs f64 input and accumulation). Writes the simulated data to
+//! `target/allan-bench/data.npy` for `benches/allan_vs_allantools.sh`.
+//!
+//! Run: `cargo bench --bench allan` (speed), or
+//! `cargo bench --bench allan -- memory [DAYS]` (peak memory: writes a DAYS-long (default 7)
+//! 150 Hz session into /tmp, runs `imulab allan` on its three gyro axes as a child process,
+//! reports the child's peak RSS against the one-axis size, and deletes the session).
 
+use clap::Parser;
+use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
 use imulab::allan::fit::{fit_noise_terms, Term};
+use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::units::RateUnit;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
+use imulab::cli::allan::{analyse_inputs, AnalysisArgs};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
 use std::time::Instant;
 
 const RATE_HZ: f64 = 150.0;
@@ -31,15 +42,61 @@ fn simulate(seed: u64) -> Vec<f64> {
 }
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    best_of_prepared(runs, || (), |()| f())
+}
+
+/// Best wall time of `run(prepare())` over `runs` runs; `prepare` (e.g. copying the input
+/// that the analysis consumes) is not timed.
+fn best_of_prepared<I, T>(
+    runs: usize,
+    mut prepare: impl FnMut() -> I,
+    mut run: impl FnMut(I) -> T,
+) -> (f64, T) {
     let mut best = f64::INFINITY;
     let mut out = None;
     for _ in 0..runs {
+        let input = prepare();
         let t = Instant::now();
-        let r = f();
+        let r = run(input);
         best = best.min(t.elapsed().as_secs_f64());
         out = Some(r);
     }
     (best, out.expect("runs > 0"))
+}
+
+/// One axis as the analysis receives it after reading.
+fn series(name: &str, rate: Vec<f64>) -> AxisSeries {
+    AxisSeries {
+        name: name.into(),
+        tau0: 1.0 / RATE_HZ,
+        health: Health {
+            samples: rate.len() as u64,
+            segments: 1,
+            ..Health::default()
+        },
+        segments: vec![rate],
+        temperature: None,
+    }
+}
+
+/// The analysis of every axis in parallel (axes × τ), as `imulab allan` runs it.
+fn analyse_all(
+    axes: Vec<Vec<f64>>,
+    kind: DeviationKind,
+    grid: &TauGrid,
+    fit: bool,
+) -> Vec<AxisResult> {
+    let options = AnalysisOptions {
+        kind,
+        grid: grid.clone(),
+        fit,
+        unit: RateUnit::RadPerSecond,
+        sensor: RateUnit::RadPerSecond.sensor(),
+    };
+    axes.into_par_iter()
+        .enumerate()
+        .map(|(i, a)| analyse_axis("bench", series(&format!("{i}"), a), &options))
+        .collect()
 }
 
 fn write_npy(path: &std::path::Path, axes: &[Vec<f64>]) {
@@ -60,6 +117,15 @@ fn write_npy(path: &std::path::Path, axes: &[Vec<f64>]) {
 }
 
 fn main() {
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    if args.first().map(String::as_str) == Some("memory") {
+        let days: f64 = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(7.0);
+        memory_benchmark(days);
+        return;
+    }
     let axes: Vec<Vec<f64>> = (0..6).map(|a| simulate(100 + a)).collect();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/allan-bench");
     std::fs::create_dir_all(&dir).expect("bench dir");
@@ -82,48 +148,43 @@ fn main() {
         (DeviationKind::Ohdev, TauGrid::Octave, "octave"),
         (DeviationKind::Totdev, TauGrid::Octave, "octave"),
     ];
+    // Phase building, deviations, noise identification, EDF and intervals are all timed; the
+    // copy of the input (which the analysis consumes) is not.
     for (kind, grid, label) in &cases {
-        let (one, curve) = best_of(3, || {
-            compute_curve(
-                &Phase::from_rate(axes[0].clone()),
-                1.0 / RATE_HZ,
-                *kind,
-                grid,
-            )
-        });
-        let (six, _) = best_of(2, || {
-            axes.iter()
-                .map(|a| {
-                    compute_curve(&Phase::from_rate(a.clone()), 1.0 / RATE_HZ, *kind, grid)
-                        .points
-                        .len()
-                })
-                .sum::<usize>()
-        });
+        let (one, result) = best_of_prepared(
+            3,
+            || vec![axes[0].clone()],
+            |a| analyse_all(a, *kind, grid, false),
+        );
+        let (six, _) = best_of_prepared(3, || axes.clone(), |a| analyse_all(a, *kind, grid, false));
         println!(
             "| {} | {label} | {} | {one:.3} | {six:.3} |",
             kind.name(),
-            curve.points.len()
+            result[0].curve.points.len()
         );
     }
 
-    // 2. Full six-axis OADEV report with fit (phase, curve with EDF/CI/noise id, IRLS fit).
-    let (report, fits) = best_of(3, || {
-        axes.iter()
-            .map(|a| {
-                let curve = compute_curve(
-                    &Phase::from_rate(a.clone()),
-                    1.0 / RATE_HZ,
-                    DeviationKind::Oadev,
-                    &TauGrid::Octave,
-                );
-                fit_noise_terms(&curve).ok()
-            })
-            .collect::<Vec<_>>()
+    // 2. Full six-axis OADEV report with fit (phase, curve with EDF/CI/noise id, IRLS fit,
+    //    units): in memory, and end to end from the .npy file (reading included).
+    let (report, fits) = best_of_prepared(
+        3,
+        || axes.clone(),
+        |a| analyse_all(a, DeviationKind::Oadev, &TauGrid::Octave, true),
+    );
+    println!(
+        "\nSix-axis OADEV octave report with fit, in memory: {report:.3} s ({} fits)",
+        fits.iter().filter(|r| r.fit.is_some()).count()
+    );
+    let npy = dir.join("data.npy");
+    let cli = AnalysisCli::parse_from([
+        "bench", "--rate", "150", "--units", "rad/s", "--fit", "--kind", "oadev",
+    ]);
+    let (end_to_end, report_doc) = best_of(3, || {
+        analyse_inputs(std::slice::from_ref(&npy), &cli.analysis).expect("analyse the npy file")
     });
     println!(
-        "\nSix-axis OADEV octave report with fit: {report:.3} s ({} fits)\n",
-        fits.iter().flatten().count()
+        "Six-axis OADEV octave report with fit, from data.npy (reading included): {end_to_end:.3} s ({} axes)\n",
+        report_doc.axes.len()
     );
 
     // 3. Run time against error: grid density and the fitted terms (mean |error| over 6 axes).
@@ -203,6 +264,9 @@ fn main() {
         "| f32 input promoted to f64 | {t32:.3} | {:.2e} |",
         max_rel(&reference, &c32)
     );
+    // Plain f64: running phase without mean removal or compensation, plain sums.
+    let (tp, plain) = best_of(3, || naive_f64_oadev(&with_g, &reference));
+    println!("| plain f64 phase (no mean removal, plain sums) | {tp:.3} | {plain:.2e} |");
     // Naive f32 accumulation: phase as a plain f32 running sum without mean removal.
     let (tn, naive) = best_of(3, || naive_f32_oadev(&with_g, &reference));
     println!(
@@ -274,12 +338,181 @@ fn main() {
     }
 }
 
+#[derive(clap::Parser)]
+struct AnalysisCli {
+    #[command(flatten)]
+    analysis: AnalysisArgs,
+}
+
 fn max_rel(a: &imulab::allan::Curve, b: &imulab::allan::Curve) -> f64 {
     a.points
         .iter()
         .zip(&b.points)
         .map(|(p, q)| (p.deviation - q.deviation).abs() / p.deviation)
         .fold(0.0, f64::max)
+}
+
+/// A straightforward f64 implementation: running f64 phase of the raw samples (offset
+/// included), plain f64 sums of the squared second differences. Maximum relative error
+/// against `reference`.
+fn naive_f64_oadev(y: &[f64], reference: &imulab::allan::Curve) -> f64 {
+    let mut x = Vec::with_capacity(y.len() + 1);
+    let mut acc = 0.0f64;
+    x.push(0.0);
+    for &v in y {
+        acc += v;
+        x.push(acc);
+    }
+    let mut worst = 0.0f64;
+    for p in &reference.points {
+        let m = p.m;
+        let count = x.len() - 2 * m;
+        let s: f64 = (0..count)
+            .map(|i| {
+                let d = x[i + 2 * m] - 2.0 * x[i + m] + x[i];
+                d * d
+            })
+            .sum();
+        let dev = (s / (2.0 * (m * m) as f64 * count as f64)).sqrt();
+        worst = worst.max((dev - p.deviation).abs() / p.deviation);
+    }
+    worst
+}
+
+/// Peak memory of `imulab allan` on a `days`-long 150 Hz session (three gyro axes, OADEV
+/// octave with fit), measured as the child's maximum resident set size.
+fn memory_benchmark(days: f64) {
+    use imulab::store::{
+        DeviceInfo, DeviceKind, ImuRecord, Manifest, SessionWriter, WriterOptions,
+    };
+    let rows = (days * 86_400.0 * RATE_HZ) as usize;
+    let dir = std::env::temp_dir().join(format!("imulab-allan-memory-{}", std::process::id()));
+    let session = dir.join("session");
+    std::fs::create_dir_all(&dir).expect("create the benchmark directory");
+    println!(
+        "# Allan memory benchmark: {days} days at {RATE_HZ} Hz = {rows} rows per axis, session in {}\n",
+        session.display()
+    );
+    let device = DeviceInfo {
+        name: "imu0".into(),
+        kind: DeviceKind::Imu,
+        model: "sim".into(),
+        serial: String::new(),
+        port: "sim".into(),
+        protocol: "sim".into(),
+        rate_hz: RATE_HZ,
+        axis_frame: "FRD".into(),
+        extra: Default::default(),
+    };
+    let options = WriterOptions {
+        fsync_on_flush: false,
+        rotate_after: std::time::Duration::from_secs(86_400),
+        rotate_bytes: 8 << 30,
+        flush_interval: std::time::Duration::from_secs(60),
+        ..WriterOptions::default()
+    };
+    let t_write = Instant::now();
+    let mut writer = SessionWriter::create(
+        &session,
+        Manifest::new(vec![device], toml::Table::new()),
+        options,
+    )
+    .expect("create the session");
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+    let tau0 = 1.0 / RATE_HZ;
+    let mut walk = [0.0f64; 3];
+    let mut batch = Vec::with_capacity(9_000);
+    let mut row = 0usize;
+    while row < rows {
+        batch.clear();
+        for _ in 0..9_000.min(rows - row) {
+            let t_ns = 1_000_000_000 + (row as f64 * 1e9 / RATE_HZ).round() as i64;
+            let mut gyro = [0.0; 3];
+            for (g, w) in gyro.iter_mut().zip(walk.iter_mut()) {
+                let white: f64 = StandardNormal.sample(&mut rng);
+                let step: f64 = StandardNormal.sample(&mut rng);
+                *w += K_TRUE * tau0.sqrt() * step;
+                *g = N_TRUE / tau0.sqrt() * white + *w;
+            }
+            batch.push(ImuRecord {
+                t_mono_ns: t_ns,
+                t_wall_ns: 1_700_000_000_000_000_000 + t_ns,
+                t_sensor: f64::NAN,
+                gyro,
+                accel: [0.0, 0.0, -9.80665],
+                temp: 25.0,
+                status: 0,
+            });
+            row += 1;
+        }
+        writer.append_imu("imu0", &batch).expect("append rows");
+    }
+    writer.close().expect("close the session");
+    let disk: u64 = std::fs::read_dir(&session)
+        .map(|d| {
+            d.flatten()
+                .filter_map(|e| e.metadata().ok())
+                .map(|m| m.len())
+                .sum()
+        })
+        .unwrap_or(0);
+    println!(
+        "session written in {:.1} s, {:.0} MB on disk",
+        t_write.elapsed().as_secs_f64(),
+        disk as f64 / 1e6
+    );
+    let axis_mb = rows as f64 * 8.0 / 1e6;
+    println!("\n| run | axes per pass | peak RSS [MB] | one axis [MB] | peak / one axis | wall [s] | CPU [s] |");
+    println!("|---|---|---|---|---|---|---|");
+    for (label, extra) in [
+        ("gyro x, y, z (default budget 1024 MiB)", vec![]),
+        ("gyro x only", vec!["--axes", "x"]),
+    ] {
+        // GNU time reports the child's own peak RSS (KiB) and CPU times on its last line.
+        let t = Instant::now();
+        let output = std::process::Command::new("/usr/bin/time")
+            .args(["-f", "peak-rss-kib %M cpu %U %S"])
+            .arg(env!("CARGO_BIN_EXE_imulab"))
+            .arg("allan")
+            .arg(&session)
+            .args(["--sensor", "gyro", "--kind", "oadev", "--fit"])
+            .args(&extra)
+            .output()
+            .expect("run imulab allan under /usr/bin/time");
+        let wall = t.elapsed().as_secs_f64();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(output.status.success(), "imulab allan failed: {stderr}");
+        let fields: Vec<f64> = stderr
+            .lines()
+            .rev()
+            .find_map(|l| l.strip_prefix("peak-rss-kib "))
+            .map(|l| {
+                l.split_whitespace()
+                    .filter_map(|v| v.parse().ok())
+                    .collect()
+            })
+            .unwrap_or_default();
+        let [peak_kib, user, system] = fields[..] else {
+            panic!("no usage line from /usr/bin/time: {stderr}");
+        };
+        let peak_mb = peak_kib * 1024.0 / 1e6;
+        println!(
+            "| {label} | 1 | {peak_mb:.0} | {axis_mb:.0} | {:.2} | {wall:.1} | {:.1} |",
+            peak_mb / axis_mb,
+            user + system
+        );
+        if extra.is_empty() {
+            let text = String::from_utf8_lossy(&output.stdout);
+            for line in text
+                .lines()
+                .filter(|l| l.contains("gyro_x") || l.starts_with("Gyro"))
+            {
+                println!("    {line}");
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).expect("delete the benchmark session");
+    println!("\nsession deleted");
 }
 
 /// What a straightforward f32 implementation does: cumulative f32 sum of the raw samples,

@@ -67,8 +67,8 @@ pub struct TermLine {
     /// End points (τ, σ) at the ends of the plotted τ range.
     pub from: (f64, f64),
     pub to: (f64, f64),
-    /// Where the label goes: the τ at which this term makes up the largest share of the
-    /// fitted total, i.e. where its asymptote touches the total curve.
+    /// Where the label goes: on the line, in the middle of the τ stretch where this term
+    /// makes up (within 10 %) its largest share of the fitted total.
     pub label_at: (f64, f64),
 }
 
@@ -89,9 +89,13 @@ pub fn term_lines(fit: &NoiseFit, tau_lo: f64, tau_hi: f64) -> Vec<TermLine> {
                 let total = fit.model_deviation(tau);
                 at(tau).map_or(0.0, |d| d / total)
             };
-            let best = (0..SAMPLES)
-                .map(tau_at)
-                .max_by(|a, b| share(*a).total_cmp(&share(*b)))?;
+            // Middle (in log τ) of where the term is within 10 % of its largest share of
+            // the total: the stretch where its asymptote runs along the total curve, and
+            // away from the plot's edges when the term dominates an end of the range.
+            let shares: Vec<f64> = (0..SAMPLES).map(|i| share(tau_at(i))).collect();
+            let peak = shares.iter().copied().fold(0.0, f64::max);
+            let dominant: Vec<usize> = (0..SAMPLES).filter(|&i| shares[i] >= 0.9 * peak).collect();
+            let best = tau_at(*dominant.get(dominant.len() / 2)?);
             Some(TermLine {
                 term,
                 from,
@@ -279,7 +283,8 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
                         py(line.to.1),
                         escape(&format!("{} {} {}", a.device, a.axis, line.term.symbol()))
                     );
-                    let (x, y) = (px(line.label_at.0), py(line.label_at.1) - 5.0);
+                    // Below the line: the measured curve runs above the asymptotes.
+                    let (x, y) = (px(line.label_at.0), py(line.label_at.1) + 14.0);
                     if (left..=width - right).contains(&x)
                         && (top + 8.0..=height - bottom).contains(&y)
                     {
@@ -768,16 +773,20 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
                     };
                     chart.draw_series(DashedLineSeries::new(
                         [from, to],
-                        2,
                         3,
-                        color.stroke_width(1),
+                        4,
+                        color.stroke_width(2),
                     ))?;
                     if (y_range.0..=y_range.1).contains(&line.label_at.1) {
-                        chart.draw_series(std::iter::once(Text::new(
-                            line.term.symbol().to_string(),
-                            line.label_at,
-                            ("sans-serif", 16).into_font().color(&color),
-                        )))?;
+                        // Below the line: the measured curve runs above the asymptotes.
+                        chart.draw_series(std::iter::once(
+                            EmptyElement::at(line.label_at)
+                                + Text::new(
+                                    line.term.symbol().to_string(),
+                                    (-5, 6),
+                                    ("sans-serif", 18).into_font().color(&color),
+                                ),
+                        ))?;
                     }
                 }
             }
@@ -785,6 +794,8 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
     }
     chart
         .configure_series_labels()
+        // Allan curves are bowls: the top middle is the emptiest place.
+        .position(SeriesLabelPosition::UpperMiddle)
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()?;
