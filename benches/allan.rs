@@ -5,9 +5,10 @@
 //! `target/allan-bench/data.npy` for `benches/allan_vs_allantools.sh`.
 //!
 //! Run: `cargo bench --bench allan` (speed), or
-//! `cargo bench --bench allan -- memory [DAYS]` (peak memory: writes a DAYS-long (default 7)
-//! 150 Hz session into /tmp, runs `imulab allan` on its three gyro axes as a child process,
-//! reports the child's peak RSS against the one-axis size, and deletes the session).
+//! `cargo bench --bench allan -- memory [DAYS] [session|npy]` (peak memory: writes DAYS
+//! (default 7) of 150 Hz data into /tmp as a session or a six-column .npy, runs
+//! `imulab allan` on three gyro axes and on one as child processes, reports their peak RSS
+//! against the one-axis size, and deletes the data).
 
 use clap::Parser;
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
@@ -99,6 +100,20 @@ fn analyse_all(
         .collect()
 }
 
+/// The six columns of `path` when it is a SAMPLES × 6 float64 array.
+fn read_npy_axes(path: &std::path::Path) -> Option<Vec<Vec<f64>>> {
+    let file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
+    let npy = npyz::NpyFile::new(file).ok()?;
+    if npy.shape() != [SAMPLES as u64, 6] || npy.order() != npyz::Order::C {
+        return None;
+    }
+    let mut axes: Vec<Vec<f64>> = (0..6).map(|_| Vec::with_capacity(SAMPLES)).collect();
+    for (i, v) in npy.data::<f64>().ok()?.enumerate() {
+        axes[i % 6].push(v.ok()?);
+    }
+    (axes[5].len() == SAMPLES).then_some(axes)
+}
+
 fn write_npy(path: &std::path::Path, axes: &[Vec<f64>]) {
     use npyz::WriterBuilder;
     let file = std::io::BufWriter::new(std::fs::File::create(path).expect("create npy"));
@@ -123,13 +138,25 @@ fn main() {
         .collect();
     if args.first().map(String::as_str) == Some("memory") {
         let days: f64 = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(7.0);
-        memory_benchmark(days);
+        let format = args.get(2).map_or("session", String::as_str);
+        memory_benchmark(days, format);
         return;
     }
-    let axes: Vec<Vec<f64>> = (0..6).map(|a| simulate(100 + a)).collect();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/allan-bench");
     std::fs::create_dir_all(&dir).expect("bench dir");
-    write_npy(&dir.join("data.npy"), &axes);
+    // Both tools must see the same samples: an existing data.npy of the right shape is used
+    // as it is (e.g. one allantools was already timed on), otherwise it is simulated here.
+    let axes = match read_npy_axes(&dir.join("data.npy")) {
+        Some(axes) => {
+            println!("(using the existing {})", dir.join("data.npy").display());
+            axes
+        }
+        None => {
+            let axes: Vec<Vec<f64>> = (0..6).map(|a| simulate(100 + a)).collect();
+            write_npy(&dir.join("data.npy"), &axes);
+            axes
+        }
+    };
     let threads = rayon::current_num_threads();
     println!(
         "# Allan benchmark: {SAMPLES} samples per axis at {RATE_HZ} Hz, {threads} rayon threads\n"
@@ -156,7 +183,7 @@ fn main() {
             || vec![axes[0].clone()],
             |a| analyse_all(a, *kind, grid, false),
         );
-        let (six, _) = best_of_prepared(3, || axes.clone(), |a| analyse_all(a, *kind, grid, false));
+        let (six, _) = best_of_prepared(2, || axes.clone(), |a| analyse_all(a, *kind, grid, false));
         println!(
             "| {} | {label} | {} | {one:.3} | {six:.3} |",
             kind.name(),
@@ -379,20 +406,36 @@ fn naive_f64_oadev(y: &[f64], reference: &imulab::allan::Curve) -> f64 {
     worst
 }
 
-/// Peak memory of `imulab allan` on a `days`-long 150 Hz session (three gyro axes, OADEV
-/// octave with fit), measured as the child's maximum resident set size.
-fn memory_benchmark(days: f64) {
+/// Simulated gyro samples (white noise N plus rate random walk K) for three axes, in
+/// batches of `batch` rows, handed to `sink` without holding the whole series.
+fn simulate_batches(rows: usize, batch: usize, mut sink: impl FnMut(&[[f64; 3]])) {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+    let tau0 = 1.0 / RATE_HZ;
+    let mut walk = [0.0f64; 3];
+    let mut buffer = Vec::with_capacity(batch);
+    let mut row = 0;
+    while row < rows {
+        buffer.clear();
+        for _ in 0..batch.min(rows - row) {
+            let mut gyro = [0.0; 3];
+            for (g, w) in gyro.iter_mut().zip(walk.iter_mut()) {
+                let white: f64 = StandardNormal.sample(&mut rng);
+                let step: f64 = StandardNormal.sample(&mut rng);
+                *w += K_TRUE * tau0.sqrt() * step;
+                *g = N_TRUE / tau0.sqrt() * white + *w;
+            }
+            buffer.push(gyro);
+        }
+        row += buffer.len();
+        sink(&buffer);
+    }
+}
+
+/// Writes `rows` rows as a session with one IMU `imu0` (gyro simulated, accel constant).
+fn write_memory_session(path: &std::path::Path, rows: usize) {
     use imulab::store::{
         DeviceInfo, DeviceKind, ImuRecord, Manifest, SessionWriter, WriterOptions,
     };
-    let rows = (days * 86_400.0 * RATE_HZ) as usize;
-    let dir = std::env::temp_dir().join(format!("imulab-allan-memory-{}", std::process::id()));
-    let session = dir.join("session");
-    std::fs::create_dir_all(&dir).expect("create the benchmark directory");
-    println!(
-        "# Allan memory benchmark: {days} days at {RATE_HZ} Hz = {rows} rows per axis, session in {}\n",
-        session.display()
-    );
     let device = DeviceInfo {
         name: "imu0".into(),
         kind: DeviceKind::Imu,
@@ -411,62 +454,101 @@ fn memory_benchmark(days: f64) {
         flush_interval: std::time::Duration::from_secs(60),
         ..WriterOptions::default()
     };
-    let t_write = Instant::now();
     let mut writer = SessionWriter::create(
-        &session,
+        path,
         Manifest::new(vec![device], toml::Table::new()),
         options,
     )
     .expect("create the session");
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
-    let tau0 = 1.0 / RATE_HZ;
-    let mut walk = [0.0f64; 3];
-    let mut batch = Vec::with_capacity(9_000);
-    let mut row = 0usize;
-    while row < rows {
-        batch.clear();
-        for _ in 0..9_000.min(rows - row) {
+    let mut row = 0i64;
+    let mut records = Vec::with_capacity(9_000);
+    simulate_batches(rows, 9_000, |batch| {
+        records.clear();
+        for gyro in batch {
             let t_ns = 1_000_000_000 + (row as f64 * 1e9 / RATE_HZ).round() as i64;
-            let mut gyro = [0.0; 3];
-            for (g, w) in gyro.iter_mut().zip(walk.iter_mut()) {
-                let white: f64 = StandardNormal.sample(&mut rng);
-                let step: f64 = StandardNormal.sample(&mut rng);
-                *w += K_TRUE * tau0.sqrt() * step;
-                *g = N_TRUE / tau0.sqrt() * white + *w;
-            }
-            batch.push(ImuRecord {
+            records.push(ImuRecord {
                 t_mono_ns: t_ns,
                 t_wall_ns: 1_700_000_000_000_000_000 + t_ns,
                 t_sensor: f64::NAN,
-                gyro,
+                gyro: *gyro,
                 accel: [0.0, 0.0, -9.80665],
                 temp: 25.0,
                 status: 0,
             });
             row += 1;
         }
-        writer.append_imu("imu0", &batch).expect("append rows");
-    }
+        writer.append_imu("imu0", &records).expect("append rows");
+    });
     writer.close().expect("close the session");
-    let disk: u64 = std::fs::read_dir(&session)
-        .map(|d| {
-            d.flatten()
-                .filter_map(|e| e.metadata().ok())
-                .map(|m| m.len())
-                .sum()
-        })
-        .unwrap_or(0);
+}
+
+/// Writes `rows` × 6 float64 (gyro x, y, z simulated; accel constant) as a row-major .npy,
+/// the layout of a six-axis IMU export.
+fn write_memory_npy(path: &std::path::Path, rows: usize) {
+    use npyz::WriterBuilder;
+    let file = std::io::BufWriter::with_capacity(
+        1 << 20,
+        std::fs::File::create(path).expect("create npy"),
+    );
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[rows as u64, 6])
+        .writer(file)
+        .begin_nd()
+        .expect("npy header");
+    simulate_batches(rows, 65_536, |batch| {
+        for gyro in batch {
+            for v in gyro.iter().chain(&[0.0, 0.0, -9.80665]) {
+                w.push(v).expect("npy write");
+            }
+        }
+    });
+    w.finish().expect("npy finish");
+}
+
+/// Peak memory of `imulab allan` on `days` of 150 Hz data, as a session or a six-column .npy
+/// in /tmp (deleted afterwards): three gyro axes, OADEV octave with fit, run as a child under
+/// GNU time, whose maximum resident set size is compared with the size of one axis.
+fn memory_benchmark(days: f64, format: &str) {
+    let rows = (days * 86_400.0 * RATE_HZ) as usize;
+    let dir = std::env::temp_dir().join(format!("imulab-allan-memory-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("create the benchmark directory");
+    let t_write = Instant::now();
+    let (input, common): (std::path::PathBuf, Vec<&str>) = if format == "npy" {
+        let path = dir.join("week.npy");
+        write_memory_npy(&path, rows);
+        (path, vec!["--rate", "150", "--units", "rad/s"])
+    } else {
+        let path = dir.join("session");
+        write_memory_session(&path, rows);
+        (path, vec!["--sensor", "gyro"])
+    };
+    let disk = if input.is_dir() {
+        std::fs::read_dir(&input)
+            .map(|d| {
+                d.flatten()
+                    .filter_map(|e| e.metadata().ok())
+                    .map(|m| m.len())
+                    .sum()
+            })
+            .unwrap_or(0)
+    } else {
+        std::fs::metadata(&input).map(|m| m.len()).unwrap_or(0)
+    };
     println!(
-        "session written in {:.1} s, {:.0} MB on disk",
-        t_write.elapsed().as_secs_f64(),
-        disk as f64 / 1e6
+        "# Allan memory benchmark: {days} days at {RATE_HZ} Hz = {rows} rows, {format} {} ({:.0} MB, written in {:.1} s)\n",
+        input.display(),
+        disk as f64 / 1e6,
+        t_write.elapsed().as_secs_f64()
     );
     let axis_mb = rows as f64 * 8.0 / 1e6;
-    println!("\n| run | axes per pass | peak RSS [MB] | one axis [MB] | peak / one axis | wall [s] | CPU [s] |");
+    println!("| run | peak RSS [MB] | one axis [MB] | all 6 axes [MB] | peak / one axis | wall [s] | CPU [s] |");
     println!("|---|---|---|---|---|---|---|");
-    for (label, extra) in [
-        ("gyro x, y, z (default budget 1024 MiB)", vec![]),
-        ("gyro x only", vec!["--axes", "x"]),
+    let gyro_axes = if format == "npy" { "0,1,2" } else { "x,y,z" };
+    let one_axis = if format == "npy" { "0" } else { "x" };
+    for (label, axes) in [
+        ("three gyro axes, default --memory-mib 1024", gyro_axes),
+        ("one gyro axis", one_axis),
     ] {
         // GNU time reports the child's own peak RSS (KiB) and CPU times on its last line.
         let t = Instant::now();
@@ -474,9 +556,9 @@ fn memory_benchmark(days: f64) {
             .args(["-f", "peak-rss-kib %M cpu %U %S"])
             .arg(env!("CARGO_BIN_EXE_imulab"))
             .arg("allan")
-            .arg(&session)
-            .args(["--sensor", "gyro", "--kind", "oadev", "--fit"])
-            .args(&extra)
+            .arg(&input)
+            .args(&common)
+            .args(["--axes", axes, "--kind", "oadev", "--fit"])
             .output()
             .expect("run imulab allan under /usr/bin/time");
         let wall = t.elapsed().as_secs_f64();
@@ -497,22 +579,21 @@ fn memory_benchmark(days: f64) {
         };
         let peak_mb = peak_kib * 1024.0 / 1e6;
         println!(
-            "| {label} | 1 | {peak_mb:.0} | {axis_mb:.0} | {:.2} | {wall:.1} | {:.1} |",
+            "| {label} | {peak_mb:.0} | {axis_mb:.0} | {:.0} | {:.2} | {wall:.1} | {:.1} |",
+            6.0 * axis_mb,
             peak_mb / axis_mb,
             user + system
         );
-        if extra.is_empty() {
-            let text = String::from_utf8_lossy(&output.stdout);
-            for line in text
-                .lines()
-                .filter(|l| l.contains("gyro_x") || l.starts_with("Gyro"))
-            {
-                println!("    {line}");
-            }
+        let text = String::from_utf8_lossy(&output.stdout);
+        for line in text
+            .lines()
+            .filter(|l| l.starts_with("Gyro ARW") || l.starts_with("Gyro RRW"))
+        {
+            println!("    {line}");
         }
     }
-    std::fs::remove_dir_all(&dir).expect("delete the benchmark session");
-    println!("\nsession deleted");
+    std::fs::remove_dir_all(&dir).expect("delete the benchmark data");
+    println!("\ninput deleted");
 }
 
 /// What a straightforward f32 implementation does: cumulative f32 sum of the raw samples,
