@@ -1,14 +1,26 @@
 //! Allan analyser benchmark: run time per deviation type on 6 h × 150 Hz (3.24 M samples),
-//! one and six axes; a full six-axis OADEV report with fit; and run time against error
-//! (dense vs octave grid for the fitted terms, f32 vs f64 input and accumulation).
-//! Writes the simulated data to `target/allan-bench/data.npy` for
-//! `benches/allan_vs_allantools.sh`. Run: `cargo bench --bench allan`.
+//! one and six axes; a full six-axis OADEV report with fit (in memory and end to end from
+//! the .npy file); and run time against error (dense vs octave grid for the fitted terms,
+//! f32 vs f64 input and accumulation). Writes the simulated data to
+//! `target/allan-bench/data.npy` for `benches/allan_vs_allantools.sh`.
+//!
+//! Run: `cargo bench --bench allan` (speed), or
+//! `cargo bench --bench allan -- memory [DAYS] [session|npy]` (peak memory: writes DAYS
+//! (default 7) of 150 Hz data into /tmp as a session or a six-column .npy, runs
+//! `imulab allan` on three gyro axes and on one as child processes, reports their peak RSS
+//! against the one-axis size, and deletes the data).
 
+use clap::Parser;
+use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
 use imulab::allan::fit::{fit_noise_terms, Term};
+use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::units::RateUnit;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
+use imulab::cli::allan::{analyse_inputs, AnalysisArgs};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
+use rayon::prelude::*;
 use std::time::Instant;
 
 const RATE_HZ: f64 = 150.0;
@@ -31,15 +43,75 @@ fn simulate(seed: u64) -> Vec<f64> {
 }
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    best_of_prepared(runs, || (), |()| f())
+}
+
+/// Best wall time of `run(prepare())` over `runs` runs; `prepare` (e.g. copying the input
+/// that the analysis consumes) is not timed.
+fn best_of_prepared<I, T>(
+    runs: usize,
+    mut prepare: impl FnMut() -> I,
+    mut run: impl FnMut(I) -> T,
+) -> (f64, T) {
     let mut best = f64::INFINITY;
     let mut out = None;
     for _ in 0..runs {
+        let input = prepare();
         let t = Instant::now();
-        let r = f();
+        let r = run(input);
         best = best.min(t.elapsed().as_secs_f64());
         out = Some(r);
     }
     (best, out.expect("runs > 0"))
+}
+
+/// One axis as the analysis receives it after reading.
+fn series(name: &str, rate: Vec<f64>) -> AxisSeries {
+    AxisSeries {
+        name: name.into(),
+        tau0: 1.0 / RATE_HZ,
+        health: Health {
+            samples: rate.len() as u64,
+            segments: 1,
+            ..Health::default()
+        },
+        segments: vec![rate],
+        temperature: None,
+    }
+}
+
+/// The analysis of every axis in parallel (axes × τ), as `imulab allan` runs it.
+fn analyse_all(
+    axes: Vec<Vec<f64>>,
+    kind: DeviationKind,
+    grid: &TauGrid,
+    fit: bool,
+) -> Vec<AxisResult> {
+    let options = AnalysisOptions {
+        kind,
+        grid: grid.clone(),
+        fit,
+        unit: RateUnit::RadPerSecond,
+        sensor: RateUnit::RadPerSecond.sensor(),
+    };
+    axes.into_par_iter()
+        .enumerate()
+        .map(|(i, a)| analyse_axis("bench", series(&format!("{i}"), a), &options))
+        .collect()
+}
+
+/// The six columns of `path` when it is a SAMPLES × 6 float64 array.
+fn read_npy_axes(path: &std::path::Path) -> Option<Vec<Vec<f64>>> {
+    let file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
+    let npy = npyz::NpyFile::new(file).ok()?;
+    if npy.shape() != [SAMPLES as u64, 6] || npy.order() != npyz::Order::C {
+        return None;
+    }
+    let mut axes: Vec<Vec<f64>> = (0..6).map(|_| Vec::with_capacity(SAMPLES)).collect();
+    for (i, v) in npy.data::<f64>().ok()?.enumerate() {
+        axes[i % 6].push(v.ok()?);
+    }
+    (axes[5].len() == SAMPLES).then_some(axes)
 }
 
 fn write_npy(path: &std::path::Path, axes: &[Vec<f64>]) {
@@ -60,10 +132,31 @@ fn write_npy(path: &std::path::Path, axes: &[Vec<f64>]) {
 }
 
 fn main() {
-    let axes: Vec<Vec<f64>> = (0..6).map(|a| simulate(100 + a)).collect();
+    let args: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    if args.first().map(String::as_str) == Some("memory") {
+        let days: f64 = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(7.0);
+        let format = args.get(2).map_or("session", String::as_str);
+        memory_benchmark(days, format);
+        return;
+    }
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/allan-bench");
     std::fs::create_dir_all(&dir).expect("bench dir");
-    write_npy(&dir.join("data.npy"), &axes);
+    // Both tools must see the same samples: an existing data.npy of the right shape is used
+    // as it is (e.g. one allantools was already timed on), otherwise it is simulated here.
+    let axes = match read_npy_axes(&dir.join("data.npy")) {
+        Some(axes) => {
+            println!("(using the existing {})", dir.join("data.npy").display());
+            axes
+        }
+        None => {
+            let axes: Vec<Vec<f64>> = (0..6).map(|a| simulate(100 + a)).collect();
+            write_npy(&dir.join("data.npy"), &axes);
+            axes
+        }
+    };
     let threads = rayon::current_num_threads();
     println!(
         "# Allan benchmark: {SAMPLES} samples per axis at {RATE_HZ} Hz, {threads} rayon threads\n"
@@ -82,48 +175,43 @@ fn main() {
         (DeviationKind::Ohdev, TauGrid::Octave, "octave"),
         (DeviationKind::Totdev, TauGrid::Octave, "octave"),
     ];
+    // Phase building, deviations, noise identification, EDF and intervals are all timed; the
+    // copy of the input (which the analysis consumes) is not.
     for (kind, grid, label) in &cases {
-        let (one, curve) = best_of(3, || {
-            compute_curve(
-                &Phase::from_rate(axes[0].clone()),
-                1.0 / RATE_HZ,
-                *kind,
-                grid,
-            )
-        });
-        let (six, _) = best_of(2, || {
-            axes.iter()
-                .map(|a| {
-                    compute_curve(&Phase::from_rate(a.clone()), 1.0 / RATE_HZ, *kind, grid)
-                        .points
-                        .len()
-                })
-                .sum::<usize>()
-        });
+        let (one, result) = best_of_prepared(
+            3,
+            || vec![axes[0].clone()],
+            |a| analyse_all(a, *kind, grid, false),
+        );
+        let (six, _) = best_of_prepared(2, || axes.clone(), |a| analyse_all(a, *kind, grid, false));
         println!(
             "| {} | {label} | {} | {one:.3} | {six:.3} |",
             kind.name(),
-            curve.points.len()
+            result[0].curve.points.len()
         );
     }
 
-    // 2. Full six-axis OADEV report with fit (phase, curve with EDF/CI/noise id, IRLS fit).
-    let (report, fits) = best_of(3, || {
-        axes.iter()
-            .map(|a| {
-                let curve = compute_curve(
-                    &Phase::from_rate(a.clone()),
-                    1.0 / RATE_HZ,
-                    DeviationKind::Oadev,
-                    &TauGrid::Octave,
-                );
-                fit_noise_terms(&curve).ok()
-            })
-            .collect::<Vec<_>>()
+    // 2. Full six-axis OADEV report with fit (phase, curve with EDF/CI/noise id, IRLS fit,
+    //    units): in memory, and end to end from the .npy file (reading included).
+    let (report, fits) = best_of_prepared(
+        3,
+        || axes.clone(),
+        |a| analyse_all(a, DeviationKind::Oadev, &TauGrid::Octave, true),
+    );
+    println!(
+        "\nSix-axis OADEV octave report with fit, in memory: {report:.3} s ({} fits)",
+        fits.iter().filter(|r| r.fit.is_some()).count()
+    );
+    let npy = dir.join("data.npy");
+    let cli = AnalysisCli::parse_from([
+        "bench", "--rate", "150", "--units", "rad/s", "--fit", "--kind", "oadev",
+    ]);
+    let (end_to_end, report_doc) = best_of(3, || {
+        analyse_inputs(std::slice::from_ref(&npy), &cli.analysis).expect("analyse the npy file")
     });
     println!(
-        "\nSix-axis OADEV octave report with fit: {report:.3} s ({} fits)\n",
-        fits.iter().flatten().count()
+        "Six-axis OADEV octave report with fit, from data.npy (reading included): {end_to_end:.3} s ({} axes)\n",
+        report_doc.axes.len()
     );
 
     // 3. Run time against error: grid density and the fitted terms (mean |error| over 6 axes).
@@ -203,6 +291,9 @@ fn main() {
         "| f32 input promoted to f64 | {t32:.3} | {:.2e} |",
         max_rel(&reference, &c32)
     );
+    // Plain f64: running phase without mean removal or compensation, plain sums.
+    let (tp, plain) = best_of(3, || naive_f64_oadev(&with_g, &reference));
+    println!("| plain f64 phase (no mean removal, plain sums) | {tp:.3} | {plain:.2e} |");
     // Naive f32 accumulation: phase as a plain f32 running sum without mean removal.
     let (tn, naive) = best_of(3, || naive_f32_oadev(&with_g, &reference));
     println!(
@@ -274,12 +365,235 @@ fn main() {
     }
 }
 
+#[derive(clap::Parser)]
+struct AnalysisCli {
+    #[command(flatten)]
+    analysis: AnalysisArgs,
+}
+
 fn max_rel(a: &imulab::allan::Curve, b: &imulab::allan::Curve) -> f64 {
     a.points
         .iter()
         .zip(&b.points)
         .map(|(p, q)| (p.deviation - q.deviation).abs() / p.deviation)
         .fold(0.0, f64::max)
+}
+
+/// A straightforward f64 implementation: running f64 phase of the raw samples (offset
+/// included), plain f64 sums of the squared second differences. Maximum relative error
+/// against `reference`.
+fn naive_f64_oadev(y: &[f64], reference: &imulab::allan::Curve) -> f64 {
+    let mut x = Vec::with_capacity(y.len() + 1);
+    let mut acc = 0.0f64;
+    x.push(0.0);
+    for &v in y {
+        acc += v;
+        x.push(acc);
+    }
+    let mut worst = 0.0f64;
+    for p in &reference.points {
+        let m = p.m;
+        let count = x.len() - 2 * m;
+        let s: f64 = (0..count)
+            .map(|i| {
+                let d = x[i + 2 * m] - 2.0 * x[i + m] + x[i];
+                d * d
+            })
+            .sum();
+        let dev = (s / (2.0 * (m * m) as f64 * count as f64)).sqrt();
+        worst = worst.max((dev - p.deviation).abs() / p.deviation);
+    }
+    worst
+}
+
+/// Simulated gyro samples (white noise N plus rate random walk K) for three axes, in
+/// batches of `batch` rows, handed to `sink` without holding the whole series.
+fn simulate_batches(rows: usize, batch: usize, mut sink: impl FnMut(&[[f64; 3]])) {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+    let tau0 = 1.0 / RATE_HZ;
+    let mut walk = [0.0f64; 3];
+    let mut buffer = Vec::with_capacity(batch);
+    let mut row = 0;
+    while row < rows {
+        buffer.clear();
+        for _ in 0..batch.min(rows - row) {
+            let mut gyro = [0.0; 3];
+            for (g, w) in gyro.iter_mut().zip(walk.iter_mut()) {
+                let white: f64 = StandardNormal.sample(&mut rng);
+                let step: f64 = StandardNormal.sample(&mut rng);
+                *w += K_TRUE * tau0.sqrt() * step;
+                *g = N_TRUE / tau0.sqrt() * white + *w;
+            }
+            buffer.push(gyro);
+        }
+        row += buffer.len();
+        sink(&buffer);
+    }
+}
+
+/// Writes `rows` rows as a session with one IMU `imu0` (gyro simulated, accel constant).
+fn write_memory_session(path: &std::path::Path, rows: usize) {
+    use imulab::store::{
+        DeviceInfo, DeviceKind, ImuRecord, Manifest, SessionWriter, WriterOptions,
+    };
+    let device = DeviceInfo {
+        name: "imu0".into(),
+        kind: DeviceKind::Imu,
+        model: "sim".into(),
+        serial: String::new(),
+        port: "sim".into(),
+        protocol: "sim".into(),
+        rate_hz: RATE_HZ,
+        axis_frame: "FRD".into(),
+        extra: Default::default(),
+    };
+    let options = WriterOptions {
+        fsync_on_flush: false,
+        rotate_after: std::time::Duration::from_secs(86_400),
+        rotate_bytes: 8 << 30,
+        flush_interval: std::time::Duration::from_secs(60),
+        ..WriterOptions::default()
+    };
+    let mut writer = SessionWriter::create(
+        path,
+        Manifest::new(vec![device], toml::Table::new()),
+        options,
+    )
+    .expect("create the session");
+    let mut row = 0i64;
+    let mut records = Vec::with_capacity(9_000);
+    simulate_batches(rows, 9_000, |batch| {
+        records.clear();
+        for gyro in batch {
+            let t_ns = 1_000_000_000 + (row as f64 * 1e9 / RATE_HZ).round() as i64;
+            records.push(ImuRecord {
+                t_mono_ns: t_ns,
+                t_wall_ns: 1_700_000_000_000_000_000 + t_ns,
+                t_sensor: f64::NAN,
+                gyro: *gyro,
+                accel: [0.0, 0.0, -9.80665],
+                temp: 25.0,
+                status: 0,
+            });
+            row += 1;
+        }
+        writer.append_imu("imu0", &records).expect("append rows");
+    });
+    writer.close().expect("close the session");
+}
+
+/// Writes `rows` × 6 float64 (gyro x, y, z simulated; accel constant) as a row-major .npy,
+/// the layout of a six-axis IMU export.
+fn write_memory_npy(path: &std::path::Path, rows: usize) {
+    use npyz::WriterBuilder;
+    let file = std::io::BufWriter::with_capacity(
+        1 << 20,
+        std::fs::File::create(path).expect("create npy"),
+    );
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&[rows as u64, 6])
+        .writer(file)
+        .begin_nd()
+        .expect("npy header");
+    simulate_batches(rows, 65_536, |batch| {
+        for gyro in batch {
+            for v in gyro.iter().chain(&[0.0, 0.0, -9.80665]) {
+                w.push(v).expect("npy write");
+            }
+        }
+    });
+    w.finish().expect("npy finish");
+}
+
+/// Peak memory of `imulab allan` on `days` of 150 Hz data, as a session or a six-column .npy
+/// in /tmp (deleted afterwards): three gyro axes, OADEV octave with fit, run as a child under
+/// GNU time, whose maximum resident set size is compared with the size of one axis.
+fn memory_benchmark(days: f64, format: &str) {
+    let rows = (days * 86_400.0 * RATE_HZ) as usize;
+    let dir = std::env::temp_dir().join(format!("imulab-allan-memory-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("create the benchmark directory");
+    let t_write = Instant::now();
+    let (input, common): (std::path::PathBuf, Vec<&str>) = if format == "npy" {
+        let path = dir.join("week.npy");
+        write_memory_npy(&path, rows);
+        (path, vec!["--rate", "150", "--units", "rad/s"])
+    } else {
+        let path = dir.join("session");
+        write_memory_session(&path, rows);
+        (path, vec!["--sensor", "gyro"])
+    };
+    let disk = if input.is_dir() {
+        std::fs::read_dir(&input)
+            .map(|d| {
+                d.flatten()
+                    .filter_map(|e| e.metadata().ok())
+                    .map(|m| m.len())
+                    .sum()
+            })
+            .unwrap_or(0)
+    } else {
+        std::fs::metadata(&input).map(|m| m.len()).unwrap_or(0)
+    };
+    println!(
+        "# Allan memory benchmark: {days} days at {RATE_HZ} Hz = {rows} rows, {format} {} ({:.0} MB, written in {:.1} s)\n",
+        input.display(),
+        disk as f64 / 1e6,
+        t_write.elapsed().as_secs_f64()
+    );
+    let axis_mb = rows as f64 * 8.0 / 1e6;
+    println!("| run | peak RSS [MB] | one axis [MB] | all 6 axes [MB] | peak / one axis | wall [s] | CPU [s] |");
+    println!("|---|---|---|---|---|---|---|");
+    let gyro_axes = if format == "npy" { "0,1,2" } else { "x,y,z" };
+    let one_axis = if format == "npy" { "0" } else { "x" };
+    for (label, axes) in [
+        ("three gyro axes, default --memory-mib 1024", gyro_axes),
+        ("one gyro axis", one_axis),
+    ] {
+        // GNU time reports the child's own peak RSS (KiB) and CPU times on its last line.
+        let t = Instant::now();
+        let output = std::process::Command::new("/usr/bin/time")
+            .args(["-f", "peak-rss-kib %M cpu %U %S"])
+            .arg(env!("CARGO_BIN_EXE_imulab"))
+            .arg("allan")
+            .arg(&input)
+            .args(&common)
+            .args(["--axes", axes, "--kind", "oadev", "--fit"])
+            .output()
+            .expect("run imulab allan under /usr/bin/time");
+        let wall = t.elapsed().as_secs_f64();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(output.status.success(), "imulab allan failed: {stderr}");
+        let fields: Vec<f64> = stderr
+            .lines()
+            .rev()
+            .find_map(|l| l.strip_prefix("peak-rss-kib "))
+            .map(|l| {
+                l.split_whitespace()
+                    .filter_map(|v| v.parse().ok())
+                    .collect()
+            })
+            .unwrap_or_default();
+        let [peak_kib, user, system] = fields[..] else {
+            panic!("no usage line from /usr/bin/time: {stderr}");
+        };
+        let peak_mb = peak_kib * 1024.0 / 1e6;
+        println!(
+            "| {label} | {peak_mb:.0} | {axis_mb:.0} | {:.0} | {:.2} | {wall:.1} | {:.1} |",
+            6.0 * axis_mb,
+            peak_mb / axis_mb,
+            user + system
+        );
+        let text = String::from_utf8_lossy(&output.stdout);
+        for line in text
+            .lines()
+            .filter(|l| l.starts_with("Gyro ARW") || l.starts_with("Gyro RRW"))
+        {
+            println!("    {line}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).expect("delete the benchmark data");
+    println!("\ninput deleted");
 }
 
 /// What a straightforward f32 implementation does: cumulative f32 sum of the raw samples,

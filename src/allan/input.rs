@@ -53,6 +53,12 @@ pub trait SampleSource {
         None
     }
 
+    /// Upper bound of the number of rows, when cheap to know (sizes buffers and decides how
+    /// many axes one reading pass may hold within the memory budget).
+    fn row_count_hint(&self) -> Option<u64> {
+        None
+    }
+
     /// The physical unit of a channel when the source knows it (sessions do).
     fn channel_unit(&self, _channel: usize) -> Option<crate::allan::units::RateUnit> {
         None
@@ -136,6 +142,11 @@ impl CsvSource {
 impl SampleSource for CsvSource {
     fn describe(&self) -> String {
         self.path.display().to_string()
+    }
+    fn row_count_hint(&self) -> Option<u64> {
+        // Every field takes at least one character and one delimiter or line end.
+        let bytes = std::fs::metadata(&self.path).ok()?.len();
+        Some(bytes / (2 * self.channels.len().max(1) as u64))
     }
     fn channels(&self) -> &[String] {
         &self.channels
@@ -271,6 +282,13 @@ fn open_npy(path: &Path) -> Result<npyz::NpyFile<BufReader<File>>, InputError> {
 impl SampleSource for NpySource {
     fn describe(&self) -> String {
         self.path.display().to_string()
+    }
+    fn row_count_hint(&self) -> Option<u64> {
+        // The header's row count, but never more than the file can hold.
+        let bytes = std::fs::metadata(&self.path).ok()?.len();
+        let row_bytes =
+            (self.columns.max(1) as u64).saturating_mul(if self.single { 4 } else { 8 });
+        Some(self.rows.min(bytes / row_bytes))
     }
     fn channels(&self) -> &[String] {
         &self.channels
@@ -482,10 +500,7 @@ impl AxisSeries {
 /// Fractional deviation of an interval from nominal that still counts as uniform.
 const JITTER_TOLERANCE: f64 = 0.1;
 
-/// Reads channel `axis` of `source` as a uniform rate series.
-///
-/// `temperature`: optional channel carried along (for thermal analysis). With a time
-/// channel, τ0 is the median of the first 10 000 intervals.
+/// Reads channel `axis` of `source` as a uniform rate series (see [`read_axes`]).
 pub fn read_axis(
     source: &dyn SampleSource,
     axis: usize,
@@ -494,9 +509,34 @@ pub fn read_axis(
     data: DataKind,
     temperature: Option<usize>,
 ) -> Result<AxisSeries, InputError> {
-    let name = source.channels().get(axis).cloned().ok_or_else(|| {
+    let mut series = read_axes(source, &[axis], timing, policy, data, temperature)?;
+    series.pop().ok_or_else(|| {
         InputError::Channel(format!("{}: no channel index {axis}", source.describe()))
-    })?;
+    })
+}
+
+/// Reads channels `axes` of `source` as uniform rate series in one pass over the source
+/// (so a session is decompressed once for all of them); memory is the sum of the axes.
+///
+/// `temperature`: optional channel carried along (for thermal analysis). With a time
+/// channel, τ0 is the median of the first 10 000 intervals. Each axis has its own gap
+/// bookkeeping, since NaN values are per channel.
+pub fn read_axes(
+    source: &dyn SampleSource,
+    axes: &[usize],
+    timing: &Timing,
+    policy: GapPolicy,
+    data: DataKind,
+    temperature: Option<usize>,
+) -> Result<Vec<AxisSeries>, InputError> {
+    let names: Vec<String> = axes
+        .iter()
+        .map(|&axis| {
+            source.channels().get(axis).cloned().ok_or_else(|| {
+                InputError::Channel(format!("{}: no channel index {axis}", source.describe()))
+            })
+        })
+        .collect::<Result<_, _>>()?;
     let (tau0, time_channel) = match timing {
         Timing::Rate(hz) => {
             if !(hz.is_finite() && *hz > 0.0) {
@@ -511,41 +551,64 @@ pub fn read_axis(
             Some((*channel, *scale)),
         ),
     };
-    let mut wanted = vec![axis];
-    if let Some((c, _)) = time_channel {
+    let mut wanted = axes.to_vec();
+    let time_slot = time_channel.map(|(c, _)| {
         wanted.push(c);
-    }
-    if let Some(t) = temperature {
+        wanted.len() - 1
+    });
+    let temp_slot = temperature.map(|t| {
         wanted.push(t);
-    }
-    let temp_slot = temperature.map(|_| wanted.len() - 1);
-    let mut builder = SeriesBuilder::new(tau0, policy, &name, source.describe());
-    let mut temps: Option<Vec<f32>> = temperature.map(|_| Vec::new());
+        wanted.len() - 1
+    });
+    // Reserve the expected length once (capped, so a lying header cannot demand memory).
+    let expected = source
+        .row_count_hint()
+        .map_or(0, |rows| rows.min(1 << 32) as usize);
+    let mut builders: Vec<(SeriesBuilder, Option<Vec<f32>>)> = names
+        .iter()
+        .map(|name| {
+            let mut builder = SeriesBuilder::new(tau0, policy, name, source.describe());
+            // Ignoring a failed reservation is fine: the vector then grows as it goes.
+            let _ = builder.current.try_reserve_exact(expected);
+            (builder, temperature.map(|_| Vec::new()))
+        })
+        .collect();
     source.for_each_row(&wanted, &mut |row, values| {
-        let time = time_channel.map(|(_, scale)| values[1] * scale);
+        let time = time_slot
+            .zip(time_channel)
+            .map(|(slot, (_, scale))| values[slot] * scale);
         let temp = temp_slot.map(|s| values[s]);
-        builder.push(row, time, values[0], temp, temps.as_mut())
+        for (i, (builder, temps)) in builders.iter_mut().enumerate() {
+            builder.push(row, time, values[i], temp, temps.as_mut())?;
+        }
+        Ok(())
     })?;
-    let (segments, mut health) = builder.finish()?;
-    if let Some(t) = &temps {
-        let finite = t.iter().filter(|v| v.is_finite());
-        health.temperature_min = finite.clone().copied().reduce(f32::min).map(f64::from);
-        health.temperature_max = finite.copied().reduce(f32::max).map(f64::from);
-    }
-    let segments = match data {
-        DataKind::Rate => segments,
-        DataKind::Phase => segments
-            .into_iter()
-            .map(|s| s.windows(2).map(|w| (w[1] - w[0]) / tau0).collect())
-            .collect(),
-    };
-    Ok(AxisSeries {
-        name,
-        tau0,
-        segments,
-        temperature: temps,
-        health,
-    })
+    builders
+        .into_iter()
+        .zip(names)
+        .map(|((builder, temps), name)| {
+            let (segments, mut health) = builder.finish()?;
+            if let Some(t) = &temps {
+                let finite = t.iter().filter(|v| v.is_finite());
+                health.temperature_min = finite.clone().copied().reduce(f32::min).map(f64::from);
+                health.temperature_max = finite.copied().reduce(f32::max).map(f64::from);
+            }
+            let segments = match data {
+                DataKind::Rate => segments,
+                DataKind::Phase => segments
+                    .into_iter()
+                    .map(|s| s.windows(2).map(|w| (w[1] - w[0]) / tau0).collect())
+                    .collect(),
+            };
+            Ok(AxisSeries {
+                name,
+                tau0,
+                segments,
+                temperature: temps,
+                health,
+            })
+        })
+        .collect()
 }
 
 /// Median of the first 10 000 time-stamp intervals.

@@ -18,48 +18,77 @@ pub fn identify_alpha(phase: &[f64], m: usize, max_differences: u32) -> Option<A
         return None;
     }
     let decimated = phase.len().div_ceil(m);
-    let mut differences = 0u32;
-    loop {
-        let len = decimated.checked_sub(differences as usize)?;
-        if len < MIN_POINTS {
-            return None;
-        }
-        let value = |k: usize| differenced(phase, m, differences, k);
-        let r1 = lag1_autocorrelation(len, value)?;
+    let levels = (0..=max_differences.min(MAX_LEVEL as u32) as usize)
+        .take_while(|&d| {
+            decimated
+                .checked_sub(d)
+                .is_some_and(|len| len >= MIN_POINTS)
+        })
+        .count();
+    if levels == 0 {
+        return None;
+    }
+    let r1 = lag1_of_differences(phase, m, levels);
+    for (d, r1) in r1.iter().take(levels).enumerate() {
+        let r1 = (*r1)?;
         let delta = r1 / (1.0 + r1);
-        if delta < 0.25 || differences >= max_differences {
-            let p = -(2.0 * delta).round() as i32 - 2 * differences as i32;
+        if delta < 0.25 || d as u32 >= max_differences {
+            let p = -(2.0 * delta).round() as i32 - 2 * d as i32;
             return Some(p + 2);
         }
-        differences += 1;
     }
+    // The next difference would have had fewer than MIN_POINTS points.
+    None
 }
 
-/// The `d`-th difference of the phase decimated by `m`, at index `k`.
-fn differenced(phase: &[f64], m: usize, d: u32, k: usize) -> f64 {
-    let at = |i: usize| phase[(k + i) * m];
-    match d {
-        0 => at(0),
-        1 => at(1) - at(0),
-        2 => at(2) - 2.0 * at(1) + at(0),
-        _ => at(3) - 3.0 * at(2) + 3.0 * at(1) - at(0),
-    }
-}
+/// Highest difference order considered (Hadamard variances: 3).
+const MAX_LEVEL: usize = 3;
 
-/// Lag-1 autocorrelation of `len` values produced by `value` (mean removed).
-fn lag1_autocorrelation(len: usize, value: impl Fn(usize) -> f64) -> Option<f64> {
-    let mean = (0..len).map(&value).sum::<f64>() / len as f64;
-    let mut denominator = 0.0;
-    let mut numerator = 0.0;
-    let mut previous = value(0) - mean;
-    denominator += previous * previous;
-    for k in 1..len {
-        let current = value(k) - mean;
-        numerator += previous * current;
-        denominator += current * current;
-        previous = current;
+/// Lag-1 autocorrelation (mean removed) of the 0th … `levels − 1`-th difference of the phase
+/// decimated by `m`, all from the same two passes over the decimated points: the first
+/// pass sums each difference series for its mean, the second accumulates the centred
+/// lag-1 products and squares. `None` for a series with zero variance.
+fn lag1_of_differences(phase: &[f64], m: usize, levels: usize) -> [Option<f64>; MAX_LEVEL + 1] {
+    // Differences of order 0…3 at decimated index k from the last four points.
+    fn differences(history: &[f64; 4]) -> [f64; 4] {
+        let [v0, v1, v2, v3] = *history; // v0 newest
+        [
+            v0,
+            v0 - v1,
+            v0 - 2.0 * v1 + v2,
+            v0 - 3.0 * v1 + 3.0 * v2 - v3,
+        ]
     }
-    (denominator > 0.0).then(|| numerator / denominator)
+    let decimated = || phase.iter().step_by(m).copied();
+    let mut sums = [0.0f64; MAX_LEVEL + 1];
+    let mut history = [0.0f64; 4];
+    for (k, v) in decimated().enumerate() {
+        history = [v, history[0], history[1], history[2]];
+        let diff = differences(&history);
+        for d in 0..levels.min(k + 1) {
+            sums[d] += diff[d];
+        }
+    }
+    let total = phase.len().div_ceil(m);
+    let means: [f64; MAX_LEVEL + 1] =
+        std::array::from_fn(|d| sums[d] / total.saturating_sub(d).max(1) as f64);
+    let mut numerator = [0.0f64; MAX_LEVEL + 1];
+    let mut denominator = [0.0f64; MAX_LEVEL + 1];
+    let mut previous = [0.0f64; MAX_LEVEL + 1];
+    history = [0.0; 4];
+    for (k, v) in decimated().enumerate() {
+        history = [v, history[0], history[1], history[2]];
+        let diff = differences(&history);
+        for d in 0..levels.min(k + 1) {
+            let current = diff[d] - means[d];
+            if k > d {
+                numerator[d] += previous[d] * current;
+            }
+            denominator[d] += current * current;
+            previous[d] = current;
+        }
+    }
+    std::array::from_fn(|d| (denominator[d] > 0.0).then(|| numerator[d] / denominator[d]))
 }
 
 #[cfg(test)]

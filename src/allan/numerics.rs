@@ -4,7 +4,7 @@
 //! Written by hand because the kernels must stay allocation-free and fused with the
 //! deviation loops; no crate offers a compensated running sum over borrowed slices.
 
-/// Neumaier-compensated accumulator: the running error of each addition is kept in
+/// Compensated (Neumaier/Kahan–Babuška) accumulator: the running error of each addition is kept in
 /// `compensation`, so summing millions of terms loses no more than a couple of ulps.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct CompensatedSum {
@@ -17,14 +17,14 @@ impl CompensatedSum {
         Self::default()
     }
 
+    /// Adds `value`, keeping the exact rounding error of the addition (Knuth's branch-free
+    /// TwoSum, which gives the same error term as Neumaier's comparison without a
+    /// data-dependent branch the CPU would mispredict on noise).
     #[inline]
     pub fn add(&mut self, value: f64) {
         let t = self.sum + value;
-        if self.sum.abs() >= value.abs() {
-            self.compensation += (self.sum - t) + value;
-        } else {
-            self.compensation += (value - t) + self.sum;
-        }
+        let back = t - self.sum;
+        self.compensation += (self.sum - (t - back)) + (value - back);
         self.sum = t;
     }
 

@@ -6,7 +6,7 @@
 //! report must not depend on; PNG output uses plotters.
 
 use super::analysis::{AllanReport, AxisResult};
-use super::fit::Term;
+use super::fit::{NoiseFit, Term};
 use super::units::SensorKind;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -60,7 +60,58 @@ fn escape(text: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// A log-log SVG of several axes' curves with confidence bands and fitted model lines.
+/// One identified noise term's own σ(τ) line (a straight line on log-log axes).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TermLine {
+    pub term: Term,
+    /// End points (τ, σ) at the ends of the plotted τ range.
+    pub from: (f64, f64),
+    pub to: (f64, f64),
+    /// Where the label goes: on the line, in the middle of the τ stretch where this term
+    /// makes up (within 10 %) its largest share of the fitted total.
+    pub label_at: (f64, f64),
+}
+
+/// The asymptote of every identified term of `fit` between `tau_lo` and `tau_hi`.
+pub fn term_lines(fit: &NoiseFit, tau_lo: f64, tau_hi: f64) -> Vec<TermLine> {
+    if !(tau_lo > 0.0 && tau_hi >= tau_lo && tau_hi.is_finite()) {
+        return Vec::new();
+    }
+    const SAMPLES: usize = 64;
+    let tau_at = |i: usize| tau_lo * (tau_hi / tau_lo).powf(i as f64 / (SAMPLES - 1) as f64);
+    Term::ALL
+        .iter()
+        .filter_map(|&term| {
+            let at = |tau: f64| fit.term_deviation(term, tau).filter(|d| *d > 0.0);
+            let from = (tau_lo, at(tau_lo)?);
+            let to = (tau_hi, at(tau_hi)?);
+            let share = |tau: f64| {
+                let total = fit.model_deviation(tau);
+                at(tau).map_or(0.0, |d| d / total)
+            };
+            // Middle (in log τ) of where the term is within 10 % of its largest share of
+            // the total: the stretch where its asymptote runs along the total curve, and
+            // away from the plot's edges when the term dominates an end of the range.
+            let shares: Vec<f64> = (0..SAMPLES).map(|i| share(tau_at(i))).collect();
+            let peak = shares.iter().copied().fold(0.0, f64::max);
+            let dominant: Vec<usize> = (0..SAMPLES).filter(|&i| shares[i] >= 0.9 * peak).collect();
+            let best = tau_at(*dominant.get(dominant.len() / 2)?);
+            Some(TermLine {
+                term,
+                from,
+                to,
+                label_at: (best, at(best)?),
+            })
+        })
+        .collect()
+}
+
+/// Text under a plot that says what the line styles mean.
+pub const LINE_STYLE_NOTE: &str =
+    "solid: measured · band: 68 % interval · dashed: fitted total · dotted: fitted terms (Q quantization, N white noise/random walk, B bias instability, K rate random walk, R rate ramp)";
+
+/// A log-log SVG of several axes' curves with confidence bands, the fitted total and each
+/// identified term's own line, labelled.
 pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
     let (width, height) = (720.0, 460.0);
     let (left, right, top, bottom) = (80.0, 20.0, 30.0, 50.0);
@@ -143,6 +194,14 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
         width - left - right,
         height - top - bottom
     );
+    // Fitted lines run over the whole τ range and may leave the plot area: clip them.
+    let clip = format!("plot-{:016x}", fnv1a(title));
+    let _ = write!(
+        svg,
+        r#"<clipPath id="{clip}"><rect x="{left}" y="{top}" width="{:.1}" height="{:.1}"/></clipPath>"#,
+        width - left - right,
+        height - top - bottom
+    );
     let _ = write!(
         svg,
         r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">τ [s]</text>"#,
@@ -212,6 +271,32 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
                 r#"<polyline points="{}" fill="none" stroke="{color}" stroke-dasharray="5,4" stroke-width="1"/>"#,
                 model.join(" ")
             );
+            if let (Some(first), Some(last)) = (pts.first(), pts.last()) {
+                let mut labels = String::new();
+                for line in term_lines(fit, first.tau, last.tau) {
+                    let _ = write!(
+                        svg,
+                        r#"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="{color}" stroke-dasharray="1.5,2.5" stroke-width="1.2" clip-path="url(#{clip})"><title>{}</title></line>"#,
+                        px(line.from.0),
+                        py(line.from.1),
+                        px(line.to.0),
+                        py(line.to.1),
+                        escape(&format!("{} {} {}", a.device, a.axis, line.term.symbol()))
+                    );
+                    // Below the line: the measured curve runs above the asymptotes.
+                    let (x, y) = (px(line.label_at.0), py(line.label_at.1) + 14.0);
+                    if (left..=width - right).contains(&x)
+                        && (top + 8.0..=height - bottom).contains(&y)
+                    {
+                        let _ = write!(
+                            labels,
+                            r#"<text x="{x:.1}" y="{y:.1}" fill="{color}" font-weight="bold" text-anchor="middle">{}</text>"#,
+                            line.term.symbol()
+                        );
+                    }
+                }
+                svg.push_str(&labels);
+            }
         }
         let ly_text = top + 16.0 + 15.0 * i as f64;
         let _ = write!(
@@ -226,8 +311,25 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
             escape(&format!("{} {}", a.device, a.axis))
         );
     }
+    let _ = write!(
+        svg,
+        r##"<text x="{left}" y="{:.1}" font-size="9" fill="#555">{}</text>"##,
+        height - 2.0,
+        escape(if axes.iter().any(|a| a.fit.is_some()) {
+            LINE_STYLE_NOTE
+        } else {
+            "solid: measured · band: 68 % interval"
+        })
+    );
     svg.push_str("</svg>");
     svg
+}
+
+/// FNV-1a hash, for element ids that are stable from run to run.
+fn fnv1a(text: &str) -> u64 {
+    text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    })
 }
 
 /// Formats a value with 3 significant digits.
@@ -457,6 +559,33 @@ fn health_table_html(axes: &[&AxisResult]) -> String {
     html
 }
 
+/// The report's plots: one per device and sensor, titled "device sensor", in input order.
+pub fn plot_groups(report: &AllanReport) -> Vec<(String, Vec<&AxisResult>)> {
+    let mut groups: Vec<(String, Option<SensorKind>)> = Vec::new();
+    for a in &report.axes {
+        let key = (a.device.clone(), a.sensor);
+        if !groups.contains(&key) {
+            groups.push(key);
+        }
+    }
+    groups
+        .into_iter()
+        .map(|(device, sensor)| {
+            let members: Vec<&AxisResult> = report
+                .axes
+                .iter()
+                .filter(|a| a.device == device && a.sensor == sensor)
+                .collect();
+            let label = match sensor {
+                Some(SensorKind::Gyro) => " gyro",
+                Some(SensorKind::Accel) => " accel",
+                None => "",
+            };
+            (format!("{device}{label}"), members)
+        })
+        .collect()
+}
+
 /// The self-contained HTML report: one plot per device and sensor, the datasheet table and
 /// the data-health table. No scripts, no external resources.
 pub fn html_report(report: &AllanReport, title: &str) -> String {
@@ -480,25 +609,8 @@ small{{color:#666}}.plots svg{{margin:0.5em;border:1px solid #eee}}</style></hea
     );
     let _ = write!(html, "<p>Input: {}</p>", escape(&report.input.join(", ")));
     html.push_str("<h2>Curves</h2><div class=\"plots\">");
-    let mut groups: Vec<(String, Option<SensorKind>)> = Vec::new();
-    for a in &report.axes {
-        let key = (a.device.clone(), a.sensor);
-        if !groups.contains(&key) {
-            groups.push(key);
-        }
-    }
-    for (device, sensor) in &groups {
-        let members: Vec<&AxisResult> = report
-            .axes
-            .iter()
-            .filter(|a| &a.device == device && a.sensor == *sensor)
-            .collect();
-        let label = match sensor {
-            Some(SensorKind::Gyro) => "gyro",
-            Some(SensorKind::Accel) => "accel",
-            None => "",
-        };
-        html.push_str(&svg_plot(&members, &format!("{device} {label}")));
+    for (title, members) in plot_groups(report) {
+        html.push_str(&svg_plot(&members, &title));
     }
     html.push_str("</div><h2>Noise terms</h2>");
     let all: Vec<&AxisResult> = report.axes.iter().collect();
@@ -558,12 +670,22 @@ small{{color:#666}}.plots svg{{margin:0.5em;border:1px solid #eee}}</style></hea
 
 /// PNG plot of all axes of a report (plotters; needs a system font for the labels).
 pub fn write_png(report: &AllanReport, path: &Path) -> anyhow::Result<()> {
+    let axes: Vec<&AxisResult> = report.axes.iter().collect();
+    write_png_axes(
+        &axes,
+        &format!("{} ({})", report.kind.title(), report.grid),
+        path,
+    )
+}
+
+/// PNG of `axes`: curves, confidence bands, fitted total and labelled term lines.
+pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow::Result<()> {
     use plotters::prelude::*;
     let root = BitMapBackend::new(path, (1000, 700)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut tau = (f64::INFINITY, f64::NEG_INFINITY);
     let mut dev = (f64::INFINITY, f64::NEG_INFINITY);
-    for a in &report.axes {
+    for a in axes {
         for p in a.curve.points.iter().filter(|p| p.deviation > 0.0) {
             tau = (tau.0.min(p.tau), tau.1.max(p.tau));
             dev = (
@@ -574,26 +696,38 @@ pub fn write_png(report: &AllanReport, path: &Path) -> anyhow::Result<()> {
         }
     }
     anyhow::ensure!(tau.0.is_finite() && dev.0.is_finite(), "nothing to plot");
-    let mut chart = ChartBuilder::on(&root)
-        .caption(
-            format!("{} ({})", report.kind.title(), report.grid),
-            ("sans-serif", 22),
-        )
+    let y_range = (dev.0 / 1.5, dev.1 * 1.5);
+    let (plot_area, note_area) = root.split_vertically(670);
+    if axes.iter().any(|a| a.fit.is_some()) {
+        note_area.draw(&Text::new(
+            LINE_STYLE_NOTE,
+            (15, 8),
+            ("sans-serif", 12).into_font(),
+        ))?;
+    }
+    let mut chart = ChartBuilder::on(&plot_area)
+        .caption(title, ("sans-serif", 22))
         .margin(15)
         .x_label_area_size(45)
         .y_label_area_size(80)
         .build_cartesian_2d(
             (tau.0 / 1.5..tau.1 * 1.5).log_scale(),
-            (dev.0 / 1.5..dev.1 * 1.5).log_scale(),
+            (y_range.0..y_range.1).log_scale(),
         )?;
     chart
         .configure_mesh()
         .x_desc("tau [s]")
-        .y_desc(report.kind.name().to_uppercase())
+        .y_desc(format!(
+            "{} [{}]",
+            axes.first()
+                .map(|a| a.curve.kind.name().to_uppercase())
+                .unwrap_or_default(),
+            axes.first().map(|a| a.unit.symbol()).unwrap_or("")
+        ))
         .x_label_formatter(&|v| format!("{v:.0e}"))
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .draw()?;
-    for (i, a) in report.axes.iter().enumerate() {
+    for (i, a) in axes.iter().enumerate() {
         let color = Palette99::pick(i).to_rgba();
         let pts: Vec<_> = a
             .curve
@@ -631,13 +765,72 @@ pub fn write_png(report: &AllanReport, path: &Path) -> anyhow::Result<()> {
                 4,
                 color.stroke_width(1),
             ))?;
+            if let (Some(first), Some(last)) = (pts.first(), pts.last()) {
+                for line in term_lines(fit, first.tau, last.tau) {
+                    // Clip by hand: plotters draws outside the axis range otherwise.
+                    let Some((from, to)) = clip_log_segment(line.from, line.to, y_range) else {
+                        continue;
+                    };
+                    chart.draw_series(DashedLineSeries::new(
+                        [from, to],
+                        3,
+                        4,
+                        color.stroke_width(2),
+                    ))?;
+                    if (y_range.0..=y_range.1).contains(&line.label_at.1) {
+                        // Below the line: the measured curve runs above the asymptotes.
+                        chart.draw_series(std::iter::once(
+                            EmptyElement::at(line.label_at)
+                                + Text::new(
+                                    line.term.symbol().to_string(),
+                                    (-5, 6),
+                                    ("sans-serif", 18).into_font().color(&color),
+                                ),
+                        ))?;
+                    }
+                }
+            }
         }
     }
     chart
         .configure_series_labels()
+        // Allan curves are bowls: the top middle is the emptiest place.
+        .position(SeriesLabelPosition::UpperMiddle)
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()?;
     root.present()?;
     Ok(())
+}
+
+/// Clips the log-log straight segment `from`–`to` to `lo ≤ σ ≤ hi` (None when outside).
+fn clip_log_segment(
+    from: (f64, f64),
+    to: (f64, f64),
+    (lo, hi): (f64, f64),
+) -> Option<((f64, f64), (f64, f64))> {
+    let (x0, y0, x1, y1) = (from.0.ln(), from.1.ln(), to.0.ln(), to.1.ln());
+    let (lo, hi) = (lo.ln(), hi.ln());
+    let at = |y: f64| {
+        if y1 == y0 {
+            x0
+        } else {
+            x0 + (x1 - x0) * (y - y0) / (y1 - y0)
+        }
+    };
+    let clamp_point = |x: f64, y: f64| -> (f64, f64) {
+        if y < lo {
+            (at(lo), lo)
+        } else if y > hi {
+            (at(hi), hi)
+        } else {
+            (x, y)
+        }
+    };
+    if (y0 < lo && y1 < lo) || (y0 > hi && y1 > hi) {
+        return None;
+    }
+    let a = clamp_point(x0, y0);
+    let b = clamp_point(x1, y1);
+    Some(((a.0.exp(), a.1.exp()), (b.0.exp(), b.1.exp())))
 }

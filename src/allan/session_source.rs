@@ -99,6 +99,14 @@ impl SampleSource for SessionSource {
         Some(&self.device)
     }
 
+    fn row_count_hint(&self) -> Option<u64> {
+        // All rows of the device (the time range can only make it fewer).
+        let summary = self
+            .session
+            .stream_summary(&crate::store::layout::imu_path(&self.device));
+        Some(summary.rows)
+    }
+
     fn channel_unit(&self, channel: usize) -> Option<RateUnit> {
         match channel {
             1..=3 => Some(RateUnit::RadPerSecond),

@@ -4,13 +4,14 @@
 
 use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions, AxisResult};
 use crate::allan::input::{
-    open_file, read_axis, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
+    open_file, read_axes, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
 };
 use crate::allan::session_source::SessionSource;
 use crate::allan::thermal::{bias_versus_temperature, find_plateaus};
 use crate::allan::units::{RateUnit, SensorKind};
 use crate::allan::{export, report, DeviationKind, TauGrid};
 use anyhow::{bail, Context};
+use rayon::prelude::*;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -74,6 +75,10 @@ pub struct AnalysisArgs {
     /// Settling time excluded at the start of each plateau, seconds.
     #[arg(long, default_value_t = 600.0)]
     pub settling: f64,
+    /// Memory for samples, in MiB: axes of one input are read together in one pass while
+    /// they fit, otherwise one axis per pass (memory then follows the longest axis).
+    #[arg(long, default_value_t = 1024)]
+    pub memory_mib: u64,
 }
 
 #[derive(clap::Args, Debug)]
@@ -426,32 +431,48 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         device,
     } in &plan
     {
-        for &axis in axes {
-            let series = read_axis(
+        let per_pass = axes_per_pass(source.row_count_hint(), args.memory_mib);
+        for group in axes.chunks(per_pass) {
+            let series = read_axes(
                 source.as_ref(),
-                axis,
+                group,
                 timing,
                 args.gaps,
                 args.data,
                 *temperature,
             )
             .with_context(|| format!("reading {}", path.display()))?;
-            // A source that knows its channel's unit (a session) overrides --units.
-            let known_unit = source.channel_unit(axis);
-            let unit = known_unit.unwrap_or(args.units);
-            let options = AnalysisOptions {
-                kind: args.kind,
-                grid: args.taus.clone(),
-                fit: args.fit,
-                unit,
-                sensor: if known_unit.is_some() {
-                    unit.sensor()
-                } else {
-                    sensor
-                },
-            };
-            progress.step(format!("{device} {}", series.name));
-            results.extend(analyse_with_thermal(device, series, &options, args));
+            let jobs: Vec<(AxisSeries, AnalysisOptions)> = group
+                .iter()
+                .zip(series)
+                .map(|(&axis, series)| {
+                    // A source that knows its channel's unit (a session) overrides --units.
+                    let known_unit = source.channel_unit(axis);
+                    let unit = known_unit.unwrap_or(args.units);
+                    let options = AnalysisOptions {
+                        kind: args.kind,
+                        grid: args.taus.clone(),
+                        fit: args.fit,
+                        unit,
+                        sensor: if known_unit.is_some() {
+                            unit.sensor()
+                        } else {
+                            sensor
+                        },
+                    };
+                    (series, options)
+                })
+                .collect();
+            let names: Vec<String> = jobs.iter().map(|(s, _)| s.name.clone()).collect();
+            // Axes in parallel as well as τ within each axis; results keep the axis order.
+            let analysed: Vec<Vec<AxisResult>> = jobs
+                .into_par_iter()
+                .map(|(series, options)| analyse_with_thermal(device, series, &options, args))
+                .collect();
+            for (name, result) in names.into_iter().zip(analysed) {
+                progress.step(format!("{device} {name}"));
+                results.extend(result);
+            }
         }
     }
     progress.finish();
@@ -461,6 +482,17 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         &grid_label(&args.taus),
         results,
     ))
+}
+
+/// How many axes one reading pass may hold: all of them while their samples (8 bytes per
+/// row each) fit in `memory_mib`, at least one. Unknown lengths read one axis per pass.
+fn axes_per_pass(rows: Option<u64>, memory_mib: u64) -> usize {
+    let Some(rows) = rows else { return 1 };
+    let budget = memory_mib.saturating_mul(1 << 20);
+    let axis_bytes = rows.saturating_mul(8).max(1);
+    usize::try_from(budget / axis_bytes)
+        .unwrap_or(usize::MAX)
+        .max(1)
 }
 
 fn grid_label(grid: &TauGrid) -> String {

@@ -3,13 +3,14 @@
 //! noise-term table (rows: terms; columns: device × axis) and the data's health.
 
 use super::allan::{analyse_inputs, summary_text, AnalysisArgs};
-use crate::allan::report::html_report;
+use crate::allan::analysis::AllanReport;
+use crate::allan::report::{html_report, plot_groups, write_png_axes};
 use anyhow::Context;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example: imulab report imu_a.csv imu_b.npy --rate 200 --units rad/s --kind oadev --html report.html"
+    after_help = "Example: imulab report imu_a.csv imu_b.npy --rate 200 --units rad/s --kind oadev --html report.html --png curves.png"
 )]
 pub struct ReportArgs {
     /// Inputs (one device each): CSV/TSV or .npy files.
@@ -23,6 +24,10 @@ pub struct ReportArgs {
     /// Also write the JSON document.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Also write the page's plots as PNG (plotters bitmap): this file for a single plot,
+    /// otherwise one file per device and sensor named `<stem>-<device>-<sensor>.png`.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
     /// Page title.
     #[arg(long, default_value = "IMU noise report")]
     pub title: String,
@@ -42,7 +47,38 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
             std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
         serde_json::to_writer_pretty(std::io::BufWriter::new(file), &report)?;
     }
+    if let Some(path) = &args.png {
+        for written in write_pngs(&report, path)? {
+            println!("wrote {}", written.display());
+        }
+    }
     print!("{}", summary_text(&report));
     println!("wrote {}", args.html.display());
     Ok(())
+}
+
+/// The HTML page's plots as PNG files; returns the paths written.
+fn write_pngs(report: &AllanReport, path: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let groups = plot_groups(report);
+    let single = groups.len() == 1;
+    let mut written = Vec::new();
+    for (title, axes) in groups {
+        let target = if single {
+            path.to_path_buf()
+        } else {
+            let stem = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "report".into());
+            let name: String = title
+                .chars()
+                .map(|c| if c.is_ascii_alphanumeric() { c } else { '-' })
+                .collect();
+            path.with_file_name(format!("{stem}-{name}.png"))
+        };
+        write_png_axes(&axes, &title, &target)
+            .with_context(|| format!("writing {}", target.display()))?;
+        written.push(target);
+    }
+    Ok(written)
 }

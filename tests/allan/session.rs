@@ -2,9 +2,11 @@
 //! `SessionSource` exactly as the same samples from memory, gaps are detected from the
 //! time stamps, and `imulab allan SESSION` runs end to end.
 
-use imulab::allan::input::{read_axis, DataKind, GapPolicy, SampleSource, Timing};
+use clap::Parser;
+use imulab::allan::input::{read_axes, read_axis, DataKind, GapPolicy, SampleSource, Timing};
 use imulab::allan::session_source::SessionSource;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
+use imulab::cli::allan::{analyse_inputs, AnalysisArgs};
 use imulab::store::{DeviceInfo, DeviceKind, ImuRecord, Manifest, SessionWriter, WriterOptions};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -12,6 +14,16 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use std::path::Path;
 
 fn write_session(dir: &Path, rows: usize, skip: Option<std::ops::Range<usize>>) -> Vec<ImuRecord> {
+    write_session_with(dir, rows, skip, |_| {})
+}
+
+/// As [`write_session`], with `edit` applied to every record before it is written.
+fn write_session_with(
+    dir: &Path,
+    rows: usize,
+    skip: Option<std::ops::Range<usize>>,
+    edit: impl Fn(&mut ImuRecord),
+) -> Vec<ImuRecord> {
     let device = DeviceInfo {
         name: "imu0".into(),
         kind: DeviceKind::Imu,
@@ -41,6 +53,10 @@ fn write_session(dir: &Path, rows: usize, skip: Option<std::ops::Range<usize>>) 
             accel: [0.01 * n(), 0.01 * n(), -9.80665 + 0.01 * n()],
             temp: 25.0 + (i / 1000) as f64,
             status: 0,
+        })
+        .map(|mut r| {
+            edit(&mut r);
+            r
         })
         .collect();
     for chunk in records.chunks(500) {
@@ -157,4 +173,73 @@ fn session_gap_is_detected_and_cli_runs() {
     assert_eq!(axes[0]["health"]["segments"], 2);
     assert_eq!(axes[0]["health"]["missing_samples"], 50);
     assert_eq!(axes[0]["health"]["policy"], "split");
+}
+
+#[derive(clap::Parser)]
+struct AnalysisCli {
+    #[command(flatten)]
+    analysis: AnalysisArgs,
+}
+
+#[test]
+fn one_reading_pass_for_all_axes_equals_one_pass_per_axis() {
+    let dir = tempfile::tempdir().unwrap();
+    let session_dir = dir.path().join("run");
+    // A gap for every axis and a NaN in gyro_y only: the gap bookkeeping is per axis.
+    let records = write_session_with(&session_dir, 5000, Some(3000..3010), |r| {
+        if r.t_mono_ns == 5_000_000_000 + 1234 * 10_000_000 {
+            r.gyro[1] = f64::NAN;
+        }
+    });
+    let source = SessionSource::open(&session_dir, None, None, None).unwrap();
+    assert_eq!(source.row_count_hint(), Some(records.len() as u64));
+    let timing = Timing::TimeChannel {
+        channel: source.channel_index("t").unwrap(),
+        scale: 1.0,
+    };
+    let axes: Vec<usize> = (1..=6).collect();
+    let together = read_axes(
+        &source,
+        &axes,
+        &timing,
+        GapPolicy::Split,
+        DataKind::Rate,
+        Some(7),
+    )
+    .unwrap();
+    assert_eq!(together.len(), 6);
+    for (&axis, joint) in axes.iter().zip(&together) {
+        let alone = read_axis(
+            &source,
+            axis,
+            &timing,
+            GapPolicy::Split,
+            DataKind::Rate,
+            Some(7),
+        )
+        .unwrap();
+        assert_eq!(joint.name, alone.name);
+        assert_eq!(joint.segments, alone.segments);
+        assert_eq!(joint.temperature, alone.temperature);
+        assert_eq!(joint.health, alone.health);
+    }
+    assert_eq!(together[1].health.invalid_values, 1);
+    assert_eq!(together[1].segments.len(), 3);
+    assert_eq!(together[0].segments.len(), 2);
+
+    // Through the command: a budget too small for two axes reads one axis per pass; the
+    // document is identical to the single pass.
+    let input = vec![session_dir.clone()];
+    let parse = |extra: &[&str]| {
+        let mut argv = vec!["test", "--gaps", "split", "--fit"];
+        argv.extend_from_slice(extra);
+        AnalysisCli::parse_from(argv).analysis
+    };
+    let one_pass = analyse_inputs(&input, &parse(&[])).unwrap();
+    let per_axis = analyse_inputs(&input, &parse(&["--memory-mib", "0"])).unwrap();
+    assert_eq!(
+        serde_json::to_value(&one_pass.axes).unwrap(),
+        serde_json::to_value(&per_axis.axes).unwrap()
+    );
+    assert_eq!(one_pass.axes.len(), 6);
 }
