@@ -36,7 +36,7 @@ pub struct WriterOptions {
     /// (default 1 s). Also sets the chunk size: rows per chunk = rate × this interval.
     pub flush_interval: Duration,
     /// Deflate level 0..=9 (0 = no shuffle/deflate filters at all). Default 1: on IMU noise
-    /// level 4 saves about 1 % of space for 10-20 % more CPU (docs/bench/store.md).
+    /// level 4 saves about 3.5 % of space for 30 % more CPU (docs/bench/store.md).
     pub deflate_level: u8,
     /// Create `/raw/<device>` for every device so undecoded bytes can be kept (default off).
     pub raw_journal: bool,
@@ -792,9 +792,10 @@ fn table_of<'a, R>(
 }
 
 /// HDF5's deflate filter sets up a fresh zlib stream (about 256 KiB, partly zeroed) for
-/// every chunk. With glibc's default trim threshold each free shrinks the heap and the next
-/// chunk faults the pages back in: measured, that churn cost 15 % of the writer's CPU on
-/// 30 min of data and half of it on 3 min (docs/bench/store.md). Keeping up to 64 MiB of freed heap stops it. Process-wide and
+/// every chunk it compresses (now only partial chunks; whole ones go through `chunkio`).
+/// With glibc's default trim threshold each free shrinks the heap and the next chunk faults
+/// the pages back in: measured in the first pass, that churn cost 15 % of the writer's CPU
+/// on 30 min of data. Keeping up to 64 MiB of freed heap stops it. Process-wide and
 /// harmless for other code; done once.
 fn keep_freed_heap() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
