@@ -4,6 +4,8 @@
 //! rows/s, for several deflate levels and chunk sizes.
 //!
 //! Run: `cargo bench --bench store` (full matrix), or `cargo bench --bench store -- --hours 1`.
+//! `--only 0,3` runs only those cases (numbered from 0 in table order); `--no-read` skips
+//! the reader table.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -288,7 +290,8 @@ fn main() {
             let _ = std::fs::remove_dir_all(&dir);
         }
     }
-    if let Some(dir) = first_dir {
+    let skip_read = args.iter().any(|a| a == "--no-read");
+    if let Some(dir) = first_dir.filter(|_| !skip_read) {
         println!(
             "\nReader, session of the first case above, all IMU and GNSS rows streamed back:\n"
         );

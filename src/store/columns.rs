@@ -7,6 +7,7 @@ use std::ops::Range;
 use hdf5::types::{FixedAscii, FixedUnicode, VarLenUnicode};
 use hdf5::{Dataset, Group, H5Type, Location};
 
+use super::chunkio::{put_rows, ChunkEncoder};
 use super::layout::{ATTR_DESCRIPTION, ATTR_SCHEMA_VERSION, ATTR_UNITS};
 use super::records::{
     EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord,
@@ -361,16 +362,22 @@ pub(crate) fn put_1d<T: H5Type>(ds: &Dataset, start: usize, values: &[T]) -> hdf
     ds.write_slice(values, start..end)
 }
 
-/// Grows an N×W column and writes `values` as rows at `start`.
-pub(crate) fn put_2d<const W: usize>(
-    ds: &Dataset,
-    start: usize,
-    values: &[[f64; W]],
-) -> hdf5::Result<()> {
-    let end = start + values.len();
-    ds.resize((end, W))?;
-    let view = ndarray::ArrayView2::from(values);
-    ds.write_slice(view, (start..end, ..))
+/// How a table's numeric columns are written: whole chunks of `chunk_rows` rows are encoded
+/// here and written directly (see `chunkio`), partial ones through HDF5's filter pipeline.
+pub(crate) struct ChunkSink {
+    pub chunk_rows: usize,
+    pub enc: ChunkEncoder,
+}
+
+impl ChunkSink {
+    fn put<T: super::chunkio::Plain>(
+        &mut self,
+        ds: &Dataset,
+        start: usize,
+        values: &[T],
+    ) -> hdf5::Result<()> {
+        put_rows(ds, &mut self.enc, self.chunk_rows, start, values)
+    }
 }
 
 fn gather<R, T>(rows: &[R], f: impl Fn(&R) -> T) -> Vec<T> {
@@ -383,7 +390,8 @@ fn gather<R, T>(rows: &[R], f: impl Fn(&R) -> T) -> Vec<T> {
 pub(crate) trait Row: Clone {
     const COLUMNS: &'static [Column];
     fn t_mono_ns(&self) -> i64;
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()>;
+    fn write(rows: &[Self], ds: &[Dataset], start: usize, sink: &mut ChunkSink)
+        -> hdf5::Result<()>;
 }
 
 impl Row for ImuRecord {
@@ -391,14 +399,19 @@ impl Row for ImuRecord {
     fn t_mono_ns(&self) -> i64 {
         self.t_mono_ns
     }
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
-        put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
-        put_1d(&ds[2], start, &gather(rows, |r| r.t_sensor))?;
-        put_2d(&ds[3], start, &gather(rows, |r| r.gyro))?;
-        put_2d(&ds[4], start, &gather(rows, |r| r.accel))?;
-        put_1d(&ds[5], start, &gather(rows, |r| r.temp))?;
-        put_1d(&ds[6], start, &gather(rows, |r| r.status))?;
-        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    fn write(
+        rows: &[Self],
+        ds: &[Dataset],
+        start: usize,
+        sink: &mut ChunkSink,
+    ) -> hdf5::Result<()> {
+        sink.put(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
+        sink.put(&ds[2], start, &gather(rows, |r| r.t_sensor))?;
+        sink.put(&ds[3], start, &gather(rows, |r| r.gyro))?;
+        sink.put(&ds[4], start, &gather(rows, |r| r.accel))?;
+        sink.put(&ds[5], start, &gather(rows, |r| r.temp))?;
+        sink.put(&ds[6], start, &gather(rows, |r| r.status))?;
+        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
 }
 
@@ -407,24 +420,29 @@ impl Row for GnssRecord {
     fn t_mono_ns(&self) -> i64 {
         self.t_mono_ns
     }
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
-        put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
-        put_1d(&ds[2], start, &gather(rows, |r| r.week))?;
-        put_1d(&ds[3], start, &gather(rows, |r| r.tow_s))?;
-        put_1d(&ds[4], start, &gather(rows, |r| r.utc_ns))?;
-        put_1d(&ds[5], start, &gather(rows, |r| r.lat_deg))?;
-        put_1d(&ds[6], start, &gather(rows, |r| r.lon_deg))?;
-        put_1d(&ds[7], start, &gather(rows, |r| r.height_m))?;
-        put_2d(&ds[8], start, &gather(rows, |r| r.vel_ned))?;
-        put_1d(&ds[9], start, &gather(rows, |r| r.h_acc_m))?;
-        put_1d(&ds[10], start, &gather(rows, |r| r.v_acc_m))?;
-        put_1d(&ds[11], start, &gather(rows, |r| r.s_acc_mps))?;
-        put_1d(&ds[12], start, &gather(rows, |r| r.fix_type as u8))?;
-        put_1d(&ds[13], start, &gather(rows, |r| r.num_sats))?;
-        put_1d(&ds[14], start, &gather(rows, |r| r.pdop))?;
-        put_1d(&ds[15], start, &gather(rows, |r| r.hdop))?;
-        put_1d(&ds[16], start, &gather(rows, |r| r.vdop))?;
-        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    fn write(
+        rows: &[Self],
+        ds: &[Dataset],
+        start: usize,
+        sink: &mut ChunkSink,
+    ) -> hdf5::Result<()> {
+        sink.put(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
+        sink.put(&ds[2], start, &gather(rows, |r| r.week))?;
+        sink.put(&ds[3], start, &gather(rows, |r| r.tow_s))?;
+        sink.put(&ds[4], start, &gather(rows, |r| r.utc_ns))?;
+        sink.put(&ds[5], start, &gather(rows, |r| r.lat_deg))?;
+        sink.put(&ds[6], start, &gather(rows, |r| r.lon_deg))?;
+        sink.put(&ds[7], start, &gather(rows, |r| r.height_m))?;
+        sink.put(&ds[8], start, &gather(rows, |r| r.vel_ned))?;
+        sink.put(&ds[9], start, &gather(rows, |r| r.h_acc_m))?;
+        sink.put(&ds[10], start, &gather(rows, |r| r.v_acc_m))?;
+        sink.put(&ds[11], start, &gather(rows, |r| r.s_acc_mps))?;
+        sink.put(&ds[12], start, &gather(rows, |r| r.fix_type as u8))?;
+        sink.put(&ds[13], start, &gather(rows, |r| r.num_sats))?;
+        sink.put(&ds[14], start, &gather(rows, |r| r.pdop))?;
+        sink.put(&ds[15], start, &gather(rows, |r| r.hdop))?;
+        sink.put(&ds[16], start, &gather(rows, |r| r.vdop))?;
+        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
 }
 
@@ -433,13 +451,18 @@ impl Row for TruthNavRecord {
     fn t_mono_ns(&self) -> i64 {
         self.t_mono_ns
     }
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
-        put_1d(&ds[1], start, &gather(rows, |r| r.lat_deg))?;
-        put_1d(&ds[2], start, &gather(rows, |r| r.lon_deg))?;
-        put_1d(&ds[3], start, &gather(rows, |r| r.height_m))?;
-        put_2d(&ds[4], start, &gather(rows, |r| r.vel_ned))?;
-        put_2d(&ds[5], start, &gather(rows, |r| r.quat_nb))?;
-        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    fn write(
+        rows: &[Self],
+        ds: &[Dataset],
+        start: usize,
+        sink: &mut ChunkSink,
+    ) -> hdf5::Result<()> {
+        sink.put(&ds[1], start, &gather(rows, |r| r.lat_deg))?;
+        sink.put(&ds[2], start, &gather(rows, |r| r.lon_deg))?;
+        sink.put(&ds[3], start, &gather(rows, |r| r.height_m))?;
+        sink.put(&ds[4], start, &gather(rows, |r| r.vel_ned))?;
+        sink.put(&ds[5], start, &gather(rows, |r| r.quat_nb))?;
+        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
 }
 
@@ -448,12 +471,17 @@ impl Row for TruthImuRecord {
     fn t_mono_ns(&self) -> i64 {
         self.t_mono_ns
     }
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
-        put_2d(&ds[1], start, &gather(rows, |r| r.gyro_bias))?;
-        put_2d(&ds[2], start, &gather(rows, |r| r.accel_bias))?;
-        put_2d(&ds[3], start, &gather(rows, |r| r.gyro_true))?;
-        put_2d(&ds[4], start, &gather(rows, |r| r.accel_true))?;
-        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    fn write(
+        rows: &[Self],
+        ds: &[Dataset],
+        start: usize,
+        sink: &mut ChunkSink,
+    ) -> hdf5::Result<()> {
+        sink.put(&ds[1], start, &gather(rows, |r| r.gyro_bias))?;
+        sink.put(&ds[2], start, &gather(rows, |r| r.accel_bias))?;
+        sink.put(&ds[3], start, &gather(rows, |r| r.gyro_true))?;
+        sink.put(&ds[4], start, &gather(rows, |r| r.accel_true))?;
+        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
 }
 
@@ -535,7 +563,12 @@ impl Row for EventRow {
     fn t_mono_ns(&self) -> i64 {
         self.t_mono_ns
     }
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
+    fn write(
+        rows: &[Self],
+        ds: &[Dataset],
+        start: usize,
+        _sink: &mut ChunkSink,
+    ) -> hdf5::Result<()> {
         put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
         put_1d(&ds[2], start, &gather(rows, |r| r.device))?;
         put_1d(&ds[3], start, &gather(rows, |r| r.kind))?;
@@ -557,10 +590,15 @@ impl Row for RawIndexRow {
     fn t_mono_ns(&self) -> i64 {
         self.t_mono_ns
     }
-    fn write(rows: &[Self], ds: &[Dataset], start: usize) -> hdf5::Result<()> {
-        put_1d(&ds[1], start, &gather(rows, |r| r.offset))?;
-        put_1d(&ds[2], start, &gather(rows, |r| r.len))?;
-        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    fn write(
+        rows: &[Self],
+        ds: &[Dataset],
+        start: usize,
+        sink: &mut ChunkSink,
+    ) -> hdf5::Result<()> {
+        sink.put(&ds[1], start, &gather(rows, |r| r.offset))?;
+        sink.put(&ds[2], start, &gather(rows, |r| r.len))?;
+        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
 }
 

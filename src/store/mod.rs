@@ -6,6 +6,7 @@
 //! - [`reader`]: [`Session`], the only way analyses read data: time-ordered blocks per device.
 //! - [`recover`]: makes the `*.partial` chunk of a killed writer readable and final.
 
+mod chunkio;
 mod columns;
 mod error;
 pub mod layout;

@@ -13,9 +13,10 @@ use std::time::Duration;
 
 use hdf5::{Dataset, Group};
 
+use super::chunkio::ChunkEncoder;
 use super::columns::{
-    create_column, put_1d, put_f64_attr, put_str_attr, put_u32_attr, Column, EventRow, RawIndexRow,
-    Row, EVENT_COLUMNS, FILL_T_MONO, RAW_BYTES, RAW_INDEX_COLUMNS,
+    create_column, put_1d, put_f64_attr, put_str_attr, put_u32_attr, ChunkSink, Column, EventRow,
+    RawIndexRow, Row, EVENT_COLUMNS, FILL_T_MONO, RAW_BYTES, RAW_INDEX_COLUMNS,
 };
 use super::layout::{self, ATTR_AXIS_FRAME, ATTR_SCHEMA_VERSION};
 use super::manifest::{fsync_dir, try_writer_lock, DeviceInfo, DeviceKind, Manifest};
@@ -35,7 +36,7 @@ pub struct WriterOptions {
     /// (default 1 s). Also sets the chunk size: rows per chunk = rate × this interval.
     pub flush_interval: Duration,
     /// Deflate level 0..=9 (0 = no shuffle/deflate filters at all). Default 1: on IMU noise
-    /// level 4 saves about 1 % of space for 10-20 % more CPU (docs/bench/store.md).
+    /// level 4 saves about 3.5 % of space for 60 % more CPU (docs/bench/store.md).
     pub deflate_level: u8,
     /// Create `/raw/<device>` for every device so undecoded bytes can be kept (default off).
     pub raw_journal: bool,
@@ -60,10 +61,11 @@ impl Default for WriterOptions {
     }
 }
 
-/// One table being appended: its datasets, chunk size, rows on disk and rows buffered.
+/// One table being appended: its datasets, chunk size and encoder, rows on disk and rows
+/// buffered.
 struct Table<R> {
     ds: Vec<Dataset>,
-    chunk_rows: usize,
+    sink: ChunkSink,
     written: usize,
     buf: Vec<R>,
 }
@@ -78,7 +80,10 @@ impl<R: Row> Table<R> {
         let ds = create_columns(group, R::COLUMNS, chunk_rows, deflate, axis_frame)?;
         Ok(Table {
             ds,
-            chunk_rows: chunk_rows.max(1),
+            sink: ChunkSink {
+                chunk_rows: chunk_rows.max(1),
+                enc: ChunkEncoder::new(deflate),
+            },
             written: 0,
             buf: Vec::new(),
         })
@@ -92,10 +97,11 @@ impl<R: Row> Table<R> {
         if self.buf.is_empty() {
             return Ok(false);
         }
-        let to_boundary = self.chunk_rows - self.written % self.chunk_rows;
+        let chunk_rows = self.sink.chunk_rows;
+        let to_boundary = chunk_rows - self.written % chunk_rows;
         let mut n = 0;
         if self.buf.len() >= to_boundary {
-            n = to_boundary + (self.buf.len() - to_boundary) / self.chunk_rows * self.chunk_rows;
+            n = to_boundary + (self.buf.len() - to_boundary) / chunk_rows * chunk_rows;
         }
         if n < self.buf.len() {
             let oldest_unwritten = self.buf[n].t_mono_ns();
@@ -106,7 +112,7 @@ impl<R: Row> Table<R> {
         if n == 0 {
             return Ok(false);
         }
-        R::write(&self.buf[..n], &self.ds, self.written)?;
+        R::write(&self.buf[..n], &self.ds, self.written, &mut self.sink)?;
         self.written += n;
         self.buf.drain(..n);
         Ok(true)
@@ -187,7 +193,7 @@ impl ChunkFile {
             move |e| StoreError::h5(p, what, e)
         };
         let file = hdf5::File::with_options()
-            .with_fapl(|fapl| fapl.libver_v110())
+            .with_fapl(|fapl| fapl.libver_v110().chunk_cache(1, 0, 1.0))
             .create_excl(p)
             .map_err(h5("creating the chunk file"))?;
         let deflate = opts.deflate_level.min(9);
@@ -786,9 +792,10 @@ fn table_of<'a, R>(
 }
 
 /// HDF5's deflate filter sets up a fresh zlib stream (about 256 KiB, partly zeroed) for
-/// every chunk. With glibc's default trim threshold each free shrinks the heap and the next
-/// chunk faults the pages back in: measured, that churn cost 15 % of the writer's CPU on
-/// 30 min of data and half of it on 3 min (docs/bench/store.md). Keeping up to 64 MiB of freed heap stops it. Process-wide and
+/// every chunk it compresses (now only partial chunks; whole ones go through `chunkio`).
+/// With glibc's default trim threshold each free shrinks the heap and the next chunk faults
+/// the pages back in: measured in the first pass, that churn cost 15 % of the writer's CPU
+/// on 30 min of data. Keeping up to 64 MiB of freed heap stops it. Process-wide and
 /// harmless for other code; done once.
 fn keep_freed_heap() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]

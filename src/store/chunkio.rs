@@ -1,0 +1,324 @@
+//! Direct chunk writes: the writer shuffles and deflates whole chunks itself and hands the
+//! finished bytes to `H5Dwrite_chunk`, instead of letting HDF5's filter pipeline do it.
+//!
+//! Why (measured, docs/bench/store.md): HDF5's deflate filter calls zlib's `compress2` for
+//! every chunk, which sets up and zeroes a fresh ~256 KiB zlib state each time; with 150-row
+//! chunks (1 s at 150 Hz) that set-up costs more than compressing the data. Here one
+//! `zlib_rs` stream per table is reset and reused, and zlib-rs' level 1 is about 4× faster
+//! than the system zlib's on these chunks. The bytes on disk are exactly what the declared
+//! filter pipeline (shuffle by element size, then a zlib stream) produces in form, so h5py,
+//! MATLAB and our reader decode them through the ordinary pipeline; the tests check that.
+//!
+//! Only whole chunks of plain little-endian numbers go this way; a partial chunk (a stalled
+//! device, the last rows before close) and string columns still go through HDF5's pipeline.
+
+use hdf5::{Dataset, H5Type};
+
+/// A value stored as its little-endian bytes; `ELEM` is the HDF5 element size the shuffle
+/// filter works on (8 for an `[f64; 3]` row of an N×3 f64 dataset).
+pub(crate) trait Plain: H5Type + Copy {
+    const ELEM: usize;
+    /// Columns of the dataset: 0 for a 1-D dataset of scalars, W for N×W.
+    const WIDTH: usize;
+    fn put_le(&self, out: &mut Vec<u8>);
+    /// Writes `values` at row `start` through HDF5 (and its filter pipeline).
+    fn write_rows(ds: &Dataset, start: usize, values: &[Self]) -> hdf5::Result<()>;
+}
+
+macro_rules! plain_scalar {
+    ($($t:ty),*) => {$(
+        impl Plain for $t {
+            const ELEM: usize = std::mem::size_of::<$t>();
+            const WIDTH: usize = 0;
+            fn put_le(&self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&self.to_le_bytes());
+            }
+            fn write_rows(ds: &Dataset, start: usize, values: &[Self]) -> hdf5::Result<()> {
+                ds.write_slice(values, start..start + values.len())
+            }
+        }
+    )*};
+}
+plain_scalar!(i64, u64, f64, u32, u16, u8);
+
+impl<const W: usize> Plain for [f64; W]
+where
+    [f64; W]: H5Type,
+{
+    const ELEM: usize = 8;
+    const WIDTH: usize = W;
+    fn put_le(&self, out: &mut Vec<u8>) {
+        for v in self {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    fn write_rows(ds: &Dataset, start: usize, values: &[Self]) -> hdf5::Result<()> {
+        let view = ndarray::ArrayView2::from(values);
+        ds.write_slice(view, (start..start + values.len(), ..))
+    }
+}
+
+/// Turns rows into the bytes of one stored chunk: shuffle + zlib when `level > 0`, the plain
+/// bytes otherwise. Keeps its buffers and its deflate stream between chunks.
+pub(crate) struct ChunkEncoder {
+    level: u8,
+    deflate: Option<zlib_rs::Deflate>,
+    plain: Vec<u8>,
+    shuffled: Vec<u8>,
+    out: Vec<u8>,
+}
+
+impl ChunkEncoder {
+    /// `level` 0 = no filters; 1..=9 = shuffle + deflate at that level.
+    pub fn new(level: u8) -> Self {
+        let level = level.min(9);
+        ChunkEncoder {
+            level,
+            deflate: (level > 0).then(|| zlib_rs::Deflate::new(i32::from(level), true, 15)),
+            plain: Vec::new(),
+            shuffled: Vec::new(),
+            out: Vec::new(),
+        }
+    }
+
+    /// Encodes `values` as one chunk and returns the bytes to store.
+    pub fn encode<T: Plain>(&mut self, values: &[T]) -> hdf5::Result<&[u8]> {
+        self.plain.clear();
+        for v in values {
+            v.put_le(&mut self.plain);
+        }
+        let Some(deflate) = self.deflate.as_mut() else {
+            return Ok(&self.plain);
+        };
+        shuffle(&self.plain, T::ELEM, &mut self.shuffled);
+        self.out.clear();
+        self.out
+            .resize(zlib_rs::compress_bound(self.shuffled.len()), 0);
+        deflate.reset();
+        let status = deflate
+            .compress(&self.shuffled, &mut self.out, zlib_rs::DeflateFlush::Finish)
+            .map_err(|e| hdf5::Error::from(format!("deflate (level {}): {e:?}", self.level)))?;
+        if status != zlib_rs::Status::StreamEnd {
+            return Err(hdf5::Error::from(format!(
+                "deflate (level {}) did not finish a {} byte chunk",
+                self.level,
+                self.shuffled.len()
+            )));
+        }
+        let n = usize::try_from(deflate.total_out()).unwrap_or(usize::MAX);
+        self.out
+            .get(..n)
+            .ok_or_else(|| hdf5::Error::from("deflate reported more output than it had room for"))
+    }
+}
+
+/// HDF5's shuffle filter: byte `b` of element `i` goes to `out[b * n + i]` (all first bytes,
+/// then all second bytes, ...), so slowly varying high bytes form long runs for deflate.
+/// Trailing bytes that do not fill an element are copied as they are, as HDF5 does.
+fn shuffle(src: &[u8], elem: usize, out: &mut Vec<u8>) {
+    out.clear();
+    out.resize(src.len(), 0);
+    if elem <= 1 {
+        out.copy_from_slice(src);
+        return;
+    }
+    let n = src.len() / elem;
+    for (i, e) in src.chunks_exact(elem).enumerate() {
+        for (b, byte) in e.iter().enumerate() {
+            out[b * n + i] = *byte;
+        }
+    }
+    let whole = n * elem;
+    out[whole..].copy_from_slice(&src[whole..]);
+}
+
+/// Grows `ds` to end after `values` written at row `start`, then writes them: the whole
+/// chunks among them directly (encoded by `enc`), a partial chunk at either end through
+/// HDF5's filter pipeline (it may have to merge with rows already on disk).
+pub(crate) fn put_rows<T: Plain>(
+    ds: &Dataset,
+    enc: &mut ChunkEncoder,
+    chunk_rows: usize,
+    start: usize,
+    values: &[T],
+) -> hdf5::Result<()> {
+    let end = start + values.len();
+    if T::WIDTH == 0 {
+        ds.resize(end)?;
+    } else {
+        ds.resize((end, T::WIDTH))?;
+    }
+    let c = chunk_rows.max(1);
+    let first_whole = start.div_ceil(c) * c;
+    let last_whole = end / c * c;
+    if first_whole >= last_whole {
+        return T::write_rows(ds, start, values);
+    }
+    let (head, rest) = values.split_at(first_whole - start);
+    let (body, tail) = rest.split_at(last_whole - first_whole);
+    if !head.is_empty() {
+        T::write_rows(ds, start, head)?;
+    }
+    write_whole_chunks(ds, enc, c, first_whole, body)?;
+    if !tail.is_empty() {
+        T::write_rows(ds, last_whole, tail)?;
+    }
+    Ok(())
+}
+
+/// Writes `values` as whole chunks of `chunk_rows` rows starting at row `start` (a multiple of
+/// `chunk_rows`) of `ds`, which must already extend that far.
+fn write_whole_chunks<T: Plain>(
+    ds: &Dataset,
+    enc: &mut ChunkEncoder,
+    chunk_rows: usize,
+    start: usize,
+    values: &[T],
+) -> hdf5::Result<()> {
+    if chunk_rows == 0
+        || !start.is_multiple_of(chunk_rows)
+        || !values.len().is_multiple_of(chunk_rows)
+    {
+        return Err(hdf5::Error::from(format!(
+            "{}: {} rows at row {start} are not whole chunks of {chunk_rows}",
+            ds.name(),
+            values.len()
+        )));
+    }
+    for (k, rows) in values.chunks_exact(chunk_rows).enumerate() {
+        let row = start + k * chunk_rows;
+        let bytes = enc.encode(rows)?;
+        let offset = [row as u64, 0];
+        let rank = if T::WIDTH == 0 { 1 } else { 2 };
+        write_chunk_raw(ds, &offset[..rank], bytes)
+            .map_err(|e| hdf5::Error::from(format!("{}: chunk at row {row}: {e}", ds.name())))?;
+    }
+    Ok(())
+}
+
+/// `H5Dwrite_chunk` with filter mask 0 (every filter of the dataset's pipeline was applied to
+/// `bytes`). The one unsafe call of the store; hdf5-metno's safe API has no direct chunk write.
+fn write_chunk_raw(ds: &Dataset, offset: &[u64], bytes: &[u8]) -> hdf5::Result<()> {
+    let id = ds.id();
+    let rc = hdf5::sync::sync(|| {
+        // SAFETY: `id` is a live dataset handle owned by `ds` for this whole call; `offset`
+        // has one entry per dataset dimension (the caller passes the dataset's rank) and
+        // `bytes` is a valid buffer of exactly the length passed. HDF5 copies the buffer
+        // before returning and keeps no pointer to it. The global HDF5 lock is held.
+        unsafe {
+            hdf5_sys::h5d::H5Dwrite_chunk(
+                id,
+                hdf5_sys::h5p::H5P_DEFAULT,
+                0,
+                offset.as_ptr(),
+                bytes.len(),
+                bytes.as_ptr().cast(),
+            )
+        }
+    });
+    if rc < 0 {
+        return Err(hdf5::Error::from(format!(
+            "H5Dwrite_chunk of {} bytes failed",
+            bytes.len()
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shuffle_matches_hdf5_byte_planes() {
+        let src: Vec<u8> = (0..19).collect();
+        let mut out = Vec::new();
+        shuffle(&src, 4, &mut out);
+        assert_eq!(
+            out,
+            [0, 4, 8, 12, 1, 5, 9, 13, 2, 6, 10, 14, 3, 7, 11, 15, 16, 17, 18]
+        );
+    }
+
+    /// The same rows written through HDF5's own filter pipeline and through direct chunk
+    /// writes read back identically, 1-D and N×3, with and without filters.
+    #[test]
+    fn direct_chunks_read_back_like_the_filter_pipeline() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("t.h5");
+        let file = hdf5::File::create(&path).expect("create");
+        let rows = 40;
+        let chunk = 20;
+        let times: Vec<i64> = (0..rows).map(|i| 1_000_000 + 6_666_667 * i).collect();
+        let noise: Vec<[f64; 3]> = (0..rows)
+            .map(|i| {
+                let x = (i as f64 * 0.37).sin() * 1e-3;
+                [x, -x * 2.0, 9.81 + x]
+            })
+            .collect();
+        for level in [0u8, 1, 6] {
+            let make_1d = |name: &str| {
+                let mut b = file.new_dataset::<i64>();
+                if level > 0 {
+                    b = b.shuffle().deflate(level);
+                }
+                b.chunk(chunk).shape(0..).create(name).expect("1-D")
+            };
+            let make_2d = |name: &str| {
+                let mut b = file.new_dataset::<f64>();
+                if level > 0 {
+                    b = b.shuffle().deflate(level);
+                }
+                b.chunk((chunk, 3))
+                    .shape(hdf5::SimpleExtents::new([
+                        hdf5::Extent::resizable(0),
+                        hdf5::Extent::fixed(3),
+                    ]))
+                    .create(name)
+                    .expect("2-D")
+            };
+            let (t_pipe, t_direct) = (
+                make_1d(&format!("t{level}")),
+                make_1d(&format!("td{level}")),
+            );
+            let (g_pipe, g_direct) = (
+                make_2d(&format!("g{level}")),
+                make_2d(&format!("gd{level}")),
+            );
+            t_pipe.resize(rows as usize).expect("resize");
+            t_pipe.write(&times).expect("write");
+            g_pipe.resize((rows as usize, 3)).expect("resize");
+            g_pipe
+                .write(ndarray::ArrayView2::from(&noise[..]))
+                .expect("write");
+            let mut enc = ChunkEncoder::new(level);
+            // 7 rows (pipeline), 13 more (pipeline, completes chunk 0), 20 (one direct chunk).
+            put_rows(&t_direct, &mut enc, chunk, 0, &times[..7]).expect("1-D head");
+            put_rows(&t_direct, &mut enc, chunk, 7, &times[7..]).expect("1-D rest");
+            put_rows(&g_direct, &mut enc, chunk, 0, &noise).expect("2-D whole");
+            assert_eq!(
+                t_direct.read_raw::<i64>().expect("read"),
+                t_pipe.read_raw::<i64>().expect("read"),
+                "level {level}"
+            );
+            let g: Vec<f64> = noise.iter().flatten().copied().collect();
+            assert_eq!(
+                g_direct.read_raw::<f64>().expect("read"),
+                g,
+                "level {level}"
+            );
+            assert_eq!(g_pipe.read_raw::<f64>().expect("read"), g, "level {level}");
+        }
+        // Misaligned requests are refused, not written.
+        let ds = file
+            .new_dataset::<i64>()
+            .chunk(chunk)
+            .shape(0..)
+            .create("bad")
+            .expect("create");
+        ds.resize(rows as usize).expect("resize");
+        let mut enc = ChunkEncoder::new(1);
+        assert!(write_whole_chunks(&ds, &mut enc, chunk, 5, &times[..20]).is_err());
+        assert!(write_whole_chunks(&ds, &mut enc, chunk, 0, &times[..25]).is_err());
+    }
+}
