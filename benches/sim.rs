@@ -1,13 +1,16 @@
 //! Simulator benchmark: run time and throughput of one 6-axis IMU with the full error model
 //! (6 h × 150 Hz target: under 1 s on one core), scaling with duration, the saving from
 //! computing only what a scene needs, and the Allan-recovered noise terms of every preset
-//! next to the configured ones. Prints markdown tables; see docs/bench/sim.md.
+//! next to the configured ones, and serving throughput and pacing on ptys. Prints markdown
+//! tables; see docs/bench/sim.md.
 //!
 //! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings).
 
 #[path = "../tests/sim/support.rs"]
 mod sim_support;
 
+use std::io::Read;
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
 use std::time::Instant;
 
@@ -16,6 +19,7 @@ use imulab::sim::outputs::SimSink;
 use imulab::sim::presets::IMU_PRESETS;
 use imulab::sim::runner::run;
 use imulab::sim::scene::Scene;
+use imulab::sim::serve::{Sent, ServeOptions, ServeReport, Server, Speed, StartWhen};
 use imulab::store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -196,7 +200,7 @@ fn time_scene(s: &Scene, reps: usize) -> (f64, f64, u64, u64) {
 
 fn main() {
     // `cargo bench --bench sim -- SECTION...` runs only the named sections
-    // (throughput, needs, allan); no names runs all.
+    // (throughput, needs, allan, serve); no names runs all.
     let wanted: Vec<String> = std::env::args()
         .skip(1)
         .filter(|a| !a.starts_with("--"))
@@ -211,6 +215,133 @@ fn main() {
     }
     if run_section("allan") {
         allan(six_h);
+    }
+    if run_section("serve") {
+        serve();
+    }
+}
+
+/// Serves `scene` to one draining reader thread per endpoint; returns the report.
+fn serve_with_readers(scene: Scene, speed: Speed) -> ServeReport {
+    let mut server = Server::start(
+        scene,
+        ServeOptions {
+            speed,
+            start: StartWhen::ReadersAttached,
+            record_sent: true,
+            ..ServeOptions::default()
+        },
+    )
+    .expect("serve");
+    let readers: Vec<_> = server
+        .endpoints()
+        .iter()
+        .map(|e| {
+            let path = e.path().to_path_buf();
+            std::thread::spawn(move || {
+                let mut f = std::fs::OpenOptions::new()
+                    .read(true)
+                    .write(true)
+                    .custom_flags(libc::O_NOCTTY)
+                    .open(&path)
+                    .expect("open pty");
+                let mut buf = vec![0u8; 1 << 16];
+                let mut total = 0u64;
+                // Reads until the server closes the pty (EIO).
+                while let Ok(n) = f.read(&mut buf) {
+                    if n == 0 {
+                        break;
+                    }
+                    total += n as u64;
+                }
+                total
+            })
+        })
+        .collect();
+    let report = server.finish().expect("serve finished");
+    // Let the readers take the last bytes, then hang up.
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    drop(server);
+    for (r, s) in readers.into_iter().zip(&report.streams) {
+        let got = r.join().expect("reader");
+        assert_eq!(got, s.bytes, "{}: every byte read", s.sensor);
+    }
+    report
+}
+
+fn serve() {
+    let bench = |duration_s: f64| {
+        let text = format!(
+            r#"
+duration_s = {duration_s}
+rate_hz = 200
+seed = 2
+[location]
+lat_deg = 48.15
+lon_deg = 11.57
+height_m = 520
+[motion]
+kind = "static"
+[[imu]]
+name = "wit"
+preset = "bench-cheap"
+[[imu]]
+name = "mti"
+preset = "industrial"
+protocol = "xbus"
+[[imu]]
+name = "can"
+preset = "tactical"
+protocol = "slcan"
+[[gnss]]
+name = "rx"
+preset = "standalone"
+rate_hz = 10
+"#
+        );
+        Scene::parse(&text, Path::new(".")).expect("serve scene")
+    };
+    println!("\n## Serving (`imulab sim --serve`): three 200 Hz IMUs (wit, xbus, slcan) + 10 Hz NMEA/UBX GNSS on ptys\n");
+    println!("| speed | scene (s) | wall (s) | frames | bytes | frames/s | lateness median (ms) | p99 (ms) | max (ms) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for (speed, duration) in [
+        (Speed::Max, 600.0),
+        (Speed::Factor(1.0), 10.0),
+        (Speed::Factor(20.0), 120.0),
+    ] {
+        let report = serve_with_readers(bench(duration), speed);
+        let frames: u64 = report.streams.iter().map(|s| s.frames).sum();
+        let bytes: u64 = report.streams.iter().map(|s| s.bytes).sum();
+        let mut late: Vec<f64> = Vec::new();
+        if let Speed::Factor(f) = speed {
+            for s in &report.streams {
+                let times: Vec<(i64, u64)> = match &s.sent {
+                    Sent::Imu(v) => v.iter().map(|x| (x.t_ns, x.written_ns)).collect(),
+                    Sent::Gnss(v) => v.iter().map(|x| (x.t_ns, x.written_ns)).collect(),
+                };
+                late.extend(times.iter().map(|&(t, w)| (w as f64 - t as f64 / f) * 1e-6));
+            }
+        }
+        late.sort_by(f64::total_cmp);
+        let q = |p: f64| {
+            if late.is_empty() {
+                "-".to_string()
+            } else {
+                format!("{:.2}", late[((late.len() - 1) as f64 * p) as usize])
+            }
+        };
+        let wall = report.elapsed.as_secs_f64();
+        println!(
+            "| {} | {duration} | {wall:.3} | {frames} | {bytes} | {:.3e} | {} | {} | {} |",
+            match speed {
+                Speed::Max => "max".to_string(),
+                Speed::Factor(f) => format!("{f}×"),
+            },
+            frames as f64 / wall,
+            q(0.5),
+            q(0.99),
+            q(1.0)
+        );
     }
 }
 
@@ -235,9 +366,14 @@ fn needs(six_h: f64) {
     println!("|---|---|---|---|---|");
     let cheap = "[[imu]]\nname = \"dut\"\npreset = \"bench-cheap\"";
     let gyro_only = "[[imu]]\nname = \"dut\"\npreset = \"bench-cheap\"\nchannels = [\"gyro\"]";
+    let one_axis = "[[imu]]\nname = \"dut\"\npreset = \"bench-cheap\"\nchannels = [\"gyro.z\"]";
     let with_gnss =
         format!("{FULL_IMU}\n[[gnss]]\nname = \"rx\"\npreset = \"standalone\"\nrate_hz = 10");
     let cases: Vec<(&str, Scene)> = vec![
+        (
+            "static, bench-cheap, one axis (gyro.z)",
+            scene(six_h, STATIC, CONSTANT, one_axis, false),
+        ),
         (
             "static, bench-cheap, gyro only",
             scene(six_h, STATIC, CONSTANT, gyro_only, false),

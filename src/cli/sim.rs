@@ -8,11 +8,11 @@ use std::time::Instant;
 use anyhow::Result;
 
 use crate::sim::gnss_model::GNSS_PRESETS;
-use crate::sim::outputs::{SessionSink, SummarySink, Tee};
+use crate::sim::outputs::{session_manifest, SessionSink, SimSink, SummarySink, Tee};
 use crate::sim::presets::IMU_PRESETS;
 use crate::sim::runner::run as run_scene;
 use crate::sim::scene::Scene;
-use crate::sim::serve::{ServeOptions, Server, Speed, StartWhen};
+use crate::sim::serve::{Sent, ServeOptions, Server, Speed, StartWhen};
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -22,7 +22,8 @@ pub struct SimArgs {
     /// The scene file (TOML; see docs/simulator.md).
     #[arg(required_unless_present = "list_presets")]
     pub scene: Option<PathBuf>,
-    /// Write the session into this directory (must not exist or be empty).
+    /// Write the session into this directory (must not exist or be empty). With --serve:
+    /// the reference session of what was sent (the rows a reader of every frame stores).
     #[arg(short = 'o', long = "output")]
     pub output: Option<PathBuf>,
     /// Override the scene's seed.
@@ -33,7 +34,7 @@ pub struct SimArgs {
     pub list_presets: bool,
     /// Serve each sensor in its device protocol on a pty (paths printed) instead of writing
     /// a session.
-    #[arg(long, conflicts_with = "output")]
+    #[arg(long)]
     pub serve: bool,
     /// Serving speed: a factor (1 = real time, 100 = 100x faster) or `max`.
     #[arg(long, default_value = "1", requires = "serve")]
@@ -126,8 +127,16 @@ fn serve(scene: Scene, args: &SimArgs) -> Result<()> {
         } else {
             StartWhen::Now
         },
-        record_sent: false,
+        // The reference session needs every frame.
+        record_sent: args.output.is_some(),
         faults: Vec::new(),
+    };
+    let reference = match &args.output {
+        Some(dir) => Some((
+            dir.clone(),
+            reference_manifest(&scene, args.link_dir.as_deref())?,
+        )),
+        None => None,
     };
     let mut server = Server::start(scene, options)?;
     let mut out = std::io::stdout().lock();
@@ -199,8 +208,46 @@ fn serve(scene: Scene, args: &SimArgs) -> Result<()> {
         report.elapsed.as_secs_f64(),
         if report.stopped { " (interrupted)" } else { "" }
     );
+    if let Some((dir, manifest)) = reference {
+        let mut session = SessionSink::with_manifest(&dir, manifest)?;
+        for s in &report.streams {
+            match s.sent {
+                Sent::Imu(_) => session.imu(&s.sensor, &s.expected_imu_rows())?,
+                Sent::Gnss(_) => session.gnss(&s.sensor, &s.expected_gnss_rows())?,
+            }
+        }
+        let dir = session.close()?;
+        eprintln!("reference session of what was sent: {}", dir.display());
+    }
     if !interrupted {
         std::thread::sleep(std::time::Duration::from_secs_f64(args.linger_s));
     }
     Ok(())
+}
+
+/// The manifest of the reference session of a serve: the simulated session's, with each
+/// device's protocol and port as served.
+fn reference_manifest(
+    scene: &Scene,
+    link_dir: Option<&std::path::Path>,
+) -> Result<crate::store::Manifest> {
+    let mut manifest = session_manifest(scene)?;
+    let protocols = scene
+        .imus
+        .iter()
+        .map(|i| (i.name.as_str(), i.protocol))
+        .chain(scene.gnss.iter().map(|g| (g.name.as_str(), g.protocol)));
+    for (name, protocol) in protocols {
+        if let Some(d) = manifest.devices.iter_mut().find(|d| d.name == name) {
+            d.protocol = protocol.name().into();
+            d.port = match link_dir {
+                Some(dir) => dir.join(name).display().to_string(),
+                None => "pty".into(),
+            };
+        }
+    }
+    manifest.id = format!("{}-served", manifest.id);
+    // A serve simulates no truth.
+    manifest.truth_nav_rate_hz = None;
+    Ok(manifest)
 }

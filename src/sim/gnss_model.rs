@@ -2,9 +2,17 @@
 //! trajectory, with white plus first-order Gauss-Markov errors per NED axis, output latency,
 //! fix type, satellite count and outages (listed intervals and/or periodic).
 //!
+//! Satellite count and DOPs vary with the sky: the count wanders around `num_sats` as a
+//! Gauss-Markov process (σ = max(1, 0.15·`num_sats`), τ = [`GEOMETRY_TAU_S`]) rounded and
+//! kept within 4..=40; HDOP = `hdop` · √(`num_sats`/N) · e^(0.1·u) and VDOP = `vdop` ·
+//! √(`num_sats`/N) · e^(0.1·v), u and v unit Gauss-Markov processes with the same time
+//! constant (DOP scales about as 1/√N for satellites spread over the sky; the log-normal
+//! factor stands for geometry changes at equal counts); PDOP = √(HDOP² + VDOP²). The DOPs
+//! are reported; the position noise is configured in metres and does not scale with them.
+//!
 //! During an outage the receiver still reports, as real receivers do: a `NoFix` epoch with
-//! NaN position, velocity and accuracies and fewer than four satellites. The correlated
-//! errors keep evolving through outages.
+//! NaN position, velocity, accuracies and DOPs, tracking a quarter of the satellites it
+//! would see (at most 3). The correlated errors keep evolving through outages.
 
 use imulab_drivers::types::FixType;
 use serde::{Deserialize, Serialize};
@@ -19,6 +27,8 @@ const GPS_EPOCH_UNIX_S: i64 = 315_964_800;
 /// GPS − UTC since 2017-01-01 (valid for simulated dates until the next leap second).
 const GPS_UTC_LEAP_S: i64 = 18;
 const WEEK_S: i64 = 604_800;
+/// Time constant of the satellite count and DOP processes: the sky changes over minutes.
+pub const GEOMETRY_TAU_S: f64 = 600.0;
 
 /// One outage: no fix from `start_s` for `duration_s` (scene time).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -60,14 +70,27 @@ pub struct GnssSpec {
     pub latency_s: f64,
     /// Fix type reported outside outages.
     pub fix_type: FixType,
-    /// Satellites used outside outages.
+    /// Mean number of satellites used outside outages.
     pub num_sats: u8,
+    /// Typical horizontal and vertical DOP at `num_sats` satellites.
+    #[serde(default = "default_hdop")]
+    pub hdop: f64,
+    #[serde(default = "default_vdop")]
+    pub vdop: f64,
     /// Listed outages.
     #[serde(default)]
     pub outages: Vec<Outage>,
     /// A repeating outage pattern.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub periodic_outage: Option<PeriodicOutage>,
+}
+
+fn default_hdop() -> f64 {
+    0.8
+}
+
+fn default_vdop() -> f64 {
+    1.2
 }
 
 /// Every GNSS preset: name, source of its numbers.
@@ -89,7 +112,7 @@ pub const GNSS_PRESETS: &[(&str, &str)] = &[
 impl GnssSpec {
     /// The spec of preset `name` (see [`GNSS_PRESETS`]), at 10 Hz with 50 ms latency.
     pub fn preset(name: &str) -> Option<GnssSpec> {
-        let base = |h_w, h_gm, v_w, v_gm, tau, vel, fix, sats| GnssSpec {
+        let base = |h_w, h_gm, v_w, v_gm, tau, vel, fix, sats: u8| GnssSpec {
             rate_hz: 10.0,
             horizontal_white_m: h_w,
             vertical_white_m: v_w,
@@ -102,6 +125,9 @@ impl GnssSpec {
             latency_s: 0.05,
             fix_type: fix,
             num_sats: sats,
+            // Open sky: more satellites, better geometry.
+            hdop: 0.8 * (12.0 / f64::from(sats)).sqrt(),
+            vdop: 1.2 * (12.0 / f64::from(sats)).sqrt(),
             outages: Vec::new(),
             periodic_outage: None,
         };
@@ -143,6 +169,17 @@ impl GnssSpec {
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be finite and >= 0, got {v}"));
+            }
+        }
+        if !(4..=40).contains(&self.num_sats) {
+            return Err(format!(
+                "num_sats must be within 4-40, got {}",
+                self.num_sats
+            ));
+        }
+        for (name, v) in [("hdop", self.hdop), ("vdop", self.vdop)] {
+            if !(v.is_finite() && (0.3..=50.0).contains(&v)) {
+                return Err(format!("{name} must be within 0.3-50, got {v}"));
             }
         }
         for (name, v) in [
@@ -224,6 +261,10 @@ pub struct GnssSimulator {
     white_stream: Stream,
     sigma_position: [f64; 3],
     sigma_velocity: f64,
+    /// Satellite count, HDOP and VDOP processes (unit σ), on their own stream so the
+    /// position and velocity errors do not depend on them.
+    geometry: [Gm; 3],
+    geometry_stream: Stream,
 }
 
 impl GnssSimulator {
@@ -248,7 +289,11 @@ impl GnssSimulator {
         });
         let h = spec.horizontal_white_m.hypot(spec.horizontal_gm_m);
         let v = spec.vertical_white_m.hypot(spec.vertical_gm_m);
+        let mut geometry_stream = Stream::new(seed, &format!("gnss/{name}/geometry"));
+        let geometry = [0, 1, 2].map(|_| Gm::new(1.0, GEOMETRY_TAU_S, dt, &mut geometry_stream));
         Ok(GnssSimulator {
+            geometry,
+            geometry_stream,
             position_gm,
             velocity_gm,
             gm_stream,
@@ -304,12 +349,16 @@ impl GnssSimulator {
             v_acc_m: f64::NAN,
             s_acc_mps: f64::NAN,
             fix_type: FixType::NoFix,
-            num_sats: self.spec.num_sats.min(2),
+            num_sats: 0,
             pdop: f64::NAN,
             hdop: f64::NAN,
             vdop: f64::NAN,
         };
+        let [n, u, v] = [0, 1, 2].map(|i| self.geometry[i].step(&mut self.geometry_stream));
+        let n0 = f64::from(self.spec.num_sats);
+        let sats = (n0 + (0.15 * n0).max(1.0) * n).round().clamp(4.0, 40.0);
         if self.spec.in_outage(t_s) {
+            rec.num_sats = ((sats / 4.0).floor() as u8).min(3);
             return rec;
         }
         let lat = truth.lat_rad;
@@ -324,10 +373,10 @@ impl GnssSimulator {
         rec.v_acc_m = self.sigma_position[2];
         rec.s_acc_mps = self.sigma_velocity;
         rec.fix_type = self.spec.fix_type;
-        rec.num_sats = self.spec.num_sats;
-        // A typical open-sky geometry; DOPs are reported, not modelled.
-        rec.hdop = 0.8;
-        rec.vdop = 1.2;
+        rec.num_sats = sats as u8;
+        let fewer = (n0 / sats).sqrt();
+        rec.hdop = self.spec.hdop * fewer * (0.1 * u).exp();
+        rec.vdop = self.spec.vdop * fewer * (0.1 * v).exp();
         rec.pdop = rec.hdop.hypot(rec.vdop);
         rec
     }
@@ -427,5 +476,51 @@ mod tests {
                 expect[i]
             );
         }
+    }
+
+    #[test]
+    fn satellites_and_dops_vary_plausibly_and_drop_in_outages() {
+        let mut spec = GnssSpec::preset("standalone").unwrap();
+        spec.rate_hz = 1.0;
+        spec.outages.push(Outage {
+            start_s: 5000.0,
+            duration_s: 100.0,
+        });
+        let truth = static_truth(0.8, 0.2, 300.0, UnitQuaternion::identity());
+        let mut sim = GnssSimulator::new(&spec, "g", 5).unwrap();
+        let (mut sats, mut hdop) = (Vec::new(), Vec::new());
+        for k in 0..20_000 {
+            let t = TruthSample {
+                t_s: f64::from(k),
+                ..truth
+            };
+            let r = sim.epoch(&t, 0, 0);
+            if spec.in_outage(t.t_s) {
+                assert_eq!(r.fix_type, FixType::NoFix);
+                assert!(r.num_sats <= 3 && r.hdop.is_nan() && r.pdop.is_nan());
+                continue;
+            }
+            assert!((4..=40).contains(&r.num_sats));
+            assert!((r.pdop - r.hdop.hypot(r.vdop)).abs() < 1e-12);
+            sats.push(f64::from(r.num_sats));
+            hdop.push(r.hdop);
+        }
+        let n = sats.len() as f64;
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
+        let (ms, mh) = (mean(&sats), mean(&hdop));
+        let sd = (sats.iter().map(|x| (x - ms).powi(2)).sum::<f64>() / n).sqrt();
+        // 12 ± 1.8 satellites; 33 correlation times: loose bounds.
+        assert!((ms - 12.0).abs() < 1.5, "mean sats {ms}");
+        assert!((0.9..3.0).contains(&sd), "sats spread {sd}");
+        assert!((mh - 0.8).abs() < 0.15, "mean hdop {mh}");
+        // More satellites, smaller HDOP.
+        let cov = sats
+            .iter()
+            .zip(&hdop)
+            .map(|(s, h)| (s - ms) * (h - mh))
+            .sum::<f64>();
+        assert!(cov < 0.0, "{cov}");
+        // The sky changes: not one value.
+        assert!(sats.iter().any(|&s| s != sats[0]));
     }
 }

@@ -363,16 +363,47 @@ impl ImuSpec {
     }
 }
 
-/// Which triads of an IMU to simulate (the others are NaN in the output and cost nothing).
+/// Which axes of an IMU to simulate, per triad (x, y, z). Axes not simulated are NaN in the
+/// output and cost nothing: no noise is drawn and no bias process advanced for them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Channels {
-    pub gyro: bool,
-    pub accel: bool,
+    pub gyro: [bool; 3],
+    pub accel: [bool; 3],
+}
+
+impl Channels {
+    /// Both triads, all axes.
+    pub const ALL: Channels = Channels {
+        gyro: [true; 3],
+        accel: [true; 3],
+    };
+    /// The gyro triad only.
+    pub const GYRO: Channels = Channels {
+        gyro: [true; 3],
+        accel: [false; 3],
+    };
+    /// The accelerometer triad only.
+    pub const ACCEL: Channels = Channels {
+        gyro: [false; 3],
+        accel: [true; 3],
+    };
+
+    /// Some gyro axis is simulated.
+    pub fn has_gyro(&self) -> bool {
+        self.gyro.contains(&true)
+    }
+
+    /// Some accelerometer axis is simulated.
+    pub fn has_accel(&self) -> bool {
+        self.accel.contains(&true)
+    }
 }
 
 /// The running error state of one triad.
 #[derive(Debug, Clone)]
 struct TriadSim {
+    /// Axes simulated; the others are NaN.
+    axes: [bool; 3],
     white_sigma: [f64; 3],
     white: [Stream; 3],
     /// Instability and random-walk processes of each axis.
@@ -389,13 +420,13 @@ struct TriadSim {
 const AXES: [&str; 3] = ["x", "y", "z"];
 
 impl TriadSim {
-    fn new(e: &TriadErrors, seed: u64, prefix: &str, dt: f64) -> Self {
+    fn new(e: &TriadErrors, axes: [bool; 3], seed: u64, prefix: &str, dt: f64) -> Self {
         let stream =
             |axis: usize, term: &str| Stream::new(seed, &format!("{prefix}/{}/{term}", AXES[axis]));
         let white = [0, 1, 2].map(|i| stream(i, "white"));
         let slow = [0, 1, 2].map(|i| {
             let mut procs = Vec::new();
-            if e.bias_instability[i] > 0.0 {
+            if axes[i] && e.bias_instability[i] > 0.0 {
                 let d = FlickerDesign::new(e.bias_instability[i], e.bias_instability_band_s);
                 for (k, &t) in d.taus_s.iter().enumerate() {
                     procs.push(SlowProcess::gauss_markov(
@@ -406,7 +437,7 @@ impl TriadSim {
                     ));
                 }
             }
-            if e.random_walk[i] > 0.0 {
+            if axes[i] && e.random_walk[i] > 0.0 {
                 procs.push(SlowProcess::random_walk(
                     e.random_walk[i],
                     RRW_UPDATE_INTERVAL_S,
@@ -438,6 +469,7 @@ impl TriadSim {
             1.0 + s[2],
         );
         TriadSim {
+            axes,
             white_sigma: e.white_density.map(|d| d / dt.sqrt()),
             white,
             slow,
@@ -467,10 +499,13 @@ impl TriadSim {
                 scaled[i] += self.scale_tempco[i] * dtemp * x[i];
             }
         }
-        let mut out = [0.0; 3];
-        let mut bias = [0.0; 3];
+        let mut out = [f64::NAN; 3];
+        let mut bias = [f64::NAN; 3];
         let mut saturated = false;
         for i in 0..3 {
+            if !self.axes[i] {
+                continue;
+            }
             let mut b = self.fixed_bias[i] + self.ramp[i] * t_s + self.bias_tempco[i] * dtemp;
             for p in &mut self.slow[i] {
                 b += p.step();
@@ -534,9 +569,10 @@ impl ImuSimulator {
             return Err(format!("rate must be > 0 Hz, got {rate_hz}"));
         }
         let dt = 1.0 / rate_hz;
-        let gyro = if channels.gyro {
+        let gyro = if channels.has_gyro() {
             Some(TriadSim::new(
                 &spec.gyro.to_si()?,
+                channels.gyro,
                 seed,
                 &format!("imu/{name}/gyro"),
                 dt,
@@ -544,9 +580,10 @@ impl ImuSimulator {
         } else {
             None
         };
-        let accel = if channels.accel {
+        let accel = if channels.has_accel() {
             Some(TriadSim::new(
                 &spec.accel.to_si()?,
+                channels.accel,
                 seed,
                 &format!("imu/{name}/accel"),
                 dt,
@@ -555,7 +592,7 @@ impl ImuSimulator {
             None
         };
         Ok(ImuSimulator {
-            g_sensitivity: if channels.gyro {
+            g_sensitivity: if channels.has_gyro() {
                 spec.gyro.g_sensitivity_si()
             } else {
                 None
@@ -711,10 +748,7 @@ mod tests {
         s.accel.bias_tempco_mg_per_c = [1.0, 0.0, 0.0];
         s.accel.range_g = Some(2.0);
         s.accel.lsb_mg = Some(1.0);
-        let both = Channels {
-            gyro: true,
-            accel: true,
-        };
+        let both = Channels::ALL;
         let mut sim = ImuSimulator::new(&s, "t", 1, 100.0, both).unwrap();
         let w = Vector3::new(1.0, 2.0, 0.0);
         let f = Vector3::new(0.0, 0.00049, 30.0);
@@ -735,17 +769,7 @@ mod tests {
     fn gyro_only_leaves_accel_nan_and_counter_wraps() {
         let mut s = quiet();
         s.timing.counter_modulo = 3;
-        let mut sim = ImuSimulator::new(
-            &s,
-            "t",
-            1,
-            10.0,
-            Channels {
-                gyro: true,
-                accel: false,
-            },
-        )
-        .unwrap();
+        let mut sim = ImuSimulator::new(&s, "t", 1, 10.0, Channels::GYRO).unwrap();
         let z = Vector3::zeros();
         let counters: Vec<f64> = (0..5)
             .map(|_| {
@@ -762,17 +786,7 @@ mod tests {
         let mut s = quiet();
         s.timing.drop_probability = 0.1;
         s.timing.jitter_us = 100.0;
-        let mut sim = ImuSimulator::new(
-            &s,
-            "t",
-            9,
-            100.0,
-            Channels {
-                gyro: true,
-                accel: false,
-            },
-        )
-        .unwrap();
+        let mut sim = ImuSimulator::new(&s, "t", 9, 100.0, Channels::GYRO).unwrap();
         let z = Vector3::zeros();
         let n = 20_000;
         let mut dropped = 0;
@@ -788,5 +802,27 @@ mod tests {
         }
         // Binomial: mean 2000, sd 42.
         assert!((dropped as i64 - 2000).abs() < 200, "{dropped}");
+    }
+
+    #[test]
+    fn one_axis_alone_gives_the_same_values_as_in_the_full_imu() {
+        let s = crate::sim::presets::imu_preset("bench-cheap").unwrap();
+        let z_only = Channels {
+            gyro: [false, false, true],
+            accel: [false; 3],
+        };
+        let mut alone = ImuSimulator::new(&s, "t", 4, 100.0, z_only).unwrap();
+        let mut full = ImuSimulator::new(&s, "t", 4, 100.0, Channels::ALL).unwrap();
+        let w = Vector3::new(0.1, -0.2, 0.3);
+        let f = Vector3::new(0.0, 0.0, -9.8);
+        for _ in 0..500 {
+            let a = alone.step(&w, &f, 25.0, 0, 0);
+            let b = full.step(&w, &f, 25.0, 0, 0);
+            let (a, b) = (a.record.unwrap(), b.record.unwrap());
+            assert!(a.gyro[0].is_nan() && a.gyro[1].is_nan());
+            assert!(a.accel.iter().all(|x| x.is_nan()));
+            // g-sensitivity uses the true specific force, so it is the same too.
+            assert_eq!(a.gyro[2], b.gyro[2]);
+        }
     }
 }

@@ -150,7 +150,11 @@ pub struct SessionSink {
 impl SessionSink {
     /// Creates the session directory `dir` for `scene` (it must not exist or be empty).
     pub fn create(dir: &Path, scene: &Scene) -> Result<Self> {
-        let manifest = session_manifest(scene)?;
+        Self::with_manifest(dir, session_manifest(scene)?)
+    }
+
+    /// Creates the session directory `dir` with this manifest.
+    pub fn with_manifest(dir: &Path, manifest: Manifest) -> Result<Self> {
         // A simulation has no crash to survive: skip the per-second fsync of a live writer.
         let opts = WriterOptions {
             fsync_on_flush: false,

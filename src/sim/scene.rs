@@ -343,26 +343,36 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
     let mut overrides = entry.overrides.clone();
     let protocol = take_protocol(&mut overrides, false)?;
     let channels = match overrides.remove("channels") {
-        None => Channels {
-            gyro: true,
-            accel: true,
-        },
+        None => Channels::ALL,
         Some(v) => {
-            let list: Vec<String> = v
-                .try_into()
-                .map_err(|e| anyhow!("channels: {e} (write e.g. channels = [\"gyro\"])"))?;
+            let list: Vec<String> = v.try_into().map_err(|e| {
+                anyhow!("channels: {e} (write e.g. channels = [\"gyro\"] or [\"gyro.z\"])")
+            })?;
             let mut c = Channels {
-                gyro: false,
-                accel: false,
+                gyro: [false; 3],
+                accel: [false; 3],
             };
             for name in &list {
-                match name.as_str() {
-                    "gyro" => c.gyro = true,
-                    "accel" => c.accel = true,
-                    other => bail!("channels: unknown channel {other:?} (gyro, accel)"),
+                let (triad, axis) = match name.split_once('.') {
+                    Some((t, a)) => (t, Some(a)),
+                    None => (name.as_str(), None),
+                };
+                let axes = match triad {
+                    "gyro" => &mut c.gyro,
+                    "accel" => &mut c.accel,
+                    _ => bail!(
+                        "channels: unknown channel {name:?} (gyro, accel, or one axis as gyro.x, accel.z, ...)"
+                    ),
+                };
+                match axis {
+                    None => *axes = [true; 3],
+                    Some("x") => axes[0] = true,
+                    Some("y") => axes[1] = true,
+                    Some("z") => axes[2] = true,
+                    Some(_) => bail!("channels: unknown axis in {name:?} (x, y, z)"),
                 }
             }
-            if !(c.gyro || c.accel) {
+            if !(c.has_gyro() || c.has_accel()) {
                 bail!("channels: name at least one of gyro, accel");
             }
             c
@@ -471,13 +481,7 @@ mod tests {
         let s = Scene::parse(MINIMAL, Path::new(".")).unwrap();
         assert_eq!(s.samples(), 1000);
         let imu = &s.imus[0];
-        assert_eq!(
-            imu.channels,
-            Channels {
-                gyro: true,
-                accel: false
-            }
-        );
+        assert_eq!(imu.channels, Channels::GYRO);
         assert_eq!(imu.spec.gyro.bias_dph, [1.0, 2.0, 3.0]);
         // The density override replaces the preset's ARW; the rest of the preset stays.
         assert_eq!(imu.spec.gyro.arw_deg_rth, None);
@@ -530,5 +534,24 @@ mod tests {
         assert!(e.contains("duration_s"), "{e}");
         let e = err("not toml [");
         assert!(e.contains("line"), "{e}");
+    }
+
+    #[test]
+    fn channels_select_single_axes() {
+        let one = MINIMAL.replace(
+            r#"channels = ["gyro"]"#,
+            r#"channels = ["gyro.z", "accel.x"]"#,
+        );
+        let s = Scene::parse(&one, Path::new(".")).unwrap();
+        assert_eq!(
+            s.imus[0].channels,
+            Channels {
+                gyro: [false, false, true],
+                accel: [true, false, false]
+            }
+        );
+        let bad = MINIMAL.replace(r#"channels = ["gyro"]"#, r#"channels = ["gyro.w"]"#);
+        let e = format!("{:#}", Scene::parse(&bad, Path::new(".")).unwrap_err());
+        assert!(e.contains("unknown axis in \"gyro.w\""), "{e}");
     }
 }

@@ -48,6 +48,10 @@
 //!   when it was written; plus counts of frames, bytes, garbage, frames not sent while a
 //!   pty was unplugged, frames dropped because a reader stopped reading (paced mode keeps
 //!   at most [`PENDING_LIMIT`] bytes per endpoint), and encode errors.
+//!   [`SentStream::expected_imu_rows`] / [`SentStream::expected_gnss_rows`] turn them into
+//!   the session rows imulogd stores for them (values exact; host times are the simulated
+//!   ones, not a reader's arrival times); `imulab sim --serve -o DIR` writes them as a
+//!   reference session.
 //! - Faults ([`Fault`], from the scene's `[[fault]]` tables and [`ServeOptions::faults`]):
 //!   `garbage` writes `bytes` random bytes (deterministic from the seed) between two frames
 //!   at `at_s`; `reopen` closes the pty master at `at_s` (the reader gets a hang-up, unread
@@ -84,6 +88,8 @@ use super::rng::Stream;
 use super::runner;
 use super::scene::{Scene, START_MONO_NS};
 use super::wire::{GnssWire, ImuWire};
+use crate::daemon::clock::Arrival;
+use crate::daemon::mapping::{gnss_record, ImuMapping};
 use crate::store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 
 /// Most bytes kept per endpoint for a reader that does not keep up (paced mode); frames
@@ -296,6 +302,51 @@ pub struct SentStream {
     pub faults: Vec<AppliedFault>,
     /// Every frame, when [`ServeOptions::record_sent`].
     pub sent: Sent,
+}
+
+impl SentStream {
+    /// The IMU rows a reader that got every frame of this stream stores, mapped the way
+    /// imulogd maps a sample (identity axes and scales): the decoded values, the record's
+    /// simulated host timestamps. Empty for a GNSS stream or without `record_sent`.
+    pub fn expected_imu_rows(&self) -> Vec<ImuRecord> {
+        let Sent::Imu(frames) = &self.sent else {
+            return Vec::new();
+        };
+        let mapping = ImuMapping {
+            body_from_sensor: nalgebra::Matrix3::identity(),
+            gyro_scale: 1.0,
+            accel_scale: 1.0,
+        };
+        frames
+            .iter()
+            .filter_map(|f| {
+                let at = Arrival {
+                    mono_ns: f.record.t_mono_ns,
+                    wall_ns: f.record.t_wall_ns,
+                };
+                f.sample.map(|s| mapping.imu_record(&s, at))
+            })
+            .collect()
+    }
+
+    /// The GNSS rows a reader that got every epoch stores: one per merged epoch (two per
+    /// epoch for the mixed protocol, UBX then NMEA), with the epoch's simulated arrival
+    /// times. Empty for an IMU stream or without `record_sent`.
+    pub fn expected_gnss_rows(&self) -> Vec<GnssRecord> {
+        let Sent::Gnss(frames) = &self.sent else {
+            return Vec::new();
+        };
+        frames
+            .iter()
+            .flat_map(|f| {
+                let at = Arrival {
+                    mono_ns: f.record.t_mono_ns,
+                    wall_ns: f.record.t_wall_ns,
+                };
+                f.fixes.iter().map(move |e| gnss_record(&e.fix, at))
+            })
+            .collect()
+    }
 }
 
 /// What a serve did.

@@ -19,7 +19,8 @@
 //! wrapping at 2^32 µs, and the csv time column the device counter as simulated.
 //!
 //! Values a protocol cannot carry: a triad the scene does not simulate is left out of the
-//! frame (no ACCEL packet, no Xbus item, a csv/CAN layout without it); a GNSS epoch without
+//! frame (no ACCEL packet, no Xbus item, a csv/CAN layout without it), an axis not simulated
+//! in a triad that is goes out as 0; a GNSS epoch without
 //! a fix is sent as receivers do: empty NMEA fields with quality 0 / status `V`, and a
 //! NAV-PVT with fix type 0, zero position and velocity and maximal accuracy values.
 //! The geoid is taken as the ellipsoid (height above MSL = ellipsoidal height, separation 0).
@@ -108,12 +109,12 @@ impl ImuWire {
             Protocol::Slcan => {
                 let mut mapping =
                     DbcImuMapping::from_toml_str(IMU_CAN_MAPPING).map_err(|e| anyhow!("{e}"))?;
-                if !channels.gyro {
+                if !channels.has_gyro() {
                     mapping.gyro = None;
                     // The status byte travels in the rate message.
                     mapping.status = None;
                 }
-                if !channels.accel {
+                if !channels.has_accel() {
                     mapping.accel = None;
                 }
                 ImuFormat::Slcan(Box::new(
@@ -319,8 +320,8 @@ fn csv_layout(channels: Channels) -> CsvLineConfig {
         CsvColumn::at(next - 1)
     };
     let time = Some(column());
-    let gyro = channels.gyro.then(|| [column(), column(), column()]);
-    let accel = channels.accel.then(|| [column(), column(), column()]);
+    let gyro = channels.has_gyro().then(|| [column(), column(), column()]);
+    let accel = channels.has_accel().then(|| [column(), column(), column()]);
     let temp = Some(column());
     let status = Some(column().index);
     CsvLineConfig {
@@ -333,8 +334,12 @@ fn csv_layout(channels: Channels) -> CsvLineConfig {
     }
 }
 
+/// A triad as sent: absent when no axis was simulated; an axis not simulated goes out as 0
+/// (a device always fills every field of its frame).
 fn finite3(v: [f64; 3]) -> Option<[f64; 3]> {
-    v.iter().all(|x| x.is_finite()).then_some(v)
+    v.iter()
+        .any(|x| x.is_finite())
+        .then(|| v.map(|x| if x.is_finite() { x } else { 0.0 }))
 }
 
 fn imu_sample(

@@ -16,10 +16,7 @@ const RIPPLE: f64 = 0.025;
 
 /// Runs one IMU at rest with zero true inputs; returns gyro and accel per axis.
 fn simulate(spec: &ImuSpec, rate_hz: f64, n: usize, seed: u64) -> ([Vec<f64>; 3], [Vec<f64>; 3]) {
-    let both = Channels {
-        gyro: true,
-        accel: true,
-    };
+    let both = Channels::ALL;
     let mut sim = ImuSimulator::new(spec, "dut", seed, rate_hz, both).expect("valid spec");
     let zero = Vector3::zeros();
     let mut gyro: [Vec<f64>; 3] = Default::default();
@@ -268,10 +265,7 @@ fn turn_on_bias_has_its_spread_across_runs() {
     let runs = 500;
     let first: Vec<f64> = (0..runs)
         .map(|seed| {
-            let ch = Channels {
-                gyro: true,
-                accel: false,
-            };
+            let ch = Channels::GYRO;
             let mut sim = ImuSimulator::new(&spec, "dut", seed, 100.0, ch).unwrap();
             let z = Vector3::zeros();
             sim.step(&z, &z, 25.0, 0, 0).truth.gyro_bias[0] / (DEG / 3600.0)

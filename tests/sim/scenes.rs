@@ -42,6 +42,7 @@ fn example_scenes_parse() {
         "drive_30min.toml",
         "short_static.toml",
         "short_drive.toml",
+        "serve_bench.toml",
     ] {
         let scene = Scene::load(&fixture(name)).unwrap_or_else(|e| panic!("{name}: {e:#}"));
         assert!(scene.samples() > 0);
