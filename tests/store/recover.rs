@@ -44,7 +44,12 @@ fn kill_9_then_recover_loses_at_most_one_flush_interval() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("killed");
     let mut child = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "recover::child_writer", "--nocapture", "--test-threads=1"])
+        .args([
+            "--exact",
+            "recover::child_writer",
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env(CHILD_ENV, &dir)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
