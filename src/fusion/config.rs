@@ -86,18 +86,20 @@ impl ImuModel {
 }
 
 impl Default for ImuModel {
-    /// A consumer MEMS IMU: 0.3°/√h ARW, 0.1 m/s/√h VRW, 20°/h and 5 mg biases over 1 h.
+    /// A consumer MEMS IMU: 0.3°/√h ARW, 0.1 m/s/√h VRW, 20°/h and 5 mg biases that wander
+    /// over 5 minutes (MEMS biases are not stable over an hour; an hour made the filter
+    /// overconfident on simulated drives), scale factors 1000 ppm over 1 h.
     fn default() -> Self {
         Self {
             arw_rad_per_sqrt_s: 0.3f64.to_radians() / 60.0,
             vrw_mps_per_sqrt_s: 0.1 / 60.0,
             gyro_bias: GaussMarkov {
                 sigma: 20f64.to_radians() / 3600.0,
-                tau_s: 3600.0,
+                tau_s: 300.0,
             },
             accel_bias: GaussMarkov {
                 sigma: 5e-3 * 9.81,
-                tau_s: 3600.0,
+                tau_s: 300.0,
             },
             gyro_scale: GaussMarkov {
                 sigma: 1e-3,

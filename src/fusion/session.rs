@@ -32,7 +32,8 @@ pub struct SessionReplay {
     pub problems: Vec<String>,
 }
 
-fn pick(session: &Session, kind: DeviceKind, wanted: Option<&str>) -> anyhow::Result<String> {
+/// The device of `kind` named `wanted`, or the only one of that kind.
+pub fn pick(session: &Session, kind: DeviceKind, wanted: Option<&str>) -> anyhow::Result<String> {
     let of_kind: Vec<&str> = session
         .devices()
         .iter()
