@@ -323,15 +323,37 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
                 s.nees_mean, 100.0 * s.inside_3sigma
             );
             for o in &s.outages {
+                let drift = if o.unbounded {
+                    "unbounded (position σ above 1 km)".to_string()
+                } else {
+                    format!("{:.3} m", o.max_horizontal_m)
+                };
                 println!(
-                    "  outage at +{:.0} s for {:.0} s: max horizontal drift {:.3} m",
+                    "  outage at +{:.0} s for {:.0} s: max horizontal drift {drift}",
                     o.start_s - axis.start,
                     o.duration_s,
-                    o.max_horizontal_m
+                );
+            }
+            if let Some(t) = s.unbounded_from_s {
+                println!(
+                    "  {} epochs from +{:.0} s have a horizontal σ above {} m: their position error is unbounded and left out of the figures above",
+                    s.unbounded_epochs,
+                    t - axis.start,
+                    crate::fusion::metrics::UNBOUNDED_SIGMA_M
                 );
             }
             report.insert(name.to_string(), export::summary_json(&s));
         }
+    }
+    if let Some(s) = filtered.iter().find(|s| {
+        (s.cov_nav[(0, 0)] + s.cov_nav[(1, 1)]).sqrt() > crate::fusion::metrics::UNBOUNDED_SIGMA_M
+    }) {
+        tracing::warn!(
+            "without GNSS the position is unbounded from +{:.0} s (horizontal σ above {} m; covariance capped {} times)",
+            s.nav.t_s - axis.start,
+            crate::fusion::metrics::UNBOUNDED_SIGMA_M,
+            stats.filter.covariance_caps
+        );
     }
     println!(
         "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), filter PD events {}",
