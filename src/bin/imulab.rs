@@ -23,6 +23,8 @@ enum Command {
     Recover(imulab::cli::recover::RecoverArgs),
     /// GNSS/INS replay through the error-state Kalman filter.
     Replay(imulab::cli::replay::ReplayArgs),
+    /// Sensor-grade study: how long a GNSS outage each IMU grade bridges.
+    Study(imulab::cli::study::StudyArgs),
     /// Decode a capture file or live port to JSON lines (NMEA, UBX, … see --protocol).
     Decode(imulab::cli::decode::DecodeArgs),
     /// Simulate IMUs and GNSS receivers from a scene file.
@@ -47,6 +49,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(args) => imulab::cli::export::run(args),
         Command::Recover(args) => imulab::cli::recover::run(args),
         Command::Replay(args) => imulab::cli::replay::run(args),
+        Command::Study(args) => imulab::cli::study::run(args),
         Command::Decode(args) => imulab::cli::decode::run(args),
         Command::Sim(args) => imulab::cli::sim::run(args),
         Command::Status(args) => imulab::cli::status::run(args),

@@ -77,6 +77,8 @@ pub struct InspectReport {
     pub devices: Vec<DeviceReport>,
     pub events_total: u64,
     pub events_by_kind: BTreeMap<String, u64>,
+    /// Replay trajectories written into the session (`replay-<name>.h5`, see `imulab replay`).
+    pub replays: Vec<FileReport>,
     /// One line per problem found (unreadable files, unreadable parts of files).
     pub problems: Vec<String>,
 }
@@ -251,8 +253,30 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
         devices,
         events_total: events.len() as u64,
         events_by_kind,
+        replays: replay_files(session.dir()),
         problems,
     }
+}
+
+/// The `replay-<name>.h5` files in the session directory, by name.
+fn replay_files(dir: &std::path::Path) -> Vec<FileReport> {
+    let mut out: Vec<FileReport> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            layout::parse_replay_file_name(&name)?;
+            Some(FileReport {
+                size_bytes: e.metadata().map(|m| m.len()).unwrap_or(0),
+                name,
+                partial: false,
+                problem: None,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    out
 }
 
 fn mb(bytes: u64) -> f64 {
@@ -277,6 +301,13 @@ fn print_text(r: &InspectReport) {
             (None, false) => "ok",
         };
         println!("  {:<26} {:>10.2} MB  {state}", f.name, mb(f.size_bytes));
+    }
+    for f in &r.replays {
+        println!(
+            "  {:<26} {:>10.2} MB  replay trajectory",
+            f.name,
+            mb(f.size_bytes)
+        );
     }
     println!("devices");
     for d in &r.devices {

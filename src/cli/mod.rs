@@ -5,6 +5,7 @@ pub mod compare;
 pub mod replay;
 pub mod report;
 pub mod status;
+pub mod study;
 
 /// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
 pub fn init_logging() {

@@ -9,6 +9,7 @@ use crate::fusion::kfgins::{self, KfGinsConfig};
 use crate::fusion::mechanisation::NavState;
 use crate::fusion::metrics::{errors, summarise};
 use crate::fusion::navigator::{NavSolution, ReplayOptions, ReplayStats};
+use crate::fusion::noise;
 use crate::fusion::session;
 use anyhow::{bail, Context};
 use clap::Args;
@@ -50,6 +51,14 @@ pub struct ReplayArgs {
     /// Also run the RTS smoother and write the smoothed trajectory.
     #[arg(long)]
     pub smooth: bool,
+    /// IMU noise from an Allan fit (`imulab allan --json` output; FILE.json#DEVICE picks a
+    /// device, default the replayed IMU's name or the only device). Unidentified terms keep
+    /// the configured/preset values, with a warning.
+    #[arg(long, value_name = "FIT.json", requires = "session")]
+    pub noise: Option<String>,
+    /// Name of the trajectory file written into the session: SESSION/replay-NAME.h5.
+    #[arg(long, default_value = "filter", requires = "session")]
+    pub name: String,
 }
 
 fn parse_pair(text: &str, what: &str) -> anyhow::Result<(f64, f64)> {
@@ -110,7 +119,18 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
 }
 
 fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
-    let config = match &args.config {
+    if args.name.is_empty()
+        || !args
+            .name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+    {
+        bail!(
+            "--name `{}`: use ASCII letters, digits, '_' or '-'",
+            args.name
+        );
+    }
+    let mut config = match &args.config {
         Some(p) => FusionConfig::from_file(p)?,
         None => FusionConfig::default(),
     };
@@ -118,6 +138,25 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
     for p in session.problems() {
         tracing::warn!("{p}");
     }
+    let imu_device = session::pick(&session, crate::store::DeviceKind::Imu, args.imu.as_deref())?;
+    let noise = noise_model(&session, &imu_device, args, &config)?;
+    if let Some(n) = &noise {
+        for w in &n.warnings {
+            tracing::warn!("{w}");
+        }
+        config.imu = n.model;
+        config.validate()?;
+    }
+    println!(
+        "IMU noise: {}",
+        noise.as_ref().map_or_else(
+            || match &args.config {
+                Some(p) => format!("configuration {}", p.display()),
+                None => "default configuration (consumer MEMS; give --noise or --config)".into(),
+            },
+            |n| n.origin.clone()
+        )
+    );
     let outages = parse_outages(&args.outage, args.outages.as_deref(), 30.0 * 86400.0)?;
     let options = ReplayOptions {
         outages: outages.clone(),
@@ -126,7 +165,7 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
     };
     let r = session::replay_session(
         &session,
-        args.imu.as_deref(),
+        Some(&imu_device),
         args.gnss.as_deref(),
         &config,
         options,
@@ -146,6 +185,13 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
     };
     let out_dir = args.out.clone().unwrap_or_else(|| dir.join("replay"));
     let truth = (!r.truth.is_empty()).then_some(&r.truth);
+    let in_session = dir.join(crate::store::layout::replay_file_name(&args.name));
+    let mut sets: Vec<(&str, &[NavSolution])> = vec![("filtered", &r.result.filtered)];
+    if args.smooth {
+        sets.push(("smoothed", &r.result.smoothed));
+    }
+    export::write_hdf5(&in_session, &sets)?;
+    println!("wrote {}", in_session.display());
     write_outputs(
         &out_dir,
         &r.result.filtered,
@@ -155,6 +201,39 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         &outages,
         &axis,
     )
+}
+
+/// The IMU noise for a session replay: `--noise` (Allan fit) over the configuration; else,
+/// without `--config`, the simulator preset the session's IMU was made with (read from the
+/// manifest); else None (the configuration as it is).
+fn noise_model(
+    session: &crate::store::Session,
+    imu_device: &str,
+    args: &ReplayArgs,
+    config: &FusionConfig,
+) -> anyhow::Result<Option<noise::NoiseModel>> {
+    if let Some(arg) = &args.noise {
+        let (path, device) = noise::split_device(arg);
+        let report = noise::read_allan_report(Path::new(path))?;
+        let device = match device {
+            Some(d) => Some(d),
+            None if report.axes.iter().any(|a| a.device == imu_device) => Some(imu_device),
+            None => None,
+        };
+        let fit = noise::allan_device(&report, device, path)?;
+        return Ok(Some(noise::model_from_allan(
+            &fit,
+            &config.imu,
+            &format!("Allan fit {path}"),
+        )));
+    }
+    if args.config.is_some() {
+        return Ok(None);
+    }
+    match session::simulated_imu_preset(session, imu_device) {
+        Some(preset) => Ok(Some(noise::model_from_preset(&preset)?)),
+        None => Ok(None),
+    }
 }
 
 fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
@@ -244,15 +323,37 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
                 s.nees_mean, 100.0 * s.inside_3sigma
             );
             for o in &s.outages {
+                let drift = if o.unbounded {
+                    "unbounded (position σ above 1 km)".to_string()
+                } else {
+                    format!("{:.3} m", o.max_horizontal_m)
+                };
                 println!(
-                    "  outage at +{:.0} s for {:.0} s: max horizontal drift {:.3} m",
+                    "  outage at +{:.0} s for {:.0} s: max horizontal drift {drift}",
                     o.start_s - axis.start,
                     o.duration_s,
-                    o.max_horizontal_m
+                );
+            }
+            if let Some(t) = s.unbounded_from_s {
+                println!(
+                    "  {} epochs from +{:.0} s have a horizontal σ above {} m: their position error is unbounded and left out of the figures above",
+                    s.unbounded_epochs,
+                    t - axis.start,
+                    crate::fusion::metrics::UNBOUNDED_SIGMA_M
                 );
             }
             report.insert(name.to_string(), export::summary_json(&s));
         }
+    }
+    if let Some(s) = filtered.iter().find(|s| {
+        (s.cov_nav[(0, 0)] + s.cov_nav[(1, 1)]).sqrt() > crate::fusion::metrics::UNBOUNDED_SIGMA_M
+    }) {
+        tracing::warn!(
+            "without GNSS the position is unbounded from +{:.0} s (horizontal σ above {} m; covariance capped {} times)",
+            s.nav.t_s - axis.start,
+            crate::fusion::metrics::UNBOUNDED_SIGMA_M,
+            stats.filter.covariance_caps
+        );
     }
     println!(
         "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), filter PD events {}",

@@ -58,21 +58,48 @@ pub struct ImuModel {
     pub gyro_scale: GaussMarkov,
     /// Accelerometer scale-factor error (used with 21 states), fraction.
     pub accel_scale: GaussMarkov,
+    /// Initial 1σ of the gyro bias, rad/s (turn-on bias and in-run bias together); absent:
+    /// `gyro_bias.sigma`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gyro_bias_initial_sigma: Option<f64>,
+    /// Initial 1σ of the accelerometer bias, m/s²; absent: `accel_bias.sigma`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accel_bias_initial_sigma: Option<f64>,
+    /// Gyro rate random walk (Allan K), rad/s/√s: white noise on the bias besides the
+    /// Gauss-Markov driving noise.
+    pub gyro_rrw_rad_per_s_sqrt_s: f64,
+    /// Accelerometer bias random walk (Allan K), m/s²/√s.
+    pub accel_rrw_mps2_per_sqrt_s: f64,
+}
+
+impl ImuModel {
+    /// Initial 1σ of the gyro bias state.
+    pub fn gyro_bias_sigma0(&self) -> f64 {
+        self.gyro_bias_initial_sigma.unwrap_or(self.gyro_bias.sigma)
+    }
+
+    /// Initial 1σ of the accelerometer bias state.
+    pub fn accel_bias_sigma0(&self) -> f64 {
+        self.accel_bias_initial_sigma
+            .unwrap_or(self.accel_bias.sigma)
+    }
 }
 
 impl Default for ImuModel {
-    /// A consumer MEMS IMU: 0.3°/√h ARW, 0.1 m/s/√h VRW, 20°/h and 5 mg biases over 1 h.
+    /// A consumer MEMS IMU: 0.3°/√h ARW, 0.1 m/s/√h VRW, 20°/h and 5 mg biases that wander
+    /// over 5 minutes (MEMS biases are not stable over an hour; an hour made the filter
+    /// overconfident on simulated drives), scale factors 1000 ppm over 1 h.
     fn default() -> Self {
         Self {
             arw_rad_per_sqrt_s: 0.3f64.to_radians() / 60.0,
             vrw_mps_per_sqrt_s: 0.1 / 60.0,
             gyro_bias: GaussMarkov {
                 sigma: 20f64.to_radians() / 3600.0,
-                tau_s: 3600.0,
+                tau_s: 300.0,
             },
             accel_bias: GaussMarkov {
                 sigma: 5e-3 * 9.81,
-                tau_s: 3600.0,
+                tau_s: 300.0,
             },
             gyro_scale: GaussMarkov {
                 sigma: 1e-3,
@@ -82,6 +109,10 @@ impl Default for ImuModel {
                 sigma: 1e-3,
                 tau_s: 3600.0,
             },
+            gyro_bias_initial_sigma: None,
+            accel_bias_initial_sigma: None,
+            gyro_rrw_rad_per_s_sqrt_s: 0.0,
+            accel_rrw_mps2_per_sqrt_s: 0.0,
         }
     }
 }
@@ -100,6 +131,13 @@ pub struct GnssOptions {
     pub min_velocity_sigma_mps: f64,
     /// Reject fixes whose normalised innovation squared exceeds this (0 = no gating).
     pub innovation_gate: f64,
+    /// Correlation time of the receiver's position error, s (0 = white). Receiver position
+    /// errors (atmosphere, multipath) are correlated over minutes; treating 10 fixes a second
+    /// as independent makes the filter believe its position far better than the receiver's σ.
+    /// With a correlation time T the position variance of a fix is inflated by T / Δt (Δt =
+    /// time since the previous used fix, at least 1), so the fixes within one correlation
+    /// time together carry about one fix's worth of information.
+    pub position_correlation_s: f64,
 }
 
 impl Default for GnssOptions {
@@ -110,6 +148,7 @@ impl Default for GnssOptions {
             min_position_sigma_m: 0.01,
             min_velocity_sigma_mps: 0.005,
             innovation_gate: 0.0,
+            position_correlation_s: 60.0,
         }
     }
 }
@@ -341,6 +380,32 @@ impl FusionConfig {
                 });
             }
         }
+        for (key, v) in [
+            ("imu.gyro_bias_initial_sigma", imu.gyro_bias_initial_sigma),
+            ("imu.accel_bias_initial_sigma", imu.accel_bias_initial_sigma),
+        ] {
+            if let Some(v) = v {
+                check(key, v, v >= 0.0, nonneg)?;
+            }
+        }
+        check(
+            "imu.gyro_rrw_rad_per_s_sqrt_s",
+            imu.gyro_rrw_rad_per_s_sqrt_s,
+            imu.gyro_rrw_rad_per_s_sqrt_s >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "imu.accel_rrw_mps2_per_sqrt_s",
+            imu.accel_rrw_mps2_per_sqrt_s,
+            imu.accel_rrw_mps2_per_sqrt_s >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "gnss.position_correlation_s",
+            self.gnss.position_correlation_s,
+            self.gnss.position_correlation_s >= 0.0,
+            nonneg,
+        )?;
         for (i, l) in self.gnss.lever_arm_m.iter().enumerate() {
             let key = [
                 "gnss.lever_arm_m[0]",

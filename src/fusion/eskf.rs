@@ -177,8 +177,8 @@ pub fn initial_covariance<const N: usize>(config: &FusionConfig) -> SMatrix<f64,
     for k in 0..3 {
         d[POS + k] = i.position_m.powi(2);
         d[VEL + k] = i.velocity_mps.powi(2);
-        d[BG + k] = imu.gyro_bias.sigma.powi(2);
-        d[BA + k] = imu.accel_bias.sigma.powi(2);
+        d[BG + k] = imu.gyro_bias_sigma0().powi(2);
+        d[BA + k] = imu.accel_bias_sigma0().powi(2);
         if N == 21 {
             d[SG + k] = imu.gyro_scale.sigma.powi(2);
             d[SA + k] = imu.accel_scale.sigma.powi(2);

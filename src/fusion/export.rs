@@ -147,7 +147,10 @@ pub fn summary_json(s: &ErrorSummary) -> serde_json::Value {
         "nees_mean": s.nees_mean,
         "inside_3sigma": s.inside_3sigma,
         "outages": s.outages.iter().map(|o| serde_json::json!({
-            "start_s": o.start_s, "duration_s": o.duration_s, "max_horizontal_m": o.max_horizontal_m
+            "start_s": o.start_s, "duration_s": o.duration_s, "max_horizontal_m": o.max_horizontal_m,
+            "unbounded": o.unbounded
         })).collect::<Vec<_>>(),
+        "unbounded_epochs": s.unbounded_epochs,
+        "unbounded_from_s": s.unbounded_from_s,
     })
 }

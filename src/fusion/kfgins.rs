@@ -380,6 +380,8 @@ impl KfGinsConfig {
         c.imu.accel_scale = gm(&self.accel_scale_std);
         c.gnss.lever_arm_m = self.lever_arm_m.into();
         c.gnss.min_position_sigma_m = 1e-3;
+        // KF-GINS treats GNSS fixes as independent.
+        c.gnss.position_correlation_s = 0.0;
         c.initial.position_m = self.initial_pos_std_m.max().max(1e-3);
         c.initial.velocity_mps = self.initial_vel_std_mps.max().max(1e-4);
         c.initial.roll_pitch_deg = self

@@ -19,7 +19,13 @@ pub struct ErrorEpoch {
     pub nees: f64,
     /// Number of the 9 error components inside ±3σ.
     pub inside_3sigma: u8,
+    /// The filter's horizontal position 1σ (√(σ_N² + σ_E²)), m.
+    pub horizontal_sigma_m: f64,
 }
+
+/// Above this horizontal 1σ the filter's position is reported as unbounded (an INS left
+/// without GNSS for a long time; its covariance is capped, its position meaningless), m.
+pub const UNBOUNDED_SIGMA_M: f64 = 1000.0;
 
 impl ErrorEpoch {
     pub fn horizontal_m(&self) -> f64 {
@@ -50,6 +56,7 @@ pub fn epoch_error(solution: &NavSolution, truth: &NavState) -> ErrorEpoch {
         att,
         nees,
         inside_3sigma: inside,
+        horizontal_sigma_m: (solution.cov_nav[(0, 0)] + solution.cov_nav[(1, 1)]).sqrt(),
     }
 }
 
@@ -94,8 +101,10 @@ impl Spread {
 pub struct OutageDrift {
     pub start_s: f64,
     pub duration_s: f64,
-    /// Largest horizontal error inside the outage, m.
+    /// Largest horizontal error inside the outage, m (over the bounded epochs).
     pub max_horizontal_m: f64,
+    /// The filter's position became unbounded during the outage.
+    pub unbounded: bool,
 }
 
 /// Summary of a run against the truth.
@@ -113,10 +122,20 @@ pub struct ErrorSummary {
     /// Share of all error components inside ±3σ (≈ 0.997 for a consistent filter).
     pub inside_3sigma: f64,
     pub outages: Vec<OutageDrift>,
+    /// Epochs whose horizontal σ exceeded [`UNBOUNDED_SIGMA_M`]: left out of the position
+    /// statistics above (their position error is unbounded, not a number to average).
+    pub unbounded_epochs: usize,
+    /// Time of the first such epoch, s.
+    pub unbounded_from_s: Option<f64>,
 }
 
 /// Summarises epoch errors; `outages` are the [start, end) windows GNSS was withheld.
-pub fn summarise(errors: &[ErrorEpoch], outages: &[(f64, f64)]) -> ErrorSummary {
+pub fn summarise(all: &[ErrorEpoch], outages: &[(f64, f64)]) -> ErrorSummary {
+    // A NaN σ counts as unbounded.
+    let unbounded =
+        |e: &ErrorEpoch| e.horizontal_sigma_m.is_nan() || e.horizontal_sigma_m > UNBOUNDED_SIGMA_M;
+    let bounded: Vec<ErrorEpoch> = all.iter().filter(|e| !unbounded(e)).copied().collect();
+    let errors = &bounded[..];
     let in_outage = |t: f64| outages.iter().any(|&(a, b)| t >= a && t < b);
     let n = errors.len().max(1) as f64;
     let att_rms = |i: usize| {
@@ -152,8 +171,11 @@ pub fn summarise(errors: &[ErrorEpoch], outages: &[(f64, f64)]) -> ErrorSummary 
                     .filter(|e| e.t_s >= a && e.t_s < b)
                     .map(|e| e.horizontal_m())
                     .fold(0.0, f64::max),
+                unbounded: all.iter().any(|e| e.t_s >= a && e.t_s < b && unbounded(e)),
             })
             .collect(),
+        unbounded_epochs: all.len() - bounded.len(),
+        unbounded_from_s: all.iter().find(|e| unbounded(e)).map(|e| e.t_s),
     }
 }
 

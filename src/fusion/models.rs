@@ -112,8 +112,8 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
     for i in 0..3 {
         q[VEL + i] = imu.vrw_mps_per_sqrt_s.powi(2);
         q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
-        q[BG + i] = imu.gyro_bias.driving_psd();
-        q[BA + i] = imu.accel_bias.driving_psd();
+        q[BG + i] = imu.gyro_bias.driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
+        q[BA + i] = imu.accel_bias.driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
         if N == 21 {
             q[SG + i] = imu.gyro_scale.driving_psd();
             q[SA + i] = imu.accel_scale.driving_psd();

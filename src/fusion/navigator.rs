@@ -96,7 +96,9 @@ struct ZuptWindow {
     prev_mean_accel: Option<Vector3<f64>>,
 }
 
-/// The incremental replay engine for a filter with `N` states.
+/// The incremental replay engine for a filter with `N` states. Cloning it forks the replay
+/// (the sensor-grade study runs each outage on a fork).
+#[derive(Debug, Clone)]
 pub struct Navigator<const N: usize> {
     config: FusionConfig,
     options: ReplayOptions,
@@ -104,6 +106,8 @@ pub struct Navigator<const N: usize> {
     leveller: StaticLeveller,
     last_imu: Option<(f64, Vector3<f64>, Vector3<f64>)>,
     last_fix_t: Option<f64>,
+    /// Time of the latest fix used in an update (for the correlated-error inflation).
+    last_used_fix_t: Option<f64>,
     next_output_t: f64,
     last_nhc_t: f64,
     zupt_window: ZuptWindow,
@@ -146,6 +150,7 @@ impl<const N: usize> Navigator<N> {
             leveller: StaticLeveller::default(),
             last_imu: None,
             last_fix_t: None,
+            last_used_fix_t: None,
             next_output_t: f64::NEG_INFINITY,
             last_nhc_t: f64::NEG_INFINITY,
             zupt_window: ZuptWindow::default(),
@@ -334,11 +339,21 @@ impl<const N: usize> Navigator<N> {
                 fallback
             }
         };
-        let sigma_pos = Vector3::new(
-            floor(fix.sigma_ned_m.x, FALLBACK_SIGMA.0, g.min_position_sigma_m),
-            floor(fix.sigma_ned_m.y, FALLBACK_SIGMA.0, g.min_position_sigma_m),
-            floor(fix.sigma_ned_m.z, FALLBACK_SIGMA.1, g.min_position_sigma_m),
-        );
+        // Correlated receiver errors: fixes within one correlation time carry about one
+        // fix's information (see `GnssOptions::position_correlation_s`).
+        let inflation = match self.last_used_fix_t {
+            Some(last) if g.position_correlation_s > 0.0 => (g.position_correlation_s
+                / (fix.t_s - last))
+                .max(1.0)
+                .sqrt(),
+            _ => 1.0,
+        };
+        let sigma_pos = inflation
+            * Vector3::new(
+                floor(fix.sigma_ned_m.x, FALLBACK_SIGMA.0, g.min_position_sigma_m),
+                floor(fix.sigma_ned_m.y, FALLBACK_SIGMA.0, g.min_position_sigma_m),
+                floor(fix.sigma_ned_m.z, FALLBACK_SIGMA.1, g.min_position_sigma_m),
+            );
         let sigma_vel = fix
             .sigma_vel_mps
             .map(|s| floor(s, FALLBACK_SIGMA.2, g.min_velocity_sigma_mps));
@@ -371,7 +386,10 @@ impl<const N: usize> Navigator<N> {
             None => ins.update(&pos, g.innovation_gate),
         };
         match outcome {
-            UpdateOutcome::Applied { .. } => stats.gnss_used += 1,
+            UpdateOutcome::Applied { .. } => {
+                stats.gnss_used += 1;
+                self.last_used_fix_t = Some(fix.t_s);
+            }
             UpdateOutcome::Gated { .. } => stats.gnss_gated += 1,
             UpdateOutcome::Rejected => {}
         }
@@ -402,6 +420,7 @@ impl<const N: usize> Navigator<N> {
         nav.shift_position(&-(quat_nb * Vector3::from(self.config.gnss.lever_arm_m)));
         nav.shift_position(&(nav.vel_ned * (t_imu - fix.t_s)));
         self.start(nav);
+        self.last_used_fix_t = Some(fix.t_s);
         self.last_nhc_t = t_imu;
     }
 

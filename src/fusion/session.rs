@@ -6,7 +6,7 @@
 use crate::fusion::config::FusionConfig;
 use crate::fusion::mechanisation::{ImuInput, NavState};
 use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions, ReplayResult};
-use crate::store::{DeviceKind, Session, TimeRange};
+use crate::store::{DeviceKind, GnssRecord, Session, TimeRange};
 use anyhow::{bail, Context};
 use imulab_drivers::types::FixType;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -32,7 +32,8 @@ pub struct SessionReplay {
     pub problems: Vec<String>,
 }
 
-fn pick(session: &Session, kind: DeviceKind, wanted: Option<&str>) -> anyhow::Result<String> {
+/// The device of `kind` named `wanted`, or the only one of that kind.
+pub fn pick(session: &Session, kind: DeviceKind, wanted: Option<&str>) -> anyhow::Result<String> {
     let of_kind: Vec<&str> = session
         .devices()
         .iter()
@@ -63,6 +64,50 @@ fn pick(session: &Session, kind: DeviceKind, wanted: Option<&str>) -> anyhow::Re
 
 fn seconds(t_ns: i64, t0_ns: i64) -> f64 {
     (t_ns.saturating_sub(t0_ns)) as f64 * 1e-9
+}
+
+/// Longest receiver latency believed when recovering a fix's epoch time, ns.
+const MAX_LATENCY_NS: i64 = 2_000_000_000;
+
+/// A GNSS row as the filter uses it, on the time axis starting at `t0_ns` (host monotonic);
+/// None for epochs without a position fix.
+///
+/// Time: the row's host arrival time minus the receiver latency, where the latency is the
+/// row's wall-clock arrival minus the fix's own UTC time (`t_wall_ns − utc_ns`) when that is
+/// between 0 and 2 s; otherwise the arrival time. A 50 ms latency at 20 m/s would otherwise
+/// put every fix a metre behind the vehicle.
+/// Accuracy: `h_acc_m` is read as a horizontal (2-D) 1σ, so each of north and east gets
+/// `h_acc_m / √2`; down gets `v_acc_m`.
+pub fn observation(r: &GnssRecord, t0_ns: i64) -> Option<GnssObservation> {
+    if matches!(r.fix_type, FixType::NoFix | FixType::TimeOnly) {
+        return None;
+    }
+    let latency = r.t_wall_ns.saturating_sub(r.utc_ns);
+    let t_ns = if r.utc_ns > 0 && (0..=MAX_LATENCY_NS).contains(&latency) {
+        r.t_mono_ns - latency
+    } else {
+        r.t_mono_ns
+    };
+    let v = Vector3::from(r.vel_ned);
+    let h = r.h_acc_m / std::f64::consts::SQRT_2;
+    Some(GnssObservation {
+        t_s: seconds(t_ns, t0_ns),
+        lat_rad: r.lat_deg.to_radians(),
+        lon_rad: r.lon_deg.to_radians(),
+        height_m: r.height_m,
+        sigma_ned_m: Vector3::new(h, h, r.v_acc_m),
+        vel_ned: v.iter().all(|x| x.is_finite()).then_some(v),
+        sigma_vel_mps: Vector3::repeat(r.s_acc_mps),
+    })
+}
+
+/// The simulator preset an IMU of a simulated session was made with: the device model
+/// `simulated <preset>` that `imulab sim` writes into the manifest (None for real devices
+/// and for custom simulated IMUs).
+pub fn simulated_imu_preset(session: &Session, device: &str) -> Option<String> {
+    let d = session.devices().iter().find(|d| d.name == device)?;
+    let preset = d.model.strip_prefix("simulated ")?;
+    crate::sim::presets::imu_preset(preset).map(|_| preset.to_string())
 }
 
 /// Replays `session` with IMU `imu` and receiver `gnss` (each may be omitted when the session
@@ -102,24 +147,15 @@ pub fn replay_session(
         };
         for i in 0..block.len() {
             let r = block.record(i);
-            if matches!(r.fix_type, FixType::NoFix | FixType::TimeOnly) {
-                out.gnss_without_fix += 1;
-                continue;
+            match observation(&r, t0) {
+                Some(obs) => {
+                    if out.gps_time.is_none() && r.week > 0 && r.tow_s.is_finite() {
+                        out.gps_time = Some((u32::from(r.week), r.tow_s - obs.t_s));
+                    }
+                    fixes.push(obs);
+                }
+                None => out.gnss_without_fix += 1,
             }
-            let t = seconds(r.t_mono_ns, t0);
-            if out.gps_time.is_none() && r.week > 0 && r.tow_s.is_finite() {
-                out.gps_time = Some((u32::from(r.week), r.tow_s - t));
-            }
-            let v = Vector3::from(r.vel_ned);
-            fixes.push(GnssObservation {
-                t_s: t,
-                lat_rad: r.lat_deg.to_radians(),
-                lon_rad: r.lon_deg.to_radians(),
-                height_m: r.height_m,
-                sigma_ned_m: Vector3::new(r.h_acc_m, r.h_acc_m, r.v_acc_m),
-                vel_ned: v.iter().all(|x| x.is_finite()).then_some(v),
-                sigma_vel_mps: Vector3::repeat(r.s_acc_mps),
-            });
         }
     }
 

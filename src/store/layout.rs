@@ -29,6 +29,22 @@ pub fn parse_chunk_file_name(name: &str) -> Option<(u32, bool)> {
     digits.parse().ok().map(|i| (i, partial))
 }
 
+/// Replay trajectories written into a session by `imulab replay` are `replay-<name>.h5`
+/// (not chunk files: the reader ignores them; `imulab inspect` lists them).
+const REPLAY_PREFIX: &str = "replay-";
+
+/// File name of the replay trajectory called `name`.
+pub fn replay_file_name(name: &str) -> String {
+    format!("{REPLAY_PREFIX}{name}{CHUNK_EXT}")
+}
+
+/// Parses a replay file name: `Some(name)` for `replay-<name>.h5`, `None` for other files.
+pub fn parse_replay_file_name(file: &str) -> Option<&str> {
+    file.strip_prefix(REPLAY_PREFIX)?
+        .strip_suffix(CHUNK_EXT)
+        .filter(|n| !n.is_empty())
+}
+
 /// Held (flock, exclusive) by a live writer for its lifetime, so `recover` never touches
 /// the file of a writer that is still running. The kernel drops the lock when the writer dies.
 pub const WRITER_LOCK_FILE: &str = "writer.lock";

@@ -4,6 +4,8 @@ mod filter;
 mod fuzz;
 mod kfgins;
 mod mechanisation;
+mod noise;
 mod session;
 mod stability;
+mod study;
 mod support;

@@ -140,6 +140,14 @@ fn hours_without_gnss_never_give_nan() {
     // The unaided vertical channel diverges; the filter must say so with its covariance.
     let last = r.filtered.last().expect("output");
     assert!(last.cov_nav[(2, 2)].sqrt() > 100.0);
+    // Against the truth, the hours without GNSS are reported as unbounded, not averaged.
+    let e = imulab::fusion::metrics::errors(&r.filtered, |t| d.truth_at(t));
+    let s = imulab::fusion::metrics::summarise(&e, &[(120.0, 4.0 * 3600.0)]);
+    println!("{s:?}");
+    let from = s.unbounded_from_s.expect("position becomes unbounded");
+    assert!(from > 120.0 && from < 4.0 * 3600.0, "{from}");
+    assert!(s.unbounded_epochs > 0 && s.outages[0].unbounded);
+    assert!(s.horizontal.max.is_finite());
 }
 
 #[test]

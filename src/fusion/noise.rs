@@ -1,0 +1,390 @@
+//! Where the filter's IMU noise model comes from: a simulator preset (the datasheet values in
+//! `sim::presets`) or the Allan fit JSON that `imulab allan --json` / `imulab report --json`
+//! writes. The same mapping builds the simulator spec of a grade given as an Allan fit, so a
+//! study simulates and filters one and the same IMU description.
+//!
+//! Mapping (per sensor; the filter model is isotropic, so the largest axis is used):
+//! - white noise: ARW N (rad/√s) and VRW N (m/s/√s) as they are;
+//! - bias instability: a flat Allan floor F (ADEV, = 0.664·B of the fit) becomes a first-order
+//!   Gauss-Markov bias whose Allan deviation peaks at the floor where the floor is lowest:
+//!   σ = F / 0.6174 and τ_c = τ_min / 1.89 (a GM process's ADEV peaks at 0.6174 σ at
+//!   τ ≈ 1.89 τ_c). τ_min is the τ of the Allan minimum (the fit's slope reading, else the
+//!   lowest curve point); for a preset, whose floor is flat over a band [τ₁, τ₂], the band's
+//!   geometric centre √(τ₁τ₂).
+//! - rate random walk K: white noise on the bias (`*_rrw_*`), besides the GM driving noise;
+//! - the initial bias σ: √(σ_GM² + turn-on σ² + constant bias²) for a preset; for an Allan
+//!   fit, the GM σ (an Allan curve says nothing about the turn-on bias).
+//! - scale factors (21 states): the preset's scale-factor error as a random constant (100 ppm
+//!   when the preset gives none); an Allan fit does not identify them, so they fall back.
+//!
+//! Terms an Allan fit did not identify fall back to the base model, each with a warning.
+
+use crate::allan::analysis::AllanReport;
+use crate::allan::fit::{Term, BIAS_INSTABILITY_FACTOR};
+use crate::allan::units::SensorKind;
+use crate::fusion::config::{GaussMarkov, ImuModel};
+use crate::sim::imu_model::{ImuSpec, TriadErrors, G0};
+use anyhow::{bail, Context};
+use std::path::Path;
+
+/// Allan deviation peak of a first-order Gauss-Markov process, relative to its σ.
+pub const GM_ADEV_PEAK: f64 = 0.6174;
+/// τ of that peak, relative to the correlation time.
+pub const GM_ADEV_PEAK_TAU: f64 = 1.89;
+/// Scale-factor σ assumed when a preset gives none, fraction.
+pub const DEFAULT_SCALE_SIGMA: f64 = 1e-4;
+
+/// A noise model with where it came from and what had to be assumed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NoiseModel {
+    pub model: ImuModel,
+    /// Human-readable origin, e.g. `preset tactical` or `Allan fit imu.json (device imu0)`.
+    pub origin: String,
+    /// Terms that fell back to the base model, and other caveats.
+    pub warnings: Vec<String>,
+}
+
+fn max3(v: [f64; 3]) -> f64 {
+    v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
+}
+
+/// The Gauss-Markov bias whose Allan deviation peaks at `floor` at `tau_min`.
+pub fn gauss_markov_from_floor(floor: f64, tau_min: f64) -> GaussMarkov {
+    GaussMarkov {
+        sigma: floor / GM_ADEV_PEAK,
+        tau_s: tau_min / GM_ADEV_PEAK_TAU,
+    }
+}
+
+fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64) {
+    let floor = max3(t.bias_instability);
+    let band = t.bias_instability_band_s;
+    let gm = if floor > 0.0 {
+        gauss_markov_from_floor(floor, (band[0] * band[1]).sqrt())
+    } else {
+        // No in-run instability: a random constant (τ = 0 means constant).
+        GaussMarkov {
+            sigma: 0.0,
+            tau_s: 0.0,
+        }
+    };
+    let initial = (gm.sigma.powi(2) + max3(t.turn_on_sigma).powi(2) + max3(t.bias).powi(2)).sqrt();
+    (gm, initial, max3(t.random_walk))
+}
+
+fn scale(t: &TriadErrors) -> GaussMarkov {
+    let s = max3(t.scale_factor);
+    GaussMarkov {
+        sigma: if s > 0.0 { s } else { DEFAULT_SCALE_SIGMA },
+        tau_s: 0.0,
+    }
+}
+
+/// The filter's IMU model for a simulator spec (datasheet values: what a user would know).
+pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseModel> {
+    let gyro = spec
+        .gyro
+        .to_si()
+        .map_err(|e| anyhow::anyhow!("{origin}: gyro: {e}"))?;
+    let accel = spec
+        .accel
+        .to_si()
+        .map_err(|e| anyhow::anyhow!("{origin}: accel: {e}"))?;
+    let (gyro_bias, gyro_b0, gyro_rrw) = triad_bias(&gyro);
+    let (accel_bias, accel_b0, accel_rrw) = triad_bias(&accel);
+    let mut warnings = Vec::new();
+    if max3(gyro.ramp) > 0.0 || max3(accel.ramp) > 0.0 {
+        warnings.push(format!("{origin}: rate ramp is not modelled by the filter"));
+    }
+    if max3(gyro.bias_tempco) > 0.0 || max3(accel.bias_tempco) > 0.0 {
+        warnings.push(format!(
+            "{origin}: bias temperature coefficients are not modelled by the filter"
+        ));
+    }
+    Ok(NoiseModel {
+        model: ImuModel {
+            arw_rad_per_sqrt_s: max3(gyro.white_density),
+            vrw_mps_per_sqrt_s: max3(accel.white_density),
+            gyro_bias,
+            accel_bias,
+            gyro_scale: scale(&gyro),
+            accel_scale: scale(&accel),
+            gyro_bias_initial_sigma: Some(gyro_b0),
+            accel_bias_initial_sigma: Some(accel_b0),
+            gyro_rrw_rad_per_s_sqrt_s: gyro_rrw,
+            accel_rrw_mps2_per_sqrt_s: accel_rrw,
+        },
+        origin: origin.to_string(),
+        warnings,
+    })
+}
+
+/// The filter's IMU model for simulator preset `name`.
+pub fn model_from_preset(name: &str) -> anyhow::Result<NoiseModel> {
+    let spec = crate::sim::presets::imu_preset(name).with_context(|| {
+        format!(
+            "unknown IMU preset `{name}` (known: {})",
+            crate::sim::presets::imu_preset_names().join(", ")
+        )
+    })?;
+    model_from_spec(&spec, &format!("preset {name}"))
+}
+
+/// The noise terms of one sensor (gyro or accel) read from an Allan fit, SI base units;
+/// None = not identified on any axis.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FittedTerms {
+    /// N: rad/√s or m/s/√s.
+    pub white: Option<f64>,
+    /// Allan floor 0.664·B: rad/s or m/s².
+    pub floor: Option<f64>,
+    /// τ of the Allan minimum, s.
+    pub tau_min: Option<f64>,
+    /// K: rad/s/√s or m/s²/√s.
+    pub random_walk: Option<f64>,
+    /// Axes of this sensor found.
+    pub axes: usize,
+}
+
+/// One device's fitted terms, gyro and accel, from an Allan report.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AllanDevice {
+    pub device: String,
+    pub gyro: FittedTerms,
+    pub accel: FittedTerms,
+    pub warnings: Vec<String>,
+}
+
+fn bigger(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+    match (a, b) {
+        (Some(x), Some(y)) => Some(x.max(y)),
+        (x, None) => x,
+        (None, y) => y,
+    }
+}
+
+/// Reads the terms of `device` (or of the only device) from an Allan report.
+pub fn allan_device(
+    report: &AllanReport,
+    device: Option<&str>,
+    origin: &str,
+) -> anyhow::Result<AllanDevice> {
+    let mut devices: Vec<&str> = report.axes.iter().map(|a| a.device.as_str()).collect();
+    devices.dedup();
+    let name = match device {
+        Some(d) if devices.contains(&d) => d.to_string(),
+        Some(d) => bail!("{origin}: no device `{d}` (have: {})", devices.join(", ")),
+        None => match devices.as_slice() {
+            [one] => one.to_string(),
+            [] => bail!("{origin}: no axes in the Allan report"),
+            many => bail!(
+                "{origin}: several devices ({}); name one as FILE.json#DEVICE",
+                many.join(", ")
+            ),
+        },
+    };
+    let mut out = AllanDevice {
+        device: name.clone(),
+        gyro: FittedTerms::default(),
+        accel: FittedTerms::default(),
+        warnings: Vec::new(),
+    };
+    for axis in report.axes.iter().filter(|a| a.device == name) {
+        let Some(sensor) = axis.sensor.or(axis.unit.sensor()) else {
+            out.warnings.push(format!(
+                "{origin}: axis {} has no known sensor or unit, skipped",
+                axis.axis
+            ));
+            continue;
+        };
+        let si = axis.unit.to_si();
+        let terms = match sensor {
+            SensorKind::Gyro => &mut out.gyro,
+            SensorKind::Accel => &mut out.accel,
+        };
+        terms.axes += 1;
+        let Some(fit) = &axis.fit else {
+            out.warnings.push(format!(
+                "{origin}: axis {} has no noise fit{}",
+                axis.axis,
+                axis.fit_error
+                    .as_deref()
+                    .map(|e| format!(" ({e})"))
+                    .unwrap_or_default()
+            ));
+            continue;
+        };
+        let value = |t: Term| {
+            fit.get(t)
+                .and_then(|e| e.value)
+                .filter(|v| v.is_finite() && *v >= 0.0)
+                .map(|v| v * si)
+        };
+        terms.white = bigger(terms.white, value(Term::RandomWalk));
+        terms.floor = bigger(
+            terms.floor,
+            value(Term::BiasInstability).map(|b| b * BIAS_INSTABILITY_FACTOR),
+        );
+        terms.random_walk = bigger(terms.random_walk, value(Term::RateRandomWalk));
+        let tau_min = axis
+            .slopes
+            .as_ref()
+            .and_then(|s| s.bias_instability_tau)
+            .or_else(|| {
+                axis.curve
+                    .points
+                    .iter()
+                    .filter(|p| p.deviation.is_finite() && p.deviation > 0.0)
+                    .min_by(|a, b| a.deviation.total_cmp(&b.deviation))
+                    .map(|p| p.tau)
+            })
+            .filter(|t| t.is_finite() && *t > 0.0);
+        terms.tau_min = bigger(terms.tau_min, tau_min);
+    }
+    Ok(out)
+}
+
+/// Reads an Allan report JSON file (`imulab allan --json` / `imulab report --json`).
+pub fn read_allan_report(path: &Path) -> anyhow::Result<AllanReport> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let report: AllanReport = serde_json::from_str(&text).with_context(|| {
+        format!(
+            "{}: not an Allan report (the JSON `imulab allan --json` writes)",
+            path.display()
+        )
+    })?;
+    if report.schema_version != crate::allan::analysis::SCHEMA_VERSION {
+        bail!(
+            "{}: Allan report schema_version {} (this build reads {})",
+            path.display(),
+            report.schema_version,
+            crate::allan::analysis::SCHEMA_VERSION
+        );
+    }
+    Ok(report)
+}
+
+/// Splits `FILE.json#DEVICE` into the path and the device.
+pub fn split_device(arg: &str) -> (&str, Option<&str>) {
+    match arg.rsplit_once('#') {
+        Some((p, d)) if !d.is_empty() => (p, Some(d)),
+        _ => (arg, None),
+    }
+}
+
+/// The filter's IMU model from an Allan fit: identified terms replace those of `base`, the
+/// others stay with a warning each.
+pub fn model_from_allan(fit: &AllanDevice, base: &ImuModel, origin: &str) -> NoiseModel {
+    let mut m = *base;
+    let mut warnings = fit.warnings.clone();
+    let mut missing = |what: &str| {
+        warnings.push(format!(
+            "{origin}: {what} not identified by the Allan fit; kept the base value"
+        ))
+    };
+    for (sensor, terms) in [("gyro", &fit.gyro), ("accel", &fit.accel)] {
+        let gyro = sensor == "gyro";
+        if terms.axes == 0 {
+            missing(&format!("{sensor} (no {sensor} axes)"));
+            continue;
+        }
+        match terms.white {
+            Some(n) if gyro => m.arw_rad_per_sqrt_s = n,
+            Some(n) => m.vrw_mps_per_sqrt_s = n,
+            None => missing(&format!("{sensor} white noise (ARW/VRW)")),
+        }
+        match (terms.floor, terms.tau_min) {
+            (Some(floor), Some(tau)) => {
+                let gm = gauss_markov_from_floor(floor, tau);
+                if gyro {
+                    m.gyro_bias = gm;
+                    m.gyro_bias_initial_sigma = None;
+                } else {
+                    m.accel_bias = gm;
+                    m.accel_bias_initial_sigma = None;
+                }
+            }
+            _ => missing(&format!("{sensor} bias instability")),
+        }
+        match terms.random_walk {
+            Some(k) if gyro => m.gyro_rrw_rad_per_s_sqrt_s = k,
+            Some(k) => m.accel_rrw_mps2_per_sqrt_s = k,
+            None => {} // Not identified usually means below what the record shows: keep base.
+        }
+    }
+    NoiseModel {
+        model: m,
+        origin: format!("{origin} (device {})", fit.device),
+        warnings,
+    }
+}
+
+/// Reads `--noise FILE.json[#DEVICE]` into a model over `base`.
+pub fn model_from_allan_file(arg: &str, base: &ImuModel) -> anyhow::Result<NoiseModel> {
+    let (path, device) = split_device(arg);
+    let report = read_allan_report(Path::new(path))?;
+    let fit = allan_device(&report, device, path)?;
+    Ok(model_from_allan(&fit, base, &format!("Allan fit {path}")))
+}
+
+/// A simulator spec reproducing an Allan fit (for a study grade given as a fit): white
+/// noise densities, the bias-instability floor over [τ_min/30, τ_min·30] and the random
+/// walks. Unidentified terms are left out (zero), with the fit's warnings.
+pub fn spec_from_allan(fit: &AllanDevice) -> anyhow::Result<ImuSpec> {
+    let mut spec = ImuSpec::default();
+    let deg = 1f64.to_degrees();
+    let g = &fit.gyro;
+    let a = &fit.accel;
+    if g.white.is_none() && a.white.is_none() {
+        bail!(
+            "device {}: the Allan fit identifies no white noise on gyro or accel",
+            fit.device
+        );
+    }
+    spec.gyro.noise_density_dps_rthz = Some([g.white.unwrap_or(0.0) * deg; 3]);
+    spec.accel.noise_density_ug_rthz = Some([a.white.unwrap_or(0.0) / (G0 * 1e-6); 3]);
+    if let (Some(f), Some(t)) = (g.floor, g.tau_min) {
+        spec.gyro.bias_instability_dph = [f * deg * 3600.0; 3];
+        spec.gyro.bias_instability_band_s = [(t / 30.0).max(1e-3), t * 30.0];
+    }
+    if let (Some(f), Some(t)) = (a.floor, a.tau_min) {
+        spec.accel.bias_instability_mg = [f / (G0 * 1e-3); 3];
+        spec.accel.bias_instability_band_s = [(t / 30.0).max(1e-3), t * 30.0];
+    }
+    if let Some(k) = g.random_walk {
+        spec.gyro.rrw_dph_rth = [k * deg * 3600.0 * 60.0; 3];
+    }
+    if let Some(k) = a.random_walk {
+        spec.accel.rrw_mg_rth = [k * 60.0 / (G0 * 1e-3); 3];
+    }
+    spec.validate()
+        .map_err(|e| anyhow::anyhow!("device {}: {e}", fit.device))?;
+    Ok(spec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn preset_mapping_uses_datasheet_values() {
+        let m = model_from_preset("tactical").expect("preset").model;
+        // ARW 0.125 °/√h = 0.125° / 60 per √s.
+        assert!((m.arw_rad_per_sqrt_s - 0.125f64.to_radians() / 60.0).abs() < 1e-12);
+        // Gyro bias floor 1 °/h → GM σ = floor / 0.6174, τ_c = √(1·5000) / 1.89.
+        let floor = 1f64.to_radians() / 3600.0;
+        assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
+        assert!((m.gyro_bias.tau_s - 5000f64.sqrt() / GM_ADEV_PEAK_TAU).abs() < 1e-9);
+        assert!(model_from_preset("nope").is_err());
+        // The consumer preset's turn-on bias dominates its initial σ.
+        let c = model_from_preset("consumer").expect("preset").model;
+        assert!(c.gyro_bias_sigma0() > 10.0 * c.gyro_bias.sigma);
+    }
+
+    #[test]
+    fn device_selector_splits() {
+        assert_eq!(split_device("a/b.json#imu0"), ("a/b.json", Some("imu0")));
+        assert_eq!(split_device("a/b.json"), ("a/b.json", None));
+    }
+}

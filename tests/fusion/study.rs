@@ -1,0 +1,143 @@
+//! The sensor-grade study: identical results for any thread count, a dearer grade bridges at
+//! least as long as a cheaper one, and drift grows with outage length within a generous
+//! physical bound.
+
+use imulab::fusion::config::FusionConfig;
+use imulab::fusion::study::{run_study, Grade, StudyOptions, StudyResult};
+use imulab::sim::scene::Scene;
+use std::path::Path;
+
+/// A 7-minute drive with turns, speed changes and a stop, 50 Hz IMU, 10 Hz SBAS receiver.
+const SCENE: &str = r#"
+duration_s = 420
+rate_hz = 50
+seed = 21
+[location]
+lat_deg = 48.15
+lon_deg = 11.57
+height_m = 520.0
+[motion]
+kind = "segments"
+heading_deg = 90.0
+speed_mps = 0.0
+segments = [
+    { kind = "stop", duration_s = 20 },
+    { kind = "accelerate", dv_mps = 14, duration_s = 15 },
+    { kind = "cruise", duration_s = 60 },
+    { kind = "turn", angle_deg = 90, duration_s = 12 },
+    { kind = "cruise", duration_s = 50 },
+    { kind = "turn", angle_deg = -120, duration_s = 20 },
+    { kind = "accelerate", dv_mps = 6, duration_s = 10 },
+    { kind = "cruise", duration_s = 70 },
+    { kind = "turn", angle_deg = 45, duration_s = 8 },
+    { kind = "cruise", duration_s = 60 },
+    { kind = "stop", duration_s = 20 },
+    { kind = "cruise", duration_s = 80 },
+]
+[[imu]]
+name = "imu"
+preset = "industrial"
+[[gnss]]
+name = "gnss"
+preset = "sbas"
+rate_hz = 10
+outages = [{ start_s = 100, duration_s = 30 }]
+"#;
+
+fn options(grades: &[&str], runs: usize) -> StudyOptions {
+    let base = FusionConfig::default().imu;
+    let grades = grades
+        .iter()
+        .map(|g| Grade::parse(g, &base).expect("preset grade"))
+        .collect();
+    let mut o = StudyOptions::new(grades, vec![30.0, 5.0, 10.0], runs, 5);
+    o.settle_s = 100.0;
+    o.outage_spacing_s = 60.0;
+    o
+}
+
+fn study(o: &StudyOptions, threads: usize) -> StudyResult {
+    let scene = Scene::parse(SCENE, Path::new(".")).expect("scene");
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("pool")
+        .install(|| run_study(&scene, o))
+        .expect("study")
+}
+
+#[test]
+fn results_are_identical_for_any_thread_count_and_dear_beats_cheap() {
+    let o = options(&["consumer", "bench-dear"], 2);
+    let one = study(&o, 1);
+    let two = study(&o, 2);
+    assert_eq!(one, two, "results depend on the thread count");
+    print!("{}", one.summary_text());
+    assert_eq!(one.outages_per_run, 4);
+    let (cheap, dear) = (&one.grades[0], &one.grades[1]);
+    // Lengths come out sorted; every outage of every run is measured.
+    let lengths: Vec<f64> = dear.lengths.iter().map(|l| l.outage_s).collect();
+    assert_eq!(lengths, vec![5.0, 10.0, 30.0]);
+    for g in [cheap, dear] {
+        assert_eq!(g.skipped, 0);
+        assert!(g.lengths.iter().all(|l| l.count == 8));
+    }
+    // A bench-grade IMU drifts less than a consumer one at every length and bridges at
+    // least as long at every requirement.
+    for (c, d) in cheap.lengths.iter().zip(&dear.lengths) {
+        assert!(
+            d.p95_m < c.p95_m,
+            "{} s: dear {} vs cheap {}",
+            d.outage_s,
+            d.p95_m,
+            c.p95_m
+        );
+        assert!(d.p50_m < c.p50_m);
+    }
+    for (c, d) in cheap.bridges.iter().zip(&dear.bridges) {
+        assert!(d.longest_s.unwrap_or(0.0) >= c.longest_s.unwrap_or(0.0));
+    }
+    // Outages fall on turns as well as straights.
+    assert!(
+        one.turning_share > 0.0 && one.turning_share < 1.0,
+        "{}",
+        one.turning_share
+    );
+}
+
+#[test]
+fn drift_grows_with_outage_length_within_a_physical_bound() {
+    let r = study(&options(&["bench-dear"], 2), 2);
+    let g = &r.grades[0];
+    for w in g.lengths.windows(2) {
+        // INS error grows at least linearly with time (velocity error, then bias and tilt).
+        assert!(
+            w[1].p50_m >= w[0].p50_m * (w[1].outage_s / w[0].outage_s) * 0.9,
+            "{:?}",
+            g.lengths
+        );
+    }
+    for l in &g.lengths {
+        // Generous: 0.2 m/s velocity error at the start and 5 mg of uncompensated
+        // acceleration (bias, tilt, heading error times acceleration), ½·a·t².
+        let t = l.outage_s;
+        let bound = 0.2 * t + 0.5 * 0.05 * t * t;
+        assert!(l.max_m < bound, "{t} s: max drift {} ≥ {bound}", l.max_m);
+        assert!(l.p50_m > 0.0 && l.p95_m >= l.p50_m && l.max_m >= l.p95_m);
+    }
+}
+
+#[test]
+fn bad_study_inputs_are_explained() {
+    let base = FusionConfig::default().imu;
+    let e = Grade::parse("no-such-grade", &base).expect_err("unknown grade");
+    assert!(e.to_string().contains("bench-cheap"), "{e}");
+    let scene = Scene::parse(SCENE, Path::new(".")).expect("scene");
+    let mut o = options(&["industrial"], 1);
+    o.outages_s = vec![5.0, -1.0];
+    assert!(run_study(&scene, &o).is_err());
+    let mut o = options(&["industrial"], 1);
+    o.outages_s = vec![400.0];
+    let e = run_study(&scene, &o).expect_err("too long");
+    assert!(e.to_string().contains("too short"), "{e}");
+}
