@@ -26,6 +26,7 @@ use crate::sim::imu_model::{Channels, ImuSpec};
 use crate::sim::outputs::MemorySink;
 use crate::sim::scene::{ImuEntry, Outputs, Scene};
 use anyhow::{bail, Context};
+use imulab_drivers::codec::Protocol;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -200,17 +201,15 @@ struct RunData {
 
 fn simulate(scene: &Scene, grade: &Grade, seed: u64) -> anyhow::Result<RunData> {
     let mut sc = scene.clone();
-    let name = scene
-        .imus
-        .first()
-        .map_or_else(|| "imu".to_string(), |e| e.name.clone());
+    let (name, protocol) = scene.imus.first().map_or_else(
+        || ("imu".to_string(), Protocol::Wit),
+        |e| (e.name.clone(), e.protocol),
+    );
     sc.imus = vec![ImuEntry {
         name: name.clone(),
         spec: grade.spec.clone(),
-        channels: Channels {
-            gyro: true,
-            accel: true,
-        },
+        channels: Channels::ALL,
+        protocol,
     }];
     sc.gnss.truncate(1);
     let Some(rx) = sc.gnss.first_mut() else {
