@@ -15,6 +15,9 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use imulab_drivers::codec::candump::CandumpDecoder;
+use imulab_drivers::codec::Decoder;
+use imulab_drivers::transport::socketcan::from_socketcan;
 use socketcan::dump::Reader as SocketcanDumpReader;
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanError, CanErrorFrame, CanFrame, CanInterface, CanRemoteFrame,
@@ -527,90 +530,6 @@ async fn socketcan_tokio_read_frame_misses_link_down_while_waiting() {
     assert_eq!(error.raw_os_error(), Some(libc::ENETDOWN), "{error}");
 }
 
-/// One line of a `candump -l` log: `(SECONDS.MICROS) IFACE ID#DATA`, `ID#R` for a remote frame.
-/// A small stand-in parser: the project's candump reader comes with the drivers' candump codec.
-#[derive(Debug, PartialEq)]
-struct CandumpLine {
-    micros: u64,
-    interface: String,
-    /// The id word as the kernel has it: 3 hex digits are a standard id, 8 hex digits carry the
-    /// EFF flag (or the ERR flag for error frames) like SocketCAN's can_id.
-    id_word: u32,
-    /// `Some(dlc)` for a remote request.
-    remote_dlc: Option<u8>,
-    data: Vec<u8>,
-}
-
-fn parse_candump_line(line: &str) -> Result<CandumpLine, String> {
-    let mut fields = line.split(' ');
-    let stamp = fields.next().ok_or("empty line")?;
-    let stamp = stamp
-        .strip_prefix('(')
-        .and_then(|s| s.strip_suffix(')'))
-        .ok_or_else(|| format!("timestamp {stamp:?} is not in parentheses"))?;
-    let (seconds, fraction) = stamp
-        .split_once('.')
-        .ok_or_else(|| format!("timestamp {stamp:?} has no '.'"))?;
-    if fraction.len() != 6 {
-        return Err(format!("timestamp {stamp:?} needs 6 fractional digits"));
-    }
-    let seconds: u64 = seconds
-        .parse()
-        .map_err(|e| format!("timestamp seconds {seconds:?}: {e}"))?;
-    let fraction: u64 = fraction
-        .parse()
-        .map_err(|e| format!("timestamp micros {fraction:?}: {e}"))?;
-    let interface = fields.next().ok_or("no interface field")?.to_string();
-    let frame = fields.next().ok_or("no frame field")?;
-    if let Some(extra) = fields.next() {
-        return Err(format!("unexpected field {extra:?}"));
-    }
-    let (id_text, body) = frame
-        .split_once('#')
-        .ok_or_else(|| format!("frame {frame:?} has no '#'"))?;
-    let mut id_word =
-        u32::from_str_radix(id_text, 16).map_err(|e| format!("id {id_text:?}: {e}"))?;
-    match id_text.len() {
-        3 if id_word <= 0x7FF => {}
-        8 if id_word & 0x2000_0000 != 0 => {} // error frame: ERR flag in the printed word
-        8 => id_word |= 0x8000_0000,          // extended id: EFF flag
-        _ => return Err(format!("id {id_text:?} is neither 3 nor 8 hex digits")),
-    }
-    let (remote_dlc, data) = if let Some(rest) = body.strip_prefix('R') {
-        // A remote request: `R`, or `R` and its DLC digit when that is not zero.
-        match rest.as_bytes() {
-            [] => (Some(0), Vec::new()),
-            [digit @ b'0'..=b'8'] => (Some(digit - b'0'), Vec::new()),
-            _ => return Err(format!("remote frame body {body:?}")),
-        }
-    } else {
-        if body.len() % 2 != 0 || body.len() > 16 || !body.bytes().all(|b| b.is_ascii_hexdigit()) {
-            return Err(format!("data {body:?} is not 0-8 hex bytes"));
-        }
-        let data = body
-            .as_bytes()
-            .chunks(2)
-            .map(|pair| {
-                let text = std::str::from_utf8(pair).map_err(|e| e.to_string())?;
-                u8::from_str_radix(text, 16).map_err(|e| e.to_string())
-            })
-            .collect::<Result<Vec<u8>, String>>()
-            .map_err(|e| format!("data {body:?}: {e}"))?;
-        (None, data)
-    };
-    Ok(CandumpLine {
-        micros: seconds * 1_000_000 + fraction,
-        interface,
-        id_word: if remote_dlc.is_some() {
-            id_word | 0x4000_0000
-        } else {
-            id_word
-        },
-        remote_dlc,
-        data,
-    })
-}
-
 /// Waits until some CAN_RAW socket (other than ones filtering nothing in) listens on `iface`, as
 /// listed by /proc/net/can/rcvlist_all; that is when a freshly started candump is ready.
 fn wait_for_listener(iface: &str, child: &mut Child) {
@@ -671,8 +590,8 @@ fn single_log_file(dir: &Path) -> PathBuf {
 }
 
 #[test]
-fn candump_log_from_can_utils_parses_line_by_line() {
-    if !vcan_present("candump_log_from_can_utils_parses_line_by_line") {
+fn candump_log_from_can_utils_decodes_with_our_reader() {
+    if !vcan_present("candump_log_from_can_utils_decodes_with_our_reader") {
         return;
     }
     let iface = TestInterface::create("imuv_candump");
@@ -709,30 +628,42 @@ fn candump_log_from_can_utils_parses_line_by_line() {
     let text = std::fs::read_to_string(&log_path).expect("reading candump's log");
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), frames.len(), "log lines:\n{text}");
+    // The project's candump reader (the drivers' sans-IO codec) decodes can-utils' log exactly.
+    let mut decoder = CandumpDecoder::new();
+    decoder.push(text.as_bytes());
+    let records: Vec<_> = std::iter::from_fn(|| decoder.poll()).collect();
+    let stats = decoder.stats();
+    assert_eq!(records.len(), frames.len(), "{stats:?}\n{text}");
+    assert_eq!(stats.frames_ok, frames.len() as u64, "{stats:?}");
+    assert_eq!(
+        (
+            stats.frames_malformed,
+            stats.frames_too_long,
+            stats.bytes_skipped
+        ),
+        (0, 0, 0),
+        "{stats:?}"
+    );
     let mut previous_micros = before.as_micros() as u64;
-    for (index, (line, sent)) in lines.iter().zip(&frames).enumerate() {
-        let parsed = parse_candump_line(line)
-            .unwrap_or_else(|e| panic!("{}:{}: {e}: {line:?}", log_path.display(), index + 1));
-        assert_eq!(parsed.interface, iface.name, "line {}", index + 1);
+    for (index, (record, sent)) in records.iter().zip(&frames).enumerate() {
+        let line = lines[index];
+        assert_eq!(record.interface.as_str(), iface.name, "line {}", index + 1);
         assert!(
-            parsed.micros >= previous_micros,
+            record.timestamp_us >= previous_micros,
             "line {}: timestamp goes back ({} < {previous_micros})",
             index + 1,
-            parsed.micros
+            record.timestamp_us
         );
-        previous_micros = parsed.micros;
-        let (id_word, dlc, data) = frame_signature(sent);
-        assert_eq!(parsed.id_word, id_word, "line {}: {line}", index + 1);
-        match parsed.remote_dlc {
-            Some(remote_dlc) => {
-                assert!(sent.is_remote_frame(), "line {}: {line}", index + 1);
-                assert_eq!(usize::from(remote_dlc), dlc, "line {}: {line}", index + 1);
-            }
-            None => {
-                assert_eq!(parsed.data, data, "line {}: {line}", index + 1);
-                assert_eq!(parsed.data.len(), dlc, "line {}: {line}", index + 1);
-            }
-        }
+        previous_micros = record.timestamp_us;
+        let expected = from_socketcan(&CanAnyFrame::from(*sent))
+            .unwrap_or_else(|e| panic!("frame {} has no drivers form: {e}", index + 1));
+        assert_eq!(
+            record.frame,
+            expected,
+            "{}:{}: {line}",
+            log_path.display(),
+            index + 1
+        );
     }
 
     // Cross-check: the socketcan crate's own candump reader agrees on every frame.
@@ -767,57 +698,6 @@ fn candump_log_from_can_utils_parses_line_by_line() {
                 index + 1
             );
         }
-    }
-}
-
-#[test]
-fn candump_line_parser_rejects_malformed_lines() {
-    // Runs everywhere: the stand-in parser itself, on lines in the format candump -l writes.
-    let ok = parse_candump_line("(1700000000.123456) vcan0 1ABCD001#00FF").expect("extended");
-    assert_eq!(
-        ok,
-        CandumpLine {
-            micros: 1_700_000_000_123_456,
-            interface: "vcan0".into(),
-            id_word: 0x9ABC_D001,
-            remote_dlc: None,
-            data: vec![0x00, 0xFF],
-        }
-    );
-    let remote = parse_candump_line("(0.000001) can1 321#R").expect("remote");
-    assert_eq!(remote.remote_dlc, Some(0));
-    assert_eq!(remote.id_word, 0x4000_0321);
-    let remote = parse_candump_line("(0.000001) can1 12345678#R4").expect("remote with dlc");
-    assert_eq!(remote.remote_dlc, Some(4));
-    assert_eq!(remote.id_word, 0xD234_5678);
-    assert_eq!(
-        parse_candump_line("(0.000000) can1 123#")
-            .expect("empty data")
-            .data,
-        Vec::<u8>::new()
-    );
-    for bad in [
-        "",
-        "1700000000.123456 vcan0 123#00",
-        "(1700000000.12345) vcan0 123#00",
-        "(x.123456) vcan0 123#00",
-        "(1.123456) vcan0",
-        "(1.123456) vcan0 123",
-        "(1.123456) vcan0 12#00",
-        "(1.123456) vcan0 800#00",
-        "(1.123456) vcan0 123#0",
-        "(1.123456) vcan0 123#GG",
-        "(1.123456) vcan0 123#000102030405060708",
-        "(1.123456) vcan0 123#R5x",
-        "(1.123456) vcan0 123#R9",
-        "(1.123456) vcan0 123#0\u{e9}0",
-        "(1.123456) vcan0 123#00 extra",
-        "(\u{e9}.123456) vcan0 123#00",
-    ] {
-        assert!(
-            parse_candump_line(bad).is_err(),
-            "accepted malformed line {bad:?}"
-        );
     }
 }
 
