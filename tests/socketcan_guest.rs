@@ -710,11 +710,40 @@ fn daemon_log_secs() -> u64 {
         .unwrap_or(60)
 }
 
-/// Sends the fixture CAN IMU's frames (fixtures/imu_can.dbc through imu_can_mapping.toml) at
-/// 150 Hz on `iface`, sample numbers `from..to`, on schedule. Returns how many were sent whole.
+/// What the simulated CAN IMU measures: the simulator's `bench-cheap` model (white noise, bias
+/// instability, random walks, quantisation …) on a static bench at 25 °C, one sample per sequence
+/// number at 150 Hz. The status byte carries `seq % 7`, so a shuffled or repeated sample shows.
+fn simulated_can_imu(count: u64) -> Vec<imulab_drivers::ImuSample> {
+    use imulab::sim::imu_model::{Channels, ImuSimulator};
+    let spec = imulab::sim::presets::imu_preset("bench-cheap").expect("bench-cheap preset");
+    let mut sim = ImuSimulator::new(&spec, "canimu", 10, 150.0, Channels::ALL).expect("simulator");
+    let rate = nalgebra::Vector3::zeros();
+    let specific_force = nalgebra::Vector3::new(0.0, 0.0, -9.80665);
+    (0..count)
+        .map(|seq| {
+            // A dropped sample (the preset's drop model) is simply not one of ours: take the next.
+            let record = loop {
+                if let Some(r) = sim.step(&rate, &specific_force, 25.0, 0, 0).record {
+                    break r;
+                }
+            };
+            imulab_drivers::ImuSample {
+                sensor_time: Some(seq as f64 / 150.0),
+                gyro: Some(record.gyro),
+                accel: Some(record.accel),
+                temp_c: Some(record.temp),
+                status: (seq % 7) as u32,
+            }
+        })
+        .collect()
+}
+
+/// Sends the simulated CAN IMU's frames (fixtures/imu_can.dbc through imu_can_mapping.toml) at
+/// 150 Hz on `iface`, samples `seqs`, on schedule. Returns how many were sent whole.
 fn send_can_imu(
     iface: &str,
     imu: &imulab_drivers::codec::dbc::DbcImu,
+    samples: &[imulab_drivers::ImuSample],
     seqs: std::ops::Range<u64>,
 ) -> u64 {
     let socket = CanSocket::open(iface).expect("sender socket");
@@ -722,13 +751,7 @@ fn send_can_imu(
     let first = seqs.start;
     let mut sent = 0;
     for seq in seqs {
-        let sample = imulab_drivers::ImuSample {
-            sensor_time: Some(seq as f64 / 150.0),
-            gyro: Some([0.01 * (seq % 100) as f64, -0.2, 0.3]),
-            accel: Some([0.1, -0.1 * (seq % 50) as f64, 9.80665]),
-            temp_c: Some(25.0 + 0.01 * (seq % 1000) as f64),
-            status: (seq % 7) as u32,
-        };
+        let sample = samples[seq as usize];
         for frame in imu.encode(&sample).expect("encodable sample") {
             let data = CanDataFrame::new(
                 if frame.is_extended() {
@@ -813,9 +836,11 @@ async fn daemon_logs_a_can_imu_through_the_dbc_and_survives_the_interface_going_
         .unwrap(),
     );
     let first_run = 150 * daemon_log_secs();
+    let second_run = 300;
+    let samples = Arc::new(simulated_can_imu(first_run + second_run));
     let sent = {
-        let imu = imu.clone();
-        tokio::task::spawn_blocking(move || send_can_imu(IFACE, &imu, 0..first_run))
+        let (imu, samples) = (imu.clone(), samples.clone());
+        tokio::task::spawn_blocking(move || send_can_imu(IFACE, &imu, &samples, 0..first_run))
             .await
             .unwrap()
     };
@@ -832,11 +857,10 @@ async fn daemon_logs_a_can_imu_through_the_dbc_and_survives_the_interface_going_
     tokio::time::sleep(Duration::from_millis(700)).await;
     let iface = TestInterface::create(IFACE);
     tokio::time::sleep(Duration::from_millis(700)).await;
-    let second_run = 300;
     {
-        let imu = imu.clone();
+        let (imu, samples) = (imu.clone(), samples.clone());
         tokio::task::spawn_blocking(move || {
-            send_can_imu(IFACE, &imu, first_run..first_run + second_run)
+            send_can_imu(IFACE, &imu, &samples, first_run..first_run + second_run)
         })
         .await
         .unwrap();
@@ -864,11 +888,24 @@ async fn daemon_logs_a_can_imu_through_the_dbc_and_survives_the_interface_going_
             &missing[..missing.len().min(20)]
         );
     }
+    // Every value equals what the simulator produced, to the DBC's resolution (half an LSB:
+    // 0.01 °/s, 0.0005 g, 0.01 °C).
     let d2r = std::f64::consts::PI / 180.0;
     for (seq, row) in want.iter().zip(rows) {
-        let g = 0.01 * (seq % 100) as f64;
+        let sent = &samples[*seq as usize];
+        let (gyro, accel) = (sent.gyro.unwrap(), sent.accel.unwrap());
+        for axis in 0..3 {
+            assert!(
+                (row.gyro[axis] - gyro[axis]).abs() <= 0.005 * d2r + 1e-9,
+                "sample {seq} gyro {axis}: logged {row:?}, sent {sent:?}"
+            );
+            assert!(
+                (row.accel[axis] - accel[axis]).abs() <= 0.000_25 * 9.806_65 + 1e-9,
+                "sample {seq} accel {axis}: logged {row:?}, sent {sent:?}"
+            );
+        }
         assert!(
-            (row.gyro[0] - g).abs() <= 0.005 * d2r + 1e-12,
+            (row.temp - sent.temp_c.unwrap()).abs() <= 0.005 + 1e-9,
             "sample {seq}: {row:?}"
         );
         assert_eq!(row.status, (seq % 7) as u32, "sample {seq}");
