@@ -122,8 +122,9 @@ fn default_rotate_mb() -> u64 {
 fn default_flush_interval_ms() -> u64 {
     1000
 }
+/// The session writer's own default (chosen by measurement: docs/bench/store.md).
 fn default_deflate_level() -> u8 {
-    4
+    crate::store::WriterOptions::default().deflate_level
 }
 fn default_disk_reserve_mb() -> u64 {
     512

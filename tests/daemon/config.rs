@@ -55,7 +55,7 @@ fn example_config_in_systemd_dir_is_valid() {
 fn minimal_config_gets_defaults() {
     let c = parse(&with_session("", IMU), "t").unwrap();
     assert_eq!(c.session.flush_interval_ms, 1000);
-    assert_eq!(c.session.deflate_level, 4);
+    assert_eq!(c.session.deflate_level, 1);
     assert_eq!(c.devices[0].gap_factor, 3.0);
     assert_eq!(c.devices[0].gyro_scale, 1.0);
     assert_eq!(
