@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use imulab_drivers::codec::candump::CandumpDecoder;
 use imulab_drivers::codec::Decoder;
-use imulab_drivers::transport::socketcan::from_socketcan;
+use imulab_drivers::transport::socketcan::{from_socketcan, SocketCanTransport};
 use socketcan::dump::Reader as SocketcanDumpReader;
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanError, CanErrorFrame, CanFrame, CanInterface, CanRemoteFrame,
@@ -264,37 +264,36 @@ fn error_frames_reach_only_sockets_that_ask_for_them() {
     );
 }
 
-/// The sequence number a burst frame carries in its first four bytes.
-fn burst_sequence(frame: &CanFrame) -> Option<u32> {
-    let bytes: [u8; 4] = frame.data().get(..4)?.try_into().ok()?;
-    Some(u32::from_le_bytes(bytes))
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn burst_of_ten_thousand_frames_arrives_complete_and_in_order() {
     if !vcan_present("burst_of_ten_thousand_frames_arrives_complete_and_in_order") {
         return;
     }
     let iface = TestInterface::create("imuv_burst");
-    let receiver = socketcan::tokio::CanSocket::open(iface.name).expect("async CAN socket");
-    // A receive buffer that holds the whole burst (each frame costs ~1 KiB of socket memory); the
+    // The project's transport (what imulogd reads CAN with), not the crate's socket.
+    let mut receiver =
+        SocketCanTransport::open(iface.name, Some(HANG_LIMIT)).expect("SocketCAN transport");
+    // A receive queue that holds the whole burst (each frame costs ~1 KiB of socket memory); the
     // default (~200 KiB) overflows when one sender outpaces one reader on a single emulated CPU.
     // SO_RCVBUFFORCE needs CAP_NET_ADMIN, which the guest's root has.
     receiver
-        .set_socket_option_int(libc::SOL_SOCKET, libc::SO_RCVBUFFORCE, 16 << 20)
-        .expect("SO_RCVBUFFORCE");
+        .set_receive_buffer(16 << 20)
+        .expect("a 16 MiB receive queue");
     let sender = iface.socket();
 
     let reader = tokio::spawn(async move {
         let mut sequences = Vec::with_capacity(BURST_FRAMES as usize);
         while sequences.len() < BURST_FRAMES as usize {
-            let frame = tokio::time::timeout(HANG_LIMIT, receiver.read_frame())
+            let frame = receiver
+                .recv()
                 .await
-                .map_err(|_| format!("no frame for {HANG_LIMIT:?} after {}", sequences.len()))?
-                .map_err(|e| format!("read error after {} frames: {e}", sequences.len()))?;
-            let sequence = burst_sequence(&frame)
+                .map_err(|e| format!("after {} frames: {e}", sequences.len()))?;
+            let bytes: [u8; 4] = frame
+                .payload()
+                .get(..4)
+                .and_then(|b| b.try_into().ok())
                 .ok_or_else(|| format!("frame without a sequence number: {frame:?}"))?;
-            sequences.push(sequence);
+            sequences.push(u32::from_le_bytes(bytes));
         }
         Ok::<_, String>(sequences)
     });

@@ -15,7 +15,7 @@ use tokio::io::Interest;
 
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanRemoteFrame, EmbeddedFrame,
-    ExtendedId, Frame, Id, Socket, StandardId,
+    ExtendedId, Frame, Id, Socket, SocketOptions, StandardId,
 };
 
 use socketcan::id::FdFlags;
@@ -110,6 +110,19 @@ impl SocketCanTransport {
             interface: interface.to_string(),
             idle_timeout,
         })
+    }
+
+    /// Asks the kernel for a receive queue of `bytes`, so a burst or a reader that is late
+    /// (a loaded bench PC) overflows nothing: `SO_RCVBUFFORCE` where the process has
+    /// CAP_NET_ADMIN, else `SO_RCVBUF` (which the kernel caps at `net.core.rmem_max`). Each
+    /// queued frame costs the kernel about 1 KiB of socket memory, not 16 bytes.
+    pub fn set_receive_buffer(&self, bytes: usize) -> Result<(), TransportError> {
+        let bytes = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
+        let socket = self.socket.get_ref();
+        socket
+            .set_socket_option_int(libc::SOL_SOCKET, libc::SO_RCVBUFFORCE, bytes)
+            .or_else(|_| socket.set_socket_option_int(libc::SOL_SOCKET, libc::SO_RCVBUF, bytes))
+            .map_err(|e| TransportError::from_io(&self.interface, e))
     }
 
     /// Receives the next frame.
