@@ -4,8 +4,11 @@
 mod imucan_support;
 
 use imucan_support::{assert_every_split, decode_all};
-use imulab_drivers::codec::witmotion::{WitAssembler, WitDecoder, WitEncoder, WitPacket};
+use imulab_drivers::codec::witmotion::{
+    WitAssembler, WitDecoder, WitEncoder, WitImuDecoder, WitPacket,
+};
 use imulab_drivers::codec::{Decoder, Encoder};
+use imulab_drivers::types::ImuSample;
 use proptest::prelude::*;
 
 const G: f64 = 9.806_65;
@@ -144,12 +147,18 @@ fn assembler_groups_one_cycle_per_sample() {
     let mut samples = Vec::new();
     for k in 0..3 {
         for p in cycle(k) {
-            samples.extend(assembler.push(&p));
+            samples.extend(assembler.push(&p).into_iter().flatten());
         }
     }
-    assert_eq!(samples.len(), 2, "the last cycle waits for finish()");
-    samples.extend(assembler.finish());
-    assert_eq!(samples.len(), 3);
+    assert_eq!(
+        samples.len(),
+        3,
+        "after the first cycle, each closes on its angle packet"
+    );
+    assert!(
+        assembler.finish().is_none(),
+        "nothing held after a closed cycle"
+    );
     for (k, s) in samples.iter().enumerate() {
         assert_eq!(
             s.sensor_time,
@@ -161,6 +170,153 @@ fn assembler_groups_one_cycle_per_sample() {
         assert_eq!(s.temp_c, Some(25.1), "gyro temperature wins");
     }
     assert!(assembler.finish().is_none());
+}
+
+/// One output cycle `k`: time (second = k), accel (z counts = k), gyro (x counts = k), and
+/// optionally a magnetometer packet.
+fn wit_cycle(k: i16, with_mag: bool) -> Vec<WitPacket> {
+    let mut packets = vec![
+        WitPacket::Time {
+            year: 26,
+            month: 11,
+            day: 23,
+            hour: 0,
+            minute: 0,
+            second: k as u8,
+            millisecond: 0,
+        },
+        WitPacket::Accel {
+            raw: [0, 0, k],
+            temp_raw: 2500,
+        },
+        WitPacket::Gyro {
+            raw: [k, 0, 0],
+            temp_raw: 2500,
+        },
+    ];
+    if with_mag {
+        packets.push(WitPacket::Other {
+            kind: 0x54,
+            data: [0; 8],
+        });
+    }
+    packets
+}
+
+/// The cycle number a sample came from, checking its three parts agree (a sample mixed
+/// from two cycles, or missing a part, fails).
+fn cycle_of(s: &ImuSample) -> i16 {
+    let second = s.sensor_time.expect("time part") as i16;
+    let accel = (s.accel.expect("accel part")[2] / G * 2048.0).round() as i16;
+    let gyro = (s.gyro.expect("gyro part")[0].to_degrees() / 2000.0 * 32768.0).round() as i16;
+    assert_eq!((second, second), (accel, gyro), "one cycle's parts: {s:?}");
+    second
+}
+
+/// Feeds `packets` one at a time to a [`WitImuDecoder`]; returns, per sample, its cycle
+/// number and the index of the packet whose bytes made it come out.
+fn emitted_at(packets: &[WitPacket]) -> (Vec<(i16, usize)>, WitImuDecoder) {
+    let mut d = WitImuDecoder::new();
+    let mut out = Vec::new();
+    for (i, p) in packets.iter().enumerate() {
+        for s in decode_all(&mut d, &encode(&[*p])) {
+            out.push((cycle_of(&s), i));
+        }
+    }
+    (out, d)
+}
+
+#[test]
+fn sample_comes_out_on_its_closing_packet() {
+    let mut d = WitImuDecoder::new();
+    let first = encode(&wit_cycle(0, false));
+    assert!(decode_all(&mut d, &first).is_empty(), "cycle not known yet");
+    // The second cycle's time packet shows the first was whole; its gyro closes it.
+    let second = encode(&wit_cycle(1, false));
+    let got: Vec<i16> = decode_all(&mut d, &second).iter().map(cycle_of).collect();
+    assert_eq!(got, [0, 1]);
+    // From now on: exactly one cycle's bytes give its sample, not a byte earlier.
+    for k in 2..5 {
+        let bytes = encode(&wit_cycle(k, false));
+        let (head, last) = bytes.split_at(bytes.len() - 1);
+        assert!(
+            decode_all(&mut d, head).is_empty(),
+            "cycle {k} before its last byte"
+        );
+        let got: Vec<i16> = decode_all(&mut d, last).iter().map(cycle_of).collect();
+        assert_eq!(got, [k], "cycle {k} on its last byte");
+    }
+    assert!(d.finish().is_none());
+    assert_eq!(d.stats().frames_malformed, 0);
+}
+
+#[test]
+fn gyro_only_cycle_is_learned_and_emitted_per_packet() {
+    let packets: Vec<WitPacket> = (0..4)
+        .map(|k| WitPacket::Gyro {
+            raw: [k, 0, 0],
+            temp_raw: 0,
+        })
+        .collect();
+    let mut d = WitImuDecoder::new();
+    let mut counts = Vec::new();
+    for p in &packets {
+        counts.push(decode_all(&mut d, &encode(&[*p])).len());
+    }
+    // The second packet completes the first (learning) and itself.
+    assert_eq!(counts, [0, 2, 1, 1]);
+}
+
+#[test]
+fn changed_packet_set_is_relearned_without_partial_samples() {
+    // Cycles 0..4 with a magnetometer packet (closing type 0x54), then the device is
+    // reconfigured without it: cycles 4..10 close on the gyro packet.
+    let mut packets = Vec::new();
+    let mut closing_index = Vec::new();
+    for k in 0..10 {
+        packets.extend(wit_cycle(k, k < 4));
+        closing_index.push(packets.len() - 1);
+    }
+    let (emitted, d) = emitted_at(&packets);
+    let cycles: Vec<i16> = emitted.iter().map(|(k, _)| *k).collect();
+    // Cycle 4 lacks the learned closing packet when cycle 5's time packet repeats a type:
+    // as for a lost packet it is dropped, not emitted as whole. Cycle 5 relearns the set
+    // (emitted when cycle 6 starts); from cycle 6 on, samples close on the gyro packet.
+    assert_eq!(cycles, [0, 1, 2, 3, 5, 6, 7, 8, 9]);
+    for &(k, at) in &emitted {
+        let k = k as usize;
+        if k != 0 && k != 5 {
+            assert_eq!(at, closing_index[k], "cycle {k} on its closing packet");
+        }
+    }
+    assert_eq!(d.stats().frames_malformed, 1);
+}
+
+#[test]
+fn lost_packet_drops_only_its_cycle() {
+    for lost_part in 0..3 {
+        let mut packets = Vec::new();
+        let mut closing_index = Vec::new();
+        for k in 0..8 {
+            let mut cycle = wit_cycle(k, false);
+            if k == 3 {
+                cycle.remove(lost_part);
+            }
+            packets.extend(cycle);
+            closing_index.push(packets.len() - 1);
+        }
+        let (emitted, d) = emitted_at(&packets);
+        let cycles: Vec<i16> = emitted.iter().map(|(k, _)| *k).collect();
+        assert_eq!(cycles, [0, 1, 2, 4, 5, 6, 7], "lost part {lost_part}");
+        assert_eq!(d.stats().frames_malformed, 1, "lost part {lost_part}");
+        // Relearned on cycle 4 (emitted when cycle 5 starts), on time again from cycle 5.
+        for &(k, at) in &emitted[4..] {
+            assert_eq!(
+                at, closing_index[k as usize],
+                "lost part {lost_part}, cycle {k}"
+            );
+        }
+    }
 }
 
 fn arb_packet() -> impl Strategy<Value = WitPacket> {

@@ -290,8 +290,8 @@ impl ImuStreamDecoder {
         }
     }
 
-    /// The sample held back until the input ends (WitMotion and CAN group a sample when the
-    /// next one starts).
+    /// The sample held back until the input ends (CAN groups a sample when the next one
+    /// starts; WitMotion only while it has not yet seen one whole output cycle).
     pub fn finish_one(&mut self) -> Option<ImuSample> {
         match &mut self.inner {
             ImuDecoderKind::Wit(d) => d.finish(),

@@ -11,8 +11,9 @@
 //! C); time s, ms, us. A gyro or accel signal without a unit is refused rather than guessed.
 //! The raw CAN frames stay available to the caller, so raw values are recoverable.
 //!
-//! Samples are grouped like [`super::witmotion::WitAssembler`]: a sample is complete when a
-//! mapped message arrives that the current group already holds.
+//! Samples are grouped by the simple rule (the learning phase of [`super::cycle`], without the
+//! learning): a sample is complete when a mapped message arrives that the current group
+//! already holds, so it comes out one message late and the last one on `finish()`.
 
 use std::collections::BTreeMap;
 

@@ -13,6 +13,7 @@
 pub mod can;
 pub mod candump;
 pub mod csv_line;
+pub mod cycle;
 pub mod dbc;
 pub mod gnss;
 pub mod nmea;

@@ -4,11 +4,15 @@
 //! angular rate ±2000 °/s, angle ±180° over ±32768, temperature in 1/100 °C.
 //!
 //! The device sends acceleration, angular rate and angle as separate packets;
-//! [`WitAssembler`] groups the packets of one output cycle into an [`ImuSample`].
+//! [`WitAssembler`] groups the packets of one output cycle into an [`ImuSample`]. After one
+//! whole cycle it knows which packet type closes a cycle and emits each sample on that
+//! closing packet (not when the next cycle starts); a cycle missing a packet is dropped and
+//! the cycle learned again (see [`WitAssembler`]).
 //!
 //! Converted values use standard gravity 9.80665 m/s² for "g" (the datasheet writes 9.8);
 //! the raw int16 words stay in the [`WitPacket`] so nothing is lost.
 
+use super::cycle::{Action, CycleGrouper};
 use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
@@ -329,10 +333,14 @@ impl Encoder for WitEncoder {
 
 /// Groups one output cycle's packets into an [`ImuSample`].
 ///
-/// Rule: a cycle ends when a packet type arrives that the current group already holds
-/// (the device started the next cycle), so it works whatever outputs are enabled and in
-/// whatever order, at the cost of emitting a cycle one packet late. Call
-/// [`WitAssembler::finish`] at the end of a stream for the last cycle.
+/// Rule ([`super::cycle`]): while learning, a cycle ends when a packet type arrives that the
+/// current group already holds (emitted one packet late); once one whole cycle has been seen
+/// (the group's first type repeated), the type before that repeat is the *closing* type and
+/// each later sample is emitted on its closing packet, so it is stamped on arrival of its
+/// last byte. A group that misses a type of the learned cycle (a packet lost, the device
+/// reconfigured) is dropped, never emitted as whole, and the cycle is learned again. This
+/// works whatever outputs are enabled and in whatever order. [`WitAssembler::finish`]
+/// flushes a group held at the end of input while still learning.
 ///
 /// `sensor_time` is the time-of-day of a 0x50 packet in the cycle (seconds), if enabled.
 /// Temperature comes from the gyro packet, else the accel packet. Angles are not part of
@@ -340,23 +348,23 @@ impl Encoder for WitEncoder {
 #[derive(Debug, Default, Clone)]
 pub struct WitAssembler {
     current: ImuSample,
-    seen: u16,
+    cycle: CycleGrouper,
+    dropped: u64,
 }
+
+/// The samples one packet completes: at most two (while learning a one-type cycle, the
+/// packet that closes the learning group also closes its own).
+pub type Completed = [Option<ImuSample>; 2];
 
 impl WitAssembler {
     pub fn new() -> Self {
         Self::default()
     }
 
-    /// Adds a packet; returns the finished previous sample when this packet starts a new one.
-    pub fn push(&mut self, packet: &WitPacket) -> Option<ImuSample> {
-        let bit = 1u16 << (packet.kind() & 0x0F);
-        let finished = if self.seen & bit != 0 {
-            self.finish()
-        } else {
-            None
-        };
-        self.seen |= bit;
+    /// Adds a packet; returns the samples it completes, in order.
+    pub fn push(&mut self, packet: &WitPacket) -> Completed {
+        let step = self.cycle.push(u32::from(packet.kind() & 0x0F));
+        let first = self.settle(step.before);
         match packet {
             WitPacket::Time { .. } => self.current.sensor_time = packet.time_of_day_s(),
             WitPacket::Accel { .. } => {
@@ -371,15 +379,45 @@ impl WitAssembler {
             }
             WitPacket::Angle { .. } | WitPacket::Other { .. } => {}
         }
-        finished
+        let second = self.settle(step.after);
+        match first {
+            Some(_) => [first, second],
+            None => [second, None],
+        }
     }
 
-    /// Emits the group collected so far, if it holds any IMU data.
-    pub fn finish(&mut self) -> Option<ImuSample> {
-        let sample = std::mem::take(&mut self.current);
-        self.seen = 0;
-        (sample.gyro.is_some() || sample.accel.is_some()).then_some(sample)
+    fn settle(&mut self, action: Action) -> Option<ImuSample> {
+        match action {
+            Action::Keep => None,
+            Action::Emit => take_if_imu(&mut self.current),
+            Action::Drop => {
+                self.current = ImuSample::default();
+                self.dropped += 1;
+                None
+            }
+        }
     }
+
+    /// Groups dropped because they lacked a packet of the learned cycle.
+    pub fn dropped_groups(&self) -> u64 {
+        self.dropped
+    }
+
+    /// Ends the input: emits the held group if it may be whole and holds IMU data (see the
+    /// type's rule: with a learned cycle a held group lacks its closing packet).
+    pub fn finish(&mut self) -> Option<ImuSample> {
+        if self.cycle.finish() {
+            take_if_imu(&mut self.current)
+        } else {
+            self.current = ImuSample::default();
+            None
+        }
+    }
+}
+
+fn take_if_imu(current: &mut ImuSample) -> Option<ImuSample> {
+    let sample = std::mem::take(current);
+    (sample.gyro.is_some() || sample.accel.is_some()).then_some(sample)
 }
 
 /// WitMotion bytes to [`ImuSample`]s: [`WitDecoder`] plus [`WitAssembler`]. This is what
@@ -389,6 +427,8 @@ impl WitAssembler {
 pub struct WitImuDecoder {
     packets: WitDecoder,
     assembler: WitAssembler,
+    /// The second sample of a packet that completed two.
+    pending: Option<ImuSample>,
 }
 
 impl WitImuDecoder {
@@ -405,20 +445,29 @@ impl Decoder for WitImuDecoder {
     }
 
     fn poll(&mut self) -> Option<ImuSample> {
+        if let Some(sample) = self.pending.take() {
+            return Some(sample);
+        }
         while let Some(packet) = self.packets.poll() {
-            if let Some(sample) = self.assembler.push(&packet) {
+            let [first, second] = self.assembler.push(&packet);
+            if let Some(sample) = first {
+                self.pending = second;
                 return Some(sample);
             }
         }
         None
     }
 
+    /// The packet decoder's counters, plus the groups dropped for a missing packet of the
+    /// learned cycle in `frames_malformed`.
     fn stats(&self) -> DecoderStats {
-        self.packets.stats()
+        let mut stats = self.packets.stats();
+        stats.frames_malformed += self.assembler.dropped_groups();
+        stats
     }
 
     fn finish(&mut self) -> Option<ImuSample> {
-        self.assembler.finish()
+        self.pending.take().or_else(|| self.assembler.finish())
     }
 }
 
