@@ -39,7 +39,7 @@ pub const IMU_PRESETS: &[ImuPreset] = &[
     },
     ImuPreset {
         name: "tactical",
-        source: "Honeywell HG1700 brochure N61-1619-000-001 (ARW 0.125 °/√h, gyro bias 1 °/h, VRW 0.065 ft/s/√h, accel bias 1 mg)",
+        source: "Safran Sensonor STIM300 datasheet TS1524 (10 g accelerometers): gyro bias instability 0.5 °/h, ARW 0.15 °/√h, bias repeatability 4 °/h as turn-on σ; accel bias instability 0.05 mg, VRW 0.07 m/s/√h (rev 9: 0.06; the larger used), bias on/off repeatability 0.75 mg as turn-on σ",
         spec: tactical,
     },
 ];
@@ -146,18 +146,29 @@ fn industrial() -> ImuSpec {
 }
 
 fn tactical() -> ImuSpec {
-    // 0.065 ft/s/√h = 0.019812 m/s/√h = 2.0203 mg/√h in the bench study's convention.
-    let vrw_mg_rth = 0.065 * 0.3048 / (super::imu_model::G0 * 1e-3);
+    // STIM300 (tactical-grade MEMS) with its 10 g accelerometers. The datasheet separates
+    // in-run bias instability (the Allan floor, measured over 20 h at 25 °C per Sensonor's
+    // FAQ) from turn-on to turn-on repeatability; each goes to its own term here. An
+    // earlier version used the Honeywell HG1700 brochure, whose 1 °/h and 1 mg are bias
+    // repeatability only (no in-run stability given), wrongly as the Allan floor.
+    // VRW 0.07 m/s/√h in the bench study's mg/√h convention: 0.07 / 9.80665e-3 = 7.14.
+    let vrw_mg_rth = 0.07 / (super::imu_model::G0 * 1e-3);
     with_noise(
         GyroSpec {
-            arw_deg_rth: Some([0.125; 3]),
-            // The brochure's 1σ bias, used as the in-run floor (conservative).
-            bias_instability_dph: [1.0; 3],
+            arw_deg_rth: Some([0.15; 3]),
+            bias_instability_dph: [0.5; 3],
+            // Bias repeatability (run to run), read as the 1σ of the turn-on bias.
+            turn_on_bias_sigma_dph: [4.0; 3],
+            // The datasheet specifies non-linearity up to 400 °/s (25/50 ppm at 200/400 °/s).
+            range_dps: Some(400.0),
             ..GyroSpec::default()
         },
         AccelSpec {
             vrw_mg_rth: Some([vrw_mg_rth; 3]),
-            bias_instability_mg: [1.0; 3],
+            bias_instability_mg: [0.05; 3],
+            // Bias on/off repeatability ±0.75 mg (10 g range), read as the 1σ turn-on bias.
+            turn_on_bias_sigma_mg: [0.75; 3],
+            range_g: Some(10.0),
             ..AccelSpec::default()
         },
     )
@@ -191,5 +202,29 @@ mod tests {
         assert_eq!(dear.accel.vrw_mg_rth, Some([2.8, 3.0, 2.8]));
         assert_eq!(dear.gyro.bias_instability_dph, [4.1, 4.1, 4.7]);
         assert_eq!(dear.gyro.arw_deg_rth, Some([0.30, 0.26, 0.30]));
+    }
+
+    #[test]
+    fn tactical_keeps_in_run_floor_and_repeatability_apart() {
+        let t = imu_preset("tactical").unwrap();
+        assert_eq!(t.gyro.bias_instability_dph, [0.5; 3]);
+        assert_eq!(t.gyro.turn_on_bias_sigma_dph, [4.0; 3]);
+        assert_eq!(t.gyro.arw_deg_rth, Some([0.15; 3]));
+        assert_eq!(t.accel.bias_instability_mg, [0.05; 3]);
+        assert_eq!(t.accel.turn_on_bias_sigma_mg, [0.75; 3]);
+        let vrw = t.accel.vrw_mg_rth.unwrap()[0];
+        assert!((vrw * 9.80665e-3 - 0.07).abs() < 1e-12, "{vrw}");
+        // The grade ordering a navigation engineer expects: the tactical gyro floor is
+        // below every MEMS preset's (gyro drift dominates outages beyond a few seconds).
+        for other in ["bench-cheap", "bench-dear", "consumer", "industrial"] {
+            let o = imu_preset(other).unwrap();
+            let best = o
+                .gyro
+                .bias_instability_dph
+                .iter()
+                .cloned()
+                .fold(f64::MAX, f64::min);
+            assert!(t.gyro.bias_instability_dph[0] < best, "{other}");
+        }
     }
 }
