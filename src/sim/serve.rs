@@ -631,6 +631,35 @@ struct Item {
     error: Option<String>,
 }
 
+impl Item {
+    /// One record's frame: its bytes and, when recording, what a decoder makes of them; or, when
+    /// encoding failed, why.
+    fn encoded(
+        endpoint: usize,
+        t_ns: i64,
+        bytes: Vec<u8>,
+        result: Result<(), imulab_drivers::codec::EncodeError>,
+        sent: impl FnOnce(&[u8]) -> Option<SentFrame>,
+    ) -> Item {
+        match result {
+            Ok(()) => Item {
+                t_ns,
+                endpoint,
+                sent: sent(&bytes),
+                bytes,
+                error: None,
+            },
+            Err(e) => Item {
+                t_ns,
+                endpoint,
+                bytes,
+                sent: None,
+                error: Some(format!("t = {:.6} s: {e}", t_ns as f64 * 1e-9)),
+            },
+        }
+    }
+}
+
 enum SentFrame {
     Imu(ImuRecord, Option<ImuSample>),
     Gnss(GnssRecord, Vec<EpochFix>),
@@ -725,24 +754,11 @@ impl SimSink for ItemSink {
             };
             let mut bytes = Vec::new();
             let t_ns = r.t_mono_ns - START_MONO_NS;
-            let item = match wire.encode(r, &mut bytes) {
-                Ok(()) => Item {
-                    t_ns,
-                    endpoint: ep,
-                    sent: self
-                        .record
-                        .then(|| SentFrame::Imu(*r, wire.decode_one(&bytes))),
-                    bytes,
-                    error: None,
-                },
-                Err(e) => Item {
-                    t_ns,
-                    endpoint: ep,
-                    bytes,
-                    sent: None,
-                    error: Some(format!("t = {:.6} s: {e}", t_ns as f64 * 1e-9)),
-                },
-            };
+            let result = wire.encode(r, &mut bytes);
+            let record = self.record;
+            let item = Item::encoded(ep, t_ns, bytes, result, |b| {
+                record.then(|| SentFrame::Imu(*r, wire.decode_one(b)))
+            });
             self.push(ep, t_ns, item);
         }
         if ep + 1 == self.wires.len() {
@@ -759,24 +775,11 @@ impl SimSink for ItemSink {
             };
             let mut bytes = Vec::new();
             let t_ns = r.t_mono_ns - START_MONO_NS;
-            let item = match wire.encode(r, &mut bytes) {
-                Ok(()) => Item {
-                    t_ns,
-                    endpoint: ep,
-                    sent: self
-                        .record
-                        .then(|| SentFrame::Gnss(*r, wire.decode_one(&bytes))),
-                    bytes,
-                    error: None,
-                },
-                Err(e) => Item {
-                    t_ns,
-                    endpoint: ep,
-                    bytes,
-                    sent: None,
-                    error: Some(format!("t = {:.6} s: {e}", t_ns as f64 * 1e-9)),
-                },
-            };
+            let result = wire.encode(r, &mut bytes);
+            let record = self.record;
+            let item = Item::encoded(ep, t_ns, bytes, result, |b| {
+                record.then(|| SentFrame::Gnss(*r, wire.decode_one(b)))
+            });
             self.push(ep, t_ns, item);
         }
         if ep + 1 == self.wires.len() {
