@@ -1,29 +1,11 @@
 //! `imulogd`: the acquisition daemon. Logs IMUs and GNSS receivers into a session as the
 //! configuration file says; see `docs/daemon.md`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::ExitCode;
 
 use clap::Parser;
-use imulab::daemon::{self, config, source, writer::FreeSpaceFn, DaemonParts};
-
-#[derive(Parser)]
-#[command(
-    name = "imulogd",
-    version,
-    about = "Acquisition daemon: logs IMUs and GNSS receivers into HDF5 sessions",
-    after_help = "Examples:\n  imulogd --check-config /etc/imulogd/imulogd.toml\n  imulogd --config /etc/imulogd/imulogd.toml\n\n\
-Exit status: 0 after SIGTERM/SIGINT with the session closed, 1 on an error, 2 for a bad \
-configuration, 3 when the disk reserve was reached (session closed cleanly)."
-)]
-struct Args {
-    /// Run with this configuration file.
-    #[arg(long, value_name = "FILE", required_unless_present = "check_config")]
-    config: Option<PathBuf>,
-    /// Check this configuration file, print what it would run, and exit.
-    #[arg(long, value_name = "FILE", conflicts_with = "config")]
-    check_config: Option<PathBuf>,
-}
+use imulab::daemon::{self, args::Args, config, source, writer::FreeSpaceFn, DaemonParts};
 
 /// Exit status for a configuration that is rejected.
 const EXIT_BAD_CONFIG: u8 = 2;
@@ -51,8 +33,9 @@ fn main() -> ExitCode {
     match run(&config) {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("imulogd: {e:#}");
+            let message = imulab::cli::errors::render(&e);
+            tracing::error!("{message}");
+            eprintln!("imulogd: {message}");
             ExitCode::FAILURE
         }
     }

@@ -66,6 +66,7 @@ impl Source {
             let port = tokio_serial::new(&path, args.baud)
                 .timeout(Duration::from_millis(200))
                 .open()
+                .map_err(|e| imulab_drivers::transport::serial::open_error(&path, e))
                 .with_context(|| format!("cannot open serial port `{path}`"))?;
             return Ok(Source::Port(port));
         }
@@ -151,7 +152,8 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
             )
         })?
     } else {
-        Protocol::from_name(&args.protocol)?
+        Protocol::from_name(&args.protocol)
+            .map_err(|e| anyhow::anyhow!("{e}; pass one of these, or `auto` to detect it"))?
     };
     let options = DecoderOptions {
         dbc: args.dbc.clone(),
@@ -218,8 +220,13 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     });
     eprintln!("{summary}");
     if total_bytes > 0 && stats.frames_ok == 0 {
+        let advice = if args.protocol.eq_ignore_ascii_case("auto") {
+            "check the baud rate (--baud) or name the protocol with --protocol"
+        } else {
+            "try --protocol auto, or check the baud rate (--baud)"
+        };
         bail!(
-            "no valid {} frame in {total_bytes} bytes (wrong protocol or baud rate?)",
+            "no frames decoded: {total_bytes} bytes hold no valid {} frame (wrong protocol or baud rate); {advice}",
             protocol.name()
         );
     }

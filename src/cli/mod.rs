@@ -1,7 +1,10 @@
-//! The `imulab` subcommands, one module each, plus the logging set-up the binaries share.
+//! The `imulab` subcommands, one module each, plus what the binaries share: the command
+//! line ([`app`]), error printing ([`errors`]) and the logging set-up.
 
 pub mod allan;
+pub mod app;
 pub mod compare;
+pub mod completions;
 pub mod replay;
 pub mod report;
 pub mod status;
@@ -19,6 +22,7 @@ pub fn init_logging() {
 
 pub mod decode;
 pub mod demo;
+pub mod errors;
 pub mod export;
 pub mod inspect;
 pub mod recover;

@@ -1,5 +1,6 @@
 //! imulogd: the acquisition daemon.
 //!
+//! - [`args`]: the `imulogd` command line.
 //! - [`config`]: the TOML configuration, validated with key paths and hints.
 //! - [`device`]: one tokio task per device (open, read, timestamp, decode, gaps, retry).
 //! - [`writer`]: the blocking writer thread behind a bounded, never-blocking queue.
@@ -11,6 +12,7 @@
 //! - [`status`]: live counters and the status file.
 //! - [`run`]: signals, systemd notification, start and clean stop.
 
+pub mod args;
 pub mod backoff;
 pub mod clock;
 pub mod config;

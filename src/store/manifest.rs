@@ -153,14 +153,30 @@ impl Manifest {
 
     /// Reads and validates `dir/session.toml`.
     pub fn load(dir: &Path) -> Result<Self, StoreError> {
+        let not_a_session = |msg: String| StoreError::NotASession {
+            path: dir.to_path_buf(),
+            msg,
+        };
+        if !dir.exists() {
+            return Err(not_a_session(
+                "no such directory (check the path: a session is the directory imulogd \
+                 or `imulab sim -o` wrote)"
+                    .into(),
+            ));
+        }
+        if !dir.is_dir() {
+            return Err(not_a_session(format!(
+                "it is a file; give the session directory (the one holding {MANIFEST_FILE})"
+            )));
+        }
         let path = dir.join(MANIFEST_FILE);
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                return Err(StoreError::NotASession {
-                    path: dir.to_path_buf(),
-                    msg: format!("no {MANIFEST_FILE}"),
-                })
+                return Err(not_a_session(format!(
+                    "no {MANIFEST_FILE} in it; give a session's own directory (it holds \
+                     {MANIFEST_FILE} and chunk-*.h5 files)"
+                )))
             }
             Err(e) => return Err(StoreError::io(path, e)),
         };

@@ -86,10 +86,42 @@ fn short_h5_error(e: &hdf5::Error) -> String {
     text.lines().next().unwrap_or("").trim().to_string()
 }
 
+/// True when a live writer (imulogd, `imulab sim`) holds the session's writer lock. Probed
+/// with a shared, non-blocking `flock` on the existing lock file, released at once: no file
+/// is created and a running writer is never disturbed.
+pub fn writer_is_live(dir: &Path) -> bool {
+    let Ok(file) = std::fs::File::open(dir.join(layout::WRITER_LOCK_FILE)) else {
+        return false;
+    };
+    matches!(
+        nix::fcntl::Flock::lock(file, nix::fcntl::FlockArg::LockSharedNonblock),
+        Err((_, nix::errno::Errno::EWOULDBLOCK))
+    )
+}
+
+/// What to do about a `*.partial` file that does not open, depending on whether its writer
+/// is still running.
+fn partial_hint(dir: &Path, live: bool) -> String {
+    if live {
+        format!(
+            " (still being written: a live writer holds {}; the closed chunk files are readable now; \
+             wait for the writer to close this one (at rotation or when it stops), or if it crashed run `imulab recover {}`)",
+            layout::WRITER_LOCK_FILE,
+            dir.display()
+        )
+    } else {
+        format!(
+            " (left by a writer that stopped without closing it: run `imulab recover {}`)",
+            dir.display()
+        )
+    }
+}
+
 /// Opens one chunk file and checks its schema version; the error is one line naming it.
-fn open_chunk(path: &Path, partial: bool) -> Result<hdf5::File, String> {
+/// `partial_hint` is appended when a `*.partial` file does not open.
+fn open_chunk(path: &Path, partial: Option<&str>) -> Result<hdf5::File, String> {
     let shown = path.display();
-    let file = if partial {
+    let file = if partial.is_some() {
         // A live file is read SWMR; a killed writer's file may also open that way.
         hdf5::File::open_as(path, hdf5::file::OpenMode::ReadSWMR)
             .or_else(|_| hdf5::File::open(path))
@@ -97,11 +129,7 @@ fn open_chunk(path: &Path, partial: bool) -> Result<hdf5::File, String> {
         hdf5::File::open(path)
     };
     let file = file.map_err(|e| {
-        let hint = if partial {
-            " (a killed writer's file: run `imulab recover`)"
-        } else {
-            ""
-        };
+        let hint = partial.unwrap_or("");
         format!(
             "{shown}: cannot open as HDF5, truncated or corrupt{hint}: {}",
             short_h5_error(&e)
@@ -124,13 +152,18 @@ impl Session {
     /// Fails only when the directory is not a session or its manifest is bad; per-file
     /// problems are reported by [`Session::files`] and [`Session::problems`].
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
-        if !dir.is_dir() {
-            return Err(StoreError::NotASession {
-                path: dir.to_path_buf(),
-                msg: "no such directory".into(),
-            });
-        }
+        // Says whether the path is missing, a file, or a directory without a manifest.
         let manifest = Manifest::load(dir)?;
+        let live = writer_is_live(dir);
+        if live {
+            tracing::warn!(
+                "{}: still being written (a live writer holds {}): reading what it has flushed so far; \
+                 rerun when the writer has stopped for the whole run",
+                dir.display(),
+                layout::WRITER_LOCK_FILE
+            );
+        }
+        let hint = partial_hint(dir, live);
         let mut found: Vec<(u32, bool, PathBuf)> = Vec::new();
         for entry in std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))? {
             let entry = entry.map_err(|e| StoreError::io(dir, e))?;
@@ -151,7 +184,7 @@ impl Session {
                     path.display()
                 ))
             } else {
-                open_chunk(path, *partial)
+                open_chunk(path, partial.then_some(hint.as_str()))
             };
             let (file, problem) = match opened {
                 Ok(f) => (Some(f), None),

@@ -353,10 +353,19 @@ fn repair_file(path: &Path) -> Result<Vec<TableRecovery>, StoreError> {
 pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
     Manifest::load(dir)?;
     let Some(lock) = try_writer_lock(dir)? else {
-        return Err(StoreError::Invalid(format!(
-            "{}: a writer is still running on this session; stop it first",
-            dir.display()
-        )));
+        // A live writer: nothing crashed, so nothing to recover; say how to finish instead.
+        return Err(StoreError::io(
+            dir,
+            std::io::Error::new(
+                std::io::ErrorKind::ResourceBusy,
+                format!(
+                    "still being written (a live writer is still running and holds {}); nothing to recover: the closed \
+                     chunk files are readable now.\nStop the writer to close the session (systemctl \
+                     stop imulogd, or kill -TERM its PID); `imulab recover` is for a writer that crashed",
+                    layout::WRITER_LOCK_FILE
+                ),
+            ),
+        ));
     };
     let mut partials: Vec<(u32, PathBuf)> = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))? {

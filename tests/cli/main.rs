@@ -2,4 +2,6 @@
 
 mod decode;
 mod demo;
+mod errors;
+mod interface;
 mod pipe;

@@ -2,6 +2,7 @@
 //! control from a [`SerialConfig`]. Works on USB-serial adapters and on Linux ptys (whose
 //! baud setting is accepted and ignored by the kernel).
 
+use std::io;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
@@ -141,11 +142,61 @@ pub fn open_serial(config: &SerialConfig) -> Result<SerialTransport, TransportEr
         .open_native_async()
         .map_err(|e| TransportError::Open {
             device: config.path.clone(),
-            source: e.into(),
+            source: open_error(&config.path, e),
         })?;
     Ok(StreamTransport::new(
         stream,
         config.path.clone(),
         config.idle_timeout,
     ))
+}
+
+/// Turns a failed open of the serial port `path` into an error that says what happened and
+/// what to do (busy, permission, missing). `serialport` keeps only the text of the errno, so
+/// the errno is read again by opening `path` as it does (read-write, `O_NOCTTY | O_NONBLOCK`,
+/// no exclusive lock), closing it at once if that works; then the original error is kept.
+pub fn open_error(path: &str, err: tokio_serial::Error) -> io::Error {
+    let original = io::Error::from(err);
+    let Some(errno) = probe_open_errno(path) else {
+        return original;
+    };
+    let (kind, msg) = match errno {
+        libc::EBUSY => (
+            io::ErrorKind::ResourceBusy,
+            format!(
+                "in use by another process; find it with `fuser {path}` (or `fuser -v {path}`), \
+                 stop it, then try again"
+            ),
+        ),
+        libc::EACCES | libc::EPERM => (
+            io::ErrorKind::PermissionDenied,
+            "permission denied; add yourself to the dialout group: sudo usermod -aG dialout \
+             $USER, then log in again"
+                .to_string(),
+        ),
+        libc::ENOENT | libc::ENODEV | libc::ENXIO => (
+            io::ErrorKind::NotFound,
+            "no such device; check it is plugged in and the path (ls -l /dev/serial/by-id/)"
+                .to_string(),
+        ),
+        _ => return original,
+    };
+    io::Error::new(kind, msg)
+}
+
+#[cfg(unix)]
+fn probe_open_errno(path: &str) -> Option<i32> {
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY | libc::O_NONBLOCK)
+        .open(path)
+        .err()
+        .and_then(|e| e.raw_os_error())
+}
+
+#[cfg(not(unix))]
+fn probe_open_errno(_path: &str) -> Option<i32> {
+    None
 }
