@@ -226,7 +226,7 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
             "try --protocol auto, or check the baud rate (--baud)"
         };
         bail!(
-            "no frames decoded: {total_bytes} bytes hold no valid {} frame (wrong protocol or baud rate); {advice}",
+            "no frames decoded: no valid {} frame in {total_bytes} bytes (wrong protocol or baud rate); {advice}",
             protocol.name()
         );
     }
