@@ -297,10 +297,9 @@ impl<const N: usize> Ins<N> {
         let gyro = self.acc_dtheta / dt;
         let accel = self.acc_dvel / dt;
         let f = models::dynamics_matrix::<N>(&self.nav, &gyro, &accel, &self.config);
-        let (phi, qd) = models::discretise(&f, &self.q_psd, dt);
+        let (phi, qd) = models::discretise_sparse(&f, &self.q_psd, dt);
         let p_prev = self.p;
-        let mut p = phi * self.p * phi.transpose() + qd;
-        p = 0.5 * (p + p.transpose());
+        let mut p = models::propagate_covariance_sparse(&phi, &self.p) + qd;
         if !p.iter().all(|v| v.is_finite()) || (0..N).any(|i| p[(i, i)] <= 0.0) {
             // Only absurd (finite but overflowing) inputs get here: keep the old covariance
             // plus white process noise rather than ever storing a non-finite number.
