@@ -27,7 +27,9 @@ const SOMIGLIANA_K: f64 = 0.001_931_852_652_41;
 /// Meridian (north-south) radius of curvature R_N at geodetic latitude `lat` (rad), m.
 pub fn meridian_radius(lat: f64) -> f64 {
     let s2 = lat.sin().powi(2);
-    A * (1.0 - E2) / (1.0 - E2 * s2).powf(1.5)
+    // d^1.5 as d·√d: a square root instead of `powf` (a tenth of a replay's time).
+    let d = 1.0 - E2 * s2;
+    A * (1.0 - E2) / (d * d.sqrt())
 }
 
 /// Prime-vertical (east-west) radius of curvature R_E at latitude `lat` (rad), m.

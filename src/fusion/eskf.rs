@@ -158,6 +158,9 @@ pub struct Ins<const N: usize> {
     last_gyro: Vector3<f64>,
     /// The latest state that passed [`is_sane`], to fall back on.
     last_sane: NavState,
+    /// Whether the covariance is propagated (off only for pure dead reckoning, see
+    /// [`Ins::set_covariance_propagation`]).
+    covariance_on: bool,
     smoother: Option<SmootherLog<N>>,
 }
 
@@ -209,6 +212,7 @@ impl<const N: usize> Ins<N> {
             acc_dvel: Vector3::zeros(),
             last_gyro: Vector3::zeros(),
             last_sane: nav,
+            covariance_on: true,
             smoother: smoothing.then(|| SmootherLog {
                 records: Vec::new(),
                 current_nav: None,
@@ -260,6 +264,17 @@ impl<const N: usize> Ins<N> {
         }
     }
 
+    /// Switches the covariance propagation off (or back on). The nominal navigation
+    /// solution does not depend on the covariance between updates (the filter is closed-loop:
+    /// the covariance acts only through the gain of an update), so a run that applies no
+    /// further update — a dead-reckoning fork of the sensor-grade study — gives the same
+    /// trajectory with it off, at a fraction of the cost. While it is off the covariance
+    /// stays as it was; switching it back on resumes from that stale value, so do not mix it
+    /// with updates.
+    pub fn set_covariance_propagation(&mut self, on: bool) {
+        self.covariance_on = on;
+    }
+
     /// Forgets the mechanisation history (after an IMU data gap).
     pub fn reset_history(&mut self) {
         self.mech.reset_history();
@@ -270,14 +285,21 @@ impl<const N: usize> Ins<N> {
         if self.acc_dt <= 0.0 {
             return;
         }
+        if !self.covariance_on {
+            // Same cadence of the fall-back state as with the covariance on.
+            self.last_sane = self.nav;
+            self.acc_dt = 0.0;
+            self.acc_dtheta = Vector3::zeros();
+            self.acc_dvel = Vector3::zeros();
+            return;
+        }
         let dt = self.acc_dt;
         let gyro = self.acc_dtheta / dt;
         let accel = self.acc_dvel / dt;
         let f = models::dynamics_matrix::<N>(&self.nav, &gyro, &accel, &self.config);
-        let (phi, qd) = models::discretise(&f, &self.q_psd, dt);
+        let (phi, qd) = models::discretise_sparse(&f, &self.q_psd, dt);
         let p_prev = self.p;
-        let mut p = phi * self.p * phi.transpose() + qd;
-        p = 0.5 * (p + p.transpose());
+        let mut p = models::propagate_covariance_sparse(&phi, &self.p) + qd;
         if !p.iter().all(|v| v.is_finite()) || (0..N).any(|i| p[(i, i)] <= 0.0) {
             // Only absurd (finite but overflowing) inputs get here: keep the old covariance
             // plus white process noise rather than ever storing a non-finite number.

@@ -177,6 +177,23 @@ impl<const N: usize> Navigator<N> {
         self.ins.as_ref()
     }
 
+    /// Switches the filter's covariance propagation off or on (see
+    /// [`Ins::set_covariance_propagation`]); for dead-reckoning forks that receive no
+    /// further GNSS fix. Refused (returns false) while non-holonomic or zero-velocity
+    /// updates are configured, since those still update the filter.
+    pub fn set_covariance_propagation(&mut self, on: bool) -> bool {
+        if !on && (self.config.nhc.enabled || self.config.zupt.enabled) {
+            return false;
+        }
+        match self.ins.as_mut() {
+            Some(ins) => {
+                ins.set_covariance_propagation(on);
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Feeds one raw IMU input.
     pub fn push_imu(&mut self, raw: &ImuInput) {
         let (t, gyro, accel, dt_hint) = match *raw {

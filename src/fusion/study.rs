@@ -1,32 +1,41 @@
 //! The sensor-grade study: how long a GNSS outage each IMU grade bridges within a horizontal
 //! requirement. Monte Carlo over grades (simulator presets or Allan fits) and runs: each run
-//! simulates the scene's drive with the grade's IMU (the simulator's library API, seed =
-//! base seed + run, the same for every grade so grades meet the same GNSS errors and the
-//! same outage times), replays it through the filter with GNSS, and at several outage
-//! starts forks the filter and runs the fork without GNSS for the longest outage length.
-//! The largest horizontal drift within the first L seconds of a fork is the drift of an
-//! outage of length L (a filter does not know how long an outage will last, so one fork
-//! serves every length). Drift is the growth of the horizontal error since the outage
-//! start, |e(t) − e(start)|, i.e. what the IMU adds, independent of the receiver's own
-//! error; the absolute error is reported too.
+//! simulates the scene's drive with the grade's IMU (the simulator's models, seed = base
+//! seed + run, the same for every grade so grades meet the same GNSS errors and the same
+//! outage times), replays it through the filter with GNSS, and at several outage starts
+//! forks the filter and runs the fork without GNSS for the longest outage length. The
+//! largest horizontal drift within the first L seconds of a fork is the drift of an outage
+//! of length L (a filter does not know how long an outage will last, so one fork serves
+//! every length). Drift is the growth of the horizontal error since the outage start,
+//! |e(t) − e(start)|, i.e. what the IMU adds, independent of the receiver's own error; the
+//! absolute error is reported too.
 //!
 //! Outage starts are stratified over the drive after a settling time: the usable span is cut
 //! into equal strata, one uniformly drawn start in each, so outages fall on turns, stops and
 //! straights in proportion to the drive (the share that contains a turn is reported).
 //!
-//! Runs are independent and executed in parallel with rayon; results are collected in run
-//! order, so they are identical for any thread count.
+//! Cost: the truth trajectory is integrated once per study ([`StudyDrive`]), the receiver
+//! simulated once per run (shared by the grades), and per run and grade only the IMU errors
+//! are simulated, streamed sample by sample into the main filter and the running forks (no
+//! IMU data is stored). A fork applies no update, so it propagates no covariance (its
+//! navigation solution is the same without; tested). Each fork branches off the converged
+//! filter with GNSS up to its start, which is what an outage at that time is.
+//!
+//! Runs are independent and executed in parallel with rayon (and a run's grades too);
+//! results are collected in run order, so they are identical for any thread count.
 
 use crate::fusion::config::FusionConfig;
 use crate::fusion::mechanisation::{ImuInput, NavState};
 use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions};
 use crate::fusion::noise::{self, NoiseModel};
 use crate::fusion::session::{observation, truth_at};
-use crate::sim::imu_model::{Channels, ImuSpec};
-use crate::sim::outputs::MemorySink;
-use crate::sim::scene::{ImuEntry, Outputs, Scene};
+use crate::sim::gnss_model::GnssSimulator;
+use crate::sim::imu_model::{Channels, ImuSimulator, ImuSpec};
+use crate::sim::motion::{static_truth, MotionGenerator, TruthSample};
+use crate::sim::scene::{GnssEntry, Motion, Scene, START_MONO_NS};
+use crate::sim::truth_file::TruthFileReader;
+use crate::store::{GnssRecord, ImuRecord};
 use anyhow::{bail, Context};
-use imulab_drivers::codec::Protocol;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -192,79 +201,188 @@ struct RunResult {
     skipped: usize,
 }
 
-/// The simulated data of one run as the filter takes it.
-struct RunData {
-    imu: Vec<ImuInput>,
-    gnss: Vec<GnssObservation>,
-    truth: Vec<NavState>,
+/// The drive every run and grade of a study shares, computed once: the truth trajectory
+/// with its error-free IMU input (the same for every run and grade: only the sensor errors
+/// differ), the temperature, the receiver, and the truth navigation states the errors are
+/// measured against. Each run then only adds its sensors' errors: the receiver's (once per
+/// run, shared by the grades) and the IMU's (per run and grade).
+///
+/// The records it gives are the very ones `sim::runner::run` writes for the scene with the
+/// grade's IMU and the seed (same simulators, same random streams; tested), without
+/// integrating the trajectory again for every run and grade.
+pub struct StudyDrive {
+    rate_hz: f64,
+    samples: u64,
+    /// One truth sample per IMU sample (a single one for a static scene, reused).
+    truth: Vec<TruthSample>,
+    /// Temperature per sample (empty when constant).
+    temps: Vec<f64>,
+    constant_temp: f64,
+    start_wall_ns: i64,
+    imu_name: String,
+    /// The receiver, its listed outages removed (the study places its own).
+    gnss: GnssEntry,
+    /// Truth navigation states at the check rate (times since the session start, s).
+    truth_nav: Vec<NavState>,
 }
 
-fn simulate(scene: &Scene, grade: &Grade, seed: u64) -> anyhow::Result<RunData> {
-    let mut sc = scene.clone();
-    let (name, protocol) = scene.imus.first().map_or_else(
-        || ("imu".to_string(), Protocol::Wit),
-        |e| (e.name.clone(), e.protocol),
-    );
-    sc.imus = vec![ImuEntry {
-        name: name.clone(),
-        spec: grade.spec.clone(),
-        channels: Channels::ALL,
-        protocol,
-    }];
-    sc.gnss.truncate(1);
-    let Some(rx) = sc.gnss.first_mut() else {
-        bail!("the scene has no GNSS receiver: a study needs one");
-    };
-    // The study places its own outages.
-    rx.spec.outages.clear();
-    rx.spec.periodic_outage = None;
-    let rx_name = rx.name.clone();
-    sc.set_seed(seed);
-    sc.outputs = Outputs {
-        truth_nav: true,
-        truth_imu: false,
-        truth_every: ((sc.rate_hz / CHECK_RATE_HZ).round() as u32).max(1),
-    };
-    let mut sink = MemorySink::default();
-    crate::sim::runner::run(&sc, &mut sink).context("simulating the scene")?;
-    let records = sink.imu.remove(&name).unwrap_or_default();
-    let Some(t0) = records.first().map(|r| r.t_mono_ns) else {
-        bail!("the simulated IMU produced no samples");
-    };
-    let secs = |t: i64| t.saturating_sub(t0) as f64 * 1e-9;
-    let imu = records
-        .iter()
-        .map(|r| ImuInput::Rates {
-            t_s: secs(r.t_mono_ns),
-            gyro: Vector3::from(r.gyro),
-            accel: Vector3::from(r.accel),
+/// Time since the session start of a simulator timestamp, s.
+fn session_seconds(t_mono_ns: i64) -> f64 {
+    t_mono_ns.saturating_sub(START_MONO_NS) as f64 * 1e-9
+}
+
+impl StudyDrive {
+    /// Prepares the shared drive of `scene` (its first IMU's name, its first receiver).
+    pub fn new(scene: &Scene) -> anyhow::Result<StudyDrive> {
+        let Some(rx) = scene.gnss.first() else {
+            bail!("the scene has no GNSS receiver: a study needs one");
+        };
+        let mut gnss = rx.clone();
+        gnss.spec.outages.clear();
+        gnss.spec.periodic_outage = None;
+        let samples = scene.samples();
+        let count = usize::try_from(samples).context("too many samples for this machine")?;
+        let loc = &scene.location;
+        let truth: Vec<TruthSample> = match &scene.motion {
+            Motion::Static { quat_nb } => vec![static_truth(
+                loc.lat_deg.to_radians(),
+                loc.lon_deg.to_radians(),
+                loc.height_m,
+                *quat_nb,
+            )],
+            Motion::Segments(spec) => {
+                let generator = MotionGenerator::new(spec, scene.rate_hz)
+                    .map_err(|e| anyhow::anyhow!("motion: {e}"))?;
+                generator.take(count).collect()
+            }
+            Motion::TruthFile(path) => {
+                let mut reader = TruthFileReader::open(path, scene.rate_hz)?;
+                let mut v = Vec::with_capacity(count);
+                while v.len() < count {
+                    match reader.next_sample() {
+                        Some(s) => v.push(s?),
+                        None => break,
+                    }
+                }
+                v
+            }
+        };
+        if !matches!(scene.motion, Motion::Static { .. }) && truth.len() < count {
+            bail!(
+                "the motion ends after {} of the scene's {count} samples",
+                truth.len()
+            );
+        }
+        let constant = scene.temperature.is_constant();
+        let temps = if constant {
+            Vec::new()
+        } else {
+            (0..samples)
+                .map(|k| scene.temperature.at(k as f64 / scene.rate_hz))
+                .collect()
+        };
+        let every = ((scene.rate_hz / CHECK_RATE_HZ).round() as u64).max(1);
+        let truth_nav = (0..samples)
+            .step_by(every as usize)
+            .map(|k| {
+                let t = truth.get(k as usize).unwrap_or(&truth[0]);
+                let q = t.quat_nb.quaternion();
+                NavState {
+                    t_s: session_seconds(START_MONO_NS + sample_ns(k, scene.rate_hz)),
+                    lat_rad: t.lat_rad,
+                    lon_rad: t.lon_rad,
+                    height_m: t.height_m,
+                    vel_ned: t.vel_ned,
+                    quat_nb: UnitQuaternion::from_quaternion(Quaternion::new(q.w, q.i, q.j, q.k)),
+                }
+            })
+            .collect();
+        Ok(StudyDrive {
+            rate_hz: scene.rate_hz,
+            samples,
+            truth,
+            temps,
+            constant_temp: scene.temperature.at(0.0),
+            start_wall_ns: scene.start_wall_ns,
+            imu_name: scene
+                .imus
+                .first()
+                .map_or_else(|| "imu".to_string(), |e| e.name.clone()),
+            gnss,
+            truth_nav,
         })
-        .collect();
-    let gnss = sink
-        .gnss
-        .remove(&rx_name)
-        .unwrap_or_default()
-        .iter()
-        .filter_map(|r| observation(r, t0))
-        .collect();
-    let truth = sink
-        .truth_nav
-        .iter()
-        .map(|r| NavState {
-            t_s: secs(r.t_mono_ns),
-            lat_rad: r.lat_deg.to_radians(),
-            lon_rad: r.lon_deg.to_radians(),
-            height_m: r.height_m,
-            vel_ned: Vector3::from(r.vel_ned),
-            quat_nb: UnitQuaternion::from_quaternion(Quaternion::new(
-                r.quat_nb[0],
-                r.quat_nb[1],
-                r.quat_nb[2],
-                r.quat_nb[3],
-            )),
-        })
-        .collect();
-    Ok(RunData { imu, gnss, truth })
+    }
+
+    fn truth(&self, k: u64) -> &TruthSample {
+        self.truth.get(k as usize).unwrap_or(&self.truth[0])
+    }
+
+    /// Time of the last sample since the session start, s.
+    pub fn end_s(&self) -> f64 {
+        self.samples.saturating_sub(1) as f64 / self.rate_hz
+    }
+
+    /// The truth navigation states the errors are measured against (check rate).
+    pub fn truth_nav(&self) -> &[NavState] {
+        &self.truth_nav
+    }
+
+    /// The IMU records of `spec` with run seed `seed`, sample by sample (nothing stored).
+    pub fn imu_records<'a>(
+        &'a self,
+        spec: &ImuSpec,
+        seed: u64,
+    ) -> anyhow::Result<impl Iterator<Item = ImuRecord> + 'a> {
+        let mut sim = ImuSimulator::new(spec, &self.imu_name, seed, self.rate_hz, Channels::ALL)
+            .map_err(|e| anyhow::anyhow!("imu {}: {e}", self.imu_name))?;
+        Ok((0..self.samples).filter_map(move |k| {
+            let t = self.truth(k);
+            let temp = self
+                .temps
+                .get(k as usize)
+                .copied()
+                .unwrap_or(self.constant_temp);
+            sim.step(
+                &t.gyro_b,
+                &t.accel_b,
+                temp,
+                START_MONO_NS,
+                self.start_wall_ns,
+            )
+            .record
+        }))
+    }
+
+    /// The receiver's records with run seed `seed`.
+    pub fn gnss_records(&self, seed: u64) -> anyhow::Result<Vec<GnssRecord>> {
+        let mut sim = GnssSimulator::new(&self.gnss.spec, &self.gnss.name, seed)
+            .map_err(|e| anyhow::anyhow!("gnss {}: {e}", self.gnss.name))?;
+        let every = ((self.rate_hz / self.gnss.spec.rate_hz).round() as u64).max(1);
+        Ok((0..self.samples)
+            .step_by(every as usize)
+            .map(|k| {
+                let t = TruthSample {
+                    t_s: k as f64 / self.rate_hz,
+                    ..*self.truth(k)
+                };
+                sim.epoch(&t, START_MONO_NS, self.start_wall_ns)
+            })
+            .collect())
+    }
+
+    /// The receiver's fixes with run seed `seed` as the filter takes them.
+    fn gnss_observations(&self, seed: u64) -> anyhow::Result<Vec<GnssObservation>> {
+        Ok(self
+            .gnss_records(seed)?
+            .iter()
+            .filter_map(|r| observation(r, START_MONO_NS))
+            .collect())
+    }
+}
+
+/// Nanoseconds of sample `k` since the session start, as the simulator stamps them.
+fn sample_ns(k: u64, rate_hz: f64) -> i64 {
+    (k as f64 / rate_hz * 1e9).round() as i64
 }
 
 /// Stratified outage starts in [settle, end − longest − 1]: `count` strata, one uniform
@@ -291,123 +409,172 @@ fn horizontal_error(nav: &NavState, truth: &[NavState]) -> Option<Vector3<f64>> 
     Some(Vector3::new(e.x, e.y, 0.0))
 }
 
-/// Runs one fork without GNSS from sample `first` for the longest outage; None when the
-/// filter was not aligned at the start.
-fn outage_fork<const N: usize>(
-    mut nav: Navigator<N>,
-    data: &RunData,
-    first: usize,
-    lengths: &[f64],
-    check_every: usize,
-) -> Option<OutageSample> {
-    let start_nav = nav.ins()?.nav;
-    let e0 = horizontal_error(&start_nav, &data.truth)?;
-    let t0 = data.imu.get(first)?.t_s();
-    let longest = *lengths.last()?;
-    let mut drift = vec![f64::NAN; lengths.len()];
-    let mut abs = vec![f64::NAN; lengths.len()];
-    let (mut max_drift, mut max_abs) = (0.0f64, e0.norm());
-    let mut next_length = 0;
-    for (j, sample) in data.imu[first..].iter().enumerate() {
-        let t = sample.t_s();
-        nav.push_imu(sample);
-        let last = t - t0 >= longest - 1e-9;
-        if j % check_every == 0 || last {
-            if let Some(e) = nav
-                .ins()
-                .and_then(|ins| horizontal_error(&ins.nav, &data.truth))
-            {
-                max_drift = max_drift.max((e - e0).norm());
-                max_abs = max_abs.max(e.norm());
-            }
-            while next_length < lengths.len() && t - t0 >= lengths[next_length] - 1e-9 {
-                drift[next_length] = max_drift;
-                abs[next_length] = max_abs;
-                next_length += 1;
-            }
-        }
-        if last {
-            break;
-        }
-    }
-    // Motion during the outage, from the truth.
-    let i0 = data.truth.partition_point(|r| r.t_s < t0);
-    let i1 = data.truth.partition_point(|r| r.t_s <= t0 + longest);
-    let window = &data.truth[i0..i1.max(i0)];
-    let heading = |r: &NavState| r.quat_nb.euler_angles().2;
-    let turning = window.first().is_some_and(|a| {
-        window.iter().any(|b| {
-            crate::fusion::mechanisation::wrap_pi(heading(b) - heading(a))
-                .to_degrees()
-                .abs()
-                > TURN_DEG
-        })
-    });
-    let standstill = window.iter().any(|r| r.vel_ned.norm() < 0.5);
-    (next_length == lengths.len()).then_some(OutageSample {
-        drift_m: drift,
-        abs_m: abs,
-        turning,
-        standstill,
-    })
+/// One outage in progress: a fork of the filter that gets no GNSS, advanced sample by sample
+/// alongside the main filter (so no IMU data is stored), for the longest outage length.
+struct Fork<const N: usize> {
+    nav: Navigator<N>,
+    t0: f64,
+    e0: Vector3<f64>,
+    /// Samples pushed so far.
+    j: usize,
+    max_drift: f64,
+    max_abs: f64,
+    next_length: usize,
+    drift: Vec<f64>,
+    abs: Vec<f64>,
 }
 
+impl<const N: usize> Fork<N> {
+    /// Forks `main` at time `t0` (before the sample at `t0` is pushed); None when the filter
+    /// is not aligned yet. Without constraints the fork propagates no covariance: it applies
+    /// no update, so its trajectory is the same without (see
+    /// [`Navigator::set_covariance_propagation`]).
+    fn start(main: &Navigator<N>, t0: f64, truth: &[NavState], lengths: &[f64]) -> Option<Self> {
+        let e0 = horizontal_error(&main.ins()?.nav, truth)?;
+        let mut nav = main.clone();
+        nav.set_covariance_propagation(false);
+        Some(Fork {
+            nav,
+            t0,
+            max_abs: e0.norm(),
+            e0,
+            j: 0,
+            max_drift: 0.0,
+            next_length: 0,
+            drift: vec![f64::NAN; lengths.len()],
+            abs: vec![f64::NAN; lengths.len()],
+        })
+    }
+
+    /// Pushes one sample; true when the longest outage is complete.
+    fn push(
+        &mut self,
+        sample: &ImuInput,
+        truth: &[NavState],
+        lengths: &[f64],
+        check_every: usize,
+    ) -> bool {
+        let t = sample.t_s();
+        self.nav.push_imu(sample);
+        let longest = lengths.last().copied().unwrap_or(0.0);
+        let last = t - self.t0 >= longest - 1e-9;
+        if self.j.is_multiple_of(check_every) || last {
+            if let Some(e) = self
+                .nav
+                .ins()
+                .and_then(|ins| horizontal_error(&ins.nav, truth))
+            {
+                self.max_drift = self.max_drift.max((e - self.e0).norm());
+                self.max_abs = self.max_abs.max(e.norm());
+            }
+            while self.next_length < lengths.len()
+                && t - self.t0 >= lengths[self.next_length] - 1e-9
+            {
+                self.drift[self.next_length] = self.max_drift;
+                self.abs[self.next_length] = self.max_abs;
+                self.next_length += 1;
+            }
+        }
+        self.j += 1;
+        last
+    }
+
+    /// The outage's figures and the motion during it (from the truth); None when it did
+    /// not reach every length.
+    fn finish(self, truth: &[NavState], lengths: &[f64]) -> Option<OutageSample> {
+        let longest = lengths.last().copied().unwrap_or(0.0);
+        let i0 = truth.partition_point(|r| r.t_s < self.t0);
+        let i1 = truth.partition_point(|r| r.t_s <= self.t0 + longest);
+        let window = &truth[i0..i1.max(i0)];
+        let heading = |r: &NavState| r.quat_nb.euler_angles().2;
+        let turning = window.first().is_some_and(|a| {
+            window.iter().any(|b| {
+                crate::fusion::mechanisation::wrap_pi(heading(b) - heading(a))
+                    .to_degrees()
+                    .abs()
+                    > TURN_DEG
+            })
+        });
+        let standstill = window.iter().any(|r| r.vel_ned.norm() < 0.5);
+        (self.next_length == lengths.len()).then_some(OutageSample {
+            drift_m: self.drift,
+            abs_m: self.abs,
+            turning,
+            standstill,
+        })
+    }
+}
+
+/// One run of one grade: the main filter with GNSS over the whole drive and, from each
+/// outage start on, a fork without GNSS; all fed sample by sample as the IMU is simulated.
 fn replay_run<const N: usize>(
-    data: &RunData,
+    imu: impl Iterator<Item = ImuRecord>,
+    gnss: &[GnssObservation],
+    truth: &[NavState],
     config: &FusionConfig,
     starts: &[f64],
     lengths: &[f64],
     check_every: usize,
 ) -> RunResult {
-    let options = ReplayOptions::default();
-    let mut nav = Navigator::<N>::new(config, options);
-    let mut fixes = data.gnss.iter().peekable();
+    let mut nav = Navigator::<N>::new(config, ReplayOptions::default());
+    let mut fixes = gnss.iter().peekable();
     let mut next_start = 0;
+    let mut forks: Vec<Fork<N>> = Vec::new();
     let mut out = RunResult::default();
-    for (i, sample) in data.imu.iter().enumerate() {
+    for r in imu {
+        let sample = ImuInput::Rates {
+            t_s: session_seconds(r.t_mono_ns),
+            gyro: Vector3::from(r.gyro),
+            accel: Vector3::from(r.accel),
+        };
         let t = sample.t_s();
         while let Some(f) = fixes.next_if(|f| f.t_s < t) {
             nav.push_gnss(f);
         }
         while next_start < starts.len() && t >= starts[next_start] {
-            match outage_fork(nav.clone(), data, i, lengths, check_every) {
-                Some(s) => out.samples.push(s),
+            match Fork::start(&nav, t, truth, lengths) {
+                Some(f) => forks.push(f),
                 None => out.skipped += 1,
             }
             next_start += 1;
         }
-        nav.push_imu(sample);
+        nav.push_imu(&sample);
+        let mut k = 0;
+        while k < forks.len() {
+            if forks[k].push(&sample, truth, lengths, check_every) {
+                match forks.remove(k).finish(truth, lengths) {
+                    Some(s) => out.samples.push(s),
+                    None => out.skipped += 1,
+                }
+            } else {
+                k += 1;
+            }
+        }
     }
-    out.skipped += starts.len() - next_start;
+    out.skipped += forks.len() + starts.len() - next_start;
     out
 }
 
+/// One grade on one run's data.
 fn one_run(
-    scene: &Scene,
+    drive: &StudyDrive,
     grade: &Grade,
-    run: usize,
+    seed: u64,
+    gnss: &[GnssObservation],
     options: &StudyOptions,
+    starts: &[f64],
     lengths: &[f64],
 ) -> anyhow::Result<RunResult> {
-    let data = simulate(scene, grade, options.seed.wrapping_add(run as u64))
-        .with_context(|| format!("grade {}, run {run}", grade.name))?;
-    let end = data.imu.last().map_or(0.0, |s| s.t_s());
-    let longest = lengths.last().copied().unwrap_or(0.0);
-    let starts = outage_starts(
-        options.seed,
-        run,
-        options.settle_s,
-        end - longest - 1.0,
-        options.outage_spacing_s,
-    );
+    let imu = drive.imu_records(&grade.spec, seed)?;
     let mut config = options.config;
     config.imu = grade.noise.model;
     // The study never reads the trajectory output: one epoch is enough.
     config.output_interval_s = f64::MAX / 4.0;
-    let check_every = ((scene.rate_hz / CHECK_RATE_HZ).round() as usize).max(1);
+    let check_every = ((drive.rate_hz / CHECK_RATE_HZ).round() as usize).max(1);
+    let truth = drive.truth_nav();
     Ok(match config.states {
-        21 => replay_run::<21>(&data, &config, &starts, lengths, check_every),
-        _ => replay_run::<15>(&data, &config, &starts, lengths, check_every),
+        21 => replay_run::<21>(imu, gnss, truth, &config, starts, lengths, check_every),
+        _ => replay_run::<15>(imu, gnss, truth, &config, starts, lengths, check_every),
     })
 }
 
@@ -446,18 +613,40 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
         .config
         .validate()
         .context("study filter configuration")?;
-    let jobs: Vec<(usize, usize)> = (0..options.grades.len())
-        .flat_map(|g| (0..options.runs).map(move |r| (g, r)))
-        .collect();
-    let results: Vec<anyhow::Result<RunResult>> = jobs
-        .par_iter()
-        .map(|&(g, r)| one_run(scene, &options.grades[g], r, options, &lengths))
+    let drive = StudyDrive::new(scene)?;
+    let end = drive.end_s();
+    // Runs in parallel, and within a run its grades (they share the run's GNSS fixes);
+    // collected in order, so the result does not depend on the thread count.
+    let results: Vec<anyhow::Result<Vec<RunResult>>> = (0..options.runs)
+        .into_par_iter()
+        .map(|run| {
+            let seed = options.seed.wrapping_add(run as u64);
+            let gnss = drive
+                .gnss_observations(seed)
+                .with_context(|| format!("run {run}: simulating the receiver"))?;
+            let starts = outage_starts(
+                options.seed,
+                run,
+                options.settle_s,
+                end - longest - 1.0,
+                options.outage_spacing_s,
+            );
+            options
+                .grades
+                .par_iter()
+                .map(|grade| {
+                    one_run(&drive, grade, seed, &gnss, options, &starts, &lengths)
+                        .with_context(|| format!("grade {}, run {run}", grade.name))
+                })
+                .collect()
+        })
         .collect();
     let mut per_grade: Vec<RunResult> = vec![RunResult::default(); options.grades.len()];
-    for (&(g, _), result) in jobs.iter().zip(results) {
-        let r = result?;
-        per_grade[g].samples.extend(r.samples);
-        per_grade[g].skipped += r.skipped;
+    for result in results {
+        for (g, r) in result?.into_iter().enumerate() {
+            per_grade[g].samples.extend(r.samples);
+            per_grade[g].skipped += r.skipped;
+        }
     }
     let reference = &per_grade[0];
     let share = |f: fn(&OutageSample) -> bool| {
@@ -468,7 +657,7 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
         options.seed,
         0,
         options.settle_s,
-        scene.duration_s - longest - 1.0,
+        end - longest - 1.0,
         options.outage_spacing_s,
     )
     .len();

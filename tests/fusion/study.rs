@@ -1,10 +1,17 @@
 //! The sensor-grade study: identical results for any thread count, a dearer grade bridges at
-//! least as long as a cheaper one, and drift grows with outage length within a generous
-//! physical bound.
+//! least as long as a cheaper one, drift grows with outage length within a generous
+//! physical bound; the shared drive gives exactly the simulator's records, and a
+//! dead-reckoning fork without covariance propagation follows the same trajectory.
 
 use imulab::fusion::config::FusionConfig;
-use imulab::fusion::study::{run_study, Grade, StudyOptions, StudyResult};
-use imulab::sim::scene::Scene;
+use imulab::fusion::mechanisation::ImuInput;
+use imulab::fusion::navigator::{Navigator, ReplayOptions};
+use imulab::fusion::session::observation;
+use imulab::fusion::study::{run_study, Grade, StudyDrive, StudyOptions, StudyResult};
+use imulab::sim::imu_model::Channels;
+use imulab::sim::outputs::MemorySink;
+use imulab::sim::scene::{Outputs, Scene, START_MONO_NS};
+use nalgebra::Vector3;
 use std::path::Path;
 
 /// A 7-minute drive with turns, speed changes and a stop, 50 Hz IMU, 10 Hz SBAS receiver.
@@ -140,4 +147,118 @@ fn bad_study_inputs_are_explained() {
     o.outages_s = vec![400.0];
     let e = run_study(&scene, &o).expect_err("too long");
     assert!(e.to_string().contains("too short"), "{e}");
+}
+
+/// The scene with a temperature ramp (so the per-sample temperature matters).
+fn warming_scene() -> Scene {
+    let text = format!(
+        "{SCENE}\n[temperature]\nkind = \"ramp\"\nstart_c = 10.0\nend_c = 40.0\nstart_s = 0.0\nend_s = 420.0\n"
+    );
+    Scene::parse(&text, Path::new(".")).expect("scene")
+}
+
+#[test]
+fn study_drive_gives_exactly_the_simulators_records() {
+    let scene = warming_scene();
+    let drive = StudyDrive::new(&scene).expect("drive");
+    let mut spec = imulab::sim::presets::imu_preset("industrial").expect("preset");
+    spec.gyro.bias_tempco_dph_per_c = [2.0, -1.5, 1.0];
+    spec.timing.drop_probability = 0.01;
+    let seed = 77;
+    // The runner on the scene with this IMU and seed, its receiver without listed outages.
+    let mut sc = scene.clone();
+    sc.set_seed(seed);
+    sc.imus[0].spec = spec.clone();
+    sc.imus[0].channels = Channels::ALL;
+    sc.gnss[0].spec.outages.clear();
+    sc.gnss[0].spec.periodic_outage = None;
+    sc.outputs = Outputs {
+        truth_nav: false,
+        truth_imu: false,
+        truth_every: 1,
+    };
+    let mut sink = MemorySink::default();
+    imulab::sim::runner::run(&sc, &mut sink).expect("simulate");
+    let imu: Vec<_> = drive.imu_records(&spec, seed).expect("imu").collect();
+    assert!(imu.len() > 20_000, "{} records", imu.len());
+    // Debug text: NaN fields compare equal, every other bit must match.
+    assert_eq!(format!("{imu:?}"), format!("{:?}", sink.imu["imu"]));
+    let gnss = drive.gnss_records(seed).expect("gnss");
+    assert_eq!(format!("{gnss:?}"), format!("{:?}", sink.gnss["gnss"]));
+    // Another seed gives other records.
+    let other: Vec<_> = drive.imu_records(&spec, seed + 1).expect("imu").collect();
+    assert_ne!(format!("{other:?}"), format!("{imu:?}"));
+}
+
+#[test]
+fn fork_without_covariance_follows_the_same_trajectory() {
+    let scene = warming_scene();
+    let drive = StudyDrive::new(&scene).expect("drive");
+    let spec = imulab::sim::presets::imu_preset("bench-cheap").expect("preset");
+    let config = FusionConfig {
+        covariance_interval_s: 0.1,
+        imu: imulab::fusion::noise::model_from_preset("bench-cheap")
+            .expect("noise")
+            .model,
+        ..FusionConfig::default()
+    };
+    let gnss: Vec<_> = drive
+        .gnss_records(5)
+        .expect("gnss")
+        .iter()
+        .filter_map(|r| observation(r, START_MONO_NS))
+        .collect();
+    let imu: Vec<ImuInput> = drive
+        .imu_records(&spec, 5)
+        .expect("imu")
+        .map(|r| ImuInput::Rates {
+            t_s: (r.t_mono_ns - START_MONO_NS) as f64 * 1e-9,
+            gyro: Vector3::from(r.gyro),
+            accel: Vector3::from(r.accel),
+        })
+        .collect();
+    let mut main = Navigator::<15>::new(&config, ReplayOptions::default());
+    let mut fixes = gnss.iter().peekable();
+    let fork_at = imu
+        .iter()
+        .position(|s| s.t_s() >= 200.0)
+        .expect("a 420 s drive");
+    for s in &imu[..fork_at] {
+        while let Some(f) = fixes.next_if(|f| f.t_s < s.t_s()) {
+            main.push_gnss(f);
+        }
+        main.push_imu(s);
+    }
+    let mut with = main.clone();
+    let mut without = main.clone();
+    assert!(without.set_covariance_propagation(false));
+    for s in &imu[fork_at..fork_at + 60 * 50] {
+        with.push_imu(s);
+        without.push_imu(s);
+        let (a, b) = (
+            with.ins().expect("aligned"),
+            without.ins().expect("aligned"),
+        );
+        assert_eq!(a.nav, b.nav, "at {} s", s.t_s());
+    }
+    let (a, b) = (
+        with.ins().expect("aligned"),
+        without.ins().expect("aligned"),
+    );
+    // The fork really skipped the covariance work, and its P stayed as it was.
+    assert!(a.stats.covariance_steps > b.stats.covariance_steps + 500);
+    assert_ne!(a.p, b.p);
+    // With a constraint configured the fork keeps its covariance.
+    let mut nhc = config;
+    nhc.nhc.enabled = true;
+    let mut n = Navigator::<15>::new(&nhc, ReplayOptions::default());
+    let mut fixes = gnss.iter().peekable();
+    for s in &imu[..fork_at] {
+        while let Some(f) = fixes.next_if(|f| f.t_s < s.t_s()) {
+            n.push_gnss(f);
+        }
+        n.push_imu(s);
+    }
+    assert!(n.ins().is_some());
+    assert!(!n.set_covariance_propagation(false));
 }
