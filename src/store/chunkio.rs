@@ -132,9 +132,10 @@ fn shuffle(src: &[u8], elem: usize, out: &mut Vec<u8>) {
     out[whole..].copy_from_slice(&src[whole..]);
 }
 
-/// Grows `ds` to end after `values` written at row `start`, then writes them: the whole
-/// chunks among them directly (encoded by `enc`), a partial chunk at either end through
-/// HDF5's filter pipeline (it may have to merge with rows already on disk).
+/// Writes `values` at row `start` of `ds`, which must already extend that far (the writer
+/// grows its tables ahead, see `writer::Table`): the whole chunks among them directly
+/// (encoded by `enc`), a partial chunk at either end through HDF5's filter pipeline (it may
+/// have to merge with rows already on disk).
 pub(crate) fn put_rows<T: Plain>(
     ds: &Dataset,
     enc: &mut ChunkEncoder,
@@ -143,11 +144,6 @@ pub(crate) fn put_rows<T: Plain>(
     values: &[T],
 ) -> hdf5::Result<()> {
     let end = start + values.len();
-    if T::WIDTH == 0 {
-        ds.resize(end)?;
-    } else {
-        ds.resize((end, T::WIDTH))?;
-    }
     let c = chunk_rows.max(1);
     let first_whole = start.div_ceil(c) * c;
     let last_whole = end / c * c;
@@ -291,6 +287,8 @@ mod tests {
             g_pipe
                 .write(ndarray::ArrayView2::from(&noise[..]))
                 .expect("write");
+            t_direct.resize(rows as usize).expect("resize");
+            g_direct.resize((rows as usize, 3)).expect("resize");
             let mut enc = ChunkEncoder::new(level);
             // 7 rows (pipeline), 13 more (pipeline, completes chunk 0), 20 (one direct chunk).
             put_rows(&t_direct, &mut enc, chunk, 0, &times[..7]).expect("1-D head");
