@@ -36,7 +36,7 @@ pub struct WriterOptions {
     /// (default 1 s). Also sets the chunk size: rows per chunk = rate × this interval.
     pub flush_interval: Duration,
     /// Deflate level 0..=9 (0 = no shuffle/deflate filters at all). Default 1: on IMU noise
-    /// level 4 saves about 3.5 % of space for 60 % more CPU (docs/bench/store.md).
+    /// level 4 saves about 3.5 % of space for about 85 % more CPU (docs/bench/store.md).
     pub deflate_level: u8,
     /// Create `/raw/<device>` for every device so undecoded bytes can be kept (default off).
     pub raw_journal: bool,
