@@ -9,6 +9,13 @@
 //! filter pipeline (shuffle by element size, then a zlib stream) produces in form, so h5py,
 //! MATLAB and our reader decode them through the ordinary pipeline; the tests check that.
 //!
+//! Small chunks (under [`SMALL_CHUNK_BYTES`], e.g. a 10 Hz GNSS column: 80 bytes a second)
+//! are deflated by [`zlib_fixed_rle`] instead: every deflate library (zlib, zlib-rs,
+//! libdeflate, miniz) clears a 64-128 KiB match table for each new stream, which for an
+//! 80-byte chunk costs many times the compression itself (measured: that memset was 13 % of
+//! the writer's CPU). On shuffled columns nearly all the redundancy is runs of equal bytes,
+//! which this encoder finds without a table.
+//!
 //! Only whole chunks of plain little-endian numbers go this way; a partial chunk (a stalled
 //! device, the last rows before close) and string columns still go through HDF5's pipeline.
 
@@ -91,6 +98,10 @@ impl ChunkEncoder {
             return Ok(&self.plain);
         };
         shuffle(&self.plain, T::ELEM, &mut self.shuffled);
+        if self.shuffled.len() < SMALL_CHUNK_BYTES {
+            zlib_fixed_rle(&self.shuffled, &mut self.out);
+            return Ok(&self.out);
+        }
         self.out.clear();
         self.out
             .resize(zlib_rs::compress_bound(self.shuffled.len()), 0);
@@ -123,18 +134,120 @@ fn shuffle(src: &[u8], elem: usize, out: &mut Vec<u8>) {
         return;
     }
     let n = src.len() / elem;
-    for (i, e) in src.chunks_exact(elem).enumerate() {
-        for (b, byte) in e.iter().enumerate() {
-            out[b * n + i] = *byte;
+    // One byte plane at a time: sequential writes, and the compiler unrolls the gather.
+    for (b, plane) in out[..n * elem].chunks_exact_mut(n.max(1)).enumerate() {
+        for (o, e) in plane.iter_mut().zip(src.chunks_exact(elem)) {
+            *o = e[b];
         }
     }
     let whole = n * elem;
     out[whole..].copy_from_slice(&src[whole..]);
 }
 
-/// Grows `ds` to end after `values` written at row `start`, then writes them: the whole
-/// chunks among them directly (encoded by `enc`), a partial chunk at either end through
-/// HDF5's filter pipeline (it may have to merge with rows already on disk).
+/// Chunks smaller than this (after shuffling) are deflated by [`zlib_fixed_rle`].
+const SMALL_CHUNK_BYTES: usize = 1024;
+
+/// Writes `data` as a zlib stream (RFC 1950) holding one deflate block (RFC 1951) with the
+/// fixed Huffman code, whose only matches are runs (distance 1, lengths 3-258). Any inflater
+/// reads it. Hand-written because no deflate crate compresses a short input without first
+/// clearing a large match table (see the module docs).
+fn zlib_fixed_rle(data: &[u8], out: &mut Vec<u8>) {
+    out.clear();
+    out.extend_from_slice(&[0x78, 0x01]); // deflate, 32 KiB window, fastest; header check ok
+    let mut bits = BitSink {
+        out: &mut *out,
+        acc: 0,
+        n: 0,
+    };
+    bits.put(1, 1); // last block
+    bits.put(1, 2); // fixed Huffman codes
+    let mut i = 0;
+    while i < data.len() {
+        let run = match i.checked_sub(1).map(|p| data[p]) {
+            Some(prev) => data[i..]
+                .iter()
+                .take(258)
+                .take_while(|&&b| b == prev)
+                .count(),
+            None => 0,
+        };
+        if run >= 3 {
+            let k = LEN_BASE
+                .iter()
+                .rposition(|&base| usize::from(base) <= run)
+                .unwrap_or(0);
+            bits.fixed(257 + k as u32);
+            bits.put(
+                (run - usize::from(LEN_BASE[k])) as u32,
+                u32::from(LEN_EXTRA[k]),
+            );
+            bits.code(0, 5); // distance code 0: distance 1, no extra bits
+            i += run;
+        } else {
+            bits.fixed(u32::from(data[i]));
+            i += 1;
+        }
+    }
+    bits.fixed(256); // end of block
+    bits.finish();
+    out.extend_from_slice(&zlib_rs::adler32::adler32(1, data).to_be_bytes());
+}
+
+/// Base match length of the length codes 257..=285 and their extra bits (RFC 1951 3.2.5).
+const LEN_BASE: [u16; 29] = [
+    3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 15, 17, 19, 23, 27, 31, 35, 43, 51, 59, 67, 83, 99, 115, 131,
+    163, 195, 227, 258,
+];
+const LEN_EXTRA: [u8; 29] = [
+    0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3, 4, 4, 4, 4, 5, 5, 5, 5, 0,
+];
+
+/// The bits of a deflate stream, packed from the least significant bit (RFC 1951 3.1.1).
+struct BitSink<'a> {
+    out: &'a mut Vec<u8>,
+    acc: u64,
+    n: u32,
+}
+
+impl BitSink<'_> {
+    /// `bits` low bits of `value`, least significant first (header fields, extra bits).
+    fn put(&mut self, value: u32, bits: u32) {
+        self.acc |= u64::from(value) << self.n;
+        self.n += bits;
+        while self.n >= 8 {
+            self.out.push(self.acc as u8);
+            self.acc >>= 8;
+            self.n -= 8;
+        }
+    }
+
+    /// A Huffman code of `bits` bits, sent from its most significant bit.
+    fn code(&mut self, code: u32, bits: u32) {
+        self.put(code.reverse_bits() >> (32 - bits), bits);
+    }
+
+    /// A literal/length symbol in the fixed Huffman code (RFC 1951 3.2.6).
+    fn fixed(&mut self, sym: u32) {
+        match sym {
+            0..=143 => self.code(0x30 + sym, 8),
+            144..=255 => self.code(0x190 + sym - 144, 9),
+            256..=279 => self.code(sym - 256, 7),
+            _ => self.code(0xC0 + sym - 280, 8),
+        }
+    }
+
+    /// Pads the last byte with zero bits.
+    fn finish(self) {
+        if self.n > 0 {
+            self.out.push(self.acc as u8);
+        }
+    }
+}
+
+/// Writes `values` at row `start` of `ds`, which must already extend that far (the writer
+/// grows its tables ahead, see `writer::Table`): the whole chunks among them directly
+/// (encoded by `enc`), a partial chunk at either end through HDF5's filter pipeline (it may
+/// have to merge with rows already on disk).
 pub(crate) fn put_rows<T: Plain>(
     ds: &Dataset,
     enc: &mut ChunkEncoder,
@@ -143,11 +256,6 @@ pub(crate) fn put_rows<T: Plain>(
     values: &[T],
 ) -> hdf5::Result<()> {
     let end = start + values.len();
-    if T::WIDTH == 0 {
-        ds.resize(end)?;
-    } else {
-        ds.resize((end, T::WIDTH))?;
-    }
     let c = chunk_rows.max(1);
     let first_whole = start.div_ceil(c) * c;
     let last_whole = end / c * c;
@@ -240,15 +348,58 @@ mod tests {
         );
     }
 
+    /// Every input, runs or noise, any length, inflates back to itself, and runs shrink.
+    #[test]
+    fn fixed_rle_streams_inflate_back() {
+        let mut state: u64 = 0x2545_f491_4f6c_dd1d;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut out = Vec::new();
+        let mut back = vec![0u8; 1 << 16];
+        for case in 0..3000u32 {
+            let len = (rnd() % 1500) as usize;
+            let mode = case % 4;
+            let data: Vec<u8> = (0..len)
+                .map(|i| match mode {
+                    0 => rnd() as u8,
+                    1 => (rnd() % 3) as u8,
+                    2 if (i / 37) % 2 == 0 => 7,
+                    2 => rnd() as u8,
+                    _ => (i / 300) as u8,
+                })
+                .collect();
+            zlib_fixed_rle(&data, &mut out);
+            let (got, rc) =
+                zlib_rs::decompress_slice(&mut back, &out, zlib_rs::InflateConfig::default());
+            assert_eq!(rc, zlib_rs::ReturnCode::Ok, "case {case}, {len} bytes");
+            assert_eq!(got, &data[..], "case {case}, {len} bytes");
+            if mode == 3 && len > 0 {
+                assert!(
+                    out.len() < 40,
+                    "runs of 300 should shrink: {} bytes",
+                    out.len()
+                );
+            }
+        }
+    }
+
     /// The same rows written through HDF5's own filter pipeline and through direct chunk
     /// writes read back identically, 1-D and N×3, with and without filters.
     #[test]
     fn direct_chunks_read_back_like_the_filter_pipeline() {
+        // 20-row chunks take the small-chunk encoder, 200-row ones zlib-rs.
+        direct_vs_pipeline(40, 20);
+        direct_vs_pipeline(400, 200);
+    }
+
+    fn direct_vs_pipeline(rows: i64, chunk: usize) {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("t.h5");
         let file = hdf5::File::create(&path).expect("create");
-        let rows = 40;
-        let chunk = 20;
         let times: Vec<i64> = (0..rows).map(|i| 1_000_000 + 6_666_667 * i).collect();
         let noise: Vec<[f64; 3]> = (0..rows)
             .map(|i| {
@@ -291,6 +442,8 @@ mod tests {
             g_pipe
                 .write(ndarray::ArrayView2::from(&noise[..]))
                 .expect("write");
+            t_direct.resize(rows as usize).expect("resize");
+            g_direct.resize((rows as usize, 3)).expect("resize");
             let mut enc = ChunkEncoder::new(level);
             // 7 rows (pipeline), 13 more (pipeline, completes chunk 0), 20 (one direct chunk).
             put_rows(&t_direct, &mut enc, chunk, 0, &times[..7]).expect("1-D head");

@@ -359,7 +359,12 @@ pub(crate) fn create_column(
 pub(crate) fn put_1d<T: H5Type>(ds: &Dataset, start: usize, values: &[T]) -> hdf5::Result<()> {
     let end = start + values.len();
     ds.resize(end)?;
-    ds.write_slice(values, start..end)
+    write_1d(ds, start, values)
+}
+
+/// Writes `values` at row `start` of a 1-D column that already extends that far.
+fn write_1d<T: H5Type>(ds: &Dataset, start: usize, values: &[T]) -> hdf5::Result<()> {
+    ds.write_slice(values, start..start + values.len())
 }
 
 /// How a table's numeric columns are written: whole chunks of `chunk_rows` rows are encoded
@@ -385,7 +390,7 @@ fn gather<R, T>(rows: &[R], f: impl Fn(&R) -> T) -> Vec<T> {
 }
 
 /// A record type stored as one table. `write` puts `rows` at row `start` of the table's
-/// datasets (given in `COLUMNS` order), writing `t_mono_ns` last so that a valid time implies
+/// datasets (given in `COLUMNS` order, already extended past the rows), writing `t_mono_ns` last so that a valid time implies
 /// the rest of the row was handed to HDF5 before it.
 pub(crate) trait Row: Clone {
     const COLUMNS: &'static [Column];
@@ -569,11 +574,11 @@ impl Row for EventRow {
         start: usize,
         _sink: &mut ChunkSink,
     ) -> hdf5::Result<()> {
-        put_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
-        put_1d(&ds[2], start, &gather(rows, |r| r.device))?;
-        put_1d(&ds[3], start, &gather(rows, |r| r.kind))?;
-        put_1d(&ds[4], start, &gather(rows, |r| r.detail))?;
-        put_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+        write_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
+        write_1d(&ds[2], start, &gather(rows, |r| r.device))?;
+        write_1d(&ds[3], start, &gather(rows, |r| r.kind))?;
+        write_1d(&ds[4], start, &gather(rows, |r| r.detail))?;
+        write_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
 }
 

@@ -185,6 +185,9 @@ pub fn clear_superblock_flags(path: &Path) -> Result<SuperblockState, StoreError
 pub struct TableRecovery {
     pub group: String,
     pub rows_kept: u64,
+    /// Rows whose time had reached the disk but which were cut (a column shorter than the
+    /// time column, or a block that does not read back). Rows the writer had only grown
+    /// its datasets for, or whose time was never written, were never rows and are not counted.
     pub rows_dropped: u64,
 }
 
@@ -218,7 +221,7 @@ fn repair_table<B: Block>(file: &hdf5::File, group: &str) -> hdf5::Result<TableR
         .iter()
         .map(|d| d.shape().first().copied().unwrap_or(0))
         .collect();
-    let longest = lens.iter().copied().max().unwrap_or(0);
+    let timed = valid_prefix(&ds[0], lens.first().copied().unwrap_or(0)).unwrap_or(0);
     let mut len = lens.iter().copied().min().unwrap_or(0);
     len = valid_prefix(&ds[0], len).unwrap_or(0);
     // Read every row back; stop at the first block that does not read.
@@ -243,7 +246,7 @@ fn repair_table<B: Block>(file: &hdf5::File, group: &str) -> hdf5::Result<TableR
     Ok(TableRecovery {
         group: group.to_string(),
         rows_kept: len as u64,
-        rows_dropped: (longest - len) as u64,
+        rows_dropped: timed.saturating_sub(len) as u64,
     })
 }
 

@@ -134,6 +134,18 @@ fn datasets_carry_units_axis_frame_and_schema_version() {
         Some(vec![5])
     );
     assert!(gyro.filters().len() >= 2);
+    // The writer grows tables ahead of the rows written; a finished file has every column
+    // cut back to them: same length, no trailing unwritten (fill value) rows.
+    for (group, need_rows) in [("imu/imu_a", true), ("gnss/gps", true), ("events", false)] {
+        let g = f.group(group).unwrap();
+        let t: Vec<i64> = g.dataset("t_mono_ns").unwrap().read_raw().unwrap();
+        assert!(!need_rows || !t.is_empty(), "{group}: no rows");
+        assert!(t.iter().all(|&x| x != i64::MIN), "{group}: unwritten rows");
+        for name in g.member_names().unwrap() {
+            let n = g.dataset(&name).unwrap().shape()[0];
+            assert_eq!(n, t.len(), "{group}/{name}");
+        }
+    }
 }
 
 #[test]
