@@ -84,77 +84,82 @@ impl Moments {
 
 /// Lag-1 autocorrelations of the difference orders `d` and (when `both`) `d + 1` of the
 /// phase decimated by `m`, in one pass over the decimated points (`None` for an order
-/// with zero variance or fewer than two points).
+/// with zero variance or fewer than two points). `d` is 0 or 2.
 fn lag1_pair(phase: &[f64], m: usize, d: usize, both: bool) -> [Option<f64>; 2] {
+    debug_assert!(d == 0 || d == 2, "difference orders are taken in pairs");
+    // Monomorphised per pair so the difference cascade lives in registers.
+    match (d, both) {
+        (0, false) => lag1_orders::<0, false>(phase, m),
+        (0, true) => lag1_orders::<0, true>(phase, m),
+        (_, false) => lag1_orders::<2, false>(phase, m),
+        (_, true) => lag1_orders::<2, true>(phase, m),
+    }
+}
+
+/// [`lag1_pair`] for the orders `D` and (with `BOTH`) `D + 1`.
+fn lag1_orders<const D: usize, const BOTH: bool>(phase: &[f64], m: usize) -> [Option<f64>; 2] {
+    let top = D + usize::from(BOTH);
     let mut points = phase.iter().step_by(m).copied();
-    // newest[q]: the latest value of the q-th difference of the decimated phase.
-    let mut newest = [0.0f64; MAX_LEVEL + 2];
-    // Extends the orders 0 … valid − 1 by the new point z (w_q ← w_{q−1} − old w_{q−1}).
-    fn push(newest: &mut [f64; MAX_LEVEL + 2], z: f64, valid: usize) {
+    // newest[q]: the latest value of the q-th difference of the decimated phase. A new
+    // point z extends every order: w_0 ← z, w_q ← (new w_{q−1}) − (old w_{q−1}).
+    let mut newest = [0.0f64; MAX_LEVEL + 1];
+    let push = |newest: &mut [f64; MAX_LEVEL + 1], z: f64, valid: usize| {
         let mut value = z;
         for slot in newest.iter_mut().take(valid) {
             let previous = *slot;
             *slot = value;
             value -= previous;
         }
-    }
-    // Prime: after d + 1 points, order d has its first value, the shift of its sums.
-    for k in 0..=d {
+    };
+    // Prime: after D + 1 points, order D has its first value, the shift of its sums.
+    for k in 0..=D {
         let Some(z) = points.next() else {
             return [None, None];
         };
         push(&mut newest, z, k + 1);
     }
-    let shift = newest[d];
+    let shift = newest[D];
     let mut low = Moments {
         len: 1,
         ..Moments::default()
     };
     let mut high = Moments::default();
-    if both {
-        // One more point starts order d + 1 (and gives order d its second value).
-        if let Some(z) = points.next() {
-            push(&mut newest, z, d + 2);
-            let u = newest[d] - shift;
-            low.len += 1;
-            low.sum += u;
-            low.squares += u * u;
-            low.last = u;
-            // lag1 += u_0·u with u_0 = 0.
-            high.len = 1;
-            let high_shift = newest[d + 1];
-            let (mut previous_low, mut previous_high) = (u, 0.0f64);
-            for z in points {
-                push(&mut newest, z, MAX_LEVEL + 2);
-                let u = newest[d] - shift;
-                let v = newest[d + 1] - high_shift;
-                low.sum += u;
-                low.squares += u * u;
-                low.lag1 += previous_low * u;
-                high.sum += v;
-                high.squares += v * v;
-                high.lag1 += previous_high * v;
-                previous_low = u;
-                previous_high = v;
-                high.len += 1;
-            }
-            low.len += high.len - 1;
-            low.last = previous_low;
-            high.last = previous_high;
-        }
-    } else {
-        let mut previous = 0.0f64;
-        for z in points {
-            push(&mut newest, z, MAX_LEVEL + 2);
-            let u = newest[d] - shift;
-            low.sum += u;
-            low.squares += u * u;
-            low.lag1 += previous * u;
-            previous = u;
-            low.len += 1;
-        }
-        low.last = previous;
+    let mut high_shift = 0.0;
+    let (mut previous_low, mut previous_high) = (0.0f64, 0.0f64);
+    if BOTH {
+        // One more point starts order D + 1 (and gives order D its second value).
+        let Some(z) = points.next() else {
+            return [None, None];
+        };
+        push(&mut newest, z, D + 2);
+        let u = newest[D] - shift;
+        low.len += 1;
+        low.sum += u;
+        low.squares += u * u;
+        // lag1 += u_0·u with u_0 = 0.
+        previous_low = u;
+        high.len = 1;
+        high_shift = newest[D + 1];
     }
+    for z in points {
+        push(&mut newest, z, top + 1);
+        let u = newest[D] - shift;
+        low.sum += u;
+        low.squares += u * u;
+        low.lag1 += previous_low * u;
+        previous_low = u;
+        low.len += 1;
+        if BOTH {
+            let v = newest[top] - high_shift;
+            high.sum += v;
+            high.squares += v * v;
+            high.lag1 += previous_high * v;
+            previous_high = v;
+            high.len += 1;
+        }
+    }
+    low.last = previous_low;
+    high.last = previous_high;
     [low.lag1(), high.lag1()]
 }
 
