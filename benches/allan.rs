@@ -43,23 +43,47 @@ fn simulate(seed: u64) -> Vec<f64> {
 }
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    best_of_prepared(runs, || (), |()| f())
+    let (time, out) = best_of_prepared(runs, || (), |()| f());
+    (time.wall, out)
 }
 
-/// Best wall time of `run(prepare())` over `runs` runs; `prepare` (e.g. copying the input
-/// that the analysis consumes) is not timed.
+/// Process CPU time (user + system, all threads), seconds.
+fn cpu_now() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID)
+        .map(|t| t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9)
+        .unwrap_or(f64::NAN)
+}
+
+/// Wall time and the process CPU time spent in the same run.
+#[derive(Clone, Copy)]
+struct Timed {
+    wall: f64,
+    cpu: f64,
+}
+
+/// Best wall time of `run(prepare())` over `runs` runs, with that run's CPU time;
+/// `prepare` (e.g. copying the input that the analysis consumes) is not timed.
 fn best_of_prepared<I, T>(
     runs: usize,
     mut prepare: impl FnMut() -> I,
     mut run: impl FnMut(I) -> T,
-) -> (f64, T) {
-    let mut best = f64::INFINITY;
+) -> (Timed, T) {
+    let mut best = Timed {
+        wall: f64::INFINITY,
+        cpu: f64::NAN,
+    };
     let mut out = None;
     for _ in 0..runs {
         let input = prepare();
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), cpu_now());
         let r = run(input);
-        best = best.min(t.elapsed().as_secs_f64());
+        let wall = t.elapsed().as_secs_f64();
+        if wall < best.wall {
+            best = Timed {
+                wall,
+                cpu: cpu_now() - c,
+            };
+        }
         out = Some(r);
     }
     (best, out.expect("runs > 0"))
@@ -162,9 +186,14 @@ fn main() {
         "# Allan benchmark: {SAMPLES} samples per axis at {RATE_HZ} Hz, {threads} rayon threads\n"
     );
 
-    // 1. Per deviation type, one axis and six axes (phase building included).
-    println!("| deviation | grid | taus | 1 axis [s] | 6 axes [s] |");
-    println!("|---|---|---|---|---|");
+    // 1. Per deviation type, one axis and six axes (phase building included): wall and
+    //    process CPU time with the default rayon pool, and the one axis on one thread.
+    println!("| deviation | grid | taus | 1 axis [s] | 1 axis CPU [s] | 1 axis, 1 thread [s] | 1 axis, 1 thread CPU [s] | 6 axes [s] | 6 axes CPU [s] |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let single = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("one-thread pool");
     let cases: [(DeviationKind, TauGrid, &str); 8] = [
         (DeviationKind::Oadev, TauGrid::Octave, "octave"),
         (DeviationKind::Oadev, TauGrid::Dense(10), "dense:10"),
@@ -183,11 +212,24 @@ fn main() {
             || vec![axes[0].clone()],
             |a| analyse_all(a, *kind, grid, false),
         );
+        let (serial, _) = single.install(|| {
+            best_of_prepared(
+                3,
+                || vec![axes[0].clone()],
+                |a| analyse_all(a, *kind, grid, false),
+            )
+        });
         let (six, _) = best_of_prepared(2, || axes.clone(), |a| analyse_all(a, *kind, grid, false));
         println!(
-            "| {} | {label} | {} | {one:.3} | {six:.3} |",
+            "| {} | {label} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
             kind.name(),
-            result[0].curve.points.len()
+            result[0].curve.points.len(),
+            one.wall,
+            one.cpu,
+            serial.wall,
+            serial.cpu,
+            six.wall,
+            six.cpu
         );
     }
 
@@ -198,21 +240,60 @@ fn main() {
         || axes.clone(),
         |a| analyse_all(a, DeviationKind::Oadev, &TauGrid::Octave, true),
     );
+    let (report_serial, _) = single.install(|| {
+        best_of_prepared(
+            3,
+            || axes.clone(),
+            |a| analyse_all(a, DeviationKind::Oadev, &TauGrid::Octave, true),
+        )
+    });
     println!(
-        "\nSix-axis OADEV octave report with fit, in memory: {report:.3} s ({} fits)",
-        fits.iter().filter(|r| r.fit.is_some()).count()
+        "\nSix-axis OADEV octave report with fit, in memory: {:.3} s, CPU {:.3} s ({} fits); on one thread {:.3} s, CPU {:.3} s",
+        report.wall,
+        report.cpu,
+        fits.iter().filter(|r| r.fit.is_some()).count(),
+        report_serial.wall,
+        report_serial.cpu
     );
     let npy = dir.join("data.npy");
     let cli = AnalysisCli::parse_from([
         "bench", "--rate", "150", "--units", "rad/s", "--fit", "--kind", "oadev",
     ]);
-    let (end_to_end, report_doc) = best_of(3, || {
-        analyse_inputs(std::slice::from_ref(&npy), &cli.analysis).expect("analyse the npy file")
-    });
+    let (end_to_end, report_doc) = best_of_prepared(
+        3,
+        || (),
+        |()| {
+            analyse_inputs(std::slice::from_ref(&npy), &cli.analysis).expect("analyse the npy file")
+        },
+    );
     println!(
-        "Six-axis OADEV octave report with fit, from data.npy (reading included): {end_to_end:.3} s ({} axes)\n",
+        "Six-axis OADEV octave report with fit, from data.npy (reading included): {:.3} s, CPU {:.3} s ({} axes)\n",
+        end_to_end.wall,
+        end_to_end.cpu,
         report_doc.axes.len()
     );
+
+    // 2b. The same six axes as a session (one IMU: gyro = columns 0–2, accel = 3–5),
+    //     end to end through the session reader (decompression included).
+    let session = dir.join("session");
+    let _ = std::fs::remove_dir_all(&session);
+    write_axes_session(&session, &axes);
+    let cli = AnalysisCli::parse_from(["bench", "--fit", "--kind", "oadev"]);
+    let (from_session, session_doc) = best_of_prepared(
+        3,
+        || (),
+        |()| {
+            analyse_inputs(std::slice::from_ref(&session), &cli.analysis)
+                .expect("analyse the session")
+        },
+    );
+    println!(
+        "Six-axis OADEV octave report with fit, from a session (reading included): {:.3} s, CPU {:.3} s ({} axes)\n",
+        from_session.wall,
+        from_session.cpu,
+        session_doc.axes.len()
+    );
+    std::fs::remove_dir_all(&session).expect("delete the benchmark session");
 
     // 3. Run time against error: grid density and the fitted terms (mean |error| over 6 axes).
     println!(
@@ -431,14 +512,11 @@ fn simulate_batches(rows: usize, batch: usize, mut sink: impl FnMut(&[[f64; 3]])
     }
 }
 
-/// Writes `rows` rows as a session with one IMU `imu0` (gyro simulated, accel constant).
-fn write_memory_session(path: &std::path::Path, rows: usize) {
-    use imulab::store::{
-        DeviceInfo, DeviceKind, ImuRecord, Manifest, SessionWriter, WriterOptions,
-    };
-    let device = DeviceInfo {
+/// The bench's IMU device description.
+fn bench_device() -> imulab::store::DeviceInfo {
+    imulab::store::DeviceInfo {
         name: "imu0".into(),
-        kind: DeviceKind::Imu,
+        kind: imulab::store::DeviceKind::Imu,
         model: "sim".into(),
         serial: String::new(),
         port: "sim".into(),
@@ -446,7 +524,12 @@ fn write_memory_session(path: &std::path::Path, rows: usize) {
         rate_hz: RATE_HZ,
         axis_frame: "FRD".into(),
         extra: Default::default(),
-    };
+    }
+}
+
+/// A session writer for the benchmark data (no fsync, no rotation within a week).
+fn bench_writer(path: &std::path::Path) -> imulab::store::SessionWriter {
+    use imulab::store::{Manifest, SessionWriter, WriterOptions};
     let options = WriterOptions {
         fsync_on_flush: false,
         rotate_after: std::time::Duration::from_secs(86_400),
@@ -454,27 +537,53 @@ fn write_memory_session(path: &std::path::Path, rows: usize) {
         flush_interval: std::time::Duration::from_secs(60),
         ..WriterOptions::default()
     };
-    let mut writer = SessionWriter::create(
+    SessionWriter::create(
         path,
-        Manifest::new(vec![device], toml::Table::new()),
+        Manifest::new(vec![bench_device()], toml::Table::new()),
         options,
     )
-    .expect("create the session");
-    let mut row = 0i64;
+    .expect("create the session")
+}
+
+/// One IMU row at row index `row` of a 150 Hz stream.
+fn bench_record(row: usize, gyro: [f64; 3], accel: [f64; 3]) -> imulab::store::ImuRecord {
+    let t_ns = 1_000_000_000 + (row as f64 * 1e9 / RATE_HZ).round() as i64;
+    imulab::store::ImuRecord {
+        t_mono_ns: t_ns,
+        t_wall_ns: 1_700_000_000_000_000_000 + t_ns,
+        t_sensor: f64::NAN,
+        gyro,
+        accel,
+        temp: 25.0,
+        status: 0,
+    }
+}
+
+/// Writes six axes (gyro x, y, z then accel x, y, z) as a session with one IMU `imu0`.
+fn write_axes_session(path: &std::path::Path, axes: &[Vec<f64>]) {
+    let mut writer = bench_writer(path);
+    let mut records = Vec::with_capacity(9_000);
+    let rows = axes[0].len();
+    for start in (0..rows).step_by(9_000) {
+        records.clear();
+        records.extend((start..(start + 9_000).min(rows)).map(|r| {
+            let v = |a: usize| axes[a][r];
+            bench_record(r, [v(0), v(1), v(2)], [v(3), v(4), v(5)])
+        }));
+        writer.append_imu("imu0", &records).expect("append rows");
+    }
+    writer.close().expect("close the session");
+}
+
+/// Writes `rows` rows as a session with one IMU `imu0` (gyro simulated, accel constant).
+fn write_memory_session(path: &std::path::Path, rows: usize) {
+    let mut writer = bench_writer(path);
+    let mut row = 0;
     let mut records = Vec::with_capacity(9_000);
     simulate_batches(rows, 9_000, |batch| {
         records.clear();
         for gyro in batch {
-            let t_ns = 1_000_000_000 + (row as f64 * 1e9 / RATE_HZ).round() as i64;
-            records.push(ImuRecord {
-                t_mono_ns: t_ns,
-                t_wall_ns: 1_700_000_000_000_000_000 + t_ns,
-                t_sensor: f64::NAN,
-                gyro: *gyro,
-                accel: [0.0, 0.0, -9.80665],
-                temp: 25.0,
-                status: 0,
-            });
+            records.push(bench_record(row, *gyro, [0.0, 0.0, -9.80665]));
             row += 1;
         }
         writer.append_imu("imu0", &records).expect("append rows");

@@ -54,13 +54,13 @@ pub struct AnalysisOptions {
 /// Runs the analysis of one axis; the series is consumed so its memory is reused for phase.
 pub fn analyse_axis(device: &str, series: AxisSeries, options: &AnalysisOptions) -> AxisResult {
     let total: usize = series.sample_count();
-    let mean = series
-        .segments
+    let phases: Vec<Phase> = series.segments.into_iter().map(Phase::from_rate).collect();
+    // Each phase removed its segment's mean; the axis mean weighs them by length.
+    let mean = phases
         .iter()
-        .map(|s| super::numerics::compensated_mean(s) * s.len() as f64)
+        .map(|p| p.removed_mean * (p.len() - 1) as f64)
         .sum::<f64>()
         / total.max(1) as f64;
-    let phases: Vec<Phase> = series.segments.into_iter().map(Phase::from_rate).collect();
     let curve = compute_curve_segments(&phases, series.tau0, options.kind, &options.grid);
     drop(phases);
     let (fit, fit_error) = if options.fit {

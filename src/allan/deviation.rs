@@ -2,7 +2,7 @@
 //! ADEV (non-overlapping), OADEV, MDEV, HDEV, OHDEV, TDEV and TOTDEV, with the
 //! conventions of NIST SP 1065 and Stable32 (term counts included).
 
-use super::numerics::{blocked_sum, CompensatedSum, Phase};
+use super::numerics::{blocked_sum, sum_streams, CompensatedSum, Phase};
 use serde::{Deserialize, Serialize};
 
 /// Which deviation to compute.
@@ -161,8 +161,8 @@ fn second_difference_sum(x: &[f64], m: usize, stride: usize, count: usize) -> f6
         let a = &x[..count];
         let b = &x[m..m + count];
         let c = &x[2 * m..2 * m + count];
-        blocked_sum(count, |i| {
-            let d = c[i] - 2.0 * b[i] + a[i];
+        sum_streams([a, b, c], |[a, b, c]| {
+            let d = c - 2.0 * b + a;
             d * d
         })
     } else {
@@ -181,8 +181,8 @@ fn third_difference_sum(x: &[f64], m: usize, stride: usize, count: usize) -> f64
         let b = &x[m..m + count];
         let c = &x[2 * m..2 * m + count];
         let d = &x[3 * m..3 * m + count];
-        blocked_sum(count, |i| {
-            let v = d[i] - 3.0 * c[i] + 3.0 * b[i] - a[i];
+        sum_streams([a, b, c, d], |[a, b, c, d]| {
+            let v = d - 3.0 * c + 3.0 * b - a;
             v * v
         })
     } else {
@@ -232,13 +232,19 @@ fn modified_sum_in_segments(x: &[f64], m: usize, count: usize, segment_steps: us
 const SEGMENT_STEPS: usize = 1 << 16;
 
 /// Σ W_j² for `j` in `start..start + len` of each lane (see [`modified_sum`]).
+#[allow(clippy::needless_range_loop)] // one index walks the L lane arrays in lock-step
 fn scan_windows<const L: usize>(x: &[f64], m: usize, starts: [usize; L], len: usize) -> f64 {
     const BLOCK: usize = 256;
-    let second = |i: usize| x[i + 2 * m] - 2.0 * x[i + m] + x[i];
-    let mut window: [f64; L] = starts.map(|j| blocked_sum(m, |i| second(j + i)));
+    let mut window: [f64; L] = starts.map(|j| {
+        sum_streams(
+            [&x[j..j + m], &x[j + m..j + 2 * m], &x[j + 2 * m..j + 3 * m]],
+            |[a, b, c]| c - 2.0 * b + a,
+        )
+    });
     let mut total = CompensatedSum::new();
     let mut squares: [f64; L] = window.map(|w| w * w);
-    let mut steps = [[0.0f64; L]; BLOCK];
+    // Lane-major, so each lane's steps are one contiguous, vectorised pass over x.
+    let mut steps = [[0.0f64; BLOCK]; L];
     let mut done = 1;
     while done < len {
         let n = BLOCK.min(len - done);
@@ -248,14 +254,16 @@ fn scan_windows<const L: usize>(x: &[f64], m: usize, starts: [usize; L], len: us
             let b = &x[k + m..k + m + n];
             let c = &x[k + 2 * m..k + 2 * m + n];
             let d = &x[k + 3 * m..k + 3 * m + n];
-            for (slot, (((a, b), c), d)) in steps[..n].iter_mut().zip(a.iter().zip(b).zip(c).zip(d))
+            for (slot, (((a, b), c), d)) in steps[lane][..n]
+                .iter_mut()
+                .zip(a.iter().zip(b).zip(c).zip(d))
             {
-                slot[lane] = (d - a) + 3.0 * (b - c);
+                *slot = (d - a) + 3.0 * (b - c);
             }
         }
-        for step in &steps[..n] {
+        for i in 0..n {
             for lane in 0..L {
-                window[lane] += step[lane];
+                window[lane] += steps[lane][i];
                 squares[lane] += window[lane] * window[lane];
             }
         }
@@ -306,8 +314,8 @@ fn total_sum(x: &[f64], m: usize) -> f64 {
         let a = &x[inner_start - m..inner_start - m + count];
         let b = &x[inner_start..inner_start + count];
         let c = &x[inner_start + m..inner_start + m + count];
-        total.add(blocked_sum(count, |i| {
-            let d = c[i] - 2.0 * b[i] + a[i];
+        total.add(sum_streams([a, b, c], |[a, b, c]| {
+            let d = c - 2.0 * b + a;
             d * d
         }));
     }

@@ -38,6 +38,13 @@ pub enum InputError {
 /// Callback receiving `(row_index, values)` for each streamed row.
 pub type RowVisitor<'a> = dyn FnMut(u64, &[f64]) -> Result<(), InputError> + 'a;
 
+/// Callback receiving `(first_row_index, columns)` for each streamed block of rows: one
+/// slice per wanted channel, all of the same length.
+pub type BlockVisitor<'a> = dyn FnMut(u64, &[&[f64]]) -> Result<(), InputError> + 'a;
+
+/// Rows per block of [`SampleSource::for_each_block`].
+pub const BLOCK_ROWS: usize = 1 << 16;
+
 /// A source of rows of named numeric channels, streamed in time order.
 pub trait SampleSource {
     /// Short description for reports (e.g. the file name).
@@ -47,6 +54,40 @@ pub trait SampleSource {
     /// Calls `visit(row_index, values)` for each row with the values of `wanted` channels
     /// (in the order given).
     fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError>;
+
+    /// Calls `visit(first_row, columns)` for consecutive blocks of rows, one slice per
+    /// `wanted` channel. Sources that hold columns (.npy, sessions) override this to hand
+    /// out whole blocks without per-row work; the default gathers rows.
+    fn for_each_block(
+        &self,
+        wanted: &[usize],
+        visit: &mut BlockVisitor<'_>,
+    ) -> Result<(), InputError> {
+        let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(BLOCK_ROWS); wanted.len()];
+        let mut first = 0u64;
+        let mut flush = |columns: &mut Vec<Vec<f64>>, first: u64| -> Result<(), InputError> {
+            let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+            visit(first, &slices)?;
+            columns.iter_mut().for_each(Vec::clear);
+            Ok(())
+        };
+        self.for_each_row(wanted, &mut |row, values| {
+            if columns.first().is_some_and(Vec::is_empty) {
+                first = row;
+            }
+            for (column, &v) in columns.iter_mut().zip(values) {
+                column.push(v);
+            }
+            if columns.first().is_some_and(|c| c.len() >= BLOCK_ROWS) {
+                flush(&mut columns, first)?;
+            }
+            Ok(())
+        })?;
+        if columns.first().is_some_and(|c| !c.is_empty()) {
+            flush(&mut columns, first)?;
+        }
+        Ok(())
+    }
 
     /// The device name when the source is a session device (names the results).
     fn as_any_session(&self) -> Option<&str> {
@@ -226,6 +267,8 @@ pub struct NpySource {
     columns: usize,
     fortran: bool,
     single: bool,
+    /// Byte order of the values (`>` in the dtype, or `=` on a big-endian machine).
+    big_endian: bool,
     channels: Vec<String>,
 }
 
@@ -250,7 +293,8 @@ impl NpySource {
             }
         };
         let type_string = npy.dtype().descr();
-        let single = match type_string.trim_matches(|c| c == '\'' || c == '"') {
+        let dtype = type_string.trim_matches(|c| c == '\'' || c == '"');
+        let single = match dtype {
             "<f8" | ">f8" | "=f8" => false,
             "<f4" | ">f4" | "=f4" => true,
             other => {
@@ -259,15 +303,99 @@ impl NpySource {
                 )))
             }
         };
+        let big_endian =
+            dtype.starts_with('>') || (dtype.starts_with('=') && cfg!(target_endian = "big"));
         Ok(NpySource {
             path: path.to_path_buf(),
             rows,
             columns,
             fortran: matches!(npy.order(), npyz::Order::Fortran),
             single,
+            big_endian,
             channels: (0..columns).map(|i| i.to_string()).collect(),
         })
     }
+
+    /// Bytes per value.
+    fn item(&self) -> usize {
+        if self.single {
+            4
+        } else {
+            8
+        }
+    }
+
+    /// Appends to `out` the values at `raw[k·stride + offset ..]` for every whole `stride`.
+    fn decode_into(&self, raw: &[u8], stride: usize, offset: usize, out: &mut Vec<f64>) {
+        let rows = raw.chunks_exact(stride);
+        match (self.single, self.big_endian) {
+            (false, false) => out.extend(rows.map(|r| f64::from_le_bytes(bytes8(r, offset)))),
+            (false, true) => out.extend(rows.map(|r| f64::from_be_bytes(bytes8(r, offset)))),
+            (true, false) => {
+                out.extend(rows.map(|r| f64::from(f32::from_le_bytes(bytes4(r, offset)))))
+            }
+            (true, true) => {
+                out.extend(rows.map(|r| f64::from(f32::from_be_bytes(bytes4(r, offset)))))
+            }
+        }
+    }
+
+    fn truncated(&self, row: u64) -> InputError {
+        InputError::Parse {
+            path: self.path.clone(),
+            row,
+            message: "file is truncated (fewer values than its header declares)".into(),
+        }
+    }
+}
+
+fn bytes8(row: &[u8], offset: usize) -> [u8; 8] {
+    let mut b = [0u8; 8];
+    b.copy_from_slice(&row[offset..offset + 8]);
+    b
+}
+
+fn bytes4(row: &[u8], offset: usize) -> [u8; 4] {
+    let mut b = [0u8; 4];
+    b.copy_from_slice(&row[offset..offset + 4]);
+    b
+}
+
+/// Byte offset of the data in a .npy file: after the magic `\x93NUMPY`, the version and
+/// the header length (2 bytes in version 1, 4 bytes in versions 2 and 3).
+fn npy_data_offset(path: &Path) -> Result<u64, InputError> {
+    use std::io::Read;
+    let mut head = [0u8; 12];
+    File::open(path)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .map_err(|source| InputError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    if &head[..6] != b"\x93NUMPY" {
+        return Err(InputError::Format {
+            path: path.to_path_buf(),
+            message: "not a NumPy .npy file (magic bytes missing)".into(),
+        });
+    }
+    Ok(match head[6] {
+        1 => 10 + u64::from(u16::from_le_bytes([head[8], head[9]])),
+        _ => 12 + u64::from(u32::from_le_bytes([head[8], head[9], head[10], head[11]])),
+    })
+}
+
+/// Reads until `buf` is full or the file ends; returns the bytes read.
+fn read_full(reader: &mut impl std::io::Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut filled = 0;
+    while filled < buf.len() {
+        match reader.read(&mut buf[filled..]) {
+            Ok(0) => break,
+            Ok(n) => filled += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(filled)
 }
 
 fn open_npy(path: &Path) -> Result<npyz::NpyFile<BufReader<File>>, InputError> {
@@ -292,6 +420,72 @@ impl SampleSource for NpySource {
     }
     fn channels(&self) -> &[String] {
         &self.channels
+    }
+    /// Whole blocks of rows read as raw bytes and decoded column by column (no per-value
+    /// iterator, no per-row callback).
+    fn for_each_block(
+        &self,
+        wanted: &[usize],
+        visit: &mut BlockVisitor<'_>,
+    ) -> Result<(), InputError> {
+        use std::io::{Seek, SeekFrom};
+        let io = |source| InputError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let open_at = |byte: u64| -> Result<File, InputError> {
+            let mut file = File::open(&self.path).map_err(io)?;
+            file.seek(SeekFrom::Start(byte)).map_err(io)?;
+            Ok(file)
+        };
+        let data = npy_data_offset(&self.path)?;
+        let item = self.item();
+        let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(BLOCK_ROWS); wanted.len()];
+        let mut row = 0u64;
+        if self.fortran && self.columns > 1 {
+            // Column-major: every wanted column is a contiguous run with its own reader.
+            let mut readers: Vec<File> = wanted
+                .iter()
+                .map(|&c| open_at(data + c as u64 * self.rows * item as u64))
+                .collect::<Result<_, _>>()?;
+            let mut raw = vec![0u8; BLOCK_ROWS * item];
+            while row < self.rows {
+                let n = (self.rows - row).min(BLOCK_ROWS as u64) as usize;
+                for (reader, column) in readers.iter_mut().zip(columns.iter_mut()) {
+                    let got = read_full(reader, &mut raw[..n * item]).map_err(io)?;
+                    if got < n * item {
+                        return Err(self.truncated(row + (got / item) as u64));
+                    }
+                    column.clear();
+                    self.decode_into(&raw[..n * item], item, 0, column);
+                }
+                let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+                visit(row, &slices)?;
+                row += n as u64;
+            }
+            return Ok(());
+        }
+        let row_bytes = item * self.columns.max(1);
+        let mut reader = open_at(data)?;
+        let mut raw = vec![0u8; BLOCK_ROWS * row_bytes];
+        while row < self.rows {
+            let n = (self.rows - row).min(BLOCK_ROWS as u64) as usize;
+            let got = read_full(&mut reader, &mut raw[..n * row_bytes]).map_err(io)?;
+            let complete = got / row_bytes;
+            for (column, &c) in columns.iter_mut().zip(wanted) {
+                column.clear();
+                self.decode_into(&raw[..complete * row_bytes], row_bytes, c * item, column);
+            }
+            if complete > 0 {
+                let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+                visit(row, &slices)?;
+            }
+            if complete < n {
+                return Err(self.truncated(row + complete as u64));
+            }
+            row += n as u64;
+        }
+        Ok(())
     }
     fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError> {
         let io = |source| InputError::Io {
@@ -573,13 +767,21 @@ pub fn read_axes(
             (builder, temperature.map(|_| Vec::new()))
         })
         .collect();
-    source.for_each_row(&wanted, &mut |row, values| {
-        let time = time_slot
-            .zip(time_channel)
-            .map(|(slot, (_, scale))| values[slot] * scale);
-        let temp = temp_slot.map(|s| values[s]);
+    // Whole blocks per column: the clean stretches (every value finite, every interval
+    // within tolerance) are appended in bulk, only blocks with a problem go row by row.
+    let mut times: Vec<f64> = Vec::new();
+    source.for_each_block(&wanted, &mut |first_row, columns| {
+        let time = match (time_slot, time_channel) {
+            (Some(slot), Some((_, scale))) => {
+                times.clear();
+                times.extend(columns[slot].iter().map(|t| t * scale));
+                Some(times.as_slice())
+            }
+            _ => None,
+        };
+        let temp = temp_slot.map(|s| columns[s]);
         for (i, (builder, temps)) in builders.iter_mut().enumerate() {
-            builder.push(row, time, values[i], temp, temps.as_mut())?;
+            builder.push_block(first_row, time, columns[i], temp, temps.as_mut())?;
         }
         Ok(())
     })?;
@@ -788,6 +990,68 @@ impl SeriesBuilder {
             temps.push(temp as f32);
         }
         Ok(())
+    }
+
+    /// Appends a block of rows starting at `first_row`. When every value is finite and
+    /// every interval (including the one from the previous block) is within the jitter
+    /// tolerance, the block is appended in bulk, with exactly the bookkeeping [`Self::push`]
+    /// would do; otherwise it goes through `push` row by row.
+    fn push_block(
+        &mut self,
+        first_row: u64,
+        times: Option<&[f64]>,
+        values: &[f64],
+        temperatures: Option<&[f64]>,
+        mut temps: Option<&mut Vec<f32>>,
+    ) -> Result<(), InputError> {
+        let clean = self.pending_invalid == 0
+            && values.iter().all(|v| v.is_finite())
+            && times.is_none_or(|t| self.uniform(t));
+        if !clean {
+            for (k, &value) in values.iter().enumerate() {
+                self.push(
+                    first_row + k as u64,
+                    times.map(|t| t[k]),
+                    value,
+                    temperatures.map(|t| t[k]),
+                    temps.as_deref_mut(),
+                )?;
+            }
+            return Ok(());
+        }
+        if values.is_empty() {
+            return Ok(());
+        }
+        self.health.samples += values.len() as u64;
+        match times {
+            Some(t) => {
+                let first = *self.first_time.get_or_insert(t[0]);
+                let last = t[t.len() - 1];
+                self.last_time = Some(last);
+                self.health.duration_s = last - first;
+            }
+            None => self.health.duration_s = self.health.samples as f64 * self.tau0,
+        }
+        self.current.extend_from_slice(values);
+        if let (Some(temps), Some(temperatures)) = (temps, temperatures) {
+            temps.extend(temperatures.iter().map(|&t| t as f32));
+        }
+        Ok(())
+    }
+
+    /// Whether the time stamps `t` are all finite and every interval, from the last time
+    /// stamp seen on, is within the jitter tolerance of τ0 (no gap, no step back).
+    fn uniform(&self, t: &[f64]) -> bool {
+        // The same tests as `push`, so both paths classify every interval alike.
+        let within = |dt: f64| {
+            let ratio = dt / self.tau0;
+            ratio < 1.5 && dt > 0.0 && (ratio - 1.0).abs() <= JITTER_TOLERANCE
+        };
+        t.iter().all(|v| v.is_finite())
+            && self
+                .last_time
+                .is_none_or(|prev| t.first().is_none_or(|&f| within(f - prev)))
+            && t.windows(2).all(|w| within(w[1] - w[0]))
     }
 
     fn finish(mut self) -> Result<(Vec<Vec<f64>>, Health), InputError> {

@@ -2,6 +2,13 @@
 //! (Riley & Greenhall, "Power law noise identification using the lag 1 autocorrelation",
 //! 2004): decimate the phase by m, difference it until the lag-1 autocorrelation says
 //! the result is close to white, and read α from the number of differences taken.
+//!
+//! Cost: the decimated points are read in place (a stride of m through the phase, no
+//! copy), and only the difference orders the decision reaches are evaluated, two orders
+//! per pass: orders 0 and 1 (enough for every noise from white PM to white FM), then 2
+//! and 3 only when the first pair still looks correlated. Each pass accumulates shifted
+//! sums (Σu, Σu², Σu·u_next with u = w − w₀) and removes the mean algebraically
+//! afterwards, so one pass replaces the textbook's mean pass plus product pass.
 
 use super::edf::Alpha;
 
@@ -25,70 +32,135 @@ pub fn identify_alpha(phase: &[f64], m: usize, max_differences: u32) -> Option<A
                 .is_some_and(|len| len >= MIN_POINTS)
         })
         .count();
-    if levels == 0 {
-        return None;
-    }
-    let r1 = lag1_of_differences(phase, m, levels);
-    for (d, r1) in r1.iter().take(levels).enumerate() {
-        let r1 = (*r1)?;
-        let delta = r1 / (1.0 + r1);
-        if delta < 0.25 || d as u32 >= max_differences {
-            let p = -(2.0 * delta).round() as i32 - 2 * d as i32;
-            return Some(p + 2);
+    let mut d = 0;
+    while d < levels {
+        let pair = lag1_pair(phase, m, d, d + 1 < levels);
+        for (offset, r1) in pair.into_iter().enumerate() {
+            let order = d + offset;
+            if order >= levels {
+                break;
+            }
+            let r1 = r1?;
+            let delta = r1 / (1.0 + r1);
+            if delta < 0.25 || order as u32 >= max_differences {
+                let p = -(2.0 * delta).round() as i32 - 2 * order as i32;
+                return Some(p + 2);
+            }
         }
+        d += 2;
     }
-    // The next difference would have had fewer than MIN_POINTS points.
+    // No order was allowed (too few points), or the next difference would have had fewer
+    // than MIN_POINTS points.
     None
 }
 
 /// Highest difference order considered (Hadamard variances: 3).
 const MAX_LEVEL: usize = 3;
 
-/// Lag-1 autocorrelation (mean removed) of the 0th … `levels − 1`-th difference of the phase
-/// decimated by `m`, all from the same two passes over the decimated points: the first
-/// pass sums each difference series for its mean, the second accumulates the centred
-/// lag-1 products and squares. `None` for a series with zero variance.
-fn lag1_of_differences(phase: &[f64], m: usize, levels: usize) -> [Option<f64>; MAX_LEVEL + 1] {
-    // Differences of order 0…3 at decimated index k from the last four points.
-    fn differences(history: &[f64; 4]) -> [f64; 4] {
-        let [v0, v1, v2, v3] = *history; // v0 newest
-        [
-            v0,
-            v0 - v1,
-            v0 - 2.0 * v1 + v2,
-            v0 - 3.0 * v1 + 3.0 * v2 - v3,
-        ]
+/// Shifted running sums of one difference series u_k = w_k − w_0 (k = 0 … len − 1).
+#[derive(Default, Clone, Copy)]
+struct Moments {
+    len: usize,
+    sum: f64,
+    squares: f64,
+    lag1: f64,
+    last: f64,
+}
+
+impl Moments {
+    /// Lag-1 autocorrelation with the mean removed; `None` for zero variance.
+    ///
+    /// With μ = Σu/len: Σ(u−μ)² = Σu² − len·μ², and
+    /// Σ(u_k−μ)(u_{k+1}−μ) = Σu_k·u_{k+1} − μ·(2Σu − u_0 − u_last) + (len−1)·μ², where
+    /// u_0 = 0 by the choice of the shift.
+    fn lag1(&self) -> Option<f64> {
+        let n = self.len as f64;
+        let mean = self.sum / n;
+        let denominator = self.squares - n * mean * mean;
+        let numerator = self.lag1 - mean * (2.0 * self.sum - self.last) + (n - 1.0) * mean * mean;
+        (denominator > 0.0).then(|| numerator / denominator)
     }
-    let decimated = || phase.iter().step_by(m).copied();
-    let mut sums = [0.0f64; MAX_LEVEL + 1];
-    let mut history = [0.0f64; 4];
-    for (k, v) in decimated().enumerate() {
-        history = [v, history[0], history[1], history[2]];
-        let diff = differences(&history);
-        for d in 0..levels.min(k + 1) {
-            sums[d] += diff[d];
+}
+
+/// Lag-1 autocorrelations of the difference orders `d` and (when `both`) `d + 1` of the
+/// phase decimated by `m`, in one pass over the decimated points (`None` for an order
+/// with zero variance or fewer than two points). `d` is 0 or 2.
+fn lag1_pair(phase: &[f64], m: usize, d: usize, both: bool) -> [Option<f64>; 2] {
+    debug_assert!(d == 0 || d == 2, "difference orders are taken in pairs");
+    // Monomorphised per pair so the difference cascade lives in registers.
+    match (d, both) {
+        (0, false) => lag1_orders::<0, false>(phase, m),
+        (0, true) => lag1_orders::<0, true>(phase, m),
+        (_, false) => lag1_orders::<2, false>(phase, m),
+        (_, true) => lag1_orders::<2, true>(phase, m),
+    }
+}
+
+/// [`lag1_pair`] for the orders `D` and (with `BOTH`) `D + 1`.
+fn lag1_orders<const D: usize, const BOTH: bool>(phase: &[f64], m: usize) -> [Option<f64>; 2] {
+    let top = D + usize::from(BOTH);
+    let mut points = phase.iter().step_by(m).copied();
+    // newest[q]: the latest value of the q-th difference of the decimated phase. A new
+    // point z extends every order: w_0 ← z, w_q ← (new w_{q−1}) − (old w_{q−1}).
+    let mut newest = [0.0f64; MAX_LEVEL + 1];
+    let push = |newest: &mut [f64; MAX_LEVEL + 1], z: f64, valid: usize| {
+        let mut value = z;
+        for slot in newest.iter_mut().take(valid) {
+            let previous = *slot;
+            *slot = value;
+            value -= previous;
+        }
+    };
+    // Prime: after D + 1 points, order D has its first value, the shift of its sums.
+    for k in 0..=D {
+        let Some(z) = points.next() else {
+            return [None, None];
+        };
+        push(&mut newest, z, k + 1);
+    }
+    let shift = newest[D];
+    let mut low = Moments {
+        len: 1,
+        ..Moments::default()
+    };
+    let mut high = Moments::default();
+    let mut high_shift = 0.0;
+    let (mut previous_low, mut previous_high) = (0.0f64, 0.0f64);
+    if BOTH {
+        // One more point starts order D + 1 (and gives order D its second value).
+        let Some(z) = points.next() else {
+            return [None, None];
+        };
+        push(&mut newest, z, D + 2);
+        let u = newest[D] - shift;
+        low.len += 1;
+        low.sum += u;
+        low.squares += u * u;
+        // lag1 += u_0·u with u_0 = 0.
+        previous_low = u;
+        high.len = 1;
+        high_shift = newest[D + 1];
+    }
+    for z in points {
+        push(&mut newest, z, top + 1);
+        let u = newest[D] - shift;
+        low.sum += u;
+        low.squares += u * u;
+        low.lag1 += previous_low * u;
+        previous_low = u;
+        low.len += 1;
+        if BOTH {
+            let v = newest[top] - high_shift;
+            high.sum += v;
+            high.squares += v * v;
+            high.lag1 += previous_high * v;
+            previous_high = v;
+            high.len += 1;
         }
     }
-    let total = phase.len().div_ceil(m);
-    let means: [f64; MAX_LEVEL + 1] =
-        std::array::from_fn(|d| sums[d] / total.saturating_sub(d).max(1) as f64);
-    let mut numerator = [0.0f64; MAX_LEVEL + 1];
-    let mut denominator = [0.0f64; MAX_LEVEL + 1];
-    let mut previous = [0.0f64; MAX_LEVEL + 1];
-    history = [0.0; 4];
-    for (k, v) in decimated().enumerate() {
-        history = [v, history[0], history[1], history[2]];
-        let diff = differences(&history);
-        for d in 0..levels.min(k + 1) {
-            let current = diff[d] - means[d];
-            if k > d {
-                numerator[d] += previous[d] * current;
-            }
-            denominator[d] += current * current;
-            previous[d] = current;
-        }
-    }
-    std::array::from_fn(|d| (denominator[d] > 0.0).then(|| numerator[d] / denominator[d]))
+    low.last = previous_low;
+    high.last = previous_high;
+    [low.lag1(), high.lag1()]
 }
 
 #[cfg(test)]
@@ -128,5 +200,49 @@ mod tests {
     fn too_few_points_gives_none() {
         let w = white(100, 2);
         assert_eq!(identify_alpha(&w, 10, 2), None);
+    }
+
+    /// Textbook lag-1 autocorrelation of the d-th difference of the decimated phase: the
+    /// series is built explicitly, its mean removed in a first pass.
+    fn direct_lag1(phase: &[f64], m: usize, d: usize) -> Option<f64> {
+        let mut w: Vec<f64> = phase.iter().step_by(m).copied().collect();
+        for _ in 0..d {
+            w = w.windows(2).map(|p| p[1] - p[0]).collect();
+        }
+        let mean = w.iter().sum::<f64>() / w.len() as f64;
+        let c: Vec<f64> = w.iter().map(|v| v - mean).collect();
+        let numerator: f64 = c.windows(2).map(|p| p[0] * p[1]).sum();
+        let denominator: f64 = c.iter().map(|v| v * v).sum();
+        (denominator > 0.0).then(|| numerator / denominator)
+    }
+
+    #[test]
+    fn one_pass_lag1_equals_the_two_pass_definition() {
+        let w = white(5_000, 3);
+        let walk = integrate(&w);
+        let series: Vec<f64> = walk.iter().map(|v| v + 1e3).collect();
+        for phase in [&w, &walk, &series] {
+            for m in [1, 2, 7, 40] {
+                for d in [0, 2] {
+                    for both in [false, true] {
+                        let pair = lag1_pair(phase, m, d, both);
+                        for (offset, got) in pair.iter().enumerate().take(1 + both as usize) {
+                            let want = direct_lag1(phase, m, d + offset).unwrap();
+                            let got = got.unwrap();
+                            assert!(
+                                (got - want).abs() < 1e-9,
+                                "m={m} d={} both={both}: {got} vs {want}",
+                                d + offset
+                            );
+                        }
+                        if !both {
+                            assert!(pair[1].is_none());
+                        }
+                    }
+                }
+            }
+        }
+        let constant = vec![5.0; 100];
+        assert_eq!(lag1_pair(&constant, 1, 0, true), [None, None]);
     }
 }

@@ -2,7 +2,7 @@
 //! block by block through `imulab::store::Session::imu_blocks`. Channels are `t` (seconds
 //! from the first sample in range), `gyro_x…z` (rad/s), `accel_x…z` (m/s²) and `temp` (°C).
 
-use super::input::{InputError, RowVisitor, SampleSource};
+use super::input::{BlockVisitor, InputError, RowVisitor, SampleSource};
 use super::units::RateUnit;
 use crate::store::manifest::DeviceKind;
 use crate::store::{Session, TimeRange};
@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 const CHANNELS: [&str; 8] = [
     "t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z", "temp",
 ];
-const BLOCK_ROWS: usize = 1 << 16;
+use super::input::BLOCK_ROWS;
 
 pub struct SessionSource {
     dir: PathBuf,
@@ -113,6 +113,41 @@ impl SampleSource for SessionSource {
             4..=6 => Some(RateUnit::MetrePerSecondSquared),
             _ => None,
         }
+    }
+
+    /// Each stored block becomes one column slice per wanted channel (no per-row callback).
+    fn for_each_block(
+        &self,
+        wanted: &[usize],
+        visit: &mut BlockVisitor<'_>,
+    ) -> Result<(), InputError> {
+        let fail = |message: String| InputError::Format {
+            path: self.dir.clone(),
+            message,
+        };
+        let start = self.range.start_ns.unwrap_or(0);
+        let blocks = self
+            .session
+            .imu_blocks(&self.device, self.range, BLOCK_ROWS)
+            .map_err(|e| fail(e.to_string()))?;
+        let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(BLOCK_ROWS); wanted.len()];
+        let mut row = 0u64;
+        for block in blocks {
+            let block = block.map_err(|e| fail(format!("device `{}`: {e}", self.device)))?;
+            for (column, &c) in columns.iter_mut().zip(wanted) {
+                column.clear();
+                match c {
+                    0 => column.extend(block.t_mono_ns.iter().map(|&t| (t - start) as f64 * 1e-9)),
+                    1..=3 => column.extend(block.gyro.iter().map(|g| g[c - 1])),
+                    4..=6 => column.extend(block.accel.iter().map(|a| a[c - 4])),
+                    _ => column.extend_from_slice(&block.temp),
+                }
+            }
+            let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+            visit(row, &slices)?;
+            row += block.len() as u64;
+        }
+        Ok(())
     }
 
     fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError> {
