@@ -638,6 +638,10 @@ pub enum Timing {
     Rate(f64),
     /// A channel holding time stamps, scaled to seconds by `scale` (1 for s, 1e-9 for ns).
     TimeChannel { channel: usize, scale: f64 },
+    /// A channel holding host arrival times (a session's `t_mono_ns`), scaled like
+    /// `TimeChannel`. Frames of one read share an arrival time and the transport adds latency,
+    /// so the intervals are judged on the sample clock [`ArrivalClock`] rebuilds from them.
+    ArrivalTimes { channel: usize, scale: f64 },
 }
 
 /// Whether samples are rates (frequency) or phase (integrated: clock time error).
@@ -744,7 +748,12 @@ pub fn read_axes(
             nominal_interval(source, *channel, *scale)?,
             Some((*channel, *scale)),
         ),
+        Timing::ArrivalTimes { channel, scale } => (
+            arrival_interval(source, *channel, *scale)?,
+            Some((*channel, *scale)),
+        ),
     };
+    let mut clock = matches!(timing, Timing::ArrivalTimes { .. }).then(|| ArrivalClock::new(tau0));
     let mut wanted = axes.to_vec();
     let time_slot = time_channel.map(|(c, _)| {
         wanted.push(c);
@@ -774,7 +783,12 @@ pub fn read_axes(
         let time = match (time_slot, time_channel) {
             (Some(slot), Some((_, scale))) => {
                 times.clear();
-                times.extend(columns[slot].iter().map(|t| t * scale));
+                match clock.as_mut() {
+                    Some(clock) => {
+                        times.extend(columns[slot].iter().map(|t| clock.sample_time(t * scale)))
+                    }
+                    None => times.extend(columns[slot].iter().map(|t| t * scale)),
+                }
                 Some(times.as_slice())
             }
             _ => None,
@@ -847,6 +861,91 @@ fn nominal_interval(
     }
     intervals.sort_by(f64::total_cmp);
     Ok(intervals[intervals.len() / 2])
+}
+
+/// τ0 from host arrival times: the median of the mean intervals of windows of 1 000 rows over
+/// the first 20 000 rows. Batched arrivals make single intervals useless (many are 0); a window
+/// spans many batches, and the median ignores a window holding a gap.
+fn arrival_interval(
+    source: &dyn SampleSource,
+    channel: usize,
+    scale: f64,
+) -> Result<f64, InputError> {
+    const WINDOW: usize = 1_000;
+    let mut times = Vec::with_capacity(20 * WINDOW + 1);
+    let result = source.for_each_row(&[channel], &mut |_, v| {
+        let t = v[0] * scale;
+        if t.is_finite() {
+            times.push(t);
+        }
+        if times.len() > 20 * WINDOW {
+            return Err(InputError::Stopped);
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) | Err(InputError::Stopped) => {}
+        Err(e) => return Err(e),
+    }
+    let window = WINDOW.min(times.len().saturating_sub(1)).max(1);
+    let mut means: Vec<f64> = times
+        .windows(window + 1)
+        .step_by(window)
+        .map(|w| (w[window] - w[0]) / window as f64)
+        .filter(|dt| *dt > 0.0)
+        .collect();
+    if means.is_empty() {
+        return Err(InputError::Sampling(format!(
+            "{}: the arrival times do not increase",
+            source.describe()
+        )));
+    }
+    means.sort_by(f64::total_cmp);
+    Ok(means[means.len() / 2])
+}
+
+/// Host latency an arrival may carry before a pause counts as a gap: a USB serial adapter
+/// delivers every 16 ms and the daemon reads in batches; the daemon's own arrival-pause event
+/// uses the same 50 ms.
+const ARRIVAL_SLACK_S: f64 = 0.05;
+
+/// Rebuilds the sample clock from host arrival times. The clock advances τ0 per sample and
+/// follows the lower envelope of the arrivals (a sample cannot arrive before it was taken): it
+/// slews down to an earlier arrival by at most 5 % of τ0 per sample and creeps up by 0.1 % of
+/// τ0 per sample while arrivals are late, so it follows a sensor clock off nominal by up to
+/// 1e-3. An arrival later than the clock by more than τ0/2 + [`ARRIVAL_SLACK_S`] is a gap: the
+/// clock jumps by the whole samples missing (counted to within the host latency). A gap
+/// shorter than the slack cannot be told from latency by host time alone.
+struct ArrivalClock {
+    tau0: f64,
+    last: Option<f64>,
+}
+
+impl ArrivalClock {
+    fn new(tau0: f64) -> Self {
+        ArrivalClock { tau0, last: None }
+    }
+
+    fn sample_time(&mut self, arrival: f64) -> f64 {
+        if !arrival.is_finite() {
+            return arrival;
+        }
+        let Some(last) = self.last else {
+            self.last = Some(arrival);
+            return arrival;
+        };
+        let predicted = last + self.tau0;
+        let late = arrival - predicted;
+        let t = if late > 0.5 * self.tau0 + ARRIVAL_SLACK_S {
+            predicted + (late / self.tau0).round() * self.tau0
+        } else if late < 0.0 {
+            predicted + late.max(-0.05 * self.tau0)
+        } else {
+            predicted + late.min(1e-3 * self.tau0)
+        };
+        self.last = Some(t);
+        t
+    }
 }
 
 /// Streams samples into uniform segments under a gap policy.
@@ -1079,6 +1178,60 @@ mod tests {
             .write_all(text.as_bytes())
             .unwrap();
         path
+    }
+
+    /// Arrival times of a 150 Hz sensor whose clock runs 5e-4 slow, read in batches of 5
+    /// frames (27 ms) with 0-20 ms more latency, with 20 samples lost after sample 6 000.
+    fn batched_arrivals(n: usize) -> String {
+        let period = (1.0 + 5e-4) / 150.0;
+        let mut csv = String::from("t,g\n");
+        for i in 0..n {
+            // Sample i is the j-th the sensor took; a batch of 5 is delivered when its last
+            // frame is taken, plus a varying latency.
+            let j = if i < 6_000 { i } else { i + 20 };
+            let latency = 0.02 * ((j / 5 * 7919) % 100) as f64 / 100.0;
+            let arrival = (j / 5 * 5 + 4) as f64 * period + latency;
+            csv.push_str(&format!("{arrival:.9},{}\n", i as f64));
+        }
+        csv
+    }
+
+    #[test]
+    fn arrival_times_in_batches_give_one_gap_and_no_false_alarm() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 30_000;
+        let csv = batched_arrivals(n);
+        let path = write_file(dir.path(), "a.csv", &csv);
+        let src = CsvSource::open(&path).unwrap();
+        let (t, g) = (
+            src.channel_index("t").unwrap(),
+            src.channel_index("g").unwrap(),
+        );
+        let arrival = Timing::ArrivalTimes {
+            channel: t,
+            scale: 1.0,
+        };
+        let s = read_axis(&src, g, &arrival, GapPolicy::Split, DataKind::Rate, None).unwrap();
+        assert!((s.tau0 * 150.0 - 1.0).abs() < 2e-3, "τ0 {}", s.tau0);
+        assert_eq!(s.health.gaps, 1, "{:?}", s.health);
+        // Counted to within the host latency (47 ms, 7 samples at most).
+        assert!(
+            (20..=27).contains(&s.health.missing_samples),
+            "{:?}",
+            s.health
+        );
+        assert_eq!(s.health.nonuniform_intervals, 0, "{:?}", s.health);
+        assert_eq!(
+            s.segments.iter().map(Vec::len).collect::<Vec<_>>(),
+            vec![6_000, n - 6_000]
+        );
+        // The same stamps read as exact sample times fail at once.
+        let exact = Timing::TimeChannel {
+            channel: t,
+            scale: 1.0,
+        };
+        let err = read_axis(&src, g, &exact, GapPolicy::Error, DataKind::Rate, None).unwrap_err();
+        assert!(err.to_string().contains("time stamp"), "{err}");
     }
 
     #[test]

@@ -372,6 +372,10 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             .map(|c| source.channel_index(c))
             .transpose()?;
         let timing = match (time_channel, args.rate) {
+            (Some(channel), None) if is_session => Timing::ArrivalTimes {
+                channel,
+                scale: 1.0,
+            },
             (Some(channel), None) => Timing::TimeChannel {
                 channel,
                 scale: time_scale(&args.time_unit)?,
