@@ -118,6 +118,9 @@ pub fn term_lines(fit: &NoiseFit, tau_lo: f64, tau_hi: f64) -> Vec<TermLine> {
 pub const LINE_STYLE_NOTE: &str =
     "solid: measured · band: 68 % interval · dashed: fitted total · dotted: fitted terms (Q quantization, N white noise/random walk, B bias instability, K rate random walk, R rate ramp)";
 
+/// The namespace attribute of a standalone SVG.
+const SVG_NAMESPACE: &str = r#" xmlns="http://www.w3.org/2000/svg""#;
+
 /// [`LINE_STYLE_NOTE`] short enough for the foot of an SVG plot.
 pub const SHORT_LINE_STYLE_NOTE: &str =
     "solid: measured · band: 68 % · dashed: fitted total · dotted: term lines (Q N B K R)";
@@ -142,7 +145,7 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
     let mut svg = String::new();
     let _ = write!(
         svg,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="14">"#
+        r#"<svg{SVG_NAMESPACE} width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="14">"#
     );
     let _ = write!(
         svg,
@@ -333,6 +336,10 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
         );
     }
     svg.push_str(&legend);
+    if axes.iter().any(|a| a.fit.is_some()) {
+        // The full explanation for screen readers and anyone reading the SVG alone.
+        let _ = write!(svg, "<desc>{}</desc>", escape(LINE_STYLE_NOTE));
+    }
     let _ = write!(
         svg,
         r##"<text x="{left}" y="{:.1}" font-size="12" fill="#555">{}</text>"##,
@@ -757,7 +764,8 @@ pub fn html_report_with_sessions(
         escape(LINE_STYLE_NOTE)
     );
     for (title, members) in plot_groups(report) {
-        html.push_str(&svg_plot(&members, &title));
+        // Inline SVG in HTML needs no namespace; without it the page holds no URL at all.
+        html.push_str(&svg_plot(&members, &title).replacen(SVG_NAMESPACE, "", 1));
     }
     html.push_str("</div>");
     html.push_str("<details><summary>Slope-line readings (MATLAB <code>allanvar</code> style, for comparison)</summary><div class=\"scroll\"><table><thead><tr><th>device</th><th>axis</th><th>N (τ=1 s on the −½ line)</th><th>B = minimum ÷ 0.664</th><th>minimum at τ [s]</th><th>K (τ=3 s on the +½ line)</th></tr></thead><tbody>");
@@ -777,11 +785,17 @@ pub fn html_report_with_sessions(
         }
     }
     html.push_str("</tbody></table></div><p class=\"note\">Slope readings are in the input units (N in unit·√s, B in unit, K in unit/√s; rad/s for gyros and m/s² for accelerometers of a session).</p></details>");
-    // Bias against temperature only says something when the run spans more than one bin.
+    // Bias against temperature only says something when the run spans at least a bin width.
     let thermal: Vec<&AxisResult> = report
         .axes
         .iter()
-        .filter(|a| a.thermal.as_ref().is_some_and(|t| t.bins.len() > 1))
+        .filter(|a| {
+            let span =
+                a.health.temperature_max.unwrap_or(0.0) - a.health.temperature_min.unwrap_or(0.0);
+            a.thermal
+                .as_ref()
+                .is_some_and(|t| t.bins.len() > 1 && span >= t.bin_width)
+        })
         .collect();
     if !thermal.is_empty() {
         html.push_str("<h3>Bias against temperature</h3><div class=\"scroll\"><table><thead><tr><th>device</th><th>axis</th><th>coefficient [unit/°C]</th><th>± (1σ)</th><th>bins (T: mean ± spread)</th></tr></thead><tbody>");
@@ -1236,7 +1250,8 @@ pub fn write_png(report: &AllanReport, path: &Path) -> anyhow::Result<()> {
 /// PNG of `axes`: curves, confidence bands, fitted total and labelled term lines.
 pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow::Result<()> {
     use plotters::prelude::*;
-    let root = BitMapBackend::new(path, (1000, 700)).into_drawing_area();
+    // Slide size (3:2) with fonts readable when the image is shrunk into a slide or mail.
+    let root = BitMapBackend::new(path, (1200, 800)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut tau = (f64::INFINITY, f64::NEG_INFINITY);
     let mut dev = (f64::INFINITY, f64::NEG_INFINITY);
@@ -1252,26 +1267,28 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
     }
     anyhow::ensure!(tau.0.is_finite() && dev.0.is_finite(), "nothing to plot");
     let y_range = (dev.0 / 1.5, dev.1 * 1.5);
-    let (plot_area, note_area) = root.split_vertically(670);
+    let (plot_area, note_area) = root.split_vertically(764);
     if axes.iter().any(|a| a.fit.is_some()) {
         note_area.draw(&Text::new(
             LINE_STYLE_NOTE,
-            (15, 8),
-            ("sans-serif", 12).into_font(),
+            (15, 6),
+            ("sans-serif", 15).into_font(),
         ))?;
     }
     let mut chart = ChartBuilder::on(&plot_area)
-        .caption(title, ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(80)
+        .caption(title, ("sans-serif", 30))
+        .margin(20)
+        .x_label_area_size(60)
+        .y_label_area_size(100)
         .build_cartesian_2d(
             (tau.0 / 1.5..tau.1 * 1.5).log_scale(),
             (y_range.0..y_range.1).log_scale(),
         )?;
     chart
         .configure_mesh()
-        .x_desc("tau [s]")
+        .x_desc("averaging time tau [s]")
+        .label_style(("sans-serif", 18))
+        .axis_desc_style(("sans-serif", 20))
         .y_desc(format!(
             "{} [{}]",
             axes.first()
@@ -1283,7 +1300,10 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .draw()?;
     for (i, a) in axes.iter().enumerate() {
-        let color = Palette99::pick(i).to_rgba();
+        // The page's colours, so a PNG and its SVG look alike.
+        let hex = COLORS[i % COLORS.len()];
+        let channel = |at: usize| u8::from_str_radix(&hex[at..at + 2], 16).unwrap_or(0);
+        let color = RGBColor(channel(1), channel(3), channel(5)).to_rgba();
         let pts: Vec<_> = a
             .curve
             .points
@@ -1339,7 +1359,7 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
                                 + Text::new(
                                     line.term.symbol().to_string(),
                                     (-5, 6),
-                                    ("sans-serif", 18).into_font().color(&color),
+                                    ("sans-serif", 22).into_font().color(&color),
                                 ),
                         ))?;
                     }
@@ -1351,6 +1371,7 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
         .configure_series_labels()
         // Allan curves are bowls: the top middle is the emptiest place.
         .position(SeriesLabelPosition::UpperMiddle)
+        .label_font(("sans-serif", 18))
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()?;
