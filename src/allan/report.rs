@@ -118,8 +118,8 @@ pub fn term_lines(fit: &NoiseFit, tau_lo: f64, tau_hi: f64) -> Vec<TermLine> {
 pub const LINE_STYLE_NOTE: &str =
     "solid: measured · band: 68 % interval · dashed: fitted total · dotted: fitted terms (Q quantization, N white noise/random walk, B bias instability, K rate random walk, R rate ramp)";
 
-/// The namespace attribute of a standalone SVG.
-const SVG_NAMESPACE: &str = r#" xmlns="http://www.w3.org/2000/svg""#;
+/// The namespace attribute of a standalone SVG (inline SVG in HTML goes without it).
+pub const SVG_NAMESPACE: &str = r#" xmlns="http://www.w3.org/2000/svg""#;
 
 /// [`LINE_STYLE_NOTE`] short enough for the foot of an SVG plot.
 pub const SHORT_LINE_STYLE_NOTE: &str =
@@ -691,7 +691,7 @@ pub fn plot_groups(report: &AllanReport) -> Vec<(String, Vec<&AxisResult>)> {
 
 /// Page style: readable on a laptop and in print; wide tables scroll inside their box
 /// instead of widening the page.
-const PAGE_STYLE: &str = "body{font-family:sans-serif;margin:1.5em 2em;color:#222;max-width:1200px}\
+pub const PAGE_STYLE: &str = "body{font-family:sans-serif;margin:1.5em 2em;color:#222;max-width:1200px}\
 h1{margin-bottom:0.2em}h2{margin-top:1.6em;border-bottom:1px solid #ccc;padding-bottom:0.2em}\
 table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}\
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}\
