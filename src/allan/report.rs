@@ -2,14 +2,22 @@
 //! network, no fonts needed), PNG plots (plotters) and the datasheet-style comparison
 //! table (rows: noise terms; columns: device × axis).
 //!
+//! The page opens with a summary (which IMU is better, by how much, and how long a GNSS
+//! outage each bridges: [`outage`]) and ends with the data's health ([`health`]: gaps,
+//! temperature and the daemon's events of every session input).
+//!
 //! The SVG is written by hand because plotters' text layout needs system fonts, which a
 //! report must not depend on; PNG output uses plotters.
 
 use super::analysis::{AllanReport, AxisResult};
 use super::fit::{NoiseFit, Term};
 use super::units::SensorKind;
+use health::SessionHealth;
 use std::fmt::Write as _;
 use std::path::Path;
+
+pub mod health;
+pub mod outage;
 
 /// CSV: one row per axis and τ.
 pub fn write_csv(report: &AllanReport, path: &Path) -> anyhow::Result<()> {
@@ -110,11 +118,18 @@ pub fn term_lines(fit: &NoiseFit, tau_lo: f64, tau_hi: f64) -> Vec<TermLine> {
 pub const LINE_STYLE_NOTE: &str =
     "solid: measured · band: 68 % interval · dashed: fitted total · dotted: fitted terms (Q quantization, N white noise/random walk, B bias instability, K rate random walk, R rate ramp)";
 
+/// The namespace attribute of a standalone SVG (inline SVG in HTML goes without it).
+pub const SVG_NAMESPACE: &str = r#" xmlns="http://www.w3.org/2000/svg""#;
+
+/// [`LINE_STYLE_NOTE`] short enough for the foot of an SVG plot.
+pub const SHORT_LINE_STYLE_NOTE: &str =
+    "solid: measured · band: 68 % · dashed: fitted total · dotted: term lines (Q N B K R)";
+
 /// A log-log SVG of several axes' curves with confidence bands, the fitted total and each
 /// identified term's own line, labelled.
 pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
-    let (width, height) = (720.0, 460.0);
-    let (left, right, top, bottom) = (80.0, 20.0, 30.0, 50.0);
+    let (width, height) = (720.0, 480.0);
+    let (left, right, top, bottom) = (80.0, 20.0, 34.0, 66.0);
     let mut tau_range = (f64::INFINITY, f64::NEG_INFINITY);
     let mut dev_range = (f64::INFINITY, f64::NEG_INFINITY);
     for a in axes {
@@ -130,11 +145,11 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
     let mut svg = String::new();
     let _ = write!(
         svg,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">"#
+        r#"<svg{SVG_NAMESPACE} width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="14">"#
     );
     let _ = write!(
         svg,
-        r#"<text x="{}" y="18" font-size="13" text-anchor="middle">{}</text>"#,
+        r#"<text x="{}" y="20" font-size="16" font-weight="bold" text-anchor="middle">{}</text>"#,
         width / 2.0,
         escape(title)
     );
@@ -170,8 +185,8 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
         );
         let _ = write!(
             svg,
-            r#"<text x="{x:.1}" y="{:.1}" text-anchor="middle">1e{d}</text>"#,
-            height - bottom + 16.0
+            r#"<text x="{x:.1}" y="{:.1}" text-anchor="middle">10<tspan dy="-6" font-size="10">{d}</tspan></text>"#,
+            height - bottom + 20.0
         );
     }
     for d in (ly.0 as i32)..=(ly.1 as i32) {
@@ -183,7 +198,7 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
         );
         let _ = write!(
             svg,
-            r#"<text x="{:.1}" y="{:.1}" text-anchor="end">1e{d}</text>"#,
+            r#"<text x="{:.1}" y="{:.1}" text-anchor="end">10<tspan dy="-6" font-size="10">{d}</tspan></text>"#,
             left - 6.0,
             y + 4.0
         );
@@ -204,9 +219,9 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
     );
     let _ = write!(
         svg,
-        r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">τ [s]</text>"#,
+        r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">averaging time τ [s]</text>"#,
         (left + width - right) / 2.0,
-        height - 12.0
+        height - 24.0
     );
     let unit = axes.first().map(|a| a.unit.symbol()).unwrap_or("");
     let kind = axes.first().map(|a| a.curve.kind.name()).unwrap_or("");
@@ -216,6 +231,15 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
         (top + height - bottom) / 2.0,
         kind.to_uppercase(),
         escape(unit)
+    );
+    // Legend box, drawn over the curves at the end.
+    let mut legend = String::new();
+    let _ = write!(
+        legend,
+        r##"<rect x="{:.1}" y="{:.1}" width="170" height="{:.1}" fill="#fff" fill-opacity="0.85" stroke="#bbb"/>"##,
+        width - right - 178.0,
+        top + 4.0,
+        18.0 * axes.len() as f64 + 6.0
     );
     for (i, a) in axes.iter().enumerate() {
         let color = COLORS[i % COLORS.len()];
@@ -298,9 +322,9 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
                 svg.push_str(&labels);
             }
         }
-        let ly_text = top + 16.0 + 15.0 * i as f64;
+        let ly_text = top + 18.0 + 18.0 * i as f64;
         let _ = write!(
-            svg,
+            legend,
             r#"<line x1="{:.1}" y1="{:.1}" x2="{:.1}" y2="{:.1}" stroke="{color}" stroke-width="2"/><text x="{:.1}" y="{:.1}">{}</text>"#,
             width - right - 170.0,
             ly_text - 4.0,
@@ -311,12 +335,17 @@ pub fn svg_plot(axes: &[&AxisResult], title: &str) -> String {
             escape(&format!("{} {}", a.device, a.axis))
         );
     }
+    svg.push_str(&legend);
+    if axes.iter().any(|a| a.fit.is_some()) {
+        // The full explanation for screen readers and anyone reading the SVG alone.
+        let _ = write!(svg, "<desc>{}</desc>", escape(LINE_STYLE_NOTE));
+    }
     let _ = write!(
         svg,
-        r##"<text x="{left}" y="{:.1}" font-size="9" fill="#555">{}</text>"##,
-        height - 2.0,
+        r##"<text x="{left}" y="{:.1}" font-size="12" fill="#555">{}</text>"##,
+        height - 4.0,
         escape(if axes.iter().any(|a| a.fit.is_some()) {
-            LINE_STYLE_NOTE
+            SHORT_LINE_STYLE_NOTE
         } else {
             "solid: measured · band: 68 % interval"
         })
@@ -330,6 +359,29 @@ fn fnv1a(text: &str) -> u64 {
     text.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
         (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
     })
+}
+
+/// A duration for people: seconds, minutes or hours.
+fn duration(seconds: f64) -> String {
+    if seconds >= 7200.0 {
+        format!("{:.2} h", seconds / 3600.0)
+    } else if seconds >= 120.0 {
+        format!("{:.1} min", seconds / 60.0)
+    } else {
+        format!("{seconds:.1} s")
+    }
+}
+
+/// A unit as printed in datasheets: `deg/sqrt(h)` → `°/√h`, `m/s^2` → `m/s²`.
+pub fn pretty_unit(unit: &str) -> String {
+    unit.replace("sqrt(", "√(")
+        .replace("√(h)", "√h")
+        .replace("√(Hz)", "√Hz")
+        .replace("√(s)", "√s")
+        .replace("deg", "°")
+        .replace("^2", "²")
+        .replace("^3", "³")
+        .replace("ug", "µg")
 }
 
 /// Formats a value with 3 significant digits.
@@ -369,6 +421,13 @@ const DATASHEET_ROWS: [(&str, SensorKind, Term); 8] = [
 /// The comparison table as HTML (rows: noise terms; columns: device × axis). Each cell:
 /// value with its 95 % interval in the first engineering unit, or "n.i." with the bound.
 pub fn datasheet_table_html(axes: &[&AxisResult]) -> String {
+    datasheet_table(axes, false).0
+}
+
+/// The table; with `hide_unidentified`, rows that no axis identifies are left out and their
+/// labels returned.
+fn datasheet_table(axes: &[&AxisResult], hide_unidentified: bool) -> (String, Vec<&'static str>) {
+    let mut hidden = Vec::new();
     let mut html = String::from("<table class=\"datasheet\"><thead><tr><th>term</th><th>unit</th>");
     for a in axes {
         let _ = write!(
@@ -382,6 +441,15 @@ pub fn datasheet_table_html(axes: &[&AxisResult]) -> String {
     for (label, sensor, term) in DATASHEET_ROWS {
         let relevant: Vec<_> = axes.iter().filter(|a| a.sensor == Some(sensor)).collect();
         if relevant.is_empty() {
+            continue;
+        }
+        let identified = relevant.iter().any(|a| {
+            a.terms
+                .iter()
+                .any(|t| t.term == term && t.values.first().is_some_and(|v| v.value.is_some()))
+        });
+        if hide_unidentified && !identified {
+            hidden.push(label);
             continue;
         }
         let unit = relevant
@@ -398,7 +466,7 @@ pub fn datasheet_table_html(axes: &[&AxisResult]) -> String {
             html,
             "<tr><td>{}</td><td>{}</td>",
             escape(label),
-            escape(&unit)
+            escape(&pretty_unit(&unit))
         );
         for a in axes {
             let cell = if a.sensor != Some(sensor) {
@@ -412,7 +480,7 @@ pub fn datasheet_table_html(axes: &[&AxisResult]) -> String {
                 {
                     Some(v) => match v.value {
                         Some(value) => format!(
-                            "{} <small>[{} – {}]</small>",
+                            "{}<br><small>{} – {}</small>",
                             sig3(value),
                             sig3(v.low),
                             sig3(v.high)
@@ -448,7 +516,7 @@ pub fn datasheet_table_html(axes: &[&AxisResult]) -> String {
         }
     }
     html.push_str("</tbody></table>");
-    html
+    (html, hidden)
 }
 
 /// Plain-text version of the comparison table for the terminal.
@@ -527,6 +595,41 @@ pub fn datasheet_table_text(axes: &[&AxisResult]) -> String {
     out
 }
 
+/// The analysed axes' health: one sentence when every axis is clean, else the table.
+fn axes_health_html(axes: &[&AxisResult]) -> String {
+    let clean = |a: &&AxisResult| {
+        let h = &a.health;
+        h.gaps == 0 && h.invalid_values == 0 && h.nonuniform_intervals == 0 && h.segments <= 1
+    };
+    let mut html = String::from("<h3>Analysed axes</h3>");
+    if !axes.is_empty() && axes.iter().all(clean) {
+        let samples: Vec<u64> = axes.iter().map(|a| a.health.samples).collect();
+        let (lo, hi) = (
+            samples.iter().min().copied().unwrap_or(0),
+            samples.iter().max().copied().unwrap_or(0),
+        );
+        let durations = axes.iter().map(|a| a.health.duration_s);
+        let longest = durations.fold(0.0, f64::max);
+        let _ = write!(
+            html,
+            "<p class=\"good\">All {} analysed axes are clean: {} samples each over up to {}, τ0 = {} ms, no gaps, no NaN/Inf, no irregular intervals.</p>",
+            axes.len(),
+            if lo == hi {
+                lo.to_string()
+            } else {
+                format!("{lo}–{hi}")
+            },
+            duration(longest),
+            sig3(axes[0].tau0 * 1e3)
+        );
+        return html;
+    }
+    html.push_str("<div class=\"scroll\">");
+    html.push_str(&health_table_html(axes));
+    html.push_str("</div>");
+    html
+}
+
 fn health_table_html(axes: &[&AxisResult]) -> String {
     let mut html = String::from(
         "<table><thead><tr><th>device</th><th>axis</th><th>samples</th><th>duration</th><th>τ0</th><th>policy</th><th>gaps</th><th>missing</th><th>NaN/Inf</th><th>non-uniform</th><th>segments</th><th>temperature</th><th>first problem</th></tr></thead><tbody>",
@@ -586,36 +689,86 @@ pub fn plot_groups(report: &AllanReport) -> Vec<(String, Vec<&AxisResult>)> {
         .collect()
 }
 
-/// The self-contained HTML report: one plot per device and sensor, the datasheet table and
-/// the data-health table. No scripts, no external resources.
+/// Page style: readable on a laptop and in print; wide tables scroll inside their box
+/// instead of widening the page.
+pub const PAGE_STYLE: &str = "body{font-family:sans-serif;margin:1.5em 2em;color:#222;max-width:1200px}\
+h1{margin-bottom:0.2em}h2{margin-top:1.6em;border-bottom:1px solid #ccc;padding-bottom:0.2em}\
+table{border-collapse:collapse;margin:0.6em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}\
+th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}\
+.scroll{overflow-x:auto;max-width:100%}.meta{color:#555;font-size:0.9em}\
+.verdict{font-size:1.15em;background:#eef6ee;border-left:4px solid #2ca02c;padding:0.5em 0.8em}\
+.note{color:#555;font-size:0.9em;max-width:60em}.bad{background:#fde8e8;font-weight:bold}\
+.good{color:#1a7f37}.health td{white-space:nowrap}\
+.plots{display:grid;grid-template-columns:repeat(auto-fill,minmax(540px,1fr));gap:0.8em}\
+.plots svg{width:100%;height:auto;border:1px solid #eee}\
+small{color:#666}summary{margin:0.8em 0;font-weight:bold}";
+
+/// The self-contained HTML report, in the order a reader needs it: summary (which IMU is
+/// better, by how much, what it means for GNSS outages), the datasheet table, the curves,
+/// then data health. No scripts, no external resources. The health of every session among
+/// `report.input` is read from the session (events, temperature): see
+/// [`html_report_with_sessions`] to pass it in instead.
 pub fn html_report(report: &AllanReport, title: &str) -> String {
+    html_report_with_sessions(report, title, &health::sessions_of_report(report))
+}
+
+/// [`html_report`] with the sessions' health given (an `Err` is shown as that input's
+/// problem line).
+pub fn html_report_with_sessions(
+    report: &AllanReport,
+    title: &str,
+    sessions: &[Result<SessionHealth, String>],
+) -> String {
     let mut html = String::new();
     let _ = write!(
         html,
-        "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{}</title><style>\
-body{{font-family:sans-serif;margin:2em;color:#222}}table{{border-collapse:collapse;margin:1em 0}}\
-td,th{{border:1px solid #bbb;padding:3px 8px;text-align:right}}td:first-child{{text-align:left}}\
-small{{color:#666}}.plots svg{{margin:0.5em;border:1px solid #eee}}</style></head><body><h1>{}</h1>",
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{PAGE_STYLE}</style></head><body><h1>{}</h1>",
         escape(title),
         escape(title)
     );
     let _ = write!(
         html,
-        "<p>{} · {} · τ grid {} · intervals {:.1} % (chi-squared, noise-type-aware EDF) · fitted terms with 95 % intervals; n.i. = not identified by the data (upper bound given).</p>",
+        "<p class=\"meta\">{} · input: {} · {} over the {} τ grid, curve bands {:.1} % (chi-squared, noise-type-aware EDF), fitted terms with 95 % intervals.</p>",
         escape(&report.generator),
+        escape(&report.input.join(", ")),
         report.kind.name().to_uppercase(),
         escape(&report.grid),
         report.confidence * 100.0
     );
-    let _ = write!(html, "<p>Input: {}</p>", escape(&report.input.join(", ")));
-    html.push_str("<h2>Curves</h2><div class=\"plots\">");
-    for (title, members) in plot_groups(report) {
-        html.push_str(&svg_plot(&members, &title));
-    }
-    html.push_str("</div><h2>Noise terms</h2>");
+    html.push_str("<h2>1. Summary</h2>");
+    html.push_str(&summary_html(report));
     let all: Vec<&AxisResult> = report.axes.iter().collect();
-    html.push_str(&datasheet_table_html(&all));
-    html.push_str("<h2>Slope-line readings (MATLAB allanvar style)</h2><table><thead><tr><th>device</th><th>axis</th><th>N (τ=1 s, −½ line)</th><th>B = min/0.664</th><th>at τ</th><th>K (τ=3 s, +½ line)</th></tr></thead><tbody>");
+    html.push_str("<h2>2. Noise terms, datasheet style</h2><p class=\"note\">Each cell: fitted value, and under it <small>its 95 % interval</small>. <b>n.i.</b> = not identified: the curve does not show this term; the bound is the largest value the data allow (not zero, not a measurement).</p>");
+    // One table per sensor, so no column is half empty.
+    let mut hidden = Vec::new();
+    for sensor in [Some(SensorKind::Gyro), Some(SensorKind::Accel), None] {
+        let members: Vec<&AxisResult> =
+            all.iter().copied().filter(|a| a.sensor == sensor).collect();
+        if !members.is_empty() {
+            let (table, h) = datasheet_table(&members, true);
+            hidden.extend(h);
+            let _ = write!(html, "<div class=\"scroll\">{table}</div>");
+        }
+    }
+    if !hidden.is_empty() {
+        let _ = write!(
+            html,
+            "<p class=\"note\">Not identified on any axis, so not shown: {} (a longer run may reveal them; their bounds are in the JSON).</p>",
+            escape(&hidden.join(", "))
+        );
+    }
+    html.push_str("<h2>3. Allan deviation curves</h2>");
+    let _ = write!(
+        html,
+        "<p class=\"note\">One plot per device and sensor, log-log, in the input's units (rad/s for gyros and m/s² for accelerometers of a session; the tables above use datasheet units). {}</p><div class=\"plots\">",
+        escape(LINE_STYLE_NOTE)
+    );
+    for (title, members) in plot_groups(report) {
+        // Inline SVG in HTML needs no namespace; without it the page holds no URL at all.
+        html.push_str(&svg_plot(&members, &title).replacen(SVG_NAMESPACE, "", 1));
+    }
+    html.push_str("</div>");
+    html.push_str("<details><summary>Slope-line readings (MATLAB <code>allanvar</code> style, for comparison)</summary><div class=\"scroll\"><table><thead><tr><th>device</th><th>axis</th><th>N (τ=1 s on the −½ line)</th><th>B = minimum ÷ 0.664</th><th>minimum at τ [s]</th><th>K (τ=3 s on the +½ line)</th></tr></thead><tbody>");
     for a in &report.axes {
         if let Some(s) = &a.slopes {
             let f = |v: Option<f64>| v.map(sig3).unwrap_or_else(|| "–".into());
@@ -631,10 +784,21 @@ small{{color:#666}}.plots svg{{margin:0.5em;border:1px solid #eee}}</style></hea
             );
         }
     }
-    html.push_str("</tbody></table><p><small>Slope readings are in the input units (N in unit·√s, B in unit, K in unit/√s).</small></p>");
-    let thermal: Vec<&AxisResult> = report.axes.iter().filter(|a| a.thermal.is_some()).collect();
+    html.push_str("</tbody></table></div><p class=\"note\">Slope readings are in the input units (N in unit·√s, B in unit, K in unit/√s; rad/s for gyros and m/s² for accelerometers of a session).</p></details>");
+    // Bias against temperature only says something when the run spans at least a bin width.
+    let thermal: Vec<&AxisResult> = report
+        .axes
+        .iter()
+        .filter(|a| {
+            let span =
+                a.health.temperature_max.unwrap_or(0.0) - a.health.temperature_min.unwrap_or(0.0);
+            a.thermal
+                .as_ref()
+                .is_some_and(|t| t.bins.len() > 1 && span >= t.bin_width)
+        })
+        .collect();
     if !thermal.is_empty() {
-        html.push_str("<h2>Bias against temperature</h2><table><thead><tr><th>device</th><th>axis</th><th>coefficient [unit/°C]</th><th>± (1σ)</th><th>bins (T: mean ± spread)</th></tr></thead><tbody>");
+        html.push_str("<h3>Bias against temperature</h3><div class=\"scroll\"><table><thead><tr><th>device</th><th>axis</th><th>coefficient [unit/°C]</th><th>± (1σ)</th><th>bins (T: mean ± spread)</th></tr></thead><tbody>");
         for a in thermal {
             if let Some(t) = &a.thermal {
                 let bins: Vec<String> = t
@@ -660,11 +824,416 @@ small{{color:#666}}.plots svg{{margin:0.5em;border:1px solid #eee}}</style></hea
                 );
             }
         }
-        html.push_str("</tbody></table>");
+        html.push_str("</tbody></table></div>");
     }
-    html.push_str("<h2>Data health</h2>");
-    html.push_str(&health_table_html(&all));
+    html.push_str("<h2>4. Data health</h2>");
+    for s in sessions {
+        match s {
+            Ok(s) => html.push_str(&session_health_html(s)),
+            Err(e) => {
+                let _ = write!(html, "<p class=\"bad\">{}</p>", escape(e));
+            }
+        }
+    }
+    html.push_str(&axes_health_html(&all));
     html.push_str("</body></html>\n");
+    html
+}
+
+/// Headline terms of the summary: (label, sensor, term).
+const HEADLINE_TERMS: [(&str, SensorKind, Term); 4] = [
+    (
+        "Gyro angle random walk (ARW)",
+        SensorKind::Gyro,
+        Term::RandomWalk,
+    ),
+    (
+        "Gyro bias instability",
+        SensorKind::Gyro,
+        Term::BiasInstability,
+    ),
+    (
+        "Accel velocity random walk (VRW)",
+        SensorKind::Accel,
+        Term::RandomWalk,
+    ),
+    (
+        "Accel bias instability",
+        SensorKind::Accel,
+        Term::BiasInstability,
+    ),
+];
+
+/// A device's headline value: mean over its axes of the first engineering unit, with how
+/// many axes identified the term; or, with none identified, the largest bound.
+#[derive(Debug, Clone, PartialEq)]
+enum Headline {
+    Value {
+        value: f64,
+        /// Means of the identified axes' 95 % bounds.
+        low: f64,
+        high: f64,
+        unit: String,
+        axes: usize,
+        of: usize,
+    },
+    Bound {
+        high: f64,
+        unit: String,
+    },
+}
+
+fn headline(
+    report: &AllanReport,
+    device: &str,
+    sensor: SensorKind,
+    term: Term,
+) -> Option<Headline> {
+    let values: Vec<&crate::allan::units::UnitValue> = report
+        .axes
+        .iter()
+        .filter(|a| a.device == device && a.sensor == Some(sensor) && !a.axis.contains(" @ "))
+        .filter_map(|a| a.terms.iter().find(|t| t.term == term)?.values.first())
+        .collect();
+    let unit = values.first()?.unit.clone();
+    let identified: Vec<(f64, f64, f64)> = values
+        .iter()
+        .filter_map(|v| Some((v.value?, v.low, v.high)))
+        .collect();
+    if identified.is_empty() {
+        let high = values.iter().map(|v| v.high).fold(0.0, f64::max);
+        return Some(Headline::Bound { high, unit });
+    }
+    let n = identified.len() as f64;
+    let mean = |f: fn(&(f64, f64, f64)) -> f64| identified.iter().map(f).sum::<f64>() / n;
+    Some(Headline::Value {
+        value: mean(|v| v.0),
+        low: mean(|v| v.1),
+        high: mean(|v| v.2),
+        unit,
+        axes: identified.len(),
+        of: values.len(),
+    })
+}
+
+/// The devices of a report, in input order.
+fn devices(report: &AllanReport) -> Vec<&str> {
+    let mut out: Vec<&str> = Vec::new();
+    for a in &report.axes {
+        if !out.contains(&a.device.as_str()) {
+            out.push(&a.device);
+        }
+    }
+    out
+}
+
+fn seconds(v: Option<f64>) -> String {
+    match v {
+        None => "–".into(),
+        Some(t) if t >= 1e6 => "&gt; 10⁶ s".into(),
+        Some(t) if t >= 120.0 => format!("{} s ({:.1} min)", sig3(t), t / 60.0),
+        Some(t) => format!("{} s", sig3(t)),
+    }
+}
+
+/// The summary: verdict, headline terms side by side with ratios, and the GNSS-outage
+/// horizons of each device.
+pub fn summary_html(report: &AllanReport) -> String {
+    let devices = devices(report);
+    let outages = outage::device_outages(report);
+    let mut html = String::new();
+    // Verdict: which device wins more headline terms; by how much on the 1 m horizon.
+    let mut wins: Vec<usize> = vec![0; devices.len()];
+    let mut compared = 0;
+    let mut rows = String::new();
+    for (label, sensor, term) in HEADLINE_TERMS {
+        let values: Vec<Option<Headline>> = devices
+            .iter()
+            .map(|d| headline(report, d, sensor, term))
+            .collect();
+        let Some(unit) = values
+            .iter()
+            .flatten()
+            .map(|h| match h {
+                Headline::Value { unit, .. } | Headline::Bound { unit, .. } => unit.clone(),
+            })
+            .next()
+        else {
+            continue;
+        };
+        let _ = write!(
+            rows,
+            "<tr><td>{}</td><td>{}</td>",
+            escape(label),
+            escape(&pretty_unit(&unit))
+        );
+        let numbers: Vec<Option<f64>> = values
+            .iter()
+            .map(|h| match h {
+                Some(Headline::Value { value, .. }) => Some(*value),
+                _ => None,
+            })
+            .collect();
+        let bounds: Vec<Option<(f64, f64)>> = values
+            .iter()
+            .map(|h| match h {
+                Some(Headline::Value { low, high, .. }) => Some((*low, *high)),
+                _ => None,
+            })
+            .collect();
+        let best = numbers
+            .iter()
+            .enumerate()
+            .filter_map(|(i, v)| Some((i, (*v)?)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        for (i, h) in values.iter().enumerate() {
+            let cell = match h {
+                Some(Headline::Value {
+                    value, axes, of, ..
+                }) => {
+                    let mut text = sig3(*value);
+                    if axes < of {
+                        let _ = write!(text, " <small>({axes} of {of} axes)</small>");
+                    }
+                    if devices.len() > 1 && best.is_some_and(|(b, _)| b == i) {
+                        format!("<b class=\"good\">{text}</b>")
+                    } else {
+                        text
+                    }
+                }
+                Some(Headline::Bound { high, .. }) => {
+                    format!("n.i. <small>(&lt; {})</small>", sig3(*high))
+                }
+                None => "–".into(),
+            };
+            let _ = write!(rows, "<td>{cell}</td>");
+        }
+        if devices.len() > 1 {
+            let known: Vec<f64> = numbers.iter().flatten().copied().collect();
+            let cell = match best {
+                Some((b, low)) if known.len() > 1 && low > 0.0 => {
+                    wins[b] += 1;
+                    compared += 1;
+                    let (w, worst) = numbers
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, v)| Some((i, (*v)?)))
+                        .max_by(|a, b| a.1.total_cmp(&b.1))
+                        .unwrap_or((b, low));
+                    // Overlapping 95 % intervals: the difference is not established.
+                    let overlap = match (bounds[b], bounds[w]) {
+                        (Some((_, best_high)), Some((worst_low, _))) => worst_low <= best_high,
+                        _ => false,
+                    };
+                    format!(
+                        "<b>{}</b> {:.1}× lower{}",
+                        escape(devices[b]),
+                        worst / low,
+                        if overlap {
+                            " <small>(95 % intervals overlap)</small>"
+                        } else {
+                            ""
+                        }
+                    )
+                }
+                _ => "not comparable (term not identified)".into(),
+            };
+            let _ = write!(rows, "<td>{cell}</td>");
+        }
+        rows.push_str("</tr>");
+    }
+    // The 1 m horizon and whether it is only a lower bound (a term entered as its bound).
+    let horizon = |d: &str| {
+        outages
+            .iter()
+            .flatten()
+            .find(|o| o.device == d)
+            .and_then(|o| Some((o.one_metre_s?, !o.bounded.is_empty())))
+    };
+    if devices.len() > 1 && compared > 0 {
+        let (best, n) = wins
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, w)| **w)
+            .map(|(i, w)| (i, *w))
+            .unwrap_or((0, 0));
+        let mut verdict = format!(
+            "<b>{}</b> is the better IMU: lower on {n} of the {compared} headline noise terms",
+            escape(devices[best])
+        );
+        if let Some((h_best, best_bounded)) = horizon(devices[best]) {
+            let others: Vec<String> = devices
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != best)
+                .filter_map(|(_, d)| {
+                    let (h, bounded) = horizon(d)?;
+                    // A bound on the best device's horizon bounds the ratio from below; a
+                    // bound on the other's leaves the ratio open.
+                    let qualifier = match (best_bounded, bounded) {
+                        (false, false) => "",
+                        (true, false) => "at least ",
+                        _ => "about ",
+                    };
+                    Some(format!(
+                        "{qualifier}{:.1}× as long as {}",
+                        h_best / h,
+                        escape(d)
+                    ))
+                })
+                .collect();
+            if !others.is_empty() {
+                let _ = write!(
+                    verdict,
+                    ", and it bridges a GNSS outage within 1 m {}",
+                    others.join(", ")
+                );
+            }
+        }
+        verdict.push('.');
+        let _ = write!(html, "<p class=\"verdict\">{verdict}</p>");
+    } else if devices.len() > 1 {
+        html.push_str("<p class=\"verdict\">The devices cannot be ranked: the headline terms were not identified (see the table).</p>");
+    }
+    if !rows.is_empty() {
+        html.push_str("<table><thead><tr><th>headline term (mean of the axes)</th><th>unit</th>");
+        for d in &devices {
+            let _ = write!(html, "<th>{}</th>", escape(d));
+        }
+        if devices.len() > 1 {
+            html.push_str("<th>better</th>");
+        }
+        let _ = write!(html, "</tr></thead><tbody>{rows}</tbody></table>");
+    }
+    // Outage bridging.
+    html.push_str("<h3>What this means for bridging a GNSS outage</h3><table><thead><tr><th>device</th><th>within 0.1 m (lane level)</th><th>within 1 m</th><th>largest error source at 1 m</th></tr></thead><tbody>");
+    let mut any_bounded = false;
+    for o in &outages {
+        match o {
+            Ok(o) => {
+                let prefix = if o.bounded.is_empty() {
+                    ""
+                } else {
+                    any_bounded = true;
+                    "≥ "
+                };
+                let _ = write!(
+                    html,
+                    "<tr><td>{}</td><td>{prefix}{}</td><td>{prefix}{}</td><td>{}</td></tr>",
+                    escape(&o.device),
+                    seconds(o.lane_level_s),
+                    seconds(o.one_metre_s),
+                    o.one_metre_s.map(|t| o.terms.dominant(t)).unwrap_or("–")
+                );
+            }
+            Err(e) => {
+                let _ = write!(
+                    html,
+                    "<tr><td>{}</td><td colspan=\"3\" style=\"text-align:left\">no figure: {}</td></tr>",
+                    escape(&e.device),
+                    escape(&e.reason)
+                );
+            }
+        }
+    }
+    html.push_str("</tbody></table>");
+    let _ = write!(
+        html,
+        "<p class=\"note\">Longest GNSS outage during which the free-inertial horizontal position error (one horizontal channel, 1σ, straight and level, no aiding) stays within the limit, from the fitted terms of the x and y axes: accel bias ½·b·t², gyro bias through tilt g·b<sub>g</sub>·t³/6, VRW σ<sub>v</sub>·t<sup>3/2</sup>/√3, ARW through tilt g·N·t<sup>5/2</sup>/√20, added as a root sum of squares (Groves, <i>Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems</i>, 2nd ed., §5.7); the biases are the bias instabilities, i.e. what a filter could not have estimated before the outage.{} Initial attitude and velocity errors are left out, so real outages do worse; <b><code>imulab study</code> gives the filter-based answer</b> for a drive with outages.</p>",
+        if any_bounded {
+            " ≥: a term was not identified and entered with its upper bound, so the real horizon is at least this long."
+        } else {
+            ""
+        }
+    );
+    html
+}
+
+/// The data-health tables of one session: its devices and their events.
+fn session_health_html(s: &SessionHealth) -> String {
+    let mut html = String::new();
+    let _ = write!(
+        html,
+        "<p class=\"meta\">Session <code>{}</code> · id {} · started {} on {} · {} chunk file(s).</p>",
+        escape(&s.path),
+        escape(&s.id),
+        escape(&s.start_time),
+        escape(&s.host),
+        s.files
+    );
+    html.push_str("<div class=\"scroll\"><table class=\"health\"><thead><tr><th>device</th><th>model (protocol)</th><th>samples</th><th>span</th><th>rate: nominal / effective</th><th>gaps (missing samples)</th><th>NaN/Inf</th><th>temperature: min / mean / max</th><th>logger events</th></tr></thead><tbody>");
+    for d in &s.devices {
+        let gaps = match (d.gaps, d.missing_samples) {
+            (Some(0), _) => "none".into(),
+            (Some(g), Some(m)) => format!("{g} ({m})"),
+            (Some(g), None) => g.to_string(),
+            _ => "–".into(),
+        };
+        let bad = |n: u64| if n > 0 { " class=\"bad\"" } else { "" };
+        let temperature = d
+            .temperature
+            .map(|t| format!("{:.1} / {:.1} / {:.1} °C", t.min, t.mean, t.max))
+            .unwrap_or_else(|| "–".into());
+        // Problems first (highlighted), then the routine events.
+        let mut events: Vec<String> = Vec::new();
+        let mut problem = false;
+        for kind in health::PROBLEM_EVENTS {
+            if let Some(n) = d.events.get(kind).filter(|n| **n > 0) {
+                problem = true;
+                events.push(format!("<b>{} {n}</b>", kind.replace('_', " ")));
+            }
+        }
+        for (k, n) in d
+            .events
+            .iter()
+            .filter(|(k, _)| !health::PROBLEM_EVENTS.contains(&k.as_str()))
+        {
+            events.push(format!("{} {n}", escape(&k.replace('_', " "))));
+        }
+        if !problem {
+            events.insert(0, "no problems".into());
+        }
+        let _ = write!(
+            html,
+            "<tr><td>{}</td><td style=\"text-align:left\">{} ({})</td><td>{}</td><td>{}</td><td>{} / {} Hz</td><td{}>{gaps}</td><td{}>{}</td><td>{temperature}</td><td{} style=\"text-align:left;white-space:normal\">{}</td></tr>",
+            escape(&d.name),
+            escape(&d.model),
+            escape(&d.protocol),
+            d.rows,
+            duration(d.span_s),
+            sig3(d.nominal_rate_hz),
+            d.effective_rate_hz.map(sig3).unwrap_or_else(|| "–".into()),
+            bad(d.gaps.unwrap_or(0)),
+            bad(d.invalid_values.unwrap_or(0)),
+            d.invalid_values.map(|n| n.to_string()).unwrap_or_else(|| "–".into()),
+            bad(u64::from(problem)),
+            events.join(", ")
+        );
+    }
+    html.push_str("</tbody></table></div>");
+    let session_events: Vec<String> = s
+        .session_events
+        .iter()
+        .map(|(k, n)| format!("{} {n}", k.replace('_', " ")))
+        .collect();
+    let _ = write!(
+        html,
+        "<p class=\"note\">Logger events are counted from the session's <code>/events</code> (an event whose detail says <code>count=N</code> counts N frames): gaps, resyncs, checksum errors, queue overflows (dropped frames), disconnects and low disk are problems. Session-wide events: {}.</p>",
+        if session_events.is_empty() {
+            "none".to_string()
+        } else {
+            escape(&session_events.join(", "))
+        }
+    );
+    if s.problems.is_empty() {
+        html.push_str("<p class=\"good\">Every chunk file was readable.</p>");
+    } else {
+        html.push_str("<ul>");
+        for p in &s.problems {
+            let _ = write!(html, "<li class=\"bad\">{}</li>", escape(p));
+        }
+        html.push_str("</ul>");
+    }
     html
 }
 
@@ -681,7 +1250,8 @@ pub fn write_png(report: &AllanReport, path: &Path) -> anyhow::Result<()> {
 /// PNG of `axes`: curves, confidence bands, fitted total and labelled term lines.
 pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow::Result<()> {
     use plotters::prelude::*;
-    let root = BitMapBackend::new(path, (1000, 700)).into_drawing_area();
+    // Slide size (3:2) with fonts readable when the image is shrunk into a slide or mail.
+    let root = BitMapBackend::new(path, (1200, 800)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut tau = (f64::INFINITY, f64::NEG_INFINITY);
     let mut dev = (f64::INFINITY, f64::NEG_INFINITY);
@@ -697,26 +1267,28 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
     }
     anyhow::ensure!(tau.0.is_finite() && dev.0.is_finite(), "nothing to plot");
     let y_range = (dev.0 / 1.5, dev.1 * 1.5);
-    let (plot_area, note_area) = root.split_vertically(670);
+    let (plot_area, note_area) = root.split_vertically(764);
     if axes.iter().any(|a| a.fit.is_some()) {
         note_area.draw(&Text::new(
             LINE_STYLE_NOTE,
-            (15, 8),
-            ("sans-serif", 12).into_font(),
+            (15, 6),
+            ("sans-serif", 15).into_font(),
         ))?;
     }
     let mut chart = ChartBuilder::on(&plot_area)
-        .caption(title, ("sans-serif", 22))
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(80)
+        .caption(title, ("sans-serif", 30))
+        .margin(20)
+        .x_label_area_size(60)
+        .y_label_area_size(100)
         .build_cartesian_2d(
             (tau.0 / 1.5..tau.1 * 1.5).log_scale(),
             (y_range.0..y_range.1).log_scale(),
         )?;
     chart
         .configure_mesh()
-        .x_desc("tau [s]")
+        .x_desc("averaging time tau [s]")
+        .label_style(("sans-serif", 18))
+        .axis_desc_style(("sans-serif", 20))
         .y_desc(format!(
             "{} [{}]",
             axes.first()
@@ -728,7 +1300,10 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .draw()?;
     for (i, a) in axes.iter().enumerate() {
-        let color = Palette99::pick(i).to_rgba();
+        // The page's colours, so a PNG and its SVG look alike.
+        let hex = COLORS[i % COLORS.len()];
+        let channel = |at: usize| u8::from_str_radix(&hex[at..at + 2], 16).unwrap_or(0);
+        let color = RGBColor(channel(1), channel(3), channel(5)).to_rgba();
         let pts: Vec<_> = a
             .curve
             .points
@@ -784,7 +1359,7 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
                                 + Text::new(
                                     line.term.symbol().to_string(),
                                     (-5, 6),
-                                    ("sans-serif", 18).into_font().color(&color),
+                                    ("sans-serif", 22).into_font().color(&color),
                                 ),
                         ))?;
                     }
@@ -796,6 +1371,7 @@ pub fn write_png_axes(axes: &[&AxisResult], title: &str, path: &Path) -> anyhow:
         .configure_series_labels()
         // Allan curves are bowls: the top middle is the emptiest place.
         .position(SeriesLabelPosition::UpperMiddle)
+        .label_font(("sans-serif", 18))
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .draw()?;

@@ -1,10 +1,15 @@
 //! `imulab compare`: two or more IMUs side by side as a datasheet-style table (rows: bias
 //! stability, ARW/VRW, RRW/AccRW, …; columns: device × axis), on the terminal and
-//! optionally as HTML with the curves overlaid.
+//! optionally as HTML: the report's summary (which IMU is better, outage horizons), the table
+//! and the curves overlaid.
 
 use super::allan::{analyse_inputs, AnalysisArgs};
 use crate::allan::analysis::AxisResult;
-use crate::allan::report::{datasheet_table_html, datasheet_table_text, svg_plot};
+use crate::allan::report::{
+    datasheet_table_html, datasheet_table_text, plot_groups, summary_html, svg_plot, PAGE_STYLE,
+    SVG_NAMESPACE,
+};
+use crate::allan::units::SensorKind;
 use anyhow::{bail, Context};
 use std::path::PathBuf;
 
@@ -43,15 +48,30 @@ pub fn run(mut args: CompareArgs) -> anyhow::Result<()> {
     let axes: Vec<&AxisResult> = report.axes.iter().collect();
     print!("{}", datasheet_table_text(&axes));
     if let Some(path) = &args.html {
-        let mut page = String::from(
-            "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>IMU comparison</title><style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}td:first-child{text-align:left}small{color:#666}</style></head><body><h1>IMU comparison</h1>",
+        let mut page = format!(
+            "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>IMU comparison</title><style>{PAGE_STYLE}</style></head><body><h1>IMU comparison</h1><h2>Summary</h2>"
         );
-        page.push_str(&datasheet_table_html(&axes));
-        page.push_str(&svg_plot(
-            &axes,
-            &format!("{} of all axes", report.kind.name().to_uppercase()),
-        ));
-        page.push_str("</body></html>\n");
+        page.push_str(&summary_html(&report));
+        page.push_str("<h2>Noise terms</h2>");
+        // One table per sensor (no half-empty columns), then one plot per device and sensor
+        // (a gyro and an accelerometer do not share a unit).
+        for sensor in [Some(SensorKind::Gyro), Some(SensorKind::Accel), None] {
+            let members: Vec<&AxisResult> = axes
+                .iter()
+                .copied()
+                .filter(|a| a.sensor == sensor)
+                .collect();
+            if !members.is_empty() {
+                page.push_str("<div class=\"scroll\">");
+                page.push_str(&datasheet_table_html(&members));
+                page.push_str("</div>");
+            }
+        }
+        page.push_str("<h2>Curves</h2><div class=\"plots\">");
+        for (title, members) in plot_groups(&report) {
+            page.push_str(&svg_plot(&members, &title).replacen(SVG_NAMESPACE, "", 1));
+        }
+        page.push_str("</div></body></html>\n");
         std::fs::write(path, page).with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())

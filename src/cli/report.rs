@@ -1,6 +1,7 @@
 //! `imulab report`: one self-contained HTML page for one or more inputs (sessions or plain
 //! files): log-log curves with confidence bands and fitted lines, the datasheet-style
-//! noise-term table (rows: terms; columns: device × axis) and the data's health.
+//! noise-term table (rows: terms; columns: device × axis) and the data's health, after a
+//! summary of which IMU is better and what that means for GNSS outages.
 
 use super::allan::{analyse_inputs, summary_text, AnalysisArgs};
 use crate::allan::analysis::AllanReport;
@@ -10,10 +11,10 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example: imulab report imu_a.csv imu_b.npy --rate 200 --units rad/s --kind oadev --html report.html --png curves.png"
+    after_help = "Examples:\n  imulab report runs/chamber --html report.html --png plots.png\n  imulab report imu_a.csv imu_b.npy --rate 200 --units rad/s --kind oadev --html report.html --png curves.png"
 )]
 pub struct ReportArgs {
-    /// Inputs (one device each): CSV/TSV or .npy files.
+    /// Inputs: sessions (every IMU in them) or CSV/TSV/.npy files (one device each).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     #[command(flatten)]
@@ -38,6 +39,11 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
     args.analysis.fit = args.analysis.kind.is_allan_variance();
     if args.analysis.device.is_some() && args.inputs.len() > 1 {
         anyhow::bail!("--device names a single input; with several inputs the file names are used");
+    }
+    // The health section shows each IMU's temperature: read it with the rates (same pass)
+    // when every input is a session (they all have a `temp` channel).
+    if args.analysis.temperature_column.is_none() && args.inputs.iter().all(|p| p.is_dir()) {
+        args.analysis.temperature_column = Some("temp".into());
     }
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
     std::fs::write(&args.html, html_report(&report, &args.title))

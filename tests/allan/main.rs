@@ -3,5 +3,6 @@
 mod fit;
 mod plots;
 mod reference;
+mod report;
 mod robustness;
 mod session;
