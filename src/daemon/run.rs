@@ -12,7 +12,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 
 use super::clock;
 use super::config::CheckedConfig;
-use super::device::DeviceTask;
+use super::device::{self, DeviceTask};
 use super::sink::RecordSink;
 use super::source::{Connector, DecoderFactory};
 use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
@@ -22,8 +22,19 @@ use super::writer::{self, FreeSpaceFn, QueueSender, WriterControl, WriterExit, W
 const DEVICE_STOP_TIMEOUT: Duration = Duration::from_millis(300);
 /// How long the writer gets to drain, flush, close and rename (the whole stop must fit in 2 s).
 const WRITER_STOP_TIMEOUT: Duration = Duration::from_millis(1500);
+/// Of that, the most it spends writing a backlog; the rest is dropped and counted, so that
+/// flushing, closing and renaming still fit.
+const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
 const DISK_CHECK_INTERVAL: Duration = Duration::from_secs(1);
+
+/// How often the writer flushes for a configured flush interval: the interval less the
+/// device tasks' batching window ([`device::batch_window`]), so that a row waits at most the
+/// configured interval, batching included, before it is on disk (what a SIGKILL can lose).
+pub fn writer_flush_interval(flush_interval_ms: u64) -> Duration {
+    let configured = Duration::from_millis(flush_interval_ms);
+    configured - device::batch_window(configured)
+}
 
 /// What the daemon runs with, built from the config (or by a test).
 pub struct DaemonParts {
@@ -110,9 +121,10 @@ pub async fn run(
 
     let (tx, rx) = writer::queue(config.session.queue_capacity);
     let settings = WriterSettings {
-        flush_interval: Duration::from_millis(config.session.flush_interval_ms),
+        flush_interval: writer_flush_interval(config.session.flush_interval_ms),
         reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
         disk_check_interval: DISK_CHECK_INTERVAL,
+        drain_budget: WRITER_DRAIN_BUDGET,
         start_detail: format!(
             "imulogd {} started: {} devices ({})",
             env!("CARGO_PKG_VERSION"),
@@ -172,6 +184,9 @@ pub async fn run(
             queue: QueueSender::new(tx.clone(), shared[index].clone()),
             shared: shared[index].clone(),
             raw_journal: config.session.raw_journal,
+            batch_window: device::batch_window(Duration::from_millis(
+                config.session.flush_interval_ms,
+            )),
             settled: Some(settled_tx.clone()),
         };
         device_tasks.push(tokio::spawn(task.run(shutdown_rx.clone())));
