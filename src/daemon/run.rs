@@ -208,7 +208,11 @@ pub async fn run(
         ]);
     });
 
+    // Held while the status file is written: a write already handed to the blocking pool when
+    // the status task is aborted finishes before the final report is written.
+    let status_lock = Arc::new(std::sync::Mutex::new(()));
     let status_task = {
+        let status_lock = status_lock.clone();
         let mut tracker =
             StatusTracker::new(shared.clone(), writer_shared.clone(), clock::mono_ns());
         let writer_shared = writer_shared.clone();
@@ -238,7 +242,16 @@ pub async fn run(
                 if last_status.is_none_or(|t| t.elapsed() >= Duration::from_millis(990)) {
                     last_status = Some(tokio::time::Instant::now());
                     let report = tracker.report(now, chrono::Utc::now());
-                    if let Err(e) = write_status_file(&status_path, &report) {
+                    // A file create and rename can block on a busy disk: not on the thread
+                    // that reads the devices.
+                    let path = status_path.clone();
+                    let lock = status_lock.clone();
+                    let written = tokio::task::spawn_blocking(move || {
+                        let _held = lock.lock().unwrap_or_else(|p| p.into_inner());
+                        write_status_file(&path, &report)
+                    })
+                    .await;
+                    if let Ok(Err(e)) = written {
                         tracing::warn!(
                             "cannot write the status file {}: {e}",
                             status_path.display()
@@ -295,7 +308,11 @@ pub async fn run(
     let mut tracker = StatusTracker::new(shared, writer_shared, clock::mono_ns());
     let mut report = tracker.report(clock::mono_ns(), chrono::Utc::now());
     report.state = "stopped".to_string();
-    if let Err(e) = write_status_file(&status_path, &report) {
+    let written = {
+        let _held = status_lock.lock().unwrap_or_else(|p| p.into_inner());
+        write_status_file(&status_path, &report)
+    };
+    if let Err(e) = written {
         tracing::warn!(
             "cannot write the status file {}: {e}",
             status_path.display()
