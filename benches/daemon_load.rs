@@ -1,17 +1,32 @@
-//! imulogd load benchmark: two IMUs at a given rate each plus a 10 Hz GNSS stream through the
-//! real daemon loop (device tasks, bounded queue, writer thread, HDF5 session store with
-//! deflate 4 and the raw journal), for a given time. Prints, per rate: rows sent, written and
-//! dropped, whether the rate was held, the daemon's CPU as % of one core (the in-process
-//! generator's own CPU subtracted), and the RSS over the run.
+//! imulogd load benchmark, two modes.
 //!
-//! Run: `cargo bench --bench daemon_load -- [--secs S] [RATE_HZ ...]`
-//! (default: 10 s at 150, 1500, 15000, 30000 and 60000 Hz per IMU).
+//! **`pty` mode** (the issue's benchmark): the simulator serves two IMUs at 150 Hz
+//! (WitMotion and Xsens Xbus) and a 10 Hz GNSS receiver (UBX and NMEA mixed) on ptys,
+//! accelerated `--speed` times, and the real `imulogd` binary (a child process, started
+//! from a generated configuration: the defaults, raw journal off unless asked) logs them
+//! into an HDF5 session. Measured from outside: the daemon's CPU (utime + stime from
+//! `/proc/PID/stat`) and RSS (`/proc/PID/status`) every `--sample-s` seconds; the simulator
+//! side's CPU (this process) and whether it kept its pace; then, after SIGTERM, the rows in
+//! the session (store reader) against the frames the simulator sent, the daemon's dropped
+//! rows (status file) and `queue_overflow` events, and the simulator's overflows (a reader
+//! that did not keep up). "held" = every frame sent is a row, nothing dropped on either
+//! side, the daemon exited 0 after SIGTERM.
 //!
-//! The devices speak real protocols (imu0 WitMotion, imu1 Xsens Xbus MTData2, the receiver
-//! NMEA GGA + RMC and UBX NAV-PVT + NAV-EOE each cycle), encoded with the drivers' encoders
-//! and decoded with the daemon's own decoders. They are in-memory streams fed by a generator
-//! thread with pre-encoded frames in 1 ms bursts; a stream that cannot be read fast enough pushes back on the generator, which
-//! then falls behind its schedule: that counts as not holding the rate.
+//! `cargo bench --bench daemon_load -- pty [--secs S] [--speed F[,F...]] [--runs N]
+//! [--sample-s S] [--imulogd PATH] [--curve FILE.csv] [--raw-journal] [--nice N]`
+//! (`--nice` sets the nice value of the simulator and the daemon, e.g. -10 to stand in for
+//! a bench PC that runs nothing else; `--imulogd` compares another build.)
+//!
+//! **memory mode** (the default; rounds 1-2): the daemon loop in-process, fed from
+//! in-memory streams by a generator thread with pre-encoded frames in 1 ms bursts; prints,
+//! per rate: rows sent, written and dropped, whether the rate was held, the daemon's CPU as
+//! % of one core (the generator's own CPU subtracted), and the RSS over the run.
+//! `cargo bench --bench daemon_load -- [--secs S] [RATE_HZ ...]`
+//! (default: 10 s at 150, 1500, 15000, 30000 and 60000 Hz per IMU). The devices speak real
+//! protocols (imu0 WitMotion, imu1 Xsens Xbus MTData2, the receiver NMEA GGA + RMC and UBX
+//! NAV-PVT + NAV-EOE each cycle), encoded with the drivers' encoders and decoded with the
+//! daemon's own decoders; a stream that cannot be read fast enough pushes back on the
+//! generator, which then falls behind its schedule: that counts as not holding the rate.
 
 #[path = "../tests/daemon/common/mod.rs"]
 mod common;
@@ -27,6 +42,9 @@ use imulab::daemon::status::read_status_file;
 use imulab::daemon::{run, DaemonParts};
 use imulab::store::{Session, TimeRange};
 use tokio::io::AsyncWriteExt;
+
+#[path = "daemon_load/pty.rs"]
+mod pty;
 
 fn cpu_seconds(who: libc::c_int) -> f64 {
     // SAFETY: getrusage writes into the zeroed struct we own; `who` is RUSAGE_SELF/THREAD.
@@ -211,6 +229,10 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
 }
 
 fn main() {
+    if std::env::args().nth(1).as_deref() == Some("pty") {
+        pty::main(std::env::args().skip(2).collect());
+        return;
+    }
     let mut secs = 10.0;
     let mut rates = Vec::new();
     let mut args = std::env::args().skip(1);

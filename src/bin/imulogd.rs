@@ -123,8 +123,11 @@ fn run(config: &config::CheckedConfig) -> anyhow::Result<u8> {
         free_space,
         status_path: config.status_path(),
     };
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
+    // One thread for every device task: their work is a read and a decode per frame, and
+    // on one thread a frame's wake-up is one epoll return, where a multi-threaded runtime
+    // also wakes its other workers (measured in docs/bench/daemon.md). The writer has its
+    // own thread.
+    let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     tracing::info!("logging into {}", session_dir.display());

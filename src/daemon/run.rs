@@ -12,7 +12,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 
 use super::clock;
 use super::config::CheckedConfig;
-use super::device::DeviceTask;
+use super::device::{self, DeviceTask};
 use super::sink::RecordSink;
 use super::source::{Connector, DecoderFactory};
 use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
@@ -22,8 +22,19 @@ use super::writer::{self, FreeSpaceFn, QueueSender, WriterControl, WriterExit, W
 const DEVICE_STOP_TIMEOUT: Duration = Duration::from_millis(300);
 /// How long the writer gets to drain, flush, close and rename (the whole stop must fit in 2 s).
 const WRITER_STOP_TIMEOUT: Duration = Duration::from_millis(1500);
+/// Of that, the most it spends writing a backlog; the rest is dropped and counted, so that
+/// flushing, closing and renaming still fit.
+const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
 const DISK_CHECK_INTERVAL: Duration = Duration::from_secs(1);
+
+/// How often the writer flushes for a configured flush interval: the interval less the
+/// device tasks' batching window ([`device::batch_window`]), so that a row waits at most the
+/// configured interval, batching included, before it is on disk (what a SIGKILL can lose).
+pub fn writer_flush_interval(flush_interval_ms: u64) -> Duration {
+    let configured = Duration::from_millis(flush_interval_ms);
+    configured - device::batch_window(configured)
+}
 
 /// What the daemon runs with, built from the config (or by a test).
 pub struct DaemonParts {
@@ -110,9 +121,10 @@ pub async fn run(
 
     let (tx, rx) = writer::queue(config.session.queue_capacity);
     let settings = WriterSettings {
-        flush_interval: Duration::from_millis(config.session.flush_interval_ms),
+        flush_interval: writer_flush_interval(config.session.flush_interval_ms),
         reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
         disk_check_interval: DISK_CHECK_INTERVAL,
+        drain_budget: WRITER_DRAIN_BUDGET,
         start_detail: format!(
             "imulogd {} started: {} devices ({})",
             env!("CARGO_PKG_VERSION"),
@@ -172,6 +184,9 @@ pub async fn run(
             queue: QueueSender::new(tx.clone(), shared[index].clone()),
             shared: shared[index].clone(),
             raw_journal: config.session.raw_journal,
+            batch_window: device::batch_window(Duration::from_millis(
+                config.session.flush_interval_ms,
+            )),
             settled: Some(settled_tx.clone()),
         };
         device_tasks.push(tokio::spawn(task.run(shutdown_rx.clone())));
@@ -193,7 +208,11 @@ pub async fn run(
         ]);
     });
 
+    // Held while the status file is written: a write already handed to the blocking pool when
+    // the status task is aborted finishes before the final report is written.
+    let status_lock = Arc::new(std::sync::Mutex::new(()));
     let status_task = {
+        let status_lock = status_lock.clone();
         let mut tracker =
             StatusTracker::new(shared.clone(), writer_shared.clone(), clock::mono_ns());
         let writer_shared = writer_shared.clone();
@@ -223,7 +242,16 @@ pub async fn run(
                 if last_status.is_none_or(|t| t.elapsed() >= Duration::from_millis(990)) {
                     last_status = Some(tokio::time::Instant::now());
                     let report = tracker.report(now, chrono::Utc::now());
-                    if let Err(e) = write_status_file(&status_path, &report) {
+                    // A file create and rename can block on a busy disk: not on the thread
+                    // that reads the devices.
+                    let path = status_path.clone();
+                    let lock = status_lock.clone();
+                    let written = tokio::task::spawn_blocking(move || {
+                        let _held = lock.lock().unwrap_or_else(|p| p.into_inner());
+                        write_status_file(&path, &report)
+                    })
+                    .await;
+                    if let Ok(Err(e)) = written {
                         tracing::warn!(
                             "cannot write the status file {}: {e}",
                             status_path.display()
@@ -280,7 +308,11 @@ pub async fn run(
     let mut tracker = StatusTracker::new(shared, writer_shared, clock::mono_ns());
     let mut report = tracker.report(clock::mono_ns(), chrono::Utc::now());
     report.state = "stopped".to_string();
-    if let Err(e) = write_status_file(&status_path, &report) {
+    let written = {
+        let _held = status_lock.lock().unwrap_or_else(|p| p.into_inner());
+        write_status_file(&status_path, &report)
+    };
+    if let Err(e) = written {
         tracing::warn!(
             "cannot write the status file {}: {e}",
             status_path.display()

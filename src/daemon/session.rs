@@ -90,7 +90,7 @@ pub fn writer_options(config: &CheckedConfig) -> WriterOptions {
         } else {
             u64::MAX
         },
-        flush_interval: Duration::from_millis(s.flush_interval_ms),
+        flush_interval: super::run::writer_flush_interval(s.flush_interval_ms),
         deflate_level: s.deflate_level,
         raw_journal: s.raw_journal,
         rows_per_chunk: None,

@@ -33,6 +33,8 @@ pub struct MemoryStore {
     pub gnss: BTreeMap<String, Vec<GnssRecord>>,
     pub events: Vec<EventRecord>,
     pub raw: BTreeMap<String, Vec<(i64, Vec<u8>)>>,
+    /// Calls of `append_imu` and `append_gnss` (the writer makes one per batch and table).
+    pub row_appends: u64,
     pub flushes: u64,
     pub rotations: u64,
     pub closed: bool,
@@ -83,6 +85,7 @@ impl RecordSink for MemorySink {
     fn append_imu(&mut self, device: &str, rows: &[ImuRecord]) -> anyhow::Result<()> {
         self.pause();
         let mut s = self.lock();
+        s.row_appends += 1;
         s.imu
             .entry(device.to_string())
             .or_default()
@@ -93,6 +96,7 @@ impl RecordSink for MemorySink {
     fn append_gnss(&mut self, device: &str, rows: &[GnssRecord]) -> anyhow::Result<()> {
         self.pause();
         let mut s = self.lock();
+        s.row_appends += 1;
         s.gnss
             .entry(device.to_string())
             .or_default()

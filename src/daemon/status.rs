@@ -234,11 +234,11 @@ pub fn write_status_file(path: &Path, report: &StatusReport) -> std::io::Result<
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp");
     let tmp = PathBuf::from(tmp);
-    {
-        let mut file = std::fs::File::create(&tmp)?;
-        serde_json::to_writer_pretty(&mut file, report)?;
-        file.write_all(b"\n")?;
-    }
+    // Serialised in memory and written at once: straight into the file, the serialiser's
+    // small pieces were ~500 write calls per report.
+    let mut text = serde_json::to_vec_pretty(report)?;
+    text.push(b'\n');
+    std::fs::File::create(&tmp)?.write_all(&text)?;
     std::fs::rename(&tmp, path)
 }
 

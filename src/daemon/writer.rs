@@ -16,7 +16,8 @@ use super::clock;
 use super::sink::RecordSink;
 use super::status::{DeviceShared, WriterShared};
 
-/// What one read of one device produced.
+/// What one device produced over a few reads (a device task collects reads for a short
+/// window before it hands them over, so the writer wakes per batch, not per frame).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Batch {
     /// Index of the device (into the daemon's device list).
@@ -24,8 +25,11 @@ pub struct Batch {
     pub imu: Vec<ImuRecord>,
     pub gnss: Vec<GnssRecord>,
     pub events: Vec<EventRecord>,
-    /// The undecoded bytes and their arrival time, when the raw journal is on.
-    pub raw: Option<(i64, Vec<u8>)>,
+    /// The raw journal, when it is on: each read's arrival time and its bytes' range in
+    /// [`Batch::raw_bytes`], in arrival order.
+    pub raw: Vec<(i64, std::ops::Range<usize>)>,
+    /// The undecoded bytes of every read in [`Batch::raw`], back to back.
+    pub raw_bytes: Vec<u8>,
 }
 
 impl Batch {
@@ -37,10 +41,25 @@ impl Batch {
     }
 
     pub fn is_empty(&self) -> bool {
-        self.imu.is_empty() && self.gnss.is_empty() && self.events.is_empty() && self.raw.is_none()
+        self.imu.is_empty() && self.gnss.is_empty() && self.events.is_empty() && self.raw.is_empty()
     }
 
-    fn rows(&self) -> u64 {
+    /// Adds one read's undecoded bytes to the raw journal part.
+    pub fn push_raw(&mut self, t_mono_ns: i64, bytes: &[u8]) {
+        let start = self.raw_bytes.len();
+        self.raw_bytes.extend_from_slice(bytes);
+        self.raw.push((t_mono_ns, start..self.raw_bytes.len()));
+    }
+
+    /// The raw journal entries: arrival time and bytes of each read.
+    pub fn raw_reads(&self) -> impl Iterator<Item = (i64, &[u8])> + '_ {
+        self.raw
+            .iter()
+            .map(|(t, range)| (*t, self.raw_bytes.get(range.clone()).unwrap_or_default()))
+    }
+
+    /// Rows (IMU and GNSS) in the batch.
+    pub fn rows(&self) -> u64 {
         (self.imu.len() + self.gnss.len()) as u64
     }
 }
@@ -112,6 +131,9 @@ pub struct WriterSettings {
     pub disk_check_interval: Duration,
     /// Detail of the `session_start` event (config summary).
     pub start_detail: String,
+    /// Once stopping, how long the writer may spend writing what is still queued; batches
+    /// left after that are dropped and counted, so the session still closes in time.
+    pub drain_budget: Duration,
 }
 
 /// Why the writer stopped.
@@ -159,7 +181,7 @@ pub fn run_writer(
     // Whatever stopped us, keep what is already queued (bounded: the queue's capacity plus
     // what the device tasks send while they stop).
     let mut outcome = match outcome {
-        Ok(exit) => match state.drain(&mut *sink, &rx) {
+        Ok(exit) => match state.drain(&mut *sink, &rx, settings.drain_budget) {
             Ok(()) => exit,
             Err(e) => WriterExit::Failed(e),
         },
@@ -254,13 +276,36 @@ impl WriterState {
                 tracing::info!("rotated to {:?}", w.current_file);
             }
             let until_flush = settings.flush_interval.saturating_sub(last_flush.elapsed());
+            // Whether the queue was empty at the end of this turn.
+            let mut caught_up = true;
             match rx.recv_timeout(tick.min(until_flush).max(Duration::from_millis(1))) {
-                Ok(batch) => self.write(sink, batch)?,
+                Ok(batch) => {
+                    self.write(sink, batch)?;
+                    caught_up = false;
+                    // More of a backlog, for up to one tick before stop, rotation, disk and
+                    // heartbeat are looked at again.
+                    let turn = Instant::now();
+                    while turn.elapsed() < tick && !control.stop.load(Ordering::SeqCst) {
+                        match rx.try_recv() {
+                            Ok(batch) => self.write(sink, batch)?,
+                            Err(_) => {
+                                caught_up = true;
+                                break;
+                            }
+                        }
+                    }
+                }
                 Err(RecvTimeoutError::Timeout) => {}
                 // Every device task has ended: nothing more will come.
                 Err(RecvTimeoutError::Disconnected) => return Ok(WriterExit::Clean),
             }
-            if last_flush.elapsed() >= settings.flush_interval {
+            // The periodic flush tells the store that the current time has come, so that a
+            // quiet device's last rows are written. Behind a backlog, rows still queued are
+            // older than that: the store would write every table's partial chunk (and fsync)
+            // at each append, which slowed a lagging writer further until it could never catch
+            // up (the losses at 100× in docs/bench/daemon.md). So it waits until the queue is
+            // empty; meanwhile the store writes whole chunks as they fill.
+            if caught_up && last_flush.elapsed() >= settings.flush_interval {
                 self.report_drops(sink)?;
                 sink.flush()?;
                 last_flush = Instant::now();
@@ -276,8 +321,8 @@ impl WriterState {
             anyhow::bail!("batch for unknown device index {}", batch.device);
         };
         let name = device.name.as_str();
-        if let Some((t_mono_ns, bytes)) = &batch.raw {
-            sink.append_raw(name, *t_mono_ns, bytes)?;
+        for (t_mono_ns, bytes) in batch.raw_reads() {
+            sink.append_raw(name, t_mono_ns, bytes)?;
         }
         if !batch.imu.is_empty() {
             sink.append_imu(name, &batch.imu)?;
@@ -292,9 +337,62 @@ impl WriterState {
         Ok(())
     }
 
-    fn drain(&mut self, sink: &mut dyn RecordSink, rx: &Receiver<Batch>) -> anyhow::Result<()> {
+    /// Writes what is still queued, for up to `budget`; what is left after that (a writer far
+    /// behind, e.g. on a starved machine) is dropped, counted per device and written as a
+    /// `queue_overflow` event, so the session still closes within the stop deadline.
+    fn drain(
+        &mut self,
+        sink: &mut dyn RecordSink,
+        rx: &Receiver<Batch>,
+        budget: Duration,
+    ) -> anyhow::Result<()> {
+        let started = Instant::now();
+        while started.elapsed() < budget {
+            match rx.try_recv() {
+                Ok(batch) => self.write(sink, batch)?,
+                Err(_) => return Ok(()),
+            }
+        }
+        let mut left = vec![(0u64, 0u64, 0u64); self.devices.len()];
         while let Ok(batch) = rx.try_recv() {
-            self.write(sink, batch)?;
+            if let Some(l) = left.get_mut(batch.device) {
+                l.0 += 1;
+                l.1 += batch.rows();
+                l.2 += batch.events.len() as u64;
+            }
+        }
+        for ((device, l), reported) in self
+            .devices
+            .iter()
+            .zip(&left)
+            .zip(self.reported_drops.iter_mut())
+        {
+            if l.0 == 0 {
+                continue;
+            }
+            let total = {
+                let mut c = device.counters();
+                c.dropped_batches += l.0;
+                c.dropped_rows += l.1;
+                c.dropped_events += l.2;
+                (c.dropped_batches, c.dropped_rows, c.dropped_events)
+            };
+            let detail = format!(
+                "stopping: {} batches ({} rows, {} events) still queued after {} ms of writing were dropped; {} rows in total",
+                l.0,
+                l.1,
+                l.2,
+                budget.as_millis(),
+                total.1
+            );
+            tracing::warn!(device = %device.name, "{detail}");
+            let mut event = session_event(EventKind::QueueOverflow, detail);
+            event.device = device.name.clone();
+            sink.append_event(&event)?;
+            // Counted here; earlier drops not yet reported are left to report_drops.
+            reported.0 += l.0;
+            reported.1 += l.1;
+            reported.2 += l.2;
         }
         Ok(())
     }

@@ -8,9 +8,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::common::daemon::connected_report;
 use crate::common::encode::wit_sample;
 use crate::common::pty::Pty;
-use imulab::daemon::status::{read_status_file, DeviceState};
 use imulab::store::{Session, TimeRange};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
@@ -52,13 +52,7 @@ fn start_logging(dir: &Path) -> Logging {
     let status_path = dir.join("imulogd-status.json");
     let t = Instant::now();
     let session_dir = loop {
-        let report = read_status_file(&status_path).ok();
-        let connected = report.as_ref().is_some_and(|r| {
-            r.devices
-                .first()
-                .is_some_and(|d| d.state == DeviceState::Connected)
-        });
-        if let (true, Some(dir)) = (connected, report.and_then(|r| r.session_dir)) {
+        if let Some(dir) = connected_report(&status_path, 1).and_then(|r| r.session_dir) {
             break dir;
         }
         assert!(

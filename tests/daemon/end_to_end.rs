@@ -10,12 +10,11 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use crate::common::daemon::{connected_report, parts_for};
 use imulab::daemon::config::parse;
 use imulab::daemon::mapping::{gnss_record, ImuMapping};
+use imulab::daemon::run;
 use imulab::daemon::session::open_session_sink;
-use imulab::daemon::source::{connector_for, decoder_for};
-use imulab::daemon::status::{read_status_file, DeviceState};
-use imulab::daemon::{run, DaemonParts};
 use imulab::sim::scene::Scene;
 use imulab::sim::serve::{
     Fault, FaultKind, Sent, ServeOptions, ServeReport, Server, Speed, StartWhen,
@@ -102,32 +101,15 @@ async fn serve_and_log(faults: Vec<Fault>) -> (tempfile::TempDir, ServeReport, s
     let config = parse(&text, "end-to-end").unwrap_or_else(|e| panic!("{e}"));
     let session_dir = dir.path().join("bench");
     let status_path = config.status_path();
-    let parts = DaemonParts {
-        sink: Box::new(open_session_sink(&config, &session_dir).unwrap()),
-        session_dir: session_dir.clone(),
-        connectors: config
-            .devices
-            .iter()
-            .map(|d| connector_for(d).unwrap())
-            .collect(),
-        decoders: config
-            .devices
-            .iter()
-            .map(|d| decoder_for(d).unwrap_or_else(|e| panic!("{e}")))
-            .collect(),
-        free_space: Box::new(|| Ok(u64::MAX / 2)),
-        status_path: status_path.clone(),
-    };
+    let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
+    let parts = parts_for(&config, sink, session_dir.clone());
     let (stop, stop_rx) = tokio::sync::watch::channel(false);
     let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
 
     // Start the scene once the daemon has every device open (the status file says so).
     let t = Instant::now();
     loop {
-        let open = read_status_file(&status_path).is_ok_and(|s| {
-            s.devices.len() == 3 && s.devices.iter().all(|d| d.state == DeviceState::Connected)
-        });
-        if open {
+        if connected_report(&status_path, 3).is_some() {
             break;
         }
         assert!(

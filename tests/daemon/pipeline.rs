@@ -364,6 +364,43 @@ async fn a_slow_writer_drops_are_counted_and_logged_never_silent() {
     );
 }
 
+/// A writer far behind at SIGTERM (a large queue full of batches, a sink that takes 100 ms per
+/// append) writes what it can for its drain budget, then drops the rest and counts it as a
+/// `queue_overflow` event: the session still closes, exit 0, within the 2 s stop deadline.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_backlog_at_stop_is_dropped_and_counted_so_the_session_closes_in_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = config(dir.path(), "queue_capacity = 100000", &[("imu", 1000.0)]);
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::slow(Duration::from_millis(100));
+    let running = start(config, sink.clone(), vec![imu], plenty_of_space());
+    // 1.5 s at 1 kHz in 5 ms batches (~300) into a writer that takes ~10 a second.
+    send_imu(&mut port, 0..1500, 1000.0, &[], b"").await;
+    let (outcome, status) = running.finish().await;
+    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
+    let store = sink.snapshot();
+    assert!(store.closed);
+    let written = store.imu["imu"].len() as u64;
+    let dropped = status.devices[0].dropped_rows;
+    assert!(dropped > 0, "the test must leave a backlog");
+    assert_eq!(
+        written + dropped,
+        1500,
+        "written {written} + dropped {dropped}"
+    );
+    let at_stop: Vec<String> = events(&store, EventKind::QueueOverflow)
+        .into_iter()
+        .filter(|e| e.contains("stopping:"))
+        .collect();
+    assert_eq!(at_stop.len(), 1, "{:?}", store.events);
+    assert!(
+        at_stop[0].contains(&format!("{dropped} rows in total")),
+        "{at_stop:?}"
+    );
+    assert_eq!(store.events.last().unwrap().kind, EventKind::SessionStop);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn disk_reserve_closes_the_session_and_exits_non_zero() {
     let dir = tempfile::tempdir().unwrap();
@@ -414,4 +451,75 @@ async fn disk_reserve_closes_the_session_and_exits_non_zero() {
     assert_eq!(seqs, (0..seqs.len() as u64).collect::<Vec<_>>());
     let status = read_status_file(&running.status_path).unwrap();
     assert_eq!(status.state, "stopped");
+}
+
+/// Reads are handed to the writer in batches of a short window (here 50 ms, with the default
+/// 1 s flush interval), not one per read: 200 frames written one by one at 500 Hz reach the
+/// writer in a few appends, each read keeping its own arrival time (and raw journal entry);
+/// and a lone frame of a device that then goes quiet reaches the writer when its window
+/// closes, not at the next read.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reads_reach_the_writer_in_batches_and_a_lone_frame_within_the_window() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nflush_interval_ms = 1000\nraw_journal = true\n\
+         [[device]]\nname = \"imu\"\nprotocol = \"csv\"\nrate_hz = 500\nserial = {{ port = \"/dev/test-imu\" }}\n",
+        dir.path().display()
+    );
+    let config = parse(&text, "test").unwrap_or_else(|e| panic!("{e}"));
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let sink = MemorySink::new();
+    let running = start(config, sink.clone(), vec![imu], plenty_of_space());
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    send_imu(&mut port, 0..200, 500.0, &[], b"").await;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let store = sink.snapshot();
+    let rows = &store.imu["imu"];
+    assert_eq!(rows.len(), 200, "every frame is at the writer 200 ms later");
+    // Each read is in the journal with its arrival time, and its frames carry that time.
+    let reads = &store.raw["imu"];
+    let mut read_times: Vec<i64> = reads.iter().map(|(t, _)| *t).collect();
+    let mut row_times: Vec<i64> = rows.iter().map(|r| r.t_mono_ns).collect();
+    read_times.dedup();
+    row_times.dedup();
+    assert!(
+        row_times
+            .iter()
+            .all(|t| read_times.binary_search(t).is_ok()),
+        "rows carry their read's arrival time"
+    );
+    // ~0.4 s of frames in 50 ms windows: about 8 appends; one per read would be one per
+    // frame on an idle machine (fewer when a loaded machine bunches frames into reads).
+    assert!(
+        (2..=30).contains(&store.row_appends) && store.row_appends < row_times.len() as u64,
+        "{} appends for {} reads ({} arrival times)",
+        store.row_appends,
+        reads.len(),
+        row_times.len()
+    );
+
+    // A lone frame, then silence: written when its window closes.
+    let sent_at = Instant::now();
+    port.write_all(&encode_imu(200, gyro_of(200), accel_of(200)))
+        .await
+        .unwrap();
+    loop {
+        if sink.snapshot().imu["imu"].len() == 201 {
+            break;
+        }
+        assert!(
+            sent_at.elapsed() < Duration::from_secs(2),
+            "a lone frame did not reach the writer"
+        );
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    let waited = sent_at.elapsed();
+    assert!(
+        waited >= Duration::from_millis(40),
+        "the lone frame waited for its window ({waited:?})"
+    );
+    let (outcome, _) = running.finish().await;
+    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
 }

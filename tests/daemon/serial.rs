@@ -10,13 +10,13 @@ use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use crate::common::daemon::parts_for;
 use crate::common::encode::{accel_of, gnss_cycle, gyro_of, temp_of, wit_sample, xbus_sample};
 use crate::common::pty::Pty;
 use imulab::daemon::config::{parse, CheckedConfig};
 use imulab::daemon::sink::{MemorySink, MemoryStore};
-use imulab::daemon::source::{connector_for, decoder_for};
 use imulab::daemon::status::{read_status_file, DeviceState};
-use imulab::daemon::{run, DaemonParts, Outcome};
+use imulab::daemon::{run, Outcome};
 use imulab::store::{EventKind, ImuRecord};
 use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
 use imulab_drivers::codec::slcan::{SlcanEncoder, SlcanMessage};
@@ -45,22 +45,8 @@ pub fn config(dir: &Path, devices: &str) -> CheckedConfig {
 pub fn start(config: CheckedConfig) -> Daemon {
     let sink = MemorySink::new();
     let status_path = config.status_path();
-    let parts = DaemonParts {
-        sink: Box::new(sink.clone()),
-        session_dir: config.session.output_dir.join("session"),
-        connectors: config
-            .devices
-            .iter()
-            .map(|d| connector_for(d).unwrap())
-            .collect(),
-        decoders: config
-            .devices
-            .iter()
-            .map(|d| decoder_for(d).unwrap_or_else(|e| panic!("{e}")))
-            .collect(),
-        free_space: Box::new(|| Ok(u64::MAX / 2)),
-        status_path: status_path.clone(),
-    };
+    let session_dir = config.session.output_dir.join("session");
+    let parts = parts_for(&config, Box::new(sink.clone()), session_dir);
     let (stop, stop_rx) = watch::channel(false);
     let handle = tokio::spawn(async move { run(&config, parts, stop_rx).await });
     Daemon {
