@@ -124,7 +124,7 @@ truth_every = 15
 )]
 pub struct DemoArgs {
     /// Length of the simulated chamber run, minutes (360 reproduces the full six-hour run).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 30.0)]
     pub minutes: f64,
     /// Serving speed: simulated seconds per wall-clock second (1 = real time), or `max`
     /// (as fast as imulogd reads).
