@@ -13,6 +13,8 @@
 //!    imulogd stamps rows at host arrival, which an accelerated serve compresses by the speed
 //!    factor, so the demo analyses on the devices' sample clock instead: row k at k / 150 s,
 //!    valid because step 2 showed the rows are complete and the device clocks continuous.
+//!    (For the same reason the configuration gives imulogd the rates the accelerated link
+//!    carries, 150 Hz × speed: they size its chunks and its gap detector.)
 //! 4. A fusion replay (`imulab replay`) of a simulated 15 minute drive with both IMUs and
 //!    GNSS outages of 30 s every 120 s, the filter tuned from each IMU's Allan fit.
 //! 5. A small sensor-grade study ([`crate::fusion::study`]) whose grades are the two Allan
@@ -434,7 +436,7 @@ fn write_chamber_scene(path: &Path, duration_s: f64, seed: Option<u64>) -> anyho
 }
 
 /// The imulogd configuration for the served endpoints, in the production format.
-fn imulogd_config(paths: &Paths, server: &Server, queue_capacity: i64) -> anyhow::Result<String> {
+fn imulogd_config(paths: &Paths, server: &Server, link_factor: f64) -> anyhow::Result<String> {
     let mut session = toml::Table::new();
     session.insert("output_dir".into(), path_str(&paths.out)?.into());
     session.insert("name".into(), "session".into());
@@ -442,7 +444,10 @@ fn imulogd_config(paths: &Paths, server: &Server, queue_capacity: i64) -> anyhow
     session.insert("status_file".into(), path_str(&paths.status)?.into());
     // The default (1024 batches) is sized for the devices' own rates; an accelerated serve
     // delivers as many batches per second as the speed factor times more.
-    session.insert("queue_capacity".into(), queue_capacity.into());
+    session.insert(
+        "queue_capacity".into(),
+        ((1024.0 * link_factor).min(65536.0) as i64).into(),
+    );
     let mut devices = Vec::new();
     for e in server.endpoints() {
         let mut serial = toml::Table::new();
@@ -454,7 +459,7 @@ fn imulogd_config(paths: &Paths, server: &Server, queue_capacity: i64) -> anyhow
         d.insert("protocol".into(), e.protocol.name().into());
         d.insert(
             "rate_hz".into(),
-            toml::Value::Float(if gnss { GNSS_HZ } else { IMU_HZ }),
+            toml::Value::Float(link_factor * if gnss { GNSS_HZ } else { IMU_HZ }),
         );
         d.insert("retry_initial_ms".into(), 100.into());
         d.insert("serial".into(), serial.into());
@@ -466,7 +471,9 @@ fn imulogd_config(paths: &Paths, server: &Server, queue_capacity: i64) -> anyhow
     Ok(format!(
         "# imulogd configuration written by `imulab demo` (the format of a bench PC's\n\
          # /etc/imulogd/imulogd.toml, see docs/daemon.md). The ports are links to the ptys the\n\
-         # simulator serves; the rates are the devices' own (the serve may be accelerated).\n{}",
+         # simulator serves. rate_hz is the rate the link carries: the devices' own (150 Hz,\n\
+         # 10 Hz) × {link_factor}, the serve's speed; it sizes the store's chunks (one flush\n\
+         # interval each) and the gap detector, and the arrival stamps are as compressed.\n{}",
         toml::to_string(&config)?
     ))
 }
@@ -547,9 +554,10 @@ fn serve_and_log(
     // Rows the session will hold: one per IMU sample, two per mixed GNSS epoch.
     let expected_rows = (scene.duration_s * scene.rate_hz).round() as u64 * scene.imus.len() as u64
         + (scene.duration_s * GNSS_HZ).round() as u64 * 2 * scene.gnss.len() as u64;
-    let queue_capacity = match speed {
-        Speed::Factor(f) => (1024.0 * f.max(1.0)).min(65536.0) as i64,
-        Speed::Max => 65536,
+    // How much faster than the devices' own rates the link runs (`max`: taken as 100×).
+    let link_factor = match speed {
+        Speed::Factor(f) => f.max(1.0),
+        Speed::Max => 100.0,
     };
     let mut server = Server::start(
         scene,
@@ -562,11 +570,8 @@ fn serve_and_log(
             faults: Vec::new(),
         },
     )?;
-    std::fs::write(
-        &paths.config,
-        imulogd_config(paths, &server, queue_capacity)?,
-    )
-    .with_context(|| format!("writing {}", paths.config.display()))?;
+    std::fs::write(&paths.config, imulogd_config(paths, &server, link_factor)?)
+        .with_context(|| format!("writing {}", paths.config.display()))?;
     let _ = std::fs::remove_file(&paths.status);
     let log = std::fs::File::create(&paths.log)
         .with_context(|| format!("creating {}", paths.log.display()))?;
