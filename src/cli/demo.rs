@@ -122,7 +122,7 @@ truth_every = 15
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Examples:\n  imulab demo\n  imulab demo --minutes 360 --speed 200 --out /tmp/imulab-demo\n  imulab demo --minutes 3 --speed max"
+    after_help = "Examples:\n  imulab demo\n  imulab demo --minutes 360 --speed 60 --out /tmp/imulab-demo\n  imulab demo --minutes 3 --speed max"
 )]
 pub struct DemoArgs {
     /// Length of the simulated chamber run, minutes (360 reproduces the full six-hour run).
