@@ -217,8 +217,8 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
         clean_stop,
         rate_hz,
         secs,
-        // Each GNSS cycle is an NMEA epoch and a UBX epoch: two rows.
-        sent: 2 * imu_frames + 2 * gnss_frames,
+        // Each GNSS cycle (NMEA and UBX) is merged into one fix: one row.
+        sent: 2 * imu_frames + gnss_frames,
         written,
         dropped,
         generator_lag_s: lag,

@@ -33,12 +33,13 @@ fn hand_computed_frames_decode_to_si() {
     // TimeUs = 1_500_000 µs = 0x0016E360, little-endian.
     let time = CanFrame::data(0x18FF_1200, true, &[0x60, 0xE3, 0x16, 0x00]).expect("valid");
     let other = CanFrame::data(0x123, false, &[1, 2, 3]).expect("valid");
-    for f in [&rate, &accel, &other, &time] {
+    for f in [&rate, &accel, &other] {
         assert!(imu.push_frame(f).is_none());
     }
     assert_eq!(imu.frames_ignored(), 1);
-    // The next cycle's first frame completes the sample.
-    let sample = imu.push_frame(&rate).expect("sample complete");
+    // The frame that closes the mapped message set completes the sample, not the next
+    // cycle's first frame.
+    let sample = imu.push_frame(&time).expect("sample complete");
     let g = sample.gyro.expect("gyro");
     assert!((g[0] - 10f64.to_radians()).abs() < 1e-12);
     assert!((g[1] + 2.5f64.to_radians()).abs() < 1e-12);
@@ -50,8 +51,14 @@ fn hand_computed_frames_decode_to_si() {
     assert_eq!(sample.status, 5);
     // Negative Motorola value: -10 °C -> raw -3500 = 0xF254.
     let cold = CanFrame::data(0x181, false, &[0, 0, 0, 0, 0, 0, 0xF2, 0x54]).expect("valid");
-    imu.push_frame(&cold);
-    let s = imu.finish().expect("rate + accel present");
+    assert!(imu.push_frame(&rate).is_none(), "a new group starts");
+    assert!(imu.push_frame(&cold).is_none());
+    // The next rate frame finds the group (time lost) already holding a rate: the partial
+    // group comes out then, time absent.
+    let s = imu
+        .push_frame(&rate)
+        .expect("partial group ended by a repeat");
+    assert_eq!(s.sensor_time, None);
     assert!((s.temp_c.expect("temp") + 10.0).abs() < 1e-12);
     // A mapped frame that is too short is counted, not decoded.
     imu.push_frame(&CanFrame::data(0x180, false, &[1, 2]).expect("valid"));
@@ -69,10 +76,12 @@ fn mapping_scale_offset_and_unit_override() {
     )
     .expect("mapping");
     let mut imu = DbcImu::new(&fixture("imu_can.dbc"), &mapping).expect("resolves");
-    imu.push_frame(
-        &CanFrame::data(0x180, false, &[0xE8, 0x03, 0, 0, 0xE8, 0x03, 0, 0]).expect("valid"),
-    );
-    let s = imu.finish().expect("sample");
+    // One mapped message: each frame of it is a whole sample.
+    let s = imu
+        .push_frame(
+            &CanFrame::data(0x180, false, &[0xE8, 0x03, 0, 0, 0xE8, 0x03, 0, 0]).expect("valid"),
+        )
+        .expect("sample");
     let g = s.gyro.expect("gyro");
     assert!(
         (g[0] + 10f64.to_radians()).abs() < 1e-12,
@@ -122,10 +131,12 @@ proptest! {
         let sample = ImuSample { sensor_time: Some(t), gyro: Some(g), accel: Some(a), temp_c: Some(temp), status };
         let frames = imu.encode(&sample).expect("in range");
         prop_assert_eq!(frames.len(), 3);
-        for f in &frames {
+        let (last, first) = frames.split_last().expect("three frames");
+        for f in first {
             prop_assert!(imu.push_frame(f).is_none());
         }
-        let back = imu.finish().expect("sample");
+        let back = imu.push_frame(last).expect("the last frame completes the sample");
+        prop_assert!(imu.finish().is_none(), "nothing held after a complete sample");
         let gyro_lsb = 0.01f64.to_radians();
         for i in 0..3 {
             prop_assert!((back.gyro.expect("gyro")[i] - g[i]).abs() <= gyro_lsb / 2.0 + 1e-12);

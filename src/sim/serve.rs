@@ -43,8 +43,8 @@
 //!   writer blocks on the slowest reader, so streams stay in step.
 //! - [`ServeReport`] (from [`Server::finish`]) says exactly what was sent per endpoint:
 //!   with [`ServeOptions::record_sent`], every frame's simulated record and what the drivers'
-//!   decoder makes of its bytes ([`SentImu::sample`], [`SentGnss::fixes`]: UBX epoch then
-//!   NMEA epoch for the mixed protocol, the order a stream decoder emits them), the pty generation it went to, its scene time and
+//!   decoder makes of its bytes ([`SentImu::sample`], [`SentGnss::fixes`]: one merged
+//!   fix per epoch, the mixed protocol's NMEA and UBX in one), the pty generation it went to, its scene time and
 //!   when it was written; plus counts of frames, bytes, garbage, frames not sent while a
 //!   pty was unplugged, frames dropped because a reader stopped reading (paced mode keeps
 //!   at most [`PENDING_LIMIT`] bytes per endpoint), and encode errors.
@@ -261,8 +261,8 @@ pub struct SentGnss {
     pub written_ns: u64,
     pub generation: u32,
     pub record: GnssRecord,
-    /// The merged epochs the drivers' mixed GNSS decoder makes of the bytes, in stream
-    /// order: the UBX epoch (protocols `gnss`, `ubx`), then the NMEA epoch (`gnss`, `nmea`).
+    /// The merged epochs the drivers' GNSS decoder makes of the bytes: one per epoch (the
+    /// mixed protocol's NMEA and UBX messages merged into one fix).
     pub fixes: Vec<EpochFix>,
 }
 
@@ -329,8 +329,8 @@ impl SentStream {
             .collect()
     }
 
-    /// The GNSS rows a reader that got every epoch stores: one per merged epoch (two per
-    /// epoch for the mixed protocol, UBX then NMEA), with the epoch's simulated arrival
+    /// The GNSS rows a reader that got every epoch stores: one per merged epoch (the mixed
+    /// protocol's NMEA and UBX messages make one), with the epoch's simulated arrival
     /// times. Empty for an IMU stream or without `record_sent`.
     pub fn expected_gnss_rows(&self) -> Vec<GnssRecord> {
         let Sent::Gnss(frames) = &self.sent else {

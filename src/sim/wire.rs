@@ -290,8 +290,8 @@ impl ImuStreamDecoder {
         }
     }
 
-    /// The sample held back until the input ends (CAN groups a sample when the next one
-    /// starts; WitMotion only while it has not yet seen one whole output cycle).
+    /// The sample held back until the input ends (a partial CAN group; WitMotion only while
+    /// it has not yet seen one whole output cycle).
     pub fn finish_one(&mut self) -> Option<ImuSample> {
         match &mut self.inner {
             ImuDecoderKind::Wit(d) => d.finish(),
@@ -436,9 +436,8 @@ impl GnssWire {
     }
 
     /// Decodes the bytes of one encoded epoch with the drivers' mixed GNSS decoder: the
-    /// merged epochs a reader gets for it, in stream order: the UBX epoch (closed by its
-    /// NAV-EOE), then the NMEA epoch (a stream reader gets it when the next epoch's GGA
-    /// arrives, still before the next UBX epoch).
+    /// merged fix a reader gets for it (one; with UBX closed by its NAV-EOE, without
+    /// waiting for the next epoch).
     pub fn decode_one(&self, bytes: &[u8]) -> Vec<EpochFix> {
         let mut decoder = GnssDecoder::new();
         let mut fixes = Vec::new();

@@ -226,7 +226,7 @@ async fn wit_xbus_and_csv_over_ptys_log_every_sample_once_and_garbage_costs_only
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn mixed_ubx_and_nmea_receiver_logs_each_epoch_of_each_protocol_once() {
+async fn mixed_ubx_and_nmea_receiver_logs_each_epoch_once() {
     let dir = tempfile::tempdir().unwrap();
     let mut pty = Pty::open();
     let devices = format!(
@@ -252,31 +252,27 @@ async fn mixed_ubx_and_nmea_receiver_logs_each_epoch_of_each_protocol_once() {
     let store = daemon.stop().await;
     drop(pty);
     let rows = &store.gnss["gnss"];
-    // The receiver reports each solution twice (NMEA and UBX epochs are kept apart by the
-    // codec): a UBX row carries the GPS time of week, an NMEA row does not.
-    let (ubx, nmea): (Vec<&imulab::store::GnssRecord>, Vec<_>) =
-        rows.iter().partition(|r| r.tow_s.is_finite());
-    assert_eq!(ubx.len() as u64, cycles, "UBX epochs: {rows:?}");
-    assert_eq!(nmea.len() as u64, cycles, "NMEA epochs: {rows:?}");
-    for (k, ((lat, lon), (u, n))) in sent.iter().zip(ubx.iter().zip(&nmea)).enumerate() {
-        // NAV-PVT: 1e-7 deg; NMEA: 1e-5 minutes.
+    // The receiver reports each solution twice (NMEA and UBX); the codec merges them into one
+    // fix per epoch (UBX wins per field, NMEA fills what NAV-PVT lacks: HDOP from the GGA).
+    assert_eq!(rows.len() as u64, cycles, "one row per epoch: {rows:?}");
+    for (k, ((lat, lon), r)) in sent.iter().zip(rows).enumerate() {
+        // NAV-PVT's position (1e-7 deg), not the NMEA one (1e-5 minutes).
         assert!(
-            (u.lat_deg - lat).abs() < 1e-7 && (u.lon_deg - lon).abs() < 1e-7,
-            "UBX epoch {k}: {u:?}"
+            (r.lat_deg - lat).abs() < 1e-7 && (r.lon_deg - lon).abs() < 1e-7,
+            "epoch {k}: {r:?}"
         );
         assert!(
-            (n.lat_deg - lat).abs() < 1e-6 && (n.lon_deg - lon).abs() < 1e-6,
-            "NMEA epoch {k}: {n:?}"
+            (r.tow_s - (216_000.0 + k as f64 * 0.1)).abs() < 1e-9,
+            "{r:?}"
         );
-        assert!(
-            (u.tow_s - (216_000.0 + k as f64 * 0.1)).abs() < 1e-9,
-            "{u:?}"
-        );
-        assert_eq!(
-            u.utc_ns, n.utc_ns,
-            "epoch {k}: the same instant from both protocols"
-        );
+        assert_eq!(r.hdop, 0.8, "epoch {k}: HDOP from the GGA: {r:?}");
+        assert_eq!(r.pdop, 1.2, "epoch {k}: PDOP from NAV-PVT: {r:?}");
     }
+    assert!(
+        rows.windows(2)
+            .all(|w| w[1].utc_ns - w[0].utc_ns == 100_000_000),
+        "one epoch every 100 ms: {rows:?}"
+    );
     assert!(rows.windows(2).all(|w| w[0].t_mono_ns <= w[1].t_mono_ns));
     assert!(
         events_of(&store, "gnss", EventKind::Resync).is_empty(),

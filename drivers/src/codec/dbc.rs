@@ -11,9 +11,13 @@
 //! C); time s, ms, us. A gyro or accel signal without a unit is refused rather than guessed.
 //! The raw CAN frames stay available to the caller, so raw values are recoverable.
 //!
-//! Samples are grouped by the simple rule (the learning phase of [`super::cycle`], without the
-//! learning): a sample is complete when a mapped message arrives that the current group
-//! already holds, so it comes out one message late and the last one on `finish()`.
+//! Grouping: the mapping names every message of a sample, so nothing needs learning (unlike
+//! [`super::cycle`], which has to learn a device's cycle): a sample is complete on the
+//! message that closes the mapped set (the group then holds every mapped message) and is
+//! emitted with that message, not one message late. A mapped message arriving that the group
+//! already holds (a message of the set lost, or one sent at a lower rate) ends the group
+//! early: it is emitted as it is, axes of the missing messages NaN, before the new message
+//! starts the next group. `finish()` emits a partial group at the end of the input.
 
 use std::collections::BTreeMap;
 
@@ -390,8 +394,10 @@ impl DbcImu {
         })
     }
 
-    /// Feeds one received frame; returns the previous sample when this frame starts a new
-    /// one. Frames of unmapped ids are ignored (counted in [`DbcImu::frames_ignored`]).
+    /// Feeds one received frame; returns the sample it completes (the group then holds
+    /// every mapped message), or the partial sample held before it when the group already
+    /// held this message (see the module doc). Frames of unmapped ids are ignored (counted
+    /// in [`DbcImu::frames_ignored`]).
     pub fn push_frame(&mut self, frame: &CanFrame) -> Option<ImuSample> {
         let Some(index) = self
             .messages
@@ -428,7 +434,18 @@ impl DbcImu {
                 Quantity::Status => c.status = raw as u32,
             }
         }
+        if finished.is_none() && self.seen == self.all_messages() {
+            return self.finish();
+        }
         finished
+    }
+
+    /// The mask of every mapped message (at most 64, checked in [`DbcImu::new`]).
+    fn all_messages(&self) -> u64 {
+        match self.messages.len() {
+            64 => u64::MAX,
+            n => (1u64 << n) - 1,
+        }
     }
 
     /// Emits the group collected so far, if it holds any IMU data. Axes whose message did

@@ -1,13 +1,39 @@
 //! Mixed GNSS stream decoder: NMEA 0183 and u-blox UBX interleaved on one port (as u-blox
 //! receivers emit by default). Yields every message, plus one merged [`EpochFix`] per
-//! reporting cycle, the way gpsd merges a cycle into one TPV report.
+//! navigation epoch, the way gpsd merges a cycle into one TPV report.
 //!
-//! Epochs: NMEA sentences are grouped by their UTC time of day (GGA, RMC, GNS, GLL, GST, ZDA
-//! carry one; GSA, VTG and HDT join the epoch in progress); within an epoch the latest
-//! sentence's value wins, as in gpsd; UBX messages by iTOW, closed early by
-//! UBX-NAV-EOE. NMEA and UBX epochs are kept apart (`source`), since a receiver sending both
-//! reports the same solution twice. An epoch is emitted when the next one starts, on NAV-EOE,
-//! or by [`Decoder::finish`] at the end of the input.
+//! **Epochs.** Every message of one epoch is merged into one fix, whichever protocol carried
+//! it. An epoch is keyed by its UTC time of day (NMEA GGA, RMC, GNS, GLL, GST, ZDA carry
+//! one) and by its GPS time of week (UBX NAV messages carry iTOW). Once a NAV-PVT or
+//! NAV-TIMEUTC with valid UTC has shown the receiver's GPS−UTC offset, an iTOW maps to a
+//! time of day, so a UBX message and an NMEA sentence are of the same epoch when the two
+//! times agree within 10 ms (NMEA prints hundredths of a second); before that, messages
+//! with a key of the other protocol join the epoch in progress (receivers send all messages
+//! of an epoch before the next epoch's first). Sentences without a time (GSA, VTG, GSV,
+//! HDT) join the epoch in progress.
+//!
+//! **Closing an epoch** (never later than the next epoch's first message, no timers):
+//! - a message whose key differs from the epoch's (a new time of day, a new iTOW, or an
+//!   iTOW that maps to another time of day) closes it before the message is merged;
+//! - UBX-NAV-EOE (end of epoch) closes it at once. A receiver may send NMEA after NAV-EOE:
+//!   a message with the key of the epoch just closed by NAV-EOE is then yielded as a frame
+//!   but not merged (the fix is out already), and from then on NAV-EOE no longer closes
+//!   epochs (the decoder has learned that it does not end this receiver's epoch);
+//! - [`Decoder::finish`] closes the epoch in progress at the end of the input.
+//!
+//! **Which source wins per field.** Within one protocol the latest message wins (as in
+//! gpsd), except that NAV-PVT is never overwritten by NAV-POSLLH or NAV-VELNED (coarser,
+//! cm/s velocity; gpsd's speed is NAV-PVT's too); across protocols UBX wins (NAV-PVT, else NAV-POSLLH/NAV-VELNED/NAV-STATUS/
+//! NAV-SAT/NAV-TIMEUTC), and NMEA fills only what no UBX message of the epoch gave:
+//! - position, heights, velocity, speed, track, accuracies (NAV-PVT hAcc/vAcc/sAcc over the
+//!   σ of GST), satellites used, PDOP, UTC time and date: UBX first, then GGA/GNS/RMC/GLL,
+//!   VTG, GST, GSA, ZDA;
+//! - HDOP and VDOP: GGA/GNS and GSA (UBX NAV-PVT carries only PDOP);
+//! - fix type: NAV-PVT (else NAV-STATUS) when the epoch has one, else the NMEA judgement
+//!   ([`NmeaEpoch::fix_type`]: GGA/GNS quality and altitude, then the GSA mode);
+//! - GPS week and time of week: UBX only.
+//!
+//! `source` says whether any UBX message contributed ([`FixSource::Ubx`]) or only NMEA.
 
 use std::collections::VecDeque;
 
@@ -18,7 +44,8 @@ use super::ubx::{self, UbxMessage};
 use super::{Decoder, Scan, StreamBuffer};
 use crate::types::{DecoderStats, FixType, GnssFix};
 
-/// Which protocol an epoch was merged from.
+/// Which protocol an epoch was merged from: `Ubx` when any UBX navigation message
+/// contributed (its fields win), `Nmea` when only NMEA sentences did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FixSource {
@@ -26,13 +53,26 @@ pub enum FixSource {
     Ubx,
 }
 
+/// Which protocols feed the merged fixes; every message is yielded as a frame either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum MergeSources {
+    /// NMEA and UBX merged per epoch (the default).
+    #[default]
+    Both,
+    /// Fixes from NMEA sentences alone (UBX messages are yielded, not merged).
+    Nmea,
+    /// Fixes from UBX messages alone (NMEA sentences are yielded, not merged).
+    Ubx,
+}
+
 /// One merged navigation epoch.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct EpochFix {
     pub source: FixSource,
-    /// UTC milliseconds since midnight (NMEA epochs; UBX epochs when UTC is valid).
+    /// UTC milliseconds since midnight: the NMEA sentences' time when the epoch has one,
+    /// else NAV-PVT/NAV-TIMEUTC's when UTC is valid.
     pub time_of_day_ms: Option<i64>,
-    /// GPS time of week, ms (UBX epochs).
+    /// GPS time of week, ms (when a UBX message contributed).
     pub itow_ms: Option<u32>,
     /// UTC date, when a sentence or message of this or an earlier epoch gave it.
     pub date: Option<Date>,
@@ -175,10 +215,10 @@ impl NmeaEpoch {
         }
     }
 
-    /// Fix type as gpsd judges a cycle: GGA (or GNS) quality and altitude first (quality 0
-    /// is no fix, otherwise 3D with an altitude and 2D without), then the GSA mode. A cycle
-    /// with only a valid RMC or GLL keeps the previous cycle's dimension (2D at least).
-    /// DGNSS/RTK qualities refine a 3D fix.
+    /// Fix type of a cycle, judged from its own sentences: GGA (or GNS) quality and
+    /// altitude first (quality 0 is no fix, otherwise 3D with an altitude and 2D without),
+    /// then the GSA mode. A cycle with only a valid RMC or GLL keeps the previous cycle's
+    /// dimension (2D at least), as gpsd does. DGNSS/RTK qualities refine a 3D fix.
     fn fix_type(&self, previous: FixType) -> FixType {
         let has_alt = self.fix.height_msl_m.is_some();
         let weak_valid = matches!(self.rmc_status, Some('A' | 'D'))
@@ -249,6 +289,11 @@ struct UbxEpoch {
     has_data: bool,
     date: Option<Date>,
     time_of_day_ms: Option<i64>,
+    /// NAV-PVT or NAV-STATUS gave the fix type.
+    fix_known: bool,
+    /// A NAV-PVT is in the epoch: NAV-POSLLH and NAV-VELNED (coarser: cm/s velocity) do not
+    /// overwrite its values, whichever order they come in (gpsd's speed is NAV-PVT's too).
+    has_pvt: bool,
 }
 
 impl UbxEpoch {
@@ -278,6 +323,8 @@ impl UbxEpoch {
                 f.num_sats = Some(m.num_sv);
                 f.pdop = Some(m.pdop);
                 f.fix = pvt_fix_type(m.fix_type, m.flags);
+                self.fix_known = true;
+                self.has_pvt = true;
                 // valid bits 0 and 1: UTC date and time of day are valid.
                 if m.valid & 0x03 == 0x03 {
                     let date = Date {
@@ -288,6 +335,7 @@ impl UbxEpoch {
                     self.set_utc(date, m.hour, m.min, m.sec, m.nano_ns);
                 }
             }
+            UbxMessage::NavPosllh(_) | UbxMessage::NavVelned(_) if self.has_pvt => {}
             UbxMessage::NavPosllh(m) => {
                 f.lat_deg = Some(m.lat_deg);
                 f.lon_deg = Some(m.lon_deg);
@@ -306,6 +354,7 @@ impl UbxEpoch {
                 if f.fix == FixType::NoFix {
                     f.fix = pvt_fix_type(m.gps_fix, m.flags & 0x02);
                 }
+                self.fix_known = true;
             }
             UbxMessage::NavTimeutc(m) => {
                 // valid bits: 0 validTOW, 1 validWKN, 2 validUTC.
@@ -327,11 +376,13 @@ impl UbxEpoch {
         self.has_data = true;
     }
 
-    fn take(&mut self, week: Option<u16>) -> Option<EpochFix> {
+    /// The epoch's fix, and whether a message of it gave the fix type.
+    fn take(&mut self, week: Option<u16>) -> Option<(EpochFix, bool)> {
         if !self.has_data {
             *self = UbxEpoch::default();
             return None;
         }
+        let fix_known = self.fix_known;
         let mut fix = self.fix;
         fix.week = week;
         fix.tow_s = self.itow_ms.map(|ms| f64::from(ms) / 1000.0);
@@ -343,7 +394,7 @@ impl UbxEpoch {
             fix,
         };
         *self = UbxEpoch::default();
-        Some(epoch)
+        Some((epoch, fix_known))
     }
 }
 
@@ -390,6 +441,73 @@ fn ubx_itow(msg: &UbxMessage) -> Option<u32> {
     }
 }
 
+/// One epoch's fix from its UBX part and its NMEA part: UBX wins per field, NMEA fills the
+/// rest (the rule in the module doc).
+fn merge(ubx: Option<(EpochFix, bool)>, nmea: Option<EpochFix>) -> Option<EpochFix> {
+    let (u, n) = match (ubx, nmea) {
+        (None, None) => return None,
+        (Some((u, _)), None) => return Some(u),
+        (None, Some(n)) => return Some(n),
+        (Some(u), Some(n)) => (u, n),
+    };
+    let ((u, fix_known), n) = (u, n);
+    let (a, b) = (u.fix, n.fix);
+    // Position and heights go as a pair from one source, so lat/lon never mix.
+    let (lat_deg, lon_deg) = if a.lat_deg.is_some() && a.lon_deg.is_some() {
+        (a.lat_deg, a.lon_deg)
+    } else {
+        (b.lat_deg, b.lon_deg)
+    };
+    let (height_m, height_msl_m) = if a.height_m.is_some() || a.height_msl_m.is_some() {
+        (a.height_m, a.height_msl_m)
+    } else {
+        (b.height_m, b.height_msl_m)
+    };
+    let fix = GnssFix {
+        week: a.week,
+        tow_s: a.tow_s,
+        utc_ns: a.utc_ns.or(b.utc_ns),
+        lat_deg,
+        lon_deg,
+        height_m,
+        height_msl_m,
+        vel_ned: a.vel_ned.or(b.vel_ned),
+        speed_mps: a.speed_mps.or(b.speed_mps),
+        track_deg: a.track_deg.or(b.track_deg),
+        h_acc_m: a.h_acc_m.or(b.h_acc_m),
+        v_acc_m: a.v_acc_m.or(b.v_acc_m),
+        s_acc_mps: a.s_acc_mps.or(b.s_acc_mps),
+        fix: if fix_known { a.fix } else { b.fix },
+        num_sats: a.num_sats.or(b.num_sats),
+        pdop: a.pdop.or(b.pdop),
+        hdop: a.hdop.or(b.hdop),
+        vdop: a.vdop.or(b.vdop),
+    };
+    Some(EpochFix {
+        source: FixSource::Ubx,
+        time_of_day_ms: n.time_of_day_ms.or(u.time_of_day_ms),
+        itow_ms: u.itow_ms,
+        date: u.date.or(n.date),
+        fix,
+    })
+}
+
+/// Milliseconds in a day.
+const DAY_MS: i64 = 86_400_000;
+
+/// Whether two times of day (ms) are the same epoch: within 10 ms, across midnight too.
+fn same_time_of_day(a: i64, b: i64) -> bool {
+    let d = (a - b).rem_euclid(DAY_MS);
+    !(10..=DAY_MS - 10).contains(&d)
+}
+
+/// The keys of an epoch closed by NAV-EOE, to recognise messages sent after it.
+#[derive(Debug, Clone, Copy)]
+struct ClosedKeys {
+    time_of_day_ms: Option<i64>,
+    itow_ms: Option<u32>,
+}
+
 /// Streaming decoder for NMEA + UBX on one port.
 #[derive(Debug, Clone)]
 pub struct GnssDecoder {
@@ -401,6 +519,14 @@ pub struct GnssDecoder {
     nmea_last_fix: FixType,
     ubx_epoch: UbxEpoch,
     ubx_week: Option<u16>,
+    /// GPS time of week minus UTC time of day, ms modulo a day (whole seconds), learned
+    /// from NAV-PVT/NAV-TIMEUTC with valid UTC: maps an iTOW to a time of day.
+    itow_minus_utc_ms: Option<i64>,
+    /// NAV-EOE closes epochs until a message of an epoch it closed arrives after it.
+    eoe_closes: bool,
+    /// The keys of the last epoch NAV-EOE closed, while no message of a new epoch came.
+    eoe_closed: Option<ClosedKeys>,
+    sources: MergeSources,
     finished: bool,
 }
 
@@ -419,8 +545,19 @@ impl GnssDecoder {
             nmea_last_fix: FixType::NoFix,
             ubx_epoch: UbxEpoch::default(),
             ubx_week: None,
+            itow_minus_utc_ms: None,
+            eoe_closes: true,
+            eoe_closed: None,
+            sources: MergeSources::Both,
             finished: false,
         }
+    }
+
+    /// Restricts the fixes to one protocol's messages (to compare a receiver's NMEA and UBX
+    /// solutions, or to follow a consumer that merges differently).
+    pub fn with_merge_sources(mut self, sources: MergeSources) -> Self {
+        self.sources = sources;
+        self
     }
 
     /// Sets the UTC date assumed for NMEA epochs until a sentence (RMC, ZDA) gives one.
@@ -429,51 +566,119 @@ impl GnssDecoder {
         self
     }
 
+    /// The UTC time of day of an iTOW, once the GPS−UTC offset is known.
+    fn itow_time_of_day(&self, itow_ms: u32) -> Option<i64> {
+        self.itow_minus_utc_ms
+            .map(|offset| (i64::from(itow_ms) - offset).rem_euclid(DAY_MS))
+    }
+
+    /// Whether the epoch in progress holds no message with a key.
+    fn epoch_unkeyed(&self) -> bool {
+        self.nmea_epoch.key_ms.is_none() && self.ubx_epoch.itow_ms.is_none()
+    }
+
+    /// Closes the epoch in progress: its merged fix, if it has data, is queued.
+    fn close_epoch(&mut self) {
+        let nmea = self
+            .nmea_epoch
+            .take(self.nmea_date, &mut self.nmea_last_fix);
+        let ubx = self.ubx_epoch.take(self.ubx_week);
+        if let Some(fix) = merge(ubx, nmea) {
+            self.ready.push_back(GnssFrame::Fix(fix));
+        }
+    }
+
+    /// Whether a message keyed `time_of_day_ms` / `itow_ms` belongs to the epoch NAV-EOE
+    /// just closed (the receiver sends messages after NAV-EOE: stop closing on it).
+    fn is_late(&mut self, time_of_day_ms: Option<i64>, itow_ms: Option<u32>) -> bool {
+        let Some(closed) = self.eoe_closed else {
+            return false;
+        };
+        let closed_tod = closed
+            .time_of_day_ms
+            .or_else(|| closed.itow_ms.and_then(|i| self.itow_time_of_day(i)));
+        let tod = time_of_day_ms.or_else(|| itow_ms.and_then(|i| self.itow_time_of_day(i)));
+        let late = match (itow_ms, closed.itow_ms, tod, closed_tod) {
+            (Some(a), Some(b), _, _) => a == b,
+            (_, _, Some(a), Some(b)) => same_time_of_day(a, b),
+            _ => false,
+        };
+        if late {
+            self.eoe_closes = false;
+        } else {
+            self.eoe_closed = None;
+        }
+        late
+    }
+
     fn on_nmea(&mut self, sentence: NmeaSentence) {
-        if let Some(time) = sentence_time(&sentence) {
-            let key = time.millis_of_day();
-            match self.nmea_epoch.key_ms {
-                Some(current) if current != key => {
-                    if let Some(fix) = self
-                        .nmea_epoch
-                        .take(self.nmea_date, &mut self.nmea_last_fix)
-                    {
-                        self.ready.push_back(GnssFrame::Fix(fix));
-                    }
-                    self.nmea_epoch.key_ms = Some(key);
-                }
-                Some(_) => {}
-                None => self.nmea_epoch.key_ms = Some(key),
+        if self.sources == MergeSources::Ubx {
+            self.ready.push_back(GnssFrame::Nmea(sentence));
+            return;
+        }
+        let key = sentence_time(&sentence).map(|t| t.millis_of_day());
+        if let Some(key) = key {
+            if self.epoch_unkeyed() && self.is_late(Some(key), None) {
+                self.ready.push_back(GnssFrame::Nmea(sentence));
+                return;
             }
+            let other_epoch = match self.nmea_epoch.key_ms {
+                Some(current) => current != key,
+                None => self
+                    .ubx_epoch
+                    .itow_ms
+                    .and_then(|i| self.itow_time_of_day(i))
+                    .is_some_and(|tod| !same_time_of_day(tod, key)),
+            };
+            if other_epoch {
+                self.close_epoch();
+            }
+            self.nmea_epoch.key_ms = Some(key);
         }
         self.nmea_epoch.apply(&sentence, &mut self.nmea_date);
         self.ready.push_back(GnssFrame::Nmea(sentence));
     }
 
     fn on_ubx(&mut self, msg: UbxMessage) {
+        if self.sources == MergeSources::Nmea {
+            self.ready.push_back(GnssFrame::Ubx(msg));
+            return;
+        }
         if let UbxMessage::RxmRawx(raw) = &msg {
             self.ubx_week = Some(raw.week);
         }
         let end_of_epoch =
             matches!(&msg, UbxMessage::Other(raw) if raw.class == 0x01 && raw.id == 0x61);
         if let Some(itow) = ubx_itow(&msg) {
-            if self
-                .ubx_epoch
-                .itow_ms
-                .is_some_and(|current| current != itow)
-            {
-                if let Some(fix) = self.ubx_epoch.take(self.ubx_week) {
-                    self.ready.push_back(GnssFrame::Fix(fix));
-                }
+            if self.epoch_unkeyed() && self.is_late(None, Some(itow)) {
+                self.ready.push_back(GnssFrame::Ubx(msg));
+                return;
+            }
+            let other_epoch = match self.ubx_epoch.itow_ms {
+                Some(current) => current != itow,
+                None => match (self.nmea_epoch.key_ms, self.itow_time_of_day(itow)) {
+                    (Some(key), Some(tod)) => !same_time_of_day(tod, key),
+                    _ => false,
+                },
+            };
+            if other_epoch {
+                self.close_epoch();
             }
             self.ubx_epoch.itow_ms = Some(itow);
         }
         self.ubx_epoch.apply(&msg);
+        if let (Some(itow), Some(tod)) = (self.ubx_epoch.itow_ms, self.ubx_epoch.time_of_day_ms) {
+            // Whole seconds: NAV-PVT's UTC may be a rounding step off the epoch's iTOW.
+            let offset = (i64::from(itow) - tod).rem_euclid(DAY_MS);
+            self.itow_minus_utc_ms = Some((offset + 500) / 1000 * 1000 % DAY_MS);
+        }
         self.ready.push_back(GnssFrame::Ubx(msg));
-        if end_of_epoch {
-            if let Some(fix) = self.ubx_epoch.take(self.ubx_week) {
-                self.ready.push_back(GnssFrame::Fix(fix));
-            }
+        if end_of_epoch && self.eoe_closes {
+            self.eoe_closed = Some(ClosedKeys {
+                time_of_day_ms: self.nmea_epoch.key_ms,
+                itow_ms: self.ubx_epoch.itow_ms,
+            });
+            self.close_epoch();
         }
     }
 }
@@ -542,15 +747,7 @@ impl Decoder for GnssDecoder {
             return None;
         }
         self.finished = true;
-        if let Some(fix) = self
-            .nmea_epoch
-            .take(self.nmea_date, &mut self.nmea_last_fix)
-        {
-            self.ready.push_back(GnssFrame::Fix(fix));
-        }
-        if let Some(fix) = self.ubx_epoch.take(self.ubx_week) {
-            self.ready.push_back(GnssFrame::Fix(fix));
-        }
+        self.close_epoch();
         self.ready.pop_front()
     }
 
@@ -618,5 +815,213 @@ $GPGGA,123520,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*4D\r\n";
         let json = serde_json::to_string(&GnssFrame::Fix(first)).unwrap_or_default();
         assert!(json.contains("\"kind\":\"fix\""), "{json}");
         assert!(json.contains("\"lat_deg\":48.1173"), "{json}");
+    }
+
+    use crate::codec::ubx::{NavPvt, RawMessage, UbxEncoder};
+    use crate::codec::Encoder;
+
+    /// A NAV-PVT of 2026-12-01 at `sec` seconds past 12:00:00 UTC (iTOW with 18 leap
+    /// seconds: Tuesday), 3D fix at 48.1°N 11.5°E, 2 m/s north.
+    fn pvt(sec: u8) -> Vec<u8> {
+        let itow = (2 * 86_400 + 12 * 3600 + u32::from(sec) + 18) * 1000;
+        let m = NavPvt {
+            itow_ms: itow,
+            year: 2026,
+            month: 12,
+            day: 1,
+            hour: 12,
+            min: 0,
+            sec,
+            valid: 0x07,
+            t_acc_ns: 20,
+            nano_ns: 0,
+            fix_type: 3,
+            flags: 0x01,
+            flags2: 0,
+            num_sv: 11,
+            lon_deg: 11.5,
+            lat_deg: 48.1,
+            height_m: 600.0,
+            height_msl_m: 553.0,
+            h_acc_m: 1.5,
+            v_acc_m: 2.5,
+            vel_n_mps: 2.0,
+            vel_e_mps: 0.0,
+            vel_d_mps: 0.0,
+            ground_speed_mps: 2.0,
+            head_mot_deg: 0.0,
+            s_acc_mps: 0.1,
+            head_acc_deg: 3.0,
+            pdop: 1.8,
+            flags3: 0,
+            head_veh_deg: None,
+            mag_dec_deg: None,
+            mag_acc_deg: None,
+        };
+        let mut out = Vec::new();
+        let eoe = UbxMessage::Other(RawMessage {
+            class: 0x01,
+            id: 0x61,
+            payload: itow.to_le_bytes().to_vec(),
+        });
+        let _ = UbxEncoder.encode(&UbxMessage::NavPvt(m), &mut out);
+        out.extend_from_slice(&eoe_bytes(&eoe));
+        out
+    }
+
+    fn eoe_bytes(eoe: &UbxMessage) -> Vec<u8> {
+        let mut out = Vec::new();
+        let _ = UbxEncoder.encode(eoe, &mut out);
+        out
+    }
+
+    /// A NAV-PVT without its NAV-EOE.
+    fn pvt_only(sec: u8) -> Vec<u8> {
+        let mut bytes = pvt(sec);
+        bytes.truncate(bytes.len() - 12);
+        bytes
+    }
+
+    fn with_checksum(body: &str) -> String {
+        let sum = body.bytes().fold(0u8, |a, b| a ^ b);
+        format!("${body}*{sum:02X}\r\n")
+    }
+
+    /// GGA (other position than the PVT's, HDOP 0.9), RMC and GSA (VDOP 2.1) at 12:00:`sec`.
+    fn nmea(sec: u8) -> String {
+        [
+            format!("GPGGA,1200{sec:02}.00,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"),
+            format!("GPRMC,1200{sec:02}.00,A,4807.038,N,01131.000,E,022.4,084.4,011226,,"),
+            "GPGSA,A,3,04,05,,09,12,,,24,,,,,2.5,0.9,2.1".to_string(),
+        ]
+        .iter()
+        .map(|b| with_checksum(b))
+        .collect()
+    }
+
+    /// The fixes of `stream`, each with how many messages had been yielded before it.
+    fn fixes_of(stream: &[u8]) -> Vec<(usize, EpochFix)> {
+        let mut d = GnssDecoder::new();
+        let mut messages = 0;
+        let mut fixes = Vec::new();
+        let mut take = |f: GnssFrame| match f {
+            GnssFrame::Fix(fix) => fixes.push((messages, fix)),
+            _ => messages += 1,
+        };
+        d.decode(stream, &mut take);
+        while let Some(f) = d.finish() {
+            take(f);
+        }
+        assert_eq!(d.stats().frames_ok as usize, messages, "{:?}", d.stats());
+        fixes
+    }
+
+    fn assert_merged(fix: &EpochFix, sec: u8) {
+        assert_eq!(fix.source, FixSource::Ubx);
+        assert_eq!(fix.time_of_day_ms, Some(43_200_000 + i64::from(sec) * 1000));
+        // UBX wins: NAV-PVT's position, speed, satellites, PDOP, accuracies.
+        assert_eq!(fix.fix.lat_deg, Some(48.1));
+        assert_eq!(fix.fix.lon_deg, Some(11.5));
+        assert_eq!(fix.fix.speed_mps, Some(2.0));
+        assert_eq!(fix.fix.num_sats, Some(11));
+        assert_eq!(fix.fix.pdop, Some(1.8));
+        assert_eq!(fix.fix.h_acc_m, Some(1.5));
+        assert_eq!(fix.fix.fix, FixType::Fix3D);
+        // NMEA fills what NAV-PVT lacks.
+        assert_eq!(fix.fix.hdop, Some(0.9));
+        assert_eq!(fix.fix.vdop, Some(2.1));
+    }
+
+    #[test]
+    fn mixed_epoch_closed_by_eoe_gives_one_fix_without_delay() {
+        // The simulator's order: NMEA, then NAV-PVT and NAV-EOE.
+        let mut stream = Vec::new();
+        for sec in 0..3 {
+            stream.extend_from_slice(nmea(sec).as_bytes());
+            stream.extend_from_slice(&pvt(sec));
+        }
+        let fixes = fixes_of(&stream);
+        assert_eq!(fixes.len(), 3, "{fixes:#?}");
+        for (k, (yielded, fix)) in fixes.iter().enumerate() {
+            // Out right after the epoch's NAV-EOE, not when the next epoch starts.
+            assert_eq!(*yielded, 5 * (k + 1));
+            assert_merged(fix, k as u8);
+        }
+    }
+
+    #[test]
+    fn mixed_epoch_without_eoe_closes_on_the_next_epoch() {
+        // u-blox order without NAV-EOE: NAV-PVT, then the NMEA of the same epoch.
+        let mut stream = Vec::new();
+        for sec in 0..3 {
+            stream.extend_from_slice(&pvt_only(sec));
+            stream.extend_from_slice(nmea(sec).as_bytes());
+        }
+        let fixes = fixes_of(&stream);
+        assert_eq!(fixes.len(), 3, "{fixes:#?}");
+        for (k, (yielded, fix)) in fixes.iter().enumerate() {
+            assert_eq!(*yielded, 4 * (k + 1));
+            assert_merged(fix, k as u8);
+        }
+    }
+
+    #[test]
+    fn nmea_after_eoe_is_learned_and_later_epochs_merge() {
+        let mut stream = Vec::new();
+        for sec in 0..4 {
+            stream.extend_from_slice(&pvt(sec));
+            stream.extend_from_slice(nmea(sec).as_bytes());
+        }
+        let fixes = fixes_of(&stream);
+        // Epoch 0 closed by NAV-EOE before its NMEA (not merged, no second fix); then
+        // NAV-EOE no longer closes, so epochs 1.. merge and close on the next NAV-PVT.
+        assert_eq!(fixes.len(), 4, "{fixes:#?}");
+        assert_eq!(fixes[0].1.fix.hdop, None);
+        assert_eq!(fixes[0].1.time_of_day_ms, Some(43_200_000));
+        for (k, (_, fix)) in fixes.iter().enumerate().skip(1) {
+            assert_merged(fix, k as u8);
+        }
+    }
+
+    #[test]
+    fn ubx_of_another_epoch_closes_an_nmea_epoch() {
+        // Epoch 0 only NMEA, epoch 1 starts with a NAV-PVT: once the GPS−UTC offset is
+        // known, the PVT's iTOW tells the epochs apart.
+        let mut stream = Vec::new();
+        stream.extend_from_slice(&pvt_only(0));
+        stream.extend_from_slice(nmea(1).as_bytes());
+        stream.extend_from_slice(&pvt_only(2));
+        stream.extend_from_slice(nmea(2).as_bytes());
+        let fixes = fixes_of(&stream);
+        let times: Vec<Option<i64>> = fixes.iter().map(|(_, f)| f.time_of_day_ms).collect();
+        assert_eq!(
+            times,
+            vec![Some(43_200_000), Some(43_201_000), Some(43_202_000)],
+            "{fixes:#?}"
+        );
+        assert_eq!(fixes[1].1.source, FixSource::Nmea);
+        assert_merged(&fixes[2].1, 2);
+    }
+
+    #[test]
+    fn nav_pvt_is_not_overwritten_by_a_later_velned() {
+        let mut stream = pvt_only(0);
+        let velned = UbxMessage::NavVelned(crate::codec::ubx::NavVelned {
+            itow_ms: (2 * 86_400 + 12 * 3600 + 18) * 1000,
+            vel_n_mps: 0.0,
+            vel_e_mps: 0.0,
+            vel_d_mps: 0.0,
+            speed_mps: 0.0,
+            ground_speed_mps: 0.0,
+            heading_deg: 0.0,
+            s_acc_mps: 0.5,
+            c_acc_deg: 180.0,
+        });
+        let _ = UbxEncoder.encode(&velned, &mut stream);
+        let fixes = fixes_of(&stream);
+        assert_eq!(fixes.len(), 1, "{fixes:#?}");
+        assert_eq!(fixes[0].1.fix.speed_mps, Some(2.0));
+        assert_eq!(fixes[0].1.fix.vel_ned, Some([2.0, 0.0, 0.0]));
+        assert_eq!(fixes[0].1.fix.s_acc_mps, Some(0.1));
     }
 }

@@ -64,7 +64,9 @@ impl Decimal {
         self.mantissa as f64 / POW10[usize::from(self.scale.min(18))]
     }
 
-    /// Parses `[-+]digits[.digits]` (at most 18 digits). `None` for anything else.
+    /// Parses `[-+]digits[.digits]` (at most 18 significant digits, i.e. after leading
+    /// zeros, and at most 18 after the point). `None` for anything else. Leading zeros do
+    /// not count, so `.123…` and the `0.123…` it is written back as parse alike.
     pub fn parse(text: &[u8]) -> Option<Decimal> {
         let (negative, digits) = match text.first()? {
             b'-' => (true, &text[1..]),
@@ -75,16 +77,23 @@ impl Decimal {
         let mut scale: u8 = 0;
         let mut seen_point = false;
         let mut n_digits = 0u32;
+        let mut significant = 0u32;
         for &b in digits {
             match b {
                 b'0'..=b'9' => {
                     n_digits += 1;
-                    if n_digits > 18 {
+                    if mantissa != 0 || b != b'0' {
+                        significant += 1;
+                    }
+                    if significant > 18 {
                         return None;
                     }
                     mantissa = mantissa * 10 + i64::from(b - b'0');
                     if seen_point {
                         scale += 1;
+                        if scale > 18 {
+                            return None;
+                        }
                     }
                 }
                 b'.' if !seen_point => seen_point = true,
@@ -1360,6 +1369,31 @@ impl Encoder for NmeaEncoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn eighteen_decimals_without_integer_digit_round_trip() {
+        // Fuzz find (nmea target): ".100111111111111111" parsed (18 digits) but was written
+        // back as "0.100111111111111111", which had 19 digits and was refused.
+        let line = b"$GNRMC,012245.00,A,3454.4922,S,13835.7617,E,.100111111111111111,0.0,120821,,,D*7E\r\n";
+        let body = &line[1..line.len() - 5];
+        let sum = body.iter().fold(0u8, |a, &b| a ^ b);
+        let line = [&line[..line.len() - 4], format!("{sum:02X}\r\n").as_bytes()].concat();
+        let mut d = NmeaDecoder::new();
+        let mut frames = Vec::new();
+        d.decode(&line, |f| frames.push(f));
+        assert_eq!(frames.len(), 1, "{:?}", d.stats());
+        let mut bytes = Vec::new();
+        NmeaEncoder.encode(&frames[0], &mut bytes).expect("encodes");
+        let mut again = Vec::new();
+        NmeaDecoder::new().decode(&bytes, |f| again.push(f));
+        assert_eq!(again, frames, "{}", String::from_utf8_lossy(&bytes));
+        assert_eq!(
+            Decimal::parse(b"0.0000000000000000001"),
+            None,
+            "scale above 18"
+        );
+        assert!(Decimal::parse(b"000000000000000000001.5").is_some());
+    }
 
     fn decode_all(bytes: &[u8]) -> (Vec<NmeaSentence>, DecoderStats) {
         let mut d = NmeaDecoder::new();
