@@ -7,7 +7,7 @@
 //!    logs them into `OUT/session` from `OUT/imulogd.toml`, the production configuration
 //!    format; it is stopped with SIGTERM once the scene has been served and must exit 0.
 //! 2. The session is checked against the server's report: every IMU frame sent is one row,
-//!    every mixed GNSS epoch two (its UBX and its NMEA epoch); the devices' own clocks have no
+//!    every mixed GNSS epoch one (its UBX and NMEA messages merge); the devices' own clocks have no
 //!    gap; the daemon's events (resyncs, checksum errors, queue overflows) are counted.
 //! 3. The Allan report comparing the two IMUs (`report.html`, `report.json`, PNG plots).
 //!    imulogd stamps rows at host arrival, which an accelerated serve compresses by the speed
@@ -551,9 +551,9 @@ fn serve_and_log(
     speed: Speed,
     imulogd: &Path,
 ) -> anyhow::Result<Logged> {
-    // Rows the session will hold: one per IMU sample, two per mixed GNSS epoch.
+    // Rows the session will hold: one per IMU sample, one per mixed GNSS epoch.
     let expected_rows = (scene.duration_s * scene.rate_hz).round() as u64 * scene.imus.len() as u64
-        + (scene.duration_s * GNSS_HZ).round() as u64 * 2 * scene.gnss.len() as u64;
+        + (scene.duration_s * GNSS_HZ).round() as u64 * scene.gnss.len() as u64;
     // How much faster than the devices' own rates the link runs (`max`: taken as 100×).
     let link_factor = match speed {
         Speed::Factor(f) => f.max(1.0),
@@ -653,11 +653,7 @@ fn serve_and_log(
     // Let imulogd read the last bytes and its writer catch up (every device idle and the
     // rows written unchanged between two status reports), then stop it while the ptys are
     // still open: SIGTERM then only has to close the session.
-    let sent_rows: u64 = report
-        .streams
-        .iter()
-        .map(|s| s.frames * rows_per_frame(s.protocol))
-        .sum();
+    let sent_rows: u64 = report.streams.iter().map(|s| s.frames).sum();
     let t = Instant::now();
     let mut previous: Option<(String, u64)> = None;
     loop {
@@ -744,16 +740,6 @@ fn is_gnss(protocol: Protocol) -> bool {
     matches!(protocol, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
 }
 
-/// Rows a reader of every frame of `protocol` stores per frame: one per IMU sample, two per
-/// epoch of the mixed GNSS stream (its UBX and its NMEA epoch), one otherwise.
-fn rows_per_frame(protocol: Protocol) -> u64 {
-    if protocol == Protocol::Gnss {
-        2
-    } else {
-        1
-    }
-}
-
 /// Counts of a device's clock: intervals longer than 1.5 sample periods, and the span, s.
 fn device_clock(session: &Session, device: &str) -> anyhow::Result<(u64, f64)> {
     let period = 1.0 / IMU_HZ;
@@ -795,7 +781,7 @@ fn check_session(dir: &Path, report: &ServeReport) -> anyhow::Result<Health> {
             crate::store::layout::imu_path(&s.sensor)
         };
         let rows = session.stream_summary(&group).rows;
-        let expected = s.frames * rows_per_frame(s.protocol);
+        let expected = s.frames;
         let lost = s.frames_overflowed + s.frames_unplugged + s.encode_errors;
         let ok = rows == expected && lost == 0;
         complete &= ok;
@@ -859,7 +845,7 @@ fn check_session(dir: &Path, report: &ServeReport) -> anyhow::Result<Health> {
         report
             .streams
             .iter()
-            .map(|s| s.frames * rows_per_frame(s.protocol))
+            .map(|s| s.frames)
             .sum::<u64>(),
         if complete {
             "all".to_string()

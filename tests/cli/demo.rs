@@ -81,8 +81,8 @@ fn demo_logs_through_imulogd_and_recovers_the_bench_presets() {
     for s in streams {
         let (name, frames) = (s["sensor"].as_str().unwrap(), s["frames"].as_u64().unwrap());
         let (group, per_frame) = match s["protocol"].as_str().unwrap() {
-            // Each mixed epoch is stored twice: its UBX and its NMEA epoch.
-            "gnss" => (format!("/gnss/{name}"), 2),
+            // Each mixed epoch is stored once: its UBX and NMEA messages merge.
+            "gnss" => (format!("/gnss/{name}"), 1),
             _ => (format!("/imu/{name}"), 1),
         };
         assert!(frames > 0, "{name}: nothing served");
