@@ -90,14 +90,13 @@ fn demo_logs_through_imulogd_and_recovers_the_bench_presets() {
     }
     assert_eq!(session_rows(&session, "/imu/cheap"), 3 * 60 * 150);
 
-    // The report's intervals are 1σ (68 %): all twelve terms inside theirs would happen about
-    // once in a hundred seeds, so each is widened to 3σ (three half-widths either side of the
-    // value); at 3 min × 150 Hz that is still ±4 % or so, well below a preset's axis-to-axis
-    // spread. The preset is combined with the wire's rounding noise (quadrature sum).
+    // Each fitted term in report.json carries its 95 % interval (`low`, `high`); the preset,
+    // combined with the wire's rounding noise (quadrature sum), must lie inside it. The demo's
+    // seed is fixed, so this is deterministic: with 12 terms at 95 % a changed seed or model may
+    // put one outside by chance; look at the printed values before widening anything.
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
     let axes = report["axes"].as_array().unwrap();
-    let mut inside_1sigma = 0;
     for (device, sensor, term, unit, values) in PRESETS {
         for (i, axis) in ["x", "y", "z"].iter().enumerate() {
             let name = format!("{sensor}_{axis}");
@@ -121,17 +120,14 @@ fn demo_logs_through_imulogd_and_recovers_the_bench_presets() {
             let value = v["value"].as_f64().unwrap();
             let (low, high) = (v["low"].as_f64().unwrap(), v["high"].as_f64().unwrap());
             let expected = values[i].hypot(wire_white_noise(device, sensor));
-            let (low3, high3) = (value - 3.0 * (value - low), value + 3.0 * (high - value));
             println!("{device} {name} {term}: {value:.4} [{low:.4}, {high:.4}] vs {expected:.4}");
             assert!(
-                low3 <= expected && expected <= high3,
-                "{device} {name} {term}: {value} [3σ {low3}, {high3}] vs preset {} (with the wire's rounding {expected})",
+                low <= expected && expected <= high,
+                "{device} {name} {term}: {value} [95 % {low}, {high}] vs preset {} (with the wire's rounding {expected})",
                 values[i]
             );
-            inside_1sigma += usize::from(low <= expected && expected <= high);
         }
     }
-    println!("{inside_1sigma} of 12 inside the 1σ interval");
 }
 
 #[test]
