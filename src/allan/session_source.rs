@@ -150,33 +150,18 @@ impl SampleSource for SessionSource {
         Ok(())
     }
 
+    /// The rows of [`Self::for_each_block`]'s blocks, one at a time.
     fn for_each_row(&self, wanted: &[usize], visit: &mut RowVisitor<'_>) -> Result<(), InputError> {
-        let fail = |message: String| InputError::Format {
-            path: self.dir.clone(),
-            message,
-        };
-        let start = self.range.start_ns.unwrap_or(0);
-        let blocks = self
-            .session
-            .imu_blocks(&self.device, self.range, BLOCK_ROWS)
-            .map_err(|e| fail(e.to_string()))?;
         let mut values = vec![0.0; wanted.len()];
-        let mut row = 0u64;
-        for block in blocks {
-            let block = block.map_err(|e| fail(format!("device `{}`: {e}", self.device)))?;
-            for i in 0..block.len() {
-                for (slot, &c) in values.iter_mut().zip(wanted) {
-                    *slot = match c {
-                        0 => (block.t_mono_ns[i] - start) as f64 * 1e-9,
-                        1..=3 => block.gyro[i][c - 1],
-                        4..=6 => block.accel[i][c - 4],
-                        _ => block.temp[i],
-                    };
+        self.for_each_block(wanted, &mut |first_row, columns| {
+            let rows = columns.first().map_or(0, |c| c.len());
+            for i in 0..rows {
+                for (slot, column) in values.iter_mut().zip(columns) {
+                    *slot = column[i];
                 }
-                visit(row, &values)?;
-                row += 1;
+                visit(first_row + i as u64, &values)?;
             }
-        }
-        Ok(())
+            Ok(())
+        })
     }
 }
