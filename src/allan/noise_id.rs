@@ -68,6 +68,15 @@ struct Moments {
 }
 
 impl Moments {
+    /// Adds the next value u_k (the lag-1 product pairs it with u_{k−1}, 0 before the first).
+    fn add(&mut self, u: f64) {
+        self.sum += u;
+        self.squares += u * u;
+        self.lag1 += self.last * u;
+        self.last = u;
+        self.len += 1;
+    }
+
     /// Lag-1 autocorrelation with the mean removed; `None` for zero variance.
     ///
     /// With μ = Σu/len: Σ(u−μ)² = Σu² − len·μ², and
@@ -125,41 +134,24 @@ fn lag1_orders<const D: usize, const BOTH: bool>(phase: &[f64], m: usize) -> [Op
     };
     let mut high = Moments::default();
     let mut high_shift = 0.0;
-    let (mut previous_low, mut previous_high) = (0.0f64, 0.0f64);
     if BOTH {
         // One more point starts order D + 1 (and gives order D its second value).
         let Some(z) = points.next() else {
             return [None, None];
         };
         push(&mut newest, z, D + 2);
-        let u = newest[D] - shift;
-        low.len += 1;
-        low.sum += u;
-        low.squares += u * u;
-        // lag1 += u_0·u with u_0 = 0.
-        previous_low = u;
+        // u_0 = 0 is `low`'s initial `last`, so the lag-1 product of this pair is 0.
+        low.add(newest[D] - shift);
         high.len = 1;
         high_shift = newest[D + 1];
     }
     for z in points {
         push(&mut newest, z, top + 1);
-        let u = newest[D] - shift;
-        low.sum += u;
-        low.squares += u * u;
-        low.lag1 += previous_low * u;
-        previous_low = u;
-        low.len += 1;
+        low.add(newest[D] - shift);
         if BOTH {
-            let v = newest[top] - high_shift;
-            high.sum += v;
-            high.squares += v * v;
-            high.lag1 += previous_high * v;
-            previous_high = v;
-            high.len += 1;
+            high.add(newest[top] - high_shift);
         }
     }
-    low.last = previous_low;
-    high.last = previous_high;
     [low.lag1(), high.lag1()]
 }
 
