@@ -9,8 +9,9 @@
 //!   Gauss-Markov bias whose Allan deviation peaks at the floor where the floor is lowest:
 //!   σ = F / 0.6174 and τ_c = τ_min / 1.89 (a GM process's ADEV peaks at 0.6174 σ at
 //!   τ ≈ 1.89 τ_c). τ_min is the τ of the Allan minimum (the fit's slope reading, else the
-//!   lowest curve point); for a preset, whose floor is flat over a band [τ₁, τ₂], the band's
-//!   geometric centre √(τ₁τ₂).
+//!   lowest curve point); for a preset, whose floor 0.664·B (B its bias instability, the
+//!   same convention as the fit) is flat over a band [τ₁, τ₂], the band's geometric centre
+//!   √(τ₁τ₂). A spec built from a fit gets B = F / 0.664 back.
 //! - rate random walk K: white noise on the bias (`*_rrw_*`), besides the GM driving noise;
 //! - the initial bias σ: √(σ_GM² + turn-on σ² + constant bias²) for a preset; for an Allan
 //!   fit, the GM σ (an Allan curve says nothing about the turn-on bias).
