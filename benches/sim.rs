@@ -410,8 +410,10 @@ fn needs(six_h: f64) {
 
 fn allan(six_h: f64) {
     println!("\n## Allan-recovered noise terms of the presets (6 h × 150 Hz, seed 1)\n");
-    println!("Fit of AVAR = N²/τ + B² + K²τ/3 + R²τ²/2 over τ = 0.067 s … 2160 s; \"min\" is the");
-    println!("minimum of the ADEV curve (what a datasheet calls bias stability).\n");
+    println!("Fit of AVAR = N²/τ + F² + K²τ/3 + R²τ²/2 over τ = 0.067 s … 2160 s, B = F / 0.664");
+    println!(
+        "(IEEE Std 952, the presets' convention); \"min\" is the minimum of the ADEV curve.\n"
+    );
     println!("| preset | axis | N set | N fit | B set | B fit | min ADEV | unit N / B |");
     println!("|---|---|---|---|---|---|---|---|");
     for preset in IMU_PRESETS {
@@ -428,7 +430,8 @@ fn allan(six_h: f64) {
                 .into_iter()
                 .map(|m| (m as f64 * dt, sim_support::oadev(y, dt, m)))
                 .collect();
-            let (n, b, _, _) = sim_support::fit_terms(&points);
+            let (n, floor, _, _) = sim_support::fit_terms(&points);
+            let b = floor / imulab::allan::fit::BIAS_INSTABILITY_FACTOR;
             let min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
             let axis = ch % 3;
             if ch < 3 {

@@ -9,8 +9,9 @@
 //!   Gauss-Markov bias whose Allan deviation peaks at the floor where the floor is lowest:
 //!   σ = F / 0.6174 and τ_c = τ_min / 1.89 (a GM process's ADEV peaks at 0.6174 σ at
 //!   τ ≈ 1.89 τ_c). τ_min is the τ of the Allan minimum (the fit's slope reading, else the
-//!   lowest curve point); for a preset, whose floor is flat over a band [τ₁, τ₂], the band's
-//!   geometric centre √(τ₁τ₂).
+//!   lowest curve point); for a preset, whose floor 0.664·B (B its bias instability, the
+//!   same convention as the fit) is flat over a band [τ₁, τ₂], the band's geometric centre
+//!   √(τ₁τ₂). A spec built from a fit gets B = F / 0.664 back.
 //! - rate random walk K: white noise on the bias (`*_rrw_*`), besides the GM driving noise;
 //! - the initial bias σ: √(σ_GM² + turn-on σ² + constant bias²) for a preset; for an Allan
 //!   fit, the GM σ (an Allan curve says nothing about the turn-on bias).
@@ -69,7 +70,7 @@ pub fn gauss_markov_from_floor(floor: f64, tau_min: f64) -> GaussMarkov {
 }
 
 fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64) {
-    let floor = max3(t.bias_instability);
+    let floor = max3(t.instability_floor);
     let band = t.bias_instability_band_s;
     let gm = if floor > 0.0 {
         gauss_markov_from_floor(floor, (band[0] * band[1]).sqrt())
@@ -369,12 +370,13 @@ pub fn spec_from_allan(fit: &AllanDevice) -> anyhow::Result<ImuSpec> {
     }
     spec.gyro.noise_density_dps_rthz = Some([g.white.unwrap_or(0.0) * deg; 3]);
     spec.accel.noise_density_ug_rthz = Some([a.white.unwrap_or(0.0) / (G0 * 1e-6); 3]);
+    // The spec's bias instability is B (its simulated floor is 0.664·B): floor / 0.664.
     if let (Some(f), Some(t)) = (g.floor, g.tau_min) {
-        spec.gyro.bias_instability_dph = [f * deg * 3600.0; 3];
+        spec.gyro.bias_instability_dph = [f / BIAS_INSTABILITY_FACTOR * deg * 3600.0; 3];
         spec.gyro.bias_instability_band_s = [(t / 30.0).max(1e-3), t * 30.0];
     }
     if let (Some(f), Some(t)) = (a.floor, a.tau_min) {
-        spec.accel.bias_instability_mg = [f / (G0 * 1e-3); 3];
+        spec.accel.bias_instability_mg = [f / BIAS_INSTABILITY_FACTOR / (G0 * 1e-3); 3];
         spec.accel.bias_instability_band_s = [(t / 30.0).max(1e-3), t * 30.0];
     }
     if let Some(k) = g.random_walk {
@@ -397,8 +399,9 @@ mod tests {
         let m = model_from_preset("tactical").expect("preset").model;
         // ARW 0.15 °/√h = 0.15° / 60 per √s.
         assert!((m.arw_rad_per_sqrt_s - 0.15f64.to_radians() / 60.0).abs() < 1e-12);
-        // Gyro bias floor 0.5 °/h → GM σ = floor / 0.6174, τ_c = √(1·5000) / 1.89.
-        let floor = 0.5f64.to_radians() / 3600.0;
+        // Gyro bias instability 0.5 °/h: floor 0.664 · 0.5 °/h → GM σ = floor / 0.6174,
+        // τ_c = √(1·5000) / 1.89.
+        let floor = BIAS_INSTABILITY_FACTOR * 0.5f64.to_radians() / 3600.0;
         assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
         assert!((m.gyro_bias.tau_s - 5000f64.sqrt() / GM_ADEV_PEAK_TAU).abs() < 1e-9);
         assert!(model_from_preset("nope").is_err());
@@ -407,7 +410,7 @@ mod tests {
         assert!(c.gyro_bias_sigma0() > 10.0 * c.gyro_bias.sigma);
         // Its g-sensitivity, 0.1 °/s/g, is in the model: in-run σ = √(floor σ² + (0.1 °/s ·
         // 0.2)²), initial σ = √(floor σ² + turn-on² + (0.1 °/s · 1)²).
-        let floor_sigma = 10f64.to_radians() / 3600.0 / GM_ADEV_PEAK;
+        let floor_sigma = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0 / GM_ADEV_PEAK;
         let dynamic = 0.1f64.to_radians() * VEHICLE_ACCEL_SIGMA_G;
         assert!((c.gyro_bias.sigma - floor_sigma.hypot(dynamic)).abs() < 1e-12);
         let initial = (floor_sigma.powi(2)

@@ -7,8 +7,10 @@
 //! y = sat_q( Σ_j M_ij (1 + k_s ΔT δ_ij) x_j + b_i(t) + [G a]_i + w_i )
 //!
 //! with M = I + diag(scale factor) + misalignment; b the sum of constant, turn-on,
-//! instability (Gauss-Markov processes, see [`super::flicker`]), rate random walk, rate
-//! ramp and temperature coefficient × ΔT; G the gyro g-sensitivity (gyros only); w white
+//! instability (Gauss-Markov processes, see [`super::flicker`], whose Allan floor is 0.664·B
+//! for a spec's bias instability B: the convention of IEEE Std 952 and of the noise fit in
+//! [`crate::allan::fit`], so a preset's B is what `imulab allan --fit` reads back), rate random
+//! walk, rate ramp and temperature coefficient × ΔT; G the gyro g-sensitivity (gyros only); w white
 //! noise; then saturation at ±range and rounding to the LSB.
 
 use nalgebra::{Matrix3, Vector3};
@@ -16,6 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::flicker::{FlickerDesign, SlowProcess};
 use super::rng::Stream;
+use crate::allan::fit::BIAS_INSTABILITY_FACTOR;
 use crate::store::{ImuRecord, TruthImuRecord};
 
 /// Standard gravity used for g and mg units, m/s².
@@ -41,7 +44,9 @@ pub struct GyroSpec {
     /// White rate noise density, °/s/√Hz.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub noise_density_dps_rthz: Option<[f64; 3]>,
-    /// Bias instability: the flat floor of the Allan deviation, °/h.
+    /// Bias instability B, °/h, as IEEE Std 952 defines it and as `imulab allan --fit` reports
+    /// it: the flat floor of the Allan deviation is 0.664·B (√(2 ln 2/π)·B). A datasheet that
+    /// quotes the Allan minimum itself is entered as minimum / 0.664.
     pub bias_instability_dph: [f64; 3],
     /// The band of τ over which the instability floor is flat, s.
     pub bias_instability_band_s: [f64; 2],
@@ -84,7 +89,8 @@ pub struct AccelSpec {
     /// White noise density, µg/√Hz.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub noise_density_ug_rthz: Option<[f64; 3]>,
-    /// Bias instability: the flat floor of the Allan deviation, mg.
+    /// Bias instability B, mg (IEEE Std 952, as `imulab allan --fit` reports it): the flat
+    /// floor of the Allan deviation is 0.664·B.
     pub bias_instability_mg: [f64; 3],
     /// The band of τ over which the instability floor is flat, s.
     pub bias_instability_band_s: [f64; 2],
@@ -171,8 +177,9 @@ pub const DEFAULT_BAND_S: [f64; 2] = [1.0, 5000.0];
 pub struct TriadErrors {
     /// White noise density, unit/√Hz.
     pub white_density: [f64; 3],
-    /// Allan floor of the bias instability, unit.
-    pub bias_instability: [f64; 3],
+    /// Flat floor of the Allan deviation that the bias instability produces, unit: 0.664·B
+    /// for a spec's bias instability B.
+    pub instability_floor: [f64; 3],
     pub bias_instability_band_s: [f64; 2],
     /// Rate (bias) random walk, unit/√s.
     pub random_walk: [f64; 3],
@@ -229,7 +236,7 @@ impl GyroSpec {
         let dph = DEG / 3600.0;
         let e = TriadErrors {
             white_density: white,
-            bias_instability: scale3(self.bias_instability_dph, dph),
+            instability_floor: scale3(self.bias_instability_dph, dph * BIAS_INSTABILITY_FACTOR),
             bias_instability_band_s: self.bias_instability_band_s,
             random_walk: scale3(self.rrw_dph_rth, dph / 60.0),
             ramp: scale3(self.rate_ramp_dph_per_h, dph / 3600.0),
@@ -278,7 +285,7 @@ impl AccelSpec {
         };
         let e = TriadErrors {
             white_density: white,
-            bias_instability: scale3(self.bias_instability_mg, mg),
+            instability_floor: scale3(self.bias_instability_mg, mg * BIAS_INSTABILITY_FACTOR),
             bias_instability_band_s: self.bias_instability_band_s,
             random_walk: scale3(self.rrw_mg_rth, mg / 60.0),
             ramp: scale3(self.rate_ramp_mg_per_h, mg / 3600.0),
@@ -311,7 +318,7 @@ impl TriadErrors {
             }
         };
         non_negative(&self.white_density, "white noise")?;
-        non_negative(&self.bias_instability, "bias instability")?;
+        non_negative(&self.instability_floor, "bias instability")?;
         non_negative(&self.random_walk, "random walk")?;
         non_negative(&self.turn_on_sigma, "turn-on bias sigma")?;
         finite(&self.ramp, "ramp")?;
@@ -321,7 +328,7 @@ impl TriadErrors {
         finite(&self.bias_tempco, "bias tempco")?;
         finite(&self.scale_tempco, "scale tempco")?;
         let [lo, hi] = self.bias_instability_band_s;
-        if self.bias_instability.iter().any(|&b| b > 0.0)
+        if self.instability_floor.iter().any(|&b| b > 0.0)
             && !(lo.is_finite() && hi.is_finite() && lo > 0.0 && hi > lo)
         {
             return Err(format!(
@@ -426,8 +433,8 @@ impl TriadSim {
         let white = [0, 1, 2].map(|i| stream(i, "white"));
         let slow = [0, 1, 2].map(|i| {
             let mut procs = Vec::new();
-            if axes[i] && e.bias_instability[i] > 0.0 {
-                let d = FlickerDesign::new(e.bias_instability[i], e.bias_instability_band_s);
+            if axes[i] && e.instability_floor[i] > 0.0 {
+                let d = FlickerDesign::new(e.instability_floor[i], e.bias_instability_band_s);
                 for (k, &t) in d.taus_s.iter().enumerate() {
                     procs.push(SlowProcess::gauss_markov(
                         d.sigma,

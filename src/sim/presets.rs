@@ -4,7 +4,9 @@
 //!
 //! Values are per axis X/Y/Z. Where a datasheet gives no value for a term, the term is
 //! either left out or the assumed value is marked "assumed" below and in
-//! docs/simulator.md.
+//! docs/simulator.md. Bias instability is B as IEEE Std 952 and `imulab allan --fit` define
+//! it (the simulated Allan floor is 0.664·B), so the fit of a simulated run reads the preset
+//! back.
 
 use super::imu_model::{AccelSpec, GyroSpec, ImuSpec, DEFAULT_BAND_S};
 

@@ -186,6 +186,11 @@ fn allan_fit_of_simulated_data_gives_the_preset_noise_back() {
         .expect("model")
         .model;
     assert!((ratio(back.arw_rad_per_sqrt_s, m.arw_rad_per_sqrt_s) - 1.0).abs() < 1e-9);
+    // And the bias instability: the spec holds B = floor / 0.664 and simulates the floor.
+    if fit.gyro.floor.is_some() && fit.gyro.tau_min.is_some() {
+        let r = ratio(back.gyro_bias.sigma, m.gyro_bias.sigma);
+        assert!((r - 1.0).abs() < 1e-9, "gyro bias σ round trip {r}");
+    }
     // Several devices need a choice; a wrong name is named.
     let e = noise::allan_device(&report, Some("other"), "fit").expect_err("no such device");
     assert!(e.to_string().contains("unit"), "{e}");
