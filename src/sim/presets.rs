@@ -9,6 +9,7 @@
 //! back.
 
 use super::imu_model::{AccelSpec, GyroSpec, ImuSpec, DEFAULT_BAND_S};
+use crate::allan::fit::BIAS_INSTABILITY_FACTOR;
 
 /// One IMU preset: its name, where its numbers come from, and the spec.
 pub struct ImuPreset {
@@ -41,7 +42,7 @@ pub const IMU_PRESETS: &[ImuPreset] = &[
     },
     ImuPreset {
         name: "tactical",
-        source: "Safran Sensonor STIM300 datasheet TS1524 (10 g accelerometers): gyro bias instability 0.5 °/h, ARW 0.15 °/√h, bias repeatability 4 °/h as turn-on σ; accel bias instability 0.05 mg, VRW 0.07 m/s/√h (rev 9: 0.06; the larger used), bias on/off repeatability 0.75 mg as turn-on σ",
+        source: "Safran Sensonor STIM300 datasheet TS1524 (10 g accelerometers): gyro bias instability 0.5 °/h (the Allan minimum, per Sensonor's FAQ; B = 0.5/0.664), ARW 0.15 °/√h, bias repeatability 4 °/h as turn-on σ; accel bias instability 0.05 mg (Allan minimum; B = 0.05/0.664), VRW 0.07 m/s/√h (rev 9: 0.06; the larger used), bias on/off repeatability 0.75 mg as turn-on σ",
         spec: tactical,
     },
 ];
@@ -153,12 +154,15 @@ fn tactical() -> ImuSpec {
     // FAQ) from turn-on to turn-on repeatability; each goes to its own term here. An
     // earlier version used the Honeywell HG1700 brochure, whose 1 °/h and 1 mg are bias
     // repeatability only (no in-run stability given), wrongly as the Allan floor.
+    // Sensonor's FAQ defines the datasheet's bias instability as the lowest point of the
+    // Allan deviation; B (what the spec holds, see the module doc) is that minimum / 0.664.
     // VRW 0.07 m/s/√h in the bench study's mg/√h convention: 0.07 / 9.80665e-3 = 7.14.
+    let b_per_floor = 1.0 / BIAS_INSTABILITY_FACTOR;
     let vrw_mg_rth = 0.07 / (super::imu_model::G0 * 1e-3);
     with_noise(
         GyroSpec {
             arw_deg_rth: Some([0.15; 3]),
-            bias_instability_dph: [0.5; 3],
+            bias_instability_dph: [0.5 * b_per_floor; 3],
             // Bias repeatability (run to run), read as the 1σ of the turn-on bias.
             turn_on_bias_sigma_dph: [4.0; 3],
             // The datasheet specifies non-linearity up to 400 °/s (25/50 ppm at 200/400 °/s).
@@ -167,7 +171,7 @@ fn tactical() -> ImuSpec {
         },
         AccelSpec {
             vrw_mg_rth: Some([vrw_mg_rth; 3]),
-            bias_instability_mg: [0.05; 3],
+            bias_instability_mg: [0.05 * b_per_floor; 3],
             // Bias on/off repeatability ±0.75 mg (10 g range), read as the 1σ turn-on bias.
             turn_on_bias_sigma_mg: [0.75; 3],
             range_g: Some(10.0),
@@ -209,10 +213,13 @@ mod tests {
     #[test]
     fn tactical_keeps_in_run_floor_and_repeatability_apart() {
         let t = imu_preset("tactical").unwrap();
-        assert_eq!(t.gyro.bias_instability_dph, [0.5; 3]);
+        // The datasheet's Allan minima (0.5 °/h, 0.05 mg) are 0.664·B.
+        let floor_dph = t.gyro.bias_instability_dph[0] * BIAS_INSTABILITY_FACTOR;
+        assert!((floor_dph - 0.5).abs() < 1e-12, "{floor_dph}");
+        let floor_mg = t.accel.bias_instability_mg[0] * BIAS_INSTABILITY_FACTOR;
+        assert!((floor_mg - 0.05).abs() < 1e-12, "{floor_mg}");
         assert_eq!(t.gyro.turn_on_bias_sigma_dph, [4.0; 3]);
         assert_eq!(t.gyro.arw_deg_rth, Some([0.15; 3]));
-        assert_eq!(t.accel.bias_instability_mg, [0.05; 3]);
         assert_eq!(t.accel.turn_on_bias_sigma_mg, [0.75; 3]);
         let vrw = t.accel.vrw_mg_rth.unwrap()[0];
         assert!((vrw * 9.80665e-3 - 0.07).abs() < 1e-12, "{vrw}");
