@@ -1,10 +1,12 @@
 //! One deviation curve: for every averaging factor of a grid, the deviation, its count of
 //! terms, the dominant noise type, the EDF and the chi-squared confidence interval.
 
-use super::deviation::{deviation_from_variance, variances_with, DeviationKind};
+use super::deviation::{
+    decimated_variance, deviation_from_variance, variances_with, DeviationKind,
+};
 use super::edf::{confidence_interval, edf, Alpha, ONE_SIGMA_COVERAGE};
-use super::noise_id::identify_alphas;
-use super::numerics::{Phase, Simd};
+use super::noise_id::{identify_alpha_decimated, identify_alphas};
+use super::numerics::{for_each_decimation, Phase, Simd};
 use super::taus::TauGrid;
 use serde::{Deserialize, Serialize};
 
@@ -63,15 +65,29 @@ pub fn compute_curve_segments(
         DeviationKind::Hdev | DeviationKind::Ohdev => 3,
         _ => 2,
     };
-    let (per_segment, identified) = rayon::join(
-        || {
-            phases
-                .iter()
-                .map(|phase| variances_with(kind, phase, &factors, simd))
-                .collect::<Vec<_>>()
-        },
-        || identify_alphas(&longest.points, &factors, max_differences, simd),
-    );
+    let (per_segment, identified) = match kind {
+        DeviationKind::Adev | DeviationKind::Hdev if phases.len() == 1 => {
+            // Both the non-overlapping sums and the noise identification read the
+            // decimated phase: one pyramid serves the two.
+            let n = longest.len();
+            let mut variances = vec![None; factors.len()];
+            let mut alphas = vec![None; factors.len()];
+            for_each_decimation(&longest.points, &factors, |j, z| {
+                variances[j] = decimated_variance(kind, z, factors[j], n, simd);
+                alphas[j] = identify_alpha_decimated(z, max_differences, simd);
+            });
+            (vec![variances], alphas)
+        }
+        _ => rayon::join(
+            || {
+                phases
+                    .iter()
+                    .map(|phase| variances_with(kind, phase, &factors, simd))
+                    .collect::<Vec<_>>()
+            },
+            || identify_alphas(&longest.points, &factors, max_differences, simd),
+        ),
+    };
     let mut pooled: Vec<(usize, f64, usize)> = Vec::with_capacity(factors.len());
     let mut kept: Vec<Option<Alpha>> = Vec::with_capacity(factors.len());
     for (j, &m) in factors.iter().enumerate() {

@@ -216,13 +216,11 @@ pub fn variances_with(
                 .collect()
         }
         DeviationKind::Adev | DeviationKind::Hdev => {
-            let mut sums = vec![0.0; factors.len()];
+            let mut out = vec![None; factors.len()];
             for_each_decimation(x, factors, |j, z| {
-                if counts[j] > 0 {
-                    sums[j] = dispatch(simd, DecimatedSum { kind, z });
-                }
+                out[j] = decimated_variance(kind, z, factors[j], n, simd);
             });
-            sums
+            return out;
         }
         DeviationKind::Mdev | DeviationKind::Tdev => factors
             .par_iter()
@@ -242,6 +240,27 @@ pub fn variances_with(
         .zip(sums)
         .map(|((&m, count), sum)| (count > 0).then(|| (normalise(kind, sum, m, count), count)))
         .collect()
+}
+
+/// ADEV or HDEV (`kind`) at factor `m` of a phase of `n` points, from its decimation
+/// z[k] = x[k·m] (as [`for_each_decimation`] gives it): the variance and count of
+/// [`variance_at`], `None` for other kinds or when no term is defined.
+pub fn decimated_variance(
+    kind: DeviationKind,
+    z: &[f64],
+    m: usize,
+    n: usize,
+    simd: Simd,
+) -> Option<(f64, usize)> {
+    if !matches!(kind, DeviationKind::Adev | DeviationKind::Hdev) || z.len() != n.div_ceil(m.max(1))
+    {
+        return None;
+    }
+    let count = kind.term_count(m, n);
+    (count > 0).then(|| {
+        let sum = dispatch(simd, DecimatedSum { kind, z });
+        (normalise(kind, sum, m, count), count)
+    })
 }
 
 /// The variance from the sum of squared terms (see [`variance_at`]).

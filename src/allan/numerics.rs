@@ -238,7 +238,7 @@ impl Phase {
 
     /// [`Phase::from_rate`] on the given instruction-set path.
     pub fn from_rate_with(mut rate: Vec<f64>, simd: Simd) -> Self {
-        let mean = dispatch(simd, Mean(&rate));
+        let mut mean = 0.0;
         // One more slot for the leading zero without doubling the capacity (for a large
         // vector the allocator grows the mapping in place).
         rate.reserve_exact(1);
@@ -247,7 +247,7 @@ impl Phase {
             simd,
             Integrate {
                 values: &mut rate,
-                mean,
+                mean: &mut mean,
             },
         );
         Phase {
@@ -275,31 +275,52 @@ impl Phase {
 }
 
 /// Turns `values` = [y₀ … y_{N−1}, _] into the phase [0, S₀, S₀+S₁, …] with
-/// S = y − `mean`, each point a compensated running sum (Knuth's TwoSum per addition).
+/// S = y − mean(y), each point a compensated running sum (Knuth's TwoSum per addition),
+/// and returns the mean.
 ///
 /// A single running sum is one long chain of dependent additions (≈ 4 cycles per
-/// sample). Here the samples are cut into [`SCAN_LANES`] equal chunks whose compensated
-/// totals are summed first; each chunk's scan then starts from the exact running state
-/// (sum and compensation) at its start, and the chunks are scanned in lock-step, one
-/// lane each, so the additions of different chunks fill the vector lanes. Blocks of
-/// eight samples per lane are copied in and out so the loads and stores stay contiguous.
+/// sample). Here the samples are cut into [`SCAN_LANES`] equal chunks, and the chunks are
+/// scanned in lock-step, one lane each, so the additions of different chunks fill the
+/// vector lanes; blocks of eight samples per lane are copied in and out so the loads and
+/// stores stay contiguous. Each chunk's scan starts from the exact running state (sum and
+/// compensation) at its start, which needs the chunk totals of y − mean before the mean
+/// is known: the first pass sums y − y₀ per chunk (small values, eight-lane blocks,
+/// compensated), which gives the mean, and each chunk's total of y − mean is then its
+/// total of y − y₀ minus len·(mean − y₀), a small correction. Two passes over the data
+/// in all, as the sequential scan needed.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)] // one index walks the lanes in lock-step
-fn integrate_in_place(values: &mut [f64], mean: f64) {
+fn integrate_in_place(values: &mut [f64]) -> f64 {
     const L: usize = SCAN_LANES;
     const B: usize = 8;
     let Some(n) = values.len().checked_sub(1) else {
-        return;
+        return 0.0;
     };
+    if n == 0 {
+        return 0.0;
+    }
     let chunk = n / L;
+    let first = values[0];
+    // Chunk totals of y − y₀ (the last chunk takes the remainder), then the mean.
+    let mut shifted = [CompensatedSum::new(); L];
+    let mut all = CompensatedSum::new();
+    for (l, total) in shifted.iter_mut().enumerate() {
+        let end = if l + 1 == L { n } else { (l + 1) * chunk };
+        total.add(sum_streams([&values[l * chunk..end]], |[v]| v - first));
+        all.merge(*total);
+    }
+    let offset = all.value() / n as f64;
+    let mean = first + offset;
+    // Running state at each chunk start: Σ over earlier chunks of (y − y₀) − len·(mean − y₀).
     let mut sum = [0.0f64; L];
     let mut compensation = [0.0f64; L];
     let mut running = CompensatedSum::new();
+    let correction = mean - first;
     for l in 0..L {
         sum[l] = running.sum;
         compensation[l] = running.compensation;
-        let part = &values[l * chunk..(l + 1) * chunk];
-        running.add(sum_streams([part], |[v]| v - mean));
+        running.merge(shifted[l]);
+        running.add(-(chunk as f64) * correction);
     }
     let step = |sum: &mut f64, compensation: &mut f64, slot: &mut f64| {
         let v = *slot - mean;
@@ -338,36 +359,23 @@ fn integrate_in_place(values: &mut [f64], mean: f64) {
     // The last lane carries on over the samples the equal chunks left (fewer than L) and
     // writes the final point into the extra slot.
     let (mut s, mut c) = (sum[L - 1], compensation[L - 1]);
-    if chunk == 0 {
-        (s, c) = (0.0, 0.0);
-    }
     for slot in &mut values[L * chunk..] {
         step(&mut s, &mut c, slot);
     }
+    mean
 }
 
-/// [`compensated_mean`] as a [`Kernel`].
-struct Mean<'a>(&'a [f64]);
-
-impl Kernel for Mean<'_> {
-    type Output = f64;
-    #[inline(always)]
-    fn run(self) -> f64 {
-        compensated_mean(self.0)
-    }
-}
-
-/// [`integrate_in_place`] as a [`Kernel`].
+/// [`integrate_in_place`] as a [`Kernel`] (writes the mean).
 struct Integrate<'a> {
     values: &'a mut [f64],
-    mean: f64,
+    mean: &'a mut f64,
 }
 
 impl Kernel for Integrate<'_> {
     type Output = ();
     #[inline(always)]
     fn run(self) {
-        integrate_in_place(self.values, self.mean)
+        *self.mean = integrate_in_place(self.values);
     }
 }
 
