@@ -1,12 +1,13 @@
 //! One deviation curve: for every averaging factor of a grid, the deviation, its count of
 //! terms, the dominant noise type, the EDF and the chi-squared confidence interval.
 
-use super::deviation::{deviation_from_variance, variance_at, DeviationKind};
+use super::deviation::{
+    decimated_variance, deviation_from_variance, variances_with, DeviationKind,
+};
 use super::edf::{confidence_interval, edf, Alpha, ONE_SIGMA_COVERAGE};
-use super::noise_id::identify_alpha;
-use super::numerics::Phase;
+use super::noise_id::{identify_alpha_decimated, identify_alphas};
+use super::numerics::{for_each_decimation, Phase, Simd};
 use super::taus::TauGrid;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// One point of a deviation curve.
@@ -36,7 +37,8 @@ pub struct Curve {
     pub points: Vec<CurvePoint>,
 }
 
-/// Computes `kind` on `phase` over `grid`, in parallel over τ.
+/// Computes `kind` on `phase` over `grid`: the deviations of all τ in one sweep (in
+/// parallel over the data) while the noise identification walks the decimated phase.
 pub fn compute_curve(phase: &Phase, tau0: f64, kind: DeviationKind, grid: &TauGrid) -> Curve {
     compute_curve_segments(std::slice::from_ref(phase), tau0, kind, grid)
 }
@@ -58,28 +60,49 @@ pub fn compute_curve_segments(
         };
     };
     let factors = grid.factors(kind, longest.len(), tau0);
-    let pooled: Vec<(usize, f64, usize)> = factors
-        .par_iter()
-        .filter_map(|&m| {
-            let mut weighted = 0.0;
-            let mut total = 0usize;
-            for phase in phases {
-                if let Some((variance, count)) = variance_at(kind, phase, m) {
-                    weighted += variance * count as f64;
-                    total += count;
-                }
-            }
-            (total > 0).then(|| (m, weighted / total as f64, total))
-        })
-        .collect();
+    let simd = Simd::detected();
     let max_differences = match kind {
         DeviationKind::Hdev | DeviationKind::Ohdev => 3,
         _ => 2,
     };
-    let identified: Vec<Option<Alpha>> = pooled
-        .par_iter()
-        .map(|&(m, _, _)| identify_alpha(&longest.points, m, max_differences))
-        .collect();
+    let (per_segment, identified) = match kind {
+        DeviationKind::Adev | DeviationKind::Hdev if phases.len() == 1 => {
+            // Both the non-overlapping sums and the noise identification read the
+            // decimated phase: one pyramid serves the two.
+            let n = longest.len();
+            let mut variances = vec![None; factors.len()];
+            let mut alphas = vec![None; factors.len()];
+            for_each_decimation(&longest.points, &factors, |j, z| {
+                variances[j] = decimated_variance(kind, z, factors[j], n, simd);
+                alphas[j] = identify_alpha_decimated(z, max_differences, simd);
+            });
+            (vec![variances], alphas)
+        }
+        _ => rayon::join(
+            || {
+                phases
+                    .iter()
+                    .map(|phase| variances_with(kind, phase, &factors, simd))
+                    .collect::<Vec<_>>()
+            },
+            || identify_alphas(&longest.points, &factors, max_differences, simd),
+        ),
+    };
+    let mut pooled: Vec<(usize, f64, usize)> = Vec::with_capacity(factors.len());
+    let mut kept: Vec<Option<Alpha>> = Vec::with_capacity(factors.len());
+    for (j, &m) in factors.iter().enumerate() {
+        let mut weighted = 0.0;
+        let mut total = 0usize;
+        for (variance, count) in per_segment.iter().filter_map(|v| v[j]) {
+            weighted += variance * count as f64;
+            total += count;
+        }
+        if total > 0 {
+            pooled.push((m, weighted / total as f64, total));
+            kept.push(identified[j]);
+        }
+    }
+    let identified = kept;
     let points = assign_alpha(&identified, kind)
         .into_iter()
         .zip(pooled)
