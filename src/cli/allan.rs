@@ -489,11 +489,13 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
 }
 
 /// How many axes one reading pass may hold: all of them while their samples (8 bytes per
-/// row each) fit in `memory_mib`, at least one. Unknown lengths read one axis per pass.
+/// row each) and the analysis's decimation buffer (half an axis, see
+/// [`crate::allan::numerics::for_each_decimation`]) fit in `memory_mib`, at least one. Unknown lengths read
+/// one axis per pass.
 fn axes_per_pass(rows: Option<u64>, memory_mib: u64) -> usize {
     let Some(rows) = rows else { return 1 };
     let budget = memory_mib.saturating_mul(1 << 20);
-    let axis_bytes = rows.saturating_mul(8).max(1);
+    let axis_bytes = rows.saturating_mul(12).max(1);
     usize::try_from(budget / axis_bytes)
         .unwrap_or(usize::MAX)
         .max(1)
