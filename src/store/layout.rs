@@ -16,6 +16,22 @@ pub fn partial_file_name(index: u32) -> String {
     chunk_file_name(index) + PARTIAL_SUFFIX
 }
 
+/// Suffix of the write-ahead journal beside a chunk file (see `journal`).
+pub const JOURNAL_SUFFIX: &str = ".journal";
+
+/// Name of the write-ahead journal of chunk file number `index`.
+pub fn journal_file_name(index: u32) -> String {
+    chunk_file_name(index) + JOURNAL_SUFFIX
+}
+
+/// Parses a journal file name: `Some(index)` for `chunk-NNNNNN.h5.journal`.
+pub fn parse_journal_file_name(name: &str) -> Option<u32> {
+    match parse_chunk_file_name(name.strip_suffix(JOURNAL_SUFFIX)?) {
+        Some((index, false)) => Some(index),
+        _ => None,
+    }
+}
+
 /// Parses a chunk file name: `Some((index, is_partial))`, or `None` for other files.
 pub fn parse_chunk_file_name(name: &str) -> Option<(u32, bool)> {
     let (stem, partial) = match name.strip_suffix(PARTIAL_SUFFIX) {
@@ -99,8 +115,15 @@ mod tests {
             "chunk-1.h5.tmp",
             "session.toml",
             "x-000001.h5",
+            "chunk-000001.h5.journal",
         ] {
             assert_eq!(parse_chunk_file_name(bad), None, "{bad}");
         }
+        assert_eq!(parse_journal_file_name(&journal_file_name(3)), Some(3));
+        assert_eq!(
+            parse_journal_file_name("chunk-000003.h5.partial.journal"),
+            None
+        );
+        assert_eq!(parse_journal_file_name("chunk-000003.h5"), None);
     }
 }

@@ -210,7 +210,7 @@ fn non_sessions_and_bad_manifests_give_one_line_errors() {
     let text = std::fs::read_to_string(&manifest_path).unwrap();
     std::fs::write(
         &manifest_path,
-        text.replace("schema_version = 1", "schema_version = 99"),
+        text.replace("schema_version = 2", "schema_version = 99"),
     )
     .unwrap();
     let (ok, _, err) = imulab(&["inspect", dir.to_str().unwrap()]);
