@@ -78,6 +78,13 @@ impl Default for WriterOptions {
 /// datasets back to the rows written.
 const GROW_AHEAD_CHUNKS: usize = 64;
 
+/// Largest chunk of a table's widest column, in bytes. Chunks are one chunk interval of rows
+/// up to this size, so a fast device (e.g. 10 kHz) does not keep seconds of rows in memory
+/// and in the journal before they reach the HDF5 file (closing on a nearly full disk needs
+/// room for them; tests/daemon/disk.rs), and readers decompress chunks of a sensible size.
+/// 64 KiB is 2048 rows of an N×4 f64 column, more than 10 s at rates up to 200 Hz.
+const MAX_CHUNK_BYTES: usize = 64 << 10;
+
 /// One table being appended: its datasets, chunk size and encoder, rows in the HDF5 file,
 /// rows the datasets extend to, rows buffered (not yet in the HDF5 file) and how many of
 /// those are already in the journal.
@@ -99,12 +106,18 @@ impl<R: Row> Table<R> {
         deflate: u8,
         axis_frame: &str,
     ) -> hdf5::Result<Self> {
+        let widest = R::COLUMNS
+            .iter()
+            .map(|c| 8 * c.width.max(1))
+            .max()
+            .unwrap_or(8);
+        let chunk_rows = chunk_rows.clamp(1, (MAX_CHUNK_BYTES / widest).max(1));
         let ds = create_columns(group, R::COLUMNS, chunk_rows, deflate, axis_frame)?;
         Ok(Table {
             id: group.name().trim_start_matches('/').to_string(),
             ds,
             sink: ChunkSink {
-                chunk_rows: chunk_rows.max(1),
+                chunk_rows,
                 enc: ChunkEncoder::new(deflate),
             },
             written: 0,
