@@ -1,5 +1,5 @@
-//! The write-ahead journal of a chunk file being written: `chunk-NNNNNN.h5.journal`, beside
-//! `chunk-NNNNNN.h5.partial`.
+//! The write-ahead journal of a chunk file being written: `chunk-NNNNNN.h5.journal0` and
+//! `...journal1` (used in turn, see [`Journal`]), beside `chunk-NNNNNN.h5.partial`.
 //!
 //! Why: HDF5 chunks of one flush interval (1 s) were many and tiny (a 10 Hz GNSS column:
 //! 80 bytes), and each one cost HDF5 metadata, a compressor reset and a write (measured,
@@ -7,8 +7,8 @@
 //! and keeps the crash-safety promise (at most one flush interval lost) with this journal:
 //! every flush interval the rows received since the last journal write are appended here
 //! (and `fdatasync`ed when fsync is on); once chunks are complete they go to the HDF5 file,
-//! which is flushed, and the journal is replaced by one holding only the rows still not in
-//! the HDF5 file. `imulab recover` appends the journal's rows beyond those the HDF5 file
+//! which is flushed, and the writer switches to its other journal file, which gets only the
+//! rows still not in the HDF5 file. `imulab recover` appends the journal's rows beyond those the HDF5 file
 //! holds. Hand-written because the format is a few lines and no crate writes it.
 //!
 //! The file is a sequence of records, all integers little-endian:
@@ -42,9 +42,9 @@ const VERSION: u8 = 1;
 const HEAD: usize = 4 + 1 + 1;
 const MID: usize = 8 + 4 + 4;
 
-/// Path of the journal of chunk file number `index`.
-pub(crate) fn journal_path(dir: &Path, index: u32) -> PathBuf {
-    dir.join(layout::journal_file_name(index))
+/// Paths of the two journal files of chunk file number `index` (see [`Journal`]).
+pub(crate) fn journal_paths(dir: &Path, index: u32) -> [PathBuf; 2] {
+    [0, 1].map(|g| dir.join(layout::journal_file_name(index, g)))
 }
 
 /// Appends one record for `count` rows of table `id`, starting at row `first`, whose
@@ -121,25 +121,66 @@ fn parse_one(b: &[u8]) -> Option<(Record, usize)> {
     ))
 }
 
-/// Reads and parses the journal at `path`; `Ok(None)` when there is none.
-pub(crate) fn read(path: &Path) -> Result<Option<Contents>, StoreError> {
-    match std::fs::read(path) {
-        Ok(bytes) => Ok(Some(parse(&bytes))),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(StoreError::io(path, e)),
+/// Reads and parses the journal files at `paths` (missing ones count as empty): all their
+/// records, and the torn or corrupt tail bytes dropped from each.
+pub(crate) fn read(paths: &[PathBuf]) -> Result<Contents, StoreError> {
+    let mut all = Contents::default();
+    for path in paths {
+        match std::fs::read(path) {
+            Ok(bytes) => {
+                let c = parse(&bytes);
+                all.records.extend(c.records);
+                all.dropped_bytes += c.dropped_bytes;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(StoreError::io(path, e)),
+        }
     }
+    Ok(all)
 }
 
-/// The writer's side: appends records, and replaces the whole journal once its rows are in
-/// the HDF5 file. The file is created at the first append.
+/// The writer's side. Two files are used in turn: records are appended to the current one;
+/// once the rows are in the HDF5 file, the rows still pending are written to the other one
+/// (emptied first), made durable when asked, and it becomes the current one. A crash at
+/// any point leaves every row in one of them (or the HDF5 file); `recover` reads both and
+/// skips rows the HDF5 file holds. Measured: replacing one file by a rename instead cost
+/// 11 % of the writer's CPU, because ext4 writes a file renamed over another out at once
+/// (`auto_da_alloc`). Files are created at their first use.
 pub(crate) struct Journal {
-    path: PathBuf,
-    file: Option<File>,
+    paths: [PathBuf; 2],
+    files: [Option<File>; 2],
+    current: usize,
 }
 
 impl Journal {
-    pub fn new(path: PathBuf) -> Self {
-        Journal { path, file: None }
+    pub fn new(paths: [PathBuf; 2]) -> Self {
+        Journal {
+            paths,
+            files: [None, None],
+            current: 0,
+        }
+    }
+
+    /// The open file number `i`, created (and its directory entry made durable when
+    /// `fsync`) at first use.
+    fn file(&mut self, i: usize, fsync: bool) -> Result<&mut File, StoreError> {
+        let path = &self.paths[i];
+        if self.files[i].is_none() {
+            let f = File::options()
+                .create(true)
+                .append(true)
+                .open(path)
+                .map_err(|e| StoreError::io(path, e))?;
+            if fsync {
+                if let Some(dir) = path.parent() {
+                    fsync_dir(dir)?;
+                }
+            }
+            self.files[i] = Some(f);
+        }
+        self.files[i]
+            .as_mut()
+            .ok_or_else(|| StoreError::Invalid("journal file not open".into()))
     }
 
     /// Appends `records` (made by [`put_record`]) and, when `fsync`, makes them durable.
@@ -147,71 +188,63 @@ impl Journal {
         if records.is_empty() {
             return Ok(());
         }
-        let path = &self.path;
-        let file = match self.file.as_mut() {
-            Some(f) => f,
-            None => {
-                let f = File::options()
-                    .create(true)
-                    .append(true)
-                    .open(path)
-                    .map_err(|e| StoreError::io(path, e))?;
-                if fsync {
-                    // The journal's directory entry must survive a power loss too.
-                    if let Some(dir) = path.parent() {
-                        fsync_dir(dir)?;
-                    }
-                }
-                self.file.insert(f)
-            }
-        };
+        let i = self.current;
+        let path = self.paths[i].clone();
+        let file = self.file(i, fsync)?;
         file.write_all(records)
-            .map_err(|e| StoreError::io(path, e))?;
+            .map_err(|e| StoreError::io(&path, e))?;
         if fsync {
-            file.sync_data().map_err(|e| StoreError::io(path, e))?;
+            file.sync_data().map_err(|e| StoreError::io(&path, e))?;
         }
         Ok(())
     }
 
-    /// Replaces the journal by one holding only `records` (rows not yet in the HDF5 file),
-    /// atomically: written beside it, made durable when `fsync`, renamed over it. A crash
-    /// at any point leaves either the old journal (whose rows already in the HDF5 file
-    /// `recover` skips) or the new one. With no records the journal is removed.
+    /// Starts the other file with only `records` (rows not yet in the HDF5 file, which has
+    /// been flushed) and makes it the current one.
     pub fn replace(&mut self, records: &[u8], fsync: bool) -> Result<(), StoreError> {
-        let path = &self.path;
-        self.file = None;
-        if records.is_empty() {
+        let other = 1 - self.current;
+        if records.is_empty() && self.files[other].is_none() {
+            // Nothing pending and nothing stale there: an empty, absent file will do.
+            self.truncate_current_if_all_written(fsync)?;
+            return Ok(());
+        }
+        let path = self.paths[other].clone();
+        let file = self.file(other, fsync)?;
+        file.set_len(0).map_err(|e| StoreError::io(&path, e))?;
+        file.write_all(records)
+            .map_err(|e| StoreError::io(&path, e))?;
+        if fsync {
+            file.sync_data().map_err(|e| StoreError::io(&path, e))?;
+        }
+        self.current = other;
+        Ok(())
+    }
+
+    /// With nothing pending, the current file's rows are all in the HDF5 file: starting the
+    /// other (absent) file would also do, but emptying the current one keeps one file.
+    fn truncate_current_if_all_written(&mut self, fsync: bool) -> Result<(), StoreError> {
+        let i = self.current;
+        let path = self.paths[i].clone();
+        if let Some(f) = self.files[i].as_mut() {
+            f.set_len(0).map_err(|e| StoreError::io(&path, e))?;
+            if fsync {
+                f.sync_data().map_err(|e| StoreError::io(&path, e))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Removes both files (their chunk file is complete and renamed).
+    pub fn remove(mut self) -> Result<(), StoreError> {
+        self.files = [None, None];
+        for path in &self.paths {
             match std::fs::remove_file(path) {
                 Ok(()) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
                 Err(e) => return Err(StoreError::io(path, e)),
-            }
-        } else {
-            let tmp = path.with_extension("journal.tmp");
-            let mut f = File::create(&tmp).map_err(|e| StoreError::io(&tmp, e))?;
-            f.write_all(records).map_err(|e| StoreError::io(&tmp, e))?;
-            if fsync {
-                f.sync_data().map_err(|e| StoreError::io(&tmp, e))?;
-            }
-            std::fs::rename(&tmp, path).map_err(|e| StoreError::io(path, e))?;
-            self.file = Some(f);
-        }
-        if fsync {
-            if let Some(dir) = path.parent() {
-                fsync_dir(dir)?;
             }
         }
         Ok(())
-    }
-
-    /// Removes the journal (its chunk file is complete and renamed).
-    pub fn remove(mut self) -> Result<(), StoreError> {
-        self.file = None;
-        match std::fs::remove_file(&self.path) {
-            Ok(()) => Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-            Err(e) => Err(StoreError::io(&self.path, e)),
-        }
     }
 }
 
@@ -324,21 +357,28 @@ mod tests {
     }
 
     #[test]
-    fn replace_is_atomic_and_empty_removes() {
+    fn replace_switches_files_and_both_are_read() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("x.h5.journal");
-        let mut j = Journal::new(path.clone());
+        let paths = journal_paths(dir.path(), 4);
+        let mut j = Journal::new(paths.clone());
         j.append(&sample(), true).expect("append");
-        assert_eq!(read(&path).expect("read").expect("exists").records.len(), 3);
+        assert_eq!(read(&paths).expect("read").records.len(), 3);
         let mut one = Vec::new();
         put_record(&mut one, "imu/a", 3, 1, &[1]);
         j.replace(&one, true).expect("replace");
         j.append(&one, false).expect("append after replace");
-        let c = read(&path).expect("read").expect("exists");
-        assert_eq!(c.records.len(), 2);
-        assert_eq!(c.records[0].first, 3);
-        assert!(!path.with_extension("journal.tmp").exists());
+        // The old file still holds its (now stale) records; the new one the pending rows.
+        assert_eq!(
+            parse(&std::fs::read(&paths[1]).expect("new")).records.len(),
+            2
+        );
+        assert_eq!(read(&paths).expect("read").records.len(), 5);
+        // The next switch empties the old file first.
         j.replace(&[], false).expect("empty");
-        assert!(read(&path).expect("read").is_none());
+        assert_eq!(std::fs::read(&paths[0]).expect("old").len(), 0);
+        j.append(&one, false).expect("append");
+        assert_eq!(read(&paths).expect("read").records.len(), 3);
+        j.remove().expect("remove");
+        assert!(paths.iter().all(|p| !p.exists()));
     }
 }

@@ -7,7 +7,7 @@
 //! no call for it, so the superblock is patched here by hand: the flags byte is zeroed and
 //! the superblock checksum (Jenkins lookup3, as HDF5 computes it) is recomputed.
 //!
-//! Rows the writer had only in its write-ahead journal (`chunk-NNNNNN.h5.journal`, see
+//! Rows the writer had only in its write-ahead journal (`chunk-NNNNNN.h5.journal{0,1}`, see
 //! `journal`) are then appended to each table, from the first row the HDF5 file does not
 //! hold; rows it already holds are skipped, so recovering twice gives the same file. A
 //! partial file without a journal (sessions written before it, schema 1) recovers as before.
@@ -268,7 +268,10 @@ fn repair_table<B: Block>(file: &hdf5::File, group: &str) -> hdf5::Result<TableR
 fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> Vec<R> {
     let mut rows = Vec::new();
     let mut next = from as u64;
-    for rec in records.iter().filter(|r| r.id == id) {
+    // The two journal files' records, in row order (they may overlap; overlaps are skipped).
+    let mut mine: Vec<&Record> = records.iter().filter(|r| r.id == id).collect();
+    mine.sort_by_key(|r| r.first);
+    for rec in mine {
         let end = rec.first + u64::from(rec.count);
         if end <= next {
             continue;
@@ -391,7 +394,9 @@ fn repair_and_replay_raw(
     let mut n_bytes = bytes.shape().first().copied().unwrap_or(0) as u64;
     let bytes_id = format!("{group}/{}", RAW_BYTES.name);
     let mut new_bytes = Vec::new();
-    for rec in records.iter().filter(|r| r.id == bytes_id) {
+    let mut mine: Vec<&Record> = records.iter().filter(|r| r.id == bytes_id).collect();
+    mine.sort_by_key(|r| r.first);
+    for rec in mine {
         let end = rec.first + rec.payload.len() as u64;
         if end <= n_bytes + new_bytes.len() as u64 {
             continue;
@@ -492,21 +497,18 @@ fn repair_file(path: &Path, records: &[Record]) -> Result<Vec<TableRecovery>, St
 
 /// Makes the partial chunk file at `path` readable in place, without renaming it: clears
 /// its superblock flags, repairs its tables and appends the rows of its write-ahead journal
-/// (`journal`, if given and present) that the file does not hold. Running it again changes
-/// nothing. [`recover`] does this for every partial file of a session, then renames each.
-/// Returns what it did and the bytes dropped from a torn journal tail.
+/// (the files `journal`; missing ones count as empty) that the file does not hold. Running
+/// it again changes nothing. [`recover`] does this for every partial file of a session,
+/// then renames each. Returns what it did and the bytes dropped from torn journal tails.
 pub fn repair_partial(
     path: &Path,
-    journal: Option<&Path>,
+    journal: &[PathBuf],
 ) -> Result<(SuperblockState, Vec<TableRecovery>, u64), StoreError> {
-    let contents = match journal {
-        Some(j) => journal::read(j)?.unwrap_or_default(),
-        None => journal::Contents::default(),
-    };
+    let contents = journal::read(journal)?;
     if contents.dropped_bytes > 0 {
         tracing::warn!(
-            "{}: dropped a torn or corrupt tail of {} bytes",
-            journal.map(|j| j.display().to_string()).unwrap_or_default(),
+            "{}: dropped a torn or corrupt journal tail of {} bytes",
+            path.display(),
             contents.dropped_bytes
         );
     }
@@ -562,12 +564,14 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
                     ),
                 });
             }
-            let journal = journal::journal_path(dir, index);
-            let (sb, tables, journal_bytes_dropped) = repair_partial(&from, Some(&journal))?;
+            let journal = journal::journal_paths(dir, index);
+            let (sb, tables, journal_bytes_dropped) = repair_partial(&from, &journal)?;
             std::fs::rename(&from, &to).map_err(|e| StoreError::io(&to, e))?;
             fsync_dir(dir)?;
             // Only now, with the rows durable in the renamed file, may the journal go.
-            remove_if_present(&journal)?;
+            for j in &journal {
+                remove_if_present(j)?;
+            }
             Ok(FileRecovery {
                 from: from.clone(),
                 to: to.clone(),

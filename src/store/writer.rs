@@ -459,7 +459,7 @@ impl ChunkFile {
                 events,
                 raw,
                 first_t: None,
-                journal: Journal::new(journal::journal_path(dir, index)),
+                journal: Journal::new(journal::journal_paths(dir, index)),
                 records: Vec::new(),
                 scratch: Vec::new(),
             })

@@ -175,13 +175,15 @@ fn kill_mid_chunk_recovers_everything_but_the_last_flush_interval() {
     if std::env::var(CHILD_ENV).is_ok() {
         return;
     }
+    let _serial = child_process_guard();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("killed");
     // One complete 10 s chunk (from t = 1 s) and 7.3 s into the second.
     let last_t = write_and_kill(&dir, imu_row(0, 1730).t_mono_ns);
     let partial = dir.join("chunk-000000.h5.partial");
-    let journal = dir.join("chunk-000000.h5.journal");
-    assert!(partial.exists() && journal.exists());
+    let journals =
+        |d: &Path| ["chunk-000000.h5.journal0", "chunk-000000.h5.journal1"].map(|n| d.join(n));
+    assert!(partial.exists() && journals(&dir).iter().any(|j| j.exists()));
 
     let copies: Vec<PathBuf> = ["torn", "twice", "no-journal"]
         .iter()
@@ -195,7 +197,10 @@ fn kill_mid_chunk_recovers_everything_but_the_last_flush_interval() {
     let report = recover(&dir).unwrap();
     assert_eq!(report.files.len(), 1);
     assert_eq!(report.files[0].journal_bytes_dropped, 0);
-    assert!(!journal.exists(), "recover removes the journal");
+    assert!(
+        journals(&dir).iter().all(|j| !j.exists()),
+        "recover removes the journal"
+    );
     let full = contents(&dir);
     check(&full, last_t, SECOND);
     // The HDF5 file held whole 10 s chunks only: the last 7.3 s came from the journal.
@@ -204,15 +209,16 @@ fn kill_mid_chunk_recovers_everything_but_the_last_flush_interval() {
     assert!(recover(&dir).unwrap().files.is_empty());
     assert_eq!(contents(&dir), full, "recovering again changes nothing");
 
-    // A torn journal tail: the cut record is dropped, every row before it kept.
-    let torn_journal = copies[0].join("chunk-000000.h5.journal");
-    let len = std::fs::metadata(&torn_journal).unwrap().len();
-    std::fs::OpenOptions::new()
-        .write(true)
-        .open(&torn_journal)
-        .unwrap()
-        .set_len(len - 5)
-        .unwrap();
+    // A torn journal tail: the cut record is dropped, every row before it kept. (Both
+    // files are cut: the one not being appended holds only rows the other, or the HDF5
+    // file, holds too.)
+    for j in journals(&copies[0]) {
+        let len = std::fs::metadata(&j).map_or(0, |m| m.len());
+        if len > 0 {
+            let f = std::fs::OpenOptions::new().write(true).open(&j).unwrap();
+            f.set_len(len - 5).unwrap();
+        }
+    }
     let report = recover(&copies[0]).unwrap();
     assert!(report.files[0].journal_bytes_dropped > 0);
     let torn = contents(&copies[0]);
@@ -223,9 +229,9 @@ fn kill_mid_chunk_recovers_everything_but_the_last_flush_interval() {
     // An interrupted recover (the file repaired and replayed, not yet renamed), then a
     // full one: the same session as recovering once.
     let p = copies[1].join("chunk-000000.h5.partial");
-    let j = copies[1].join("chunk-000000.h5.journal");
-    let (_, first, _) = repair_partial(&p, Some(&j)).unwrap();
-    let (_, second, _) = repair_partial(&p, Some(&j)).unwrap();
+    let j = journals(&copies[1]);
+    let (_, first, _) = repair_partial(&p, &j).unwrap();
+    let (_, second, _) = repair_partial(&p, &j).unwrap();
     assert!(first.iter().any(|t| t.rows_from_journal > 0));
     assert!(
         second.iter().all(|t| t.rows_from_journal == 0),
@@ -235,15 +241,18 @@ fn kill_mid_chunk_recovers_everything_but_the_last_flush_interval() {
     assert_eq!(contents(&copies[1]), full);
 
     // A partial file without a journal (a session from before it) still recovers: the
-    // complete chunks are intact.
-    std::fs::remove_file(copies[2].join("chunk-000000.h5.journal")).unwrap();
+    // complete chunks are intact; the rest of the chunk being filled (up to a chunk
+    // interval and a flush interval) is lost.
+    for j in journals(&copies[2]) {
+        let _ = std::fs::remove_file(j);
+    }
     let report = recover(&copies[2]).unwrap();
     assert!(report.files[0]
         .tables
         .iter()
         .all(|t| t.rows_from_journal == 0));
     let old = contents(&copies[2]);
-    check(&old, last_t, 9 * SECOND);
+    check(&old, last_t, 11 * SECOND);
     assert!(old.imu[0].len() >= 1000, "{}", old.imu[0].len());
 }
 
@@ -255,9 +264,9 @@ fn orphan_journal_beside_a_completed_file_is_removed() {
     let dir = tmp.path().join("s");
     write_session(&dir, 3, 10, fast_opts());
     let before = contents(&dir);
-    std::fs::write(dir.join("chunk-000000.h5.journal"), b"IMLJ torn").unwrap();
+    std::fs::write(dir.join("chunk-000000.h5.journal1"), b"IMLJ torn").unwrap();
     let report = recover(&dir).unwrap();
     assert!(report.files.is_empty());
-    assert!(!dir.join("chunk-000000.h5.journal").exists());
+    assert!(!dir.join("chunk-000000.h5.journal1").exists());
     assert_eq!(contents(&dir), before);
 }
