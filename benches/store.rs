@@ -1,7 +1,9 @@
 //! Session store benchmark (issue 3): writes H hours (default 6) of 2 IMUs at 150 Hz and one
 //! GNSS receiver at 10 Hz in the daemon's batch size (150 IMU rows per append, 1 s of data),
 //! then streams it back. Prints CPU time, MB on disk against the raw row size, and reader
-//! rows/s, for several deflate levels and chunk sizes.
+//! rows/s, for several deflate levels and chunk sizes. Case 0 is the default layout (10 s
+//! chunks, 1 s flushes into the write-ahead journal); case 1 the layout before the journal
+//! (1 s chunks, an HDF5 flush every second), as the peer in the same run.
 //!
 //! Run: `cargo bench --bench store` (full matrix), or `cargo bench --bench store -- --hours 1`.
 //! `--only 0,3` runs only those cases (numbered from 0 in table order); `--no-read` skips
@@ -96,7 +98,9 @@ struct Case {
     label: &'static str,
     deflate: u8,
     flush: Duration,
+    chunk: Duration,
     rows_per_chunk: Option<usize>,
+    fsync: bool,
 }
 
 struct Written {
@@ -120,10 +124,11 @@ fn write(dir: &Path, hours: f64, case: &Case, pools: &[Vec<ImuRecord>; 2]) -> Wr
     let opts = WriterOptions {
         deflate_level: case.deflate,
         flush_interval: case.flush,
+        chunk_interval: case.chunk,
         rows_per_chunk: case.rows_per_chunk,
-        // 6 h of data time pass in seconds here; per-flush fsyncs would measure the disk,
-        // not the store (a live daemon does one per flush, i.e. a few per second).
-        fsync_on_flush: false,
+        // 6 h of data time pass in seconds here; per-flush fsyncs mostly measure the disk,
+        // not the store (a live daemon does one per flush), so most cases leave them off.
+        fsync_on_flush: case.fsync,
         ..WriterOptions::default()
     };
     let seconds = (hours * 3600.0) as usize;
@@ -218,51 +223,71 @@ fn main() {
     std::fs::create_dir_all(&root).expect("bench dir");
     let pools = [imu_pool(1), imu_pool(2)];
     let s = Duration::from_secs(1);
+    let case = |label, deflate, flush: u64, chunk: u64, fsync| Case {
+        label,
+        deflate,
+        flush: s * flush as u32,
+        chunk: s * chunk as u32,
+        rows_per_chunk: None,
+        fsync,
+    };
     let cases = [
+        case(
+            "deflate 1, flush 1 s, chunk 10 s + journal (default)",
+            1,
+            1,
+            10,
+            false,
+        ),
+        case(
+            "deflate 1, flush 1 s, chunk 1 s (old layout, no journal)",
+            1,
+            1,
+            1,
+            false,
+        ),
+        case("default, fsync on", 1, 1, 10, true),
+        case("old layout, fsync on", 1, 1, 1, true),
+        case(
+            "deflate 4, flush 1 s, chunk 10 s + journal",
+            4,
+            1,
+            10,
+            false,
+        ),
+        case(
+            "no filters, flush 1 s, chunk 10 s + journal",
+            0,
+            1,
+            10,
+            false,
+        ),
+        case(
+            "deflate 1, flush 10 s, chunk 10 s (no journal)",
+            1,
+            10,
+            10,
+            false,
+        ),
+        case(
+            "deflate 1, flush 60 s, chunk 60 s (no journal)",
+            1,
+            60,
+            60,
+            false,
+        ),
         Case {
-            label: "deflate 1, flush 1 s, chunk 1 s (default)",
-            deflate: 1,
-            flush: s,
-            rows_per_chunk: None,
-        },
-        Case {
-            label: "deflate 4, flush 1 s, chunk 1 s",
-            deflate: 4,
-            flush: s,
-            rows_per_chunk: None,
-        },
-        Case {
-            label: "no filters, flush 1 s, chunk 1 s",
-            deflate: 0,
-            flush: s,
-            rows_per_chunk: None,
-        },
-        Case {
-            label: "deflate 1, flush 10 s, chunk 10 s",
-            deflate: 1,
-            flush: 10 * s,
-            rows_per_chunk: None,
-        },
-        Case {
-            label: "deflate 4, flush 10 s, chunk 10 s",
-            deflate: 4,
-            flush: 10 * s,
-            rows_per_chunk: None,
-        },
-        Case {
-            label: "deflate 1, flush 60 s, chunk 60 s",
-            deflate: 1,
-            flush: 60 * s,
-            rows_per_chunk: None,
-        },
-        Case {
-            label: "deflate 1, flush 1 s, chunk 200 rows (misaligned)",
-            deflate: 1,
-            flush: s,
             rows_per_chunk: Some(200),
+            ..case(
+                "deflate 1, flush 1 s, chunk 200 rows (misaligned) + journal",
+                1,
+                1,
+                10,
+                false,
+            )
         },
     ];
-    println!("Session store benchmark: {hours} h × 150 Hz × 2 IMUs + 10 Hz GNSS, 150-row appends, fsync off\n");
+    println!("Session store benchmark: {hours} h × 150 Hz × 2 IMUs + 10 Hz GNSS, 150-row appends, fsync off unless said\n");
     println!("| case | rows | raw MB | disk MB | disk/raw | files | write CPU s | write wall s | Mrows/s (CPU) |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut first_dir = None;

@@ -25,7 +25,8 @@ import tomllib
 import h5py
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 1  # of the chunk files
+SESSION_SCHEMA_VERSIONS = (1, 2)  # of session.toml (2 added the write-ahead journal)
 CHUNK_NAME = re.compile(r"^chunk-(\d+)\.h5(\.partial)?$")
 FILL_T = np.iinfo(np.int64).min
 STRING_COLUMNS = ("device", "kind", "detail")
@@ -52,7 +53,7 @@ def tables_in(f):
 def read_session(session):
     session = pathlib.Path(session)
     manifest = tomllib.loads((session / "session.toml").read_text())
-    if manifest["schema_version"] != SCHEMA_VERSION:
+    if manifest["schema_version"] not in SESSION_SCHEMA_VERSIONS:
         raise ValueError(f"{session}/session.toml: unknown schema version {manifest['schema_version']}")
     parts = {}  # group -> column -> list of arrays
     raw_base = {}  # raw group -> bytes already read from earlier files

@@ -28,10 +28,16 @@ pub fn run(args: RecoverArgs) -> anyhow::Result<()> {
                 ""
             }
         );
+        if f.journal_bytes_dropped > 0 {
+            println!(
+                "  journal: dropped a torn tail of {} bytes",
+                f.journal_bytes_dropped
+            );
+        }
         for t in &f.tables {
             println!(
-                "  /{:<24} kept {:>9} rows, dropped {}",
-                t.group, t.rows_kept, t.rows_dropped
+                "  /{:<24} kept {:>9} rows ({} from the journal), dropped {}",
+                t.group, t.rows_kept, t.rows_from_journal, t.rows_dropped
             );
         }
     }

@@ -93,6 +93,12 @@ pub struct SessionConfig {
     /// Flush buffered rows to disk this often; at most this much is lost on SIGKILL.
     #[serde(default = "default_flush_interval_ms")]
     pub flush_interval_ms: u64,
+    /// Rows per HDF5 chunk = rate × this interval; a whole multiple of the flush interval.
+    /// Rows wait in the write-ahead journal until their chunk is complete (docs/session-format.md).
+    /// Default: 10 s, rounded up to a multiple of the flush interval
+    /// ([`SessionConfig::chunk_interval_ms`]).
+    #[serde(default)]
+    pub chunk_interval_ms: Option<u64>,
     /// Deflate level for the HDF5 datasets, 0 (off) to 9.
     #[serde(default = "default_deflate_level")]
     pub deflate_level: u8,
@@ -108,6 +114,20 @@ pub struct SessionConfig {
     /// Batches that may wait for the writer before readers start dropping (and counting) them.
     #[serde(default = "default_queue_capacity")]
     pub queue_capacity: usize,
+}
+
+/// Chunk interval when the config gives none: 10 s, rounded up to a whole number of flushes.
+pub const DEFAULT_CHUNK_INTERVAL_MS: u64 = 10_000;
+
+impl SessionConfig {
+    /// The chunk interval in effect: the configured one, or the default rounded up to a
+    /// whole multiple of the flush interval.
+    pub fn chunk_interval_ms(&self) -> u64 {
+        self.chunk_interval_ms.unwrap_or_else(|| {
+            let flush = self.flush_interval_ms.max(1);
+            DEFAULT_CHUNK_INTERVAL_MS.div_ceil(flush) * flush
+        })
+    }
 }
 
 fn default_session_name() -> String {
@@ -594,6 +614,22 @@ impl Config {
                 format!("{} is out of range", s.flush_interval_ms),
                 "use 10 to 60000 ms; at most one interval of data is lost on a hard kill",
             );
+        }
+        if let Some(chunk) = s.chunk_interval_ms {
+            let flush = s.flush_interval_ms.max(1);
+            if !(flush..=600_000).contains(&chunk) || chunk % flush != 0 {
+                issues.add(
+                    "session.chunk_interval_ms",
+                    format!(
+                        "{chunk} is not a whole multiple (1x to 600000 ms) of flush_interval_ms = {}",
+                        s.flush_interval_ms
+                    ),
+                    &format!(
+                        "use e.g. {} (10 s rounded up to whole flushes), or leave it out for that default",
+                        DEFAULT_CHUNK_INTERVAL_MS.div_ceil(flush) * flush
+                    ),
+                );
+            }
         }
         if s.deflate_level > 9 {
             issues.add(

@@ -91,6 +91,7 @@ pub fn writer_options(config: &CheckedConfig) -> WriterOptions {
             u64::MAX
         },
         flush_interval: super::run::writer_flush_interval(s.flush_interval_ms),
+        chunk_interval: std::time::Duration::from_millis(s.chunk_interval_ms()),
         deflate_level: s.deflate_level,
         raw_journal: s.raw_journal,
         rows_per_chunk: None,

@@ -8,6 +8,7 @@ use hdf5::types::{FixedAscii, FixedUnicode, VarLenUnicode};
 use hdf5::{Dataset, Group, H5Type, Location};
 
 use super::chunkio::{put_rows, ChunkEncoder};
+use super::journal::{put_str, Cursor};
 use super::layout::{ATTR_DESCRIPTION, ATTR_SCHEMA_VERSION, ATTR_UNITS};
 use super::records::{
     EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord,
@@ -385,6 +386,18 @@ impl ChunkSink {
     }
 }
 
+impl ChunkSink {
+    /// A sink that writes every row through HDF5's own filter pipeline (used by `recover`,
+    /// which does not know the writer's encoder settings and writes few rows): with a chunk
+    /// of `usize::MAX` rows no write ever covers a whole chunk.
+    pub(crate) fn through_pipeline() -> Self {
+        ChunkSink {
+            chunk_rows: usize::MAX,
+            enc: ChunkEncoder::new(0),
+        }
+    }
+}
+
 fn gather<R, T>(rows: &[R], f: impl Fn(&R) -> T) -> Vec<T> {
     rows.iter().map(f).collect()
 }
@@ -397,6 +410,17 @@ pub(crate) trait Row: Clone {
     fn t_mono_ns(&self) -> i64;
     fn write(rows: &[Self], ds: &[Dataset], start: usize, sink: &mut ChunkSink)
         -> hdf5::Result<()>;
+    /// Appends the row to a write-ahead journal payload: its fields in column order,
+    /// little-endian (strings as a u16 length and their bytes).
+    fn encode(&self, out: &mut Vec<u8>);
+    /// Reads back one row written by [`Row::encode`].
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String>;
+}
+
+fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {
+    for x in v {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
 }
 
 impl Row for ImuRecord {
@@ -417,6 +441,26 @@ impl Row for ImuRecord {
         sink.put(&ds[5], start, &gather(rows, |r| r.temp))?;
         sink.put(&ds[6], start, &gather(rows, |r| r.status))?;
         sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
+        out.extend_from_slice(&self.t_wall_ns.to_le_bytes());
+        put_f64s(out, &[self.t_sensor]);
+        put_f64s(out, &self.gyro);
+        put_f64s(out, &self.accel);
+        put_f64s(out, &[self.temp]);
+        out.extend_from_slice(&self.status.to_le_bytes());
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+        Ok(ImuRecord {
+            t_mono_ns: c.i64()?,
+            t_wall_ns: c.i64()?,
+            t_sensor: c.f64()?,
+            gyro: c.f64s()?,
+            accel: c.f64s()?,
+            temp: c.f64()?,
+            status: c.u32()?,
+        })
     }
 }
 
@@ -449,6 +493,40 @@ impl Row for GnssRecord {
         sink.put(&ds[16], start, &gather(rows, |r| r.vdop))?;
         sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
+        out.extend_from_slice(&self.t_wall_ns.to_le_bytes());
+        out.extend_from_slice(&self.week.to_le_bytes());
+        put_f64s(out, &[self.tow_s]);
+        out.extend_from_slice(&self.utc_ns.to_le_bytes());
+        put_f64s(out, &[self.lat_deg, self.lon_deg, self.height_m]);
+        put_f64s(out, &self.vel_ned);
+        put_f64s(out, &[self.h_acc_m, self.v_acc_m, self.s_acc_mps]);
+        out.push(self.fix_type as u8);
+        out.push(self.num_sats);
+        put_f64s(out, &[self.pdop, self.hdop, self.vdop]);
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+        Ok(GnssRecord {
+            t_mono_ns: c.i64()?,
+            t_wall_ns: c.i64()?,
+            week: c.u16()?,
+            tow_s: c.f64()?,
+            utc_ns: c.i64()?,
+            lat_deg: c.f64()?,
+            lon_deg: c.f64()?,
+            height_m: c.f64()?,
+            vel_ned: c.f64s()?,
+            h_acc_m: c.f64()?,
+            v_acc_m: c.f64()?,
+            s_acc_mps: c.f64()?,
+            fix_type: fix_type_from_code(c.u8()?),
+            num_sats: c.u8()?,
+            pdop: c.f64()?,
+            hdop: c.f64()?,
+            vdop: c.f64()?,
+        })
+    }
 }
 
 impl Row for TruthNavRecord {
@@ -469,6 +547,22 @@ impl Row for TruthNavRecord {
         sink.put(&ds[5], start, &gather(rows, |r| r.quat_nb))?;
         sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
+        put_f64s(out, &[self.lat_deg, self.lon_deg, self.height_m]);
+        put_f64s(out, &self.vel_ned);
+        put_f64s(out, &self.quat_nb);
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+        Ok(TruthNavRecord {
+            t_mono_ns: c.i64()?,
+            lat_deg: c.f64()?,
+            lon_deg: c.f64()?,
+            height_m: c.f64()?,
+            vel_ned: c.f64s()?,
+            quat_nb: c.f64s()?,
+        })
+    }
 }
 
 impl Row for TruthImuRecord {
@@ -487,6 +581,22 @@ impl Row for TruthImuRecord {
         sink.put(&ds[3], start, &gather(rows, |r| r.gyro_true))?;
         sink.put(&ds[4], start, &gather(rows, |r| r.accel_true))?;
         sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
+        put_f64s(out, &self.gyro_bias);
+        put_f64s(out, &self.accel_bias);
+        put_f64s(out, &self.gyro_true);
+        put_f64s(out, &self.accel_true);
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+        Ok(TruthImuRecord {
+            t_mono_ns: c.i64()?,
+            gyro_bias: c.f64s()?,
+            accel_bias: c.f64s()?,
+            gyro_true: c.f64s()?,
+            accel_true: c.f64s()?,
+        })
     }
 }
 
@@ -580,6 +690,32 @@ impl Row for EventRow {
         write_1d(&ds[4], start, &gather(rows, |r| r.detail))?;
         write_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
+        out.extend_from_slice(&self.t_wall_ns.to_le_bytes());
+        put_str(out, self.device.as_str());
+        put_str(out, self.kind.as_str());
+        put_str(out, self.detail.as_str());
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+        let t_mono_ns = c.i64()?;
+        let t_wall_ns = c.i64()?;
+        let device =
+            DeviceStr::from_ascii(c.str()?.as_bytes()).map_err(|e| format!("event device: {e}"))?;
+        let kind =
+            KindStr::from_ascii(c.str()?.as_bytes()).map_err(|e| format!("event kind: {e}"))?;
+        let detail = c
+            .str()?
+            .parse::<DetailStr>()
+            .map_err(|e| format!("event detail: {e}"))?;
+        Ok(EventRow {
+            t_mono_ns,
+            t_wall_ns,
+            device,
+            kind,
+            detail,
+        })
+    }
 }
 
 /// One read of undecoded bytes: where it sits in the device's `bytes` dataset.
@@ -604,6 +740,18 @@ impl Row for RawIndexRow {
         sink.put(&ds[1], start, &gather(rows, |r| r.offset))?;
         sink.put(&ds[2], start, &gather(rows, |r| r.len))?;
         sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+    }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
+        out.extend_from_slice(&self.offset.to_le_bytes());
+        out.extend_from_slice(&self.len.to_le_bytes());
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+        Ok(RawIndexRow {
+            t_mono_ns: c.i64()?,
+            offset: c.u64()?,
+            len: c.u32()?,
+        })
     }
 }
 

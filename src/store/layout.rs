@@ -16,6 +16,26 @@ pub fn partial_file_name(index: u32) -> String {
     chunk_file_name(index) + PARTIAL_SUFFIX
 }
 
+/// Suffix of the two write-ahead journal files beside a chunk file (see `journal`), to which
+/// `0` or `1` is added.
+pub const JOURNAL_SUFFIX: &str = ".journal";
+
+/// Name of journal file `gen` (0 or 1) of chunk file number `index`.
+pub fn journal_file_name(index: u32, gen: u8) -> String {
+    format!("{}{JOURNAL_SUFFIX}{gen}", chunk_file_name(index))
+}
+
+/// Parses a journal file name: `Some(index)` for `chunk-NNNNNN.h5.journal0` or `...1`.
+pub fn parse_journal_file_name(name: &str) -> Option<u32> {
+    let stem = name
+        .strip_suffix(".journal0")
+        .or_else(|| name.strip_suffix(".journal1"))?;
+    match parse_chunk_file_name(stem) {
+        Some((index, false)) => Some(index),
+        _ => None,
+    }
+}
+
 /// Parses a chunk file name: `Some((index, is_partial))`, or `None` for other files.
 pub fn parse_chunk_file_name(name: &str) -> Option<(u32, bool)> {
     let (stem, partial) = match name.strip_suffix(PARTIAL_SUFFIX) {
@@ -99,8 +119,17 @@ mod tests {
             "chunk-1.h5.tmp",
             "session.toml",
             "x-000001.h5",
+            "chunk-000001.h5.journal0",
         ] {
             assert_eq!(parse_chunk_file_name(bad), None, "{bad}");
         }
+        assert_eq!(parse_journal_file_name(&journal_file_name(3, 0)), Some(3));
+        assert_eq!(parse_journal_file_name(&journal_file_name(3, 1)), Some(3));
+        assert_eq!(parse_journal_file_name("chunk-000003.h5.journal"), None);
+        assert_eq!(
+            parse_journal_file_name("chunk-000003.h5.partial.journal0"),
+            None
+        );
+        assert_eq!(parse_journal_file_name("chunk-000003.h5"), None);
     }
 }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::{StoreError, SCHEMA_VERSION};
+use super::{StoreError, OLDEST_SESSION_SCHEMA_VERSION, SESSION_SCHEMA_VERSION};
 
 /// File name of the manifest inside a session directory.
 pub const MANIFEST_FILE: &str = "session.toml";
@@ -92,7 +92,7 @@ impl Manifest {
             .and_then(|h| h.into_string().ok())
             .unwrap_or_default();
         Manifest {
-            schema_version: SCHEMA_VERSION,
+            schema_version: SESSION_SCHEMA_VERSION,
             id: start_time.format("%Y%m%dT%H%M%S%.3fZ").to_string(),
             start_time,
             host,
@@ -114,11 +114,12 @@ impl Manifest {
             path: path.to_path_buf(),
             msg,
         };
-        if self.schema_version != SCHEMA_VERSION {
+        if !(OLDEST_SESSION_SCHEMA_VERSION..=SESSION_SCHEMA_VERSION).contains(&self.schema_version)
+        {
             return Err(StoreError::UnknownSchema {
                 path: path.to_path_buf(),
                 found: self.schema_version,
-                supported: SCHEMA_VERSION,
+                supported: SESSION_SCHEMA_VERSION,
             });
         }
         if self.id.trim().is_empty() {
@@ -184,11 +185,13 @@ impl Manifest {
         // than a complaint about a field this build does not know.
         if let Ok(table) = text.parse::<toml::Table>() {
             if let Some(v) = table.get("schema_version").and_then(|v| v.as_integer()) {
-                if v != i64::from(SCHEMA_VERSION) {
+                let known =
+                    i64::from(OLDEST_SESSION_SCHEMA_VERSION)..=i64::from(SESSION_SCHEMA_VERSION);
+                if !known.contains(&v) {
                     return Err(StoreError::UnknownSchema {
                         path,
                         found: u32::try_from(v).unwrap_or(u32::MAX),
-                        supported: SCHEMA_VERSION,
+                        supported: SESSION_SCHEMA_VERSION,
                     });
                 }
             }

@@ -6,17 +6,24 @@
 //! but hdf5-tools may not be installed where a session is recovered and the HDF5 C API has
 //! no call for it, so the superblock is patched here by hand: the flags byte is zeroed and
 //! the superblock checksum (Jenkins lookup3, as HDF5 computes it) is recomputed.
+//!
+//! Rows the writer had only in its write-ahead journal (`chunk-NNNNNN.h5.journal{0,1}`, see
+//! `journal`) are then appended to each table, from the first row the HDF5 file does not
+//! hold; rows it already holds are skipped, so recovering twice gives the same file. A
+//! partial file without a journal (sessions written before it, schema 1) recovers as before.
 
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use super::columns::{
-    Block, Column, EventBlock, GnssBlock, ImuBlock, RawIndexBlock, TruthImuBlock, TruthNavBlock,
-    RAW_BYTES,
+    put_1d, Block, ChunkSink, Column, EventBlock, EventRow, GnssBlock, ImuBlock, RawIndexBlock,
+    RawIndexRow, Row, TruthImuBlock, TruthNavBlock, RAW_BYTES,
 };
+use super::journal::{self, Cursor, Record};
 use super::layout;
 use super::manifest::{fsync_dir, try_writer_lock, Manifest};
 use super::reader::valid_prefix;
+use super::records::{GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 use super::StoreError;
 
 const HDF5_SIGNATURE: [u8; 8] = [0x89, b'H', b'D', b'F', b'\r', b'\n', 0x1a, b'\n'];
@@ -189,6 +196,8 @@ pub struct TableRecovery {
     /// time column, or a block that does not read back). Rows the writer had only grown
     /// its datasets for, or whose time was never written, were never rows and are not counted.
     pub rows_dropped: u64,
+    /// Of `rows_kept`, the rows taken from the write-ahead journal.
+    pub rows_from_journal: u64,
 }
 
 /// What `recover` did to one partial file.
@@ -198,6 +207,8 @@ pub struct FileRecovery {
     pub to: PathBuf,
     pub superblock_flags_cleared: bool,
     pub tables: Vec<TableRecovery>,
+    /// Bytes at the end of the journal dropped as torn or corrupt (0 without a journal).
+    pub journal_bytes_dropped: u64,
 }
 
 /// What `recover` did to a session.
@@ -247,7 +258,84 @@ fn repair_table<B: Block>(file: &hdf5::File, group: &str) -> hdf5::Result<TableR
         group: group.to_string(),
         rows_kept: len as u64,
         rows_dropped: timed.saturating_sub(len) as u64,
+        rows_from_journal: 0,
     })
+}
+
+/// The rows of table `id` in `records` from row `from` on, as far as they are contiguous.
+/// A record that does not decode ends them (it passed its CRC, so that is a writer bug, and
+/// reported in the log).
+fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> Vec<R> {
+    let mut rows = Vec::new();
+    let mut next = from as u64;
+    // The two journal files' records, in row order (they may overlap; overlaps are skipped).
+    let mut mine: Vec<&Record> = records.iter().filter(|r| r.id == id).collect();
+    mine.sort_by_key(|r| r.first);
+    for rec in mine {
+        let end = rec.first + u64::from(rec.count);
+        if end <= next {
+            continue;
+        }
+        if rec.first > next {
+            tracing::warn!(
+                "journal of {id}: rows {next}..{} missing; stopping there",
+                rec.first
+            );
+            break;
+        }
+        let mut c = Cursor {
+            bytes: &rec.payload,
+        };
+        let decoded: Result<Vec<R>, String> = (0..rec.count).map(|_| R::decode(&mut c)).collect();
+        match decoded {
+            Ok(d) => {
+                rows.extend(d.into_iter().skip((next - rec.first) as usize));
+                next = end;
+            }
+            Err(e) => {
+                tracing::error!("journal of {id}: record at row {}: {e}", rec.first);
+                break;
+            }
+        }
+    }
+    rows
+}
+
+/// Appends `rows` at row `at` of the table `group` (whose columns all hold `at` rows).
+fn append_rows<R: Row>(file: &hdf5::File, group: &str, at: usize, rows: &[R]) -> hdf5::Result<()> {
+    if rows.is_empty() {
+        return Ok(());
+    }
+    let g = file.group(group)?;
+    let ds: Vec<hdf5::Dataset> = R::COLUMNS
+        .iter()
+        .map(|c| g.dataset(c.name))
+        .collect::<hdf5::Result<_>>()?;
+    let end = at + rows.len();
+    for (d, c) in ds.iter().zip(R::COLUMNS) {
+        if c.width == 0 {
+            d.resize(end)?;
+        } else {
+            d.resize((end, c.width))?;
+        }
+    }
+    R::write(rows, &ds, at, &mut ChunkSink::through_pipeline())
+}
+
+/// [`repair_table`], then the journal's rows beyond those kept appended.
+fn repair_and_replay<B: Block, R: Row>(
+    file: &hdf5::File,
+    group: &str,
+    records: &[Record],
+) -> hdf5::Result<TableRecovery> {
+    debug_assert_eq!(B::COLUMNS.len(), R::COLUMNS.len());
+    let mut t = repair_table::<B>(file, group)?;
+    let at = t.rows_kept as usize;
+    let rows: Vec<R> = journal_rows(records, group, at);
+    append_rows(file, group, at, &rows)?;
+    t.rows_kept += rows.len() as u64;
+    t.rows_from_journal = rows.len() as u64;
+    Ok(t)
 }
 
 /// Repairs `/raw/<name>`: the index like any table, then the bytes cut to what it covers.
@@ -293,13 +381,58 @@ fn repair_raw(file: &hdf5::File, group: &str) -> hdf5::Result<TableRecovery> {
     Ok(t)
 }
 
+/// [`repair_raw`], then the journal's bytes beyond those kept, and its index rows whose
+/// bytes are all present, appended.
+fn repair_and_replay_raw(
+    file: &hdf5::File,
+    group: &str,
+    records: &[Record],
+) -> hdf5::Result<TableRecovery> {
+    let mut t = repair_raw(file, group)?;
+    let g = file.group(group)?;
+    let bytes = g.dataset(RAW_BYTES.name)?;
+    let mut n_bytes = bytes.shape().first().copied().unwrap_or(0) as u64;
+    let bytes_id = format!("{group}/{}", RAW_BYTES.name);
+    let mut new_bytes = Vec::new();
+    let mut mine: Vec<&Record> = records.iter().filter(|r| r.id == bytes_id).collect();
+    mine.sort_by_key(|r| r.first);
+    for rec in mine {
+        let end = rec.first + rec.payload.len() as u64;
+        if end <= n_bytes + new_bytes.len() as u64 {
+            continue;
+        }
+        let next = n_bytes + new_bytes.len() as u64;
+        if rec.first > next {
+            break;
+        }
+        new_bytes.extend_from_slice(&rec.payload[(next - rec.first) as usize..]);
+    }
+    if !new_bytes.is_empty() {
+        put_1d(&bytes, n_bytes as usize, &new_bytes)?;
+        n_bytes += new_bytes.len() as u64;
+    }
+    let at = t.rows_kept as usize;
+    let mut rows: Vec<RawIndexRow> = journal_rows(records, group, at);
+    let complete = rows
+        .iter()
+        .take_while(|r| r.offset.saturating_add(u64::from(r.len)) <= n_bytes)
+        .count();
+    rows.truncate(complete);
+    append_rows(file, group, at, &rows)?;
+    t.rows_kept += rows.len() as u64;
+    t.rows_from_journal = rows.len() as u64;
+    Ok(t)
+}
+
 fn member_names(file: &hdf5::File, group: &str) -> Vec<String> {
     file.group(group)
         .and_then(|g| g.member_names())
         .unwrap_or_default()
 }
 
-fn repair_file(path: &Path) -> Result<Vec<TableRecovery>, StoreError> {
+/// Repairs the partial chunk file at `path` in place (its superblock flags already cleared)
+/// and appends the rows of its journal `records` the file does not hold.
+fn repair_file(path: &Path, records: &[Record]) -> Result<Vec<TableRecovery>, StoreError> {
     let file = hdf5::File::open_rw(path).map_err(|e| StoreError::Corrupt {
         path: path.to_path_buf(),
         msg: format!(
@@ -310,28 +443,40 @@ fn repair_file(path: &Path) -> Result<Vec<TableRecovery>, StoreError> {
     let mut tables = Vec::new();
     let mut go = || -> hdf5::Result<()> {
         for name in member_names(&file, layout::IMU_GROUP) {
-            tables.push(repair_table::<ImuBlock>(&file, &layout::imu_path(&name))?);
+            let group = layout::imu_path(&name);
+            tables.push(repair_and_replay::<ImuBlock, ImuRecord>(
+                &file, &group, records,
+            )?);
         }
         for name in member_names(&file, layout::GNSS_GROUP) {
-            tables.push(repair_table::<GnssBlock>(&file, &layout::gnss_path(&name))?);
+            let group = layout::gnss_path(&name);
+            tables.push(repair_and_replay::<GnssBlock, GnssRecord>(
+                &file, &group, records,
+            )?);
         }
         if file.group(layout::TRUTH_NAV_GROUP).is_ok() {
-            tables.push(repair_table::<TruthNavBlock>(
+            tables.push(repair_and_replay::<TruthNavBlock, TruthNavRecord>(
                 &file,
                 layout::TRUTH_NAV_GROUP,
+                records,
             )?);
         }
         for name in member_names(&file, layout::TRUTH_IMU_GROUP) {
-            tables.push(repair_table::<TruthImuBlock>(
-                &file,
-                &layout::truth_imu_path(&name),
+            let group = layout::truth_imu_path(&name);
+            tables.push(repair_and_replay::<TruthImuBlock, TruthImuRecord>(
+                &file, &group, records,
             )?);
         }
         for name in member_names(&file, layout::RAW_GROUP) {
-            tables.push(repair_raw(&file, &layout::raw_path(&name))?);
+            let group = layout::raw_path(&name);
+            tables.push(repair_and_replay_raw(&file, &group, records)?);
         }
         if file.group(layout::EVENTS_GROUP).is_ok() {
-            tables.push(repair_table::<EventBlock>(&file, layout::EVENTS_GROUP)?);
+            tables.push(repair_and_replay::<EventBlock, EventRow>(
+                &file,
+                layout::EVENTS_GROUP,
+                records,
+            )?);
         }
         file.flush()
     };
@@ -348,6 +493,28 @@ fn repair_file(path: &Path) -> Result<Vec<TableRecovery>, StoreError> {
         .and_then(|f| f.sync_all())
         .map_err(|e| StoreError::io(path, e))?;
     Ok(tables)
+}
+
+/// Makes the partial chunk file at `path` readable in place, without renaming it: clears
+/// its superblock flags, repairs its tables and appends the rows of its write-ahead journal
+/// (the files `journal`; missing ones count as empty) that the file does not hold. Running
+/// it again changes nothing. [`recover`] does this for every partial file of a session,
+/// then renames each. Returns what it did and the bytes dropped from torn journal tails.
+pub fn repair_partial(
+    path: &Path,
+    journal: &[PathBuf],
+) -> Result<(SuperblockState, Vec<TableRecovery>, u64), StoreError> {
+    let contents = journal::read(journal)?;
+    if contents.dropped_bytes > 0 {
+        tracing::warn!(
+            "{}: dropped a torn or corrupt journal tail of {} bytes",
+            path.display(),
+            contents.dropped_bytes
+        );
+    }
+    let sb = clear_superblock_flags(path)?;
+    let tables = repair_file(path, &contents.records)?;
+    Ok((sb, tables, contents.dropped_bytes))
 }
 
 /// Recovers every `*.partial` chunk file of the session in `dir` (see the module docs).
@@ -371,14 +538,15 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
         ));
     };
     let mut partials: Vec<(u32, PathBuf)> = Vec::new();
+    let mut journals: Vec<(u32, PathBuf)> = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))? {
         let entry = entry.map_err(|e| StoreError::io(dir, e))?;
-        if let Some((index, true)) = entry
-            .file_name()
-            .to_str()
-            .and_then(layout::parse_chunk_file_name)
-        {
+        let name = entry.file_name();
+        let name = name.to_str().unwrap_or("");
+        if let Some((index, true)) = layout::parse_chunk_file_name(name) {
             partials.push((index, entry.path()));
+        } else if let Some(index) = layout::parse_journal_file_name(name) {
+            journals.push((index, entry.path()));
         }
     }
     partials.sort();
@@ -396,15 +564,20 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
                     ),
                 });
             }
-            let sb = clear_superblock_flags(&from)?;
-            let tables = repair_file(&from)?;
+            let journal = journal::journal_paths(dir, index);
+            let (sb, tables, journal_bytes_dropped) = repair_partial(&from, &journal)?;
             std::fs::rename(&from, &to).map_err(|e| StoreError::io(&to, e))?;
             fsync_dir(dir)?;
+            // Only now, with the rows durable in the renamed file, may the journal go.
+            for j in &journal {
+                remove_if_present(j)?;
+            }
             Ok(FileRecovery {
                 from: from.clone(),
                 to: to.clone(),
                 superblock_flags_cleared: sb.flags != 0,
                 tables,
+                journal_bytes_dropped,
             })
         })();
         match result {
@@ -415,11 +588,35 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
             }
         }
     }
+    // A journal whose chunk file is complete is left over from a crash between the writer's
+    // rename and its removal of the journal: every row is in the file, so it goes.
+    for (index, path) in journals {
+        if dir.join(layout::chunk_file_name(index)).exists() {
+            if let Err(e) = remove_if_present(&path) {
+                first_error.get_or_insert(e);
+            }
+        } else if !dir.join(layout::partial_file_name(index)).exists() {
+            let e = StoreError::Corrupt {
+                path: path.clone(),
+                msg: "journal without its chunk file; left as it is".into(),
+            };
+            tracing::error!("{e}");
+            first_error.get_or_insert(e);
+        }
+    }
     drop(lock);
     let _ = std::fs::remove_file(dir.join(layout::WRITER_LOCK_FILE));
     match first_error {
         Some(e) => Err(e),
         None => Ok(report),
+    }
+}
+
+fn remove_if_present(path: &Path) -> Result<(), StoreError> {
+    match std::fs::remove_file(path) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(StoreError::io(path, e)),
     }
 }
 

@@ -18,6 +18,7 @@ use super::columns::{
     create_column, put_1d, put_f64_attr, put_str_attr, put_u32_attr, ChunkSink, Column, EventRow,
     RawIndexRow, Row, EVENT_COLUMNS, FILL_T_MONO, RAW_BYTES, RAW_INDEX_COLUMNS,
 };
+use super::journal::{self, Journal};
 use super::layout::{self, ATTR_AXIS_FRAME, ATTR_SCHEMA_VERSION};
 use super::manifest::{fsync_dir, try_writer_lock, DeviceInfo, DeviceKind, Manifest};
 use super::records::{
@@ -33,14 +34,20 @@ pub struct WriterOptions {
     /// ... or once the current file reaches this many bytes (default 512 MiB).
     pub rotate_bytes: u64,
     /// Rows older than this (in data time) are always on disk: the most a crash can lose
-    /// (default 1 s). Also sets the chunk size: rows per chunk = rate × this interval.
+    /// (default 1 s). Rows are appended to the write-ahead journal this often.
     pub flush_interval: Duration,
+    /// Sets the HDF5 chunk size: rows per chunk = rate × this interval (default 10 s). When
+    /// it is longer than `flush_interval`, rows wait in the journal until their chunk is
+    /// complete, so a live `*.partial` file is up to this much behind (see `journal`). When
+    /// it is not, the journal is off and every flush writes chunks of one flush interval
+    /// (the layout before the journal; kept for comparison: docs/bench/store.md).
+    pub chunk_interval: Duration,
     /// Deflate level 0..=9 (0 = no shuffle/deflate filters at all). Default 1: on IMU noise
     /// level 4 saves about 3.5 % of space for about 85 % more CPU (docs/bench/store.md).
     pub deflate_level: u8,
     /// Create `/raw/<device>` for every device so undecoded bytes can be kept (default off).
     pub raw_journal: bool,
-    /// Override rows per HDF5 chunk for every device (default: rate_hz × flush_interval).
+    /// Override rows per HDF5 chunk for every device (default: rate_hz × chunk_interval).
     pub rows_per_chunk: Option<usize>,
     /// fsync the file after every periodic flush (protects against power loss, not only
     /// against a killed process). Default on. Finalised files are always fsynced.
@@ -53,6 +60,7 @@ impl Default for WriterOptions {
             rotate_after: Duration::from_secs(600),
             rotate_bytes: 512 << 20,
             flush_interval: Duration::from_secs(1),
+            chunk_interval: Duration::from_secs(10),
             deflate_level: 1,
             raw_journal: false,
             rows_per_chunk: None,
@@ -70,14 +78,25 @@ impl Default for WriterOptions {
 /// datasets back to the rows written.
 const GROW_AHEAD_CHUNKS: usize = 64;
 
-/// One table being appended: its datasets, chunk size and encoder, rows on disk, rows the
-/// datasets extend to, and rows buffered.
+/// Largest chunk of a table's widest column, in bytes. Chunks are one chunk interval of rows
+/// up to this size, so a fast device (e.g. 10 kHz) does not keep seconds of rows in memory
+/// and in the journal before they reach the HDF5 file (closing on a nearly full disk needs
+/// room for them; tests/daemon/disk.rs), and readers decompress chunks of a sensible size.
+/// 64 KiB is 2048 rows of an N×4 f64 column, more than 10 s at rates up to 200 Hz.
+const MAX_CHUNK_BYTES: usize = 64 << 10;
+
+/// One table being appended: its datasets, chunk size and encoder, rows in the HDF5 file,
+/// rows the datasets extend to, rows buffered (not yet in the HDF5 file) and how many of
+/// those are already in the journal.
 struct Table<R> {
+    /// Table id in the journal: the group path without the leading `/`.
+    id: String,
     ds: Vec<Dataset>,
     sink: ChunkSink,
     written: usize,
     extent: usize,
     buf: Vec<R>,
+    journaled: usize,
 }
 
 impl<R: Row> Table<R> {
@@ -87,17 +106,56 @@ impl<R: Row> Table<R> {
         deflate: u8,
         axis_frame: &str,
     ) -> hdf5::Result<Self> {
+        let widest = R::COLUMNS
+            .iter()
+            .map(|c| 8 * c.width.max(1))
+            .max()
+            .unwrap_or(8);
+        let chunk_rows = chunk_rows.clamp(1, (MAX_CHUNK_BYTES / widest).max(1));
         let ds = create_columns(group, R::COLUMNS, chunk_rows, deflate, axis_frame)?;
         Ok(Table {
+            id: group.name().trim_start_matches('/').to_string(),
             ds,
             sink: ChunkSink {
-                chunk_rows: chunk_rows.max(1),
+                chunk_rows,
                 enc: ChunkEncoder::new(deflate),
             },
             written: 0,
             extent: 0,
             buf: Vec::new(),
+            journaled: 0,
         })
+    }
+
+    /// Time of the oldest buffered row not yet in the journal.
+    fn oldest_unjournaled(&self) -> Option<i64> {
+        self.buf.get(self.journaled).map(R::t_mono_ns)
+    }
+
+    /// Appends a journal record of the buffered rows not yet in the journal to `out`
+    /// (`scratch` holds the encoded rows). With `out` = `None` only marks them journaled.
+    fn journal_new(&mut self, out: Option<&mut Vec<u8>>, scratch: &mut Vec<u8>) {
+        if let Some(out) = out {
+            journal_rows(
+                &self.id,
+                self.written + self.journaled,
+                &self.buf[self.journaled..],
+                out,
+                scratch,
+            );
+        }
+        self.journaled = self.buf.len();
+    }
+
+    /// Appends a journal record of every buffered row (for a fresh journal) to `out`.
+    fn journal_all(&self, out: &mut Vec<u8>, scratch: &mut Vec<u8>) {
+        journal_rows(
+            &self.id,
+            self.written,
+            &self.buf[..self.journaled],
+            out,
+            scratch,
+        );
     }
 
     /// Sets every column's row count to `rows`.
@@ -167,8 +225,30 @@ impl<R: Row> Table<R> {
         R::write(&self.buf[..n], &self.ds, self.written, &mut self.sink)?;
         self.written += n;
         self.buf.drain(..n);
+        self.journaled = self.journaled.saturating_sub(n);
         Ok(Some(oldest))
     }
+}
+
+/// Appends one journal record holding `rows`, the first of which is row `first` of table
+/// `id`, to `out`.
+fn journal_rows<R: Row>(
+    id: &str,
+    first: usize,
+    rows: &[R],
+    out: &mut Vec<u8>,
+    scratch: &mut Vec<u8>,
+) {
+    if rows.is_empty() {
+        return;
+    }
+    scratch.clear();
+    for r in rows {
+        r.encode(scratch);
+    }
+    // A table never holds 2^32 rows between two journal writes (one flush interval).
+    let count = u32::try_from(rows.len()).unwrap_or(u32::MAX);
+    journal::put_record(out, id, first as u64, count, scratch);
 }
 
 fn create_columns(
@@ -193,6 +273,8 @@ struct RawTable {
     bytes: Dataset,
     bytes_written: usize,
     bytes_buf: Vec<u8>,
+    /// Bytes of `bytes_buf` already in the journal.
+    bytes_journaled: usize,
 }
 
 impl RawTable {
@@ -203,7 +285,44 @@ impl RawTable {
         put_1d(&self.bytes, self.bytes_written, &self.bytes_buf)?;
         self.bytes_written += self.bytes_buf.len();
         self.bytes_buf.clear();
+        self.bytes_journaled = 0;
         self.index.write_aligned(0, 0, true)
+    }
+
+    /// Journal id of the bytes: the index's id and `/bytes`; its "rows" are bytes.
+    fn bytes_id(&self) -> String {
+        format!("{}/{}", self.index.id, RAW_BYTES.name)
+    }
+
+    /// Like [`Table::journal_new`]: the new bytes first, then the index rows that point at them.
+    fn journal_new(&mut self, out: Option<&mut Vec<u8>>, scratch: &mut Vec<u8>) {
+        if let Some(out) = out {
+            let new = &self.bytes_buf[self.bytes_journaled..];
+            if !new.is_empty() {
+                let first = (self.bytes_written + self.bytes_journaled) as u64;
+                let count = u32::try_from(new.len()).unwrap_or(u32::MAX);
+                journal::put_record(out, &self.bytes_id(), first, count, new);
+            }
+            self.index.journal_new(Some(out), scratch);
+        } else {
+            self.index.journal_new(None, scratch);
+        }
+        self.bytes_journaled = self.bytes_buf.len();
+    }
+
+    fn journal_all(&self, out: &mut Vec<u8>, scratch: &mut Vec<u8>) {
+        let held = &self.bytes_buf[..self.bytes_journaled];
+        if !held.is_empty() {
+            let count = u32::try_from(held.len()).unwrap_or(u32::MAX);
+            journal::put_record(
+                out,
+                &self.bytes_id(),
+                self.bytes_written as u64,
+                count,
+                held,
+            );
+        }
+        self.index.journal_all(out, scratch);
     }
 }
 
@@ -222,8 +341,10 @@ struct ChunkFile {
     raw: HashMap<String, RawTable>,
     /// Data time of the first row in this file (rotation by time counts from it).
     first_t: Option<i64>,
-    /// Data time of the oldest row handed to HDF5 since the last `H5Fflush`.
-    unflushed_since: Option<i64>,
+    /// The write-ahead journal beside the file, and buffers for its records.
+    journal: Journal,
+    records: Vec<u8>,
+    scratch: Vec<u8>,
 }
 
 impl ChunkFile {
@@ -251,10 +372,10 @@ impl ChunkFile {
             .create_excl(p)
             .map_err(h5("creating the chunk file"))?;
         let deflate = opts.deflate_level.min(9);
-        let flush_s = opts.flush_interval.as_secs_f64();
+        let chunk_s = opts.chunk_interval.as_secs_f64();
         let rows_for = |rate_hz: f64| -> usize {
             opts.rows_per_chunk
-                .unwrap_or_else(|| (rate_hz * flush_s).round().clamp(1.0, 1e6) as usize)
+                .unwrap_or_else(|| (rate_hz * chunk_s).round().clamp(1.0, 1e6) as usize)
         };
 
         let build = || -> hdf5::Result<ChunkFile> {
@@ -305,6 +426,7 @@ impl ChunkFile {
                             bytes,
                             bytes_written: 0,
                             bytes_buf: Vec::new(),
+                            bytes_journaled: 0,
                         },
                     );
                 }
@@ -337,7 +459,9 @@ impl ChunkFile {
                 events,
                 raw,
                 first_t: None,
-                unflushed_since: None,
+                journal: Journal::new(journal::journal_paths(dir, index)),
+                records: Vec::new(),
+                scratch: Vec::new(),
             })
         };
         let chunk = build().map_err(h5("laying out groups and datasets"))?;
@@ -345,74 +469,160 @@ impl ChunkFile {
         Ok(chunk)
     }
 
-    /// Writes what is due (see [`Table::write_aligned`]), and makes the rows written so far
-    /// durable with one HDF5 flush (and fsync when asked) once the oldest of them is
-    /// `max_age_ns` old (or when `force`). So after every call, every row at least one flush
-    /// interval older than `now` is on disk, and a flush interval costs one `H5Fflush` for
-    /// all tables instead of one per table whose chunk filled (measured: 3 per second with
-    /// two IMUs and a GNSS appended in 1 s batches). Returns whether it flushed.
-    fn flush(
+    /// Called after every append with the newest data time `now`. Once the oldest row not
+    /// yet in the journal is a flush interval old (a *tick*): appends every such row to the
+    /// journal (fsynced when `fsync`), then writes the chunks that are complete to the HDF5
+    /// file (and a stalled table's partial chunk once its oldest row is a chunk interval
+    /// old), flushes it with one `H5Fflush` for all tables (fsynced when `fsync`) and
+    /// replaces the journal by one holding only the rows still not in the HDF5 file. So
+    /// after every call, every row at least one flush interval older than `now` is on disk,
+    /// in the journal or in the HDF5 file. Without a journal (`chunk_ns <= flush_ns`) a
+    /// tick writes and flushes every row that is due instead. Returns whether it ticked.
+    fn tick(
         &mut self,
         now: i64,
-        max_age_ns: i64,
-        force: bool,
+        flush_ns: i64,
+        chunk_ns: i64,
         fsync: bool,
     ) -> Result<bool, StoreError> {
-        let path = self.partial_path.clone();
-        let mut oldest: Option<i64> = None;
-        let mut note = |t: Option<i64>| {
-            if let Some(t) = t {
-                oldest = Some(oldest.map_or(t, |o: i64| o.min(t)));
+        let oldest = self.oldest_unjournaled();
+        if oldest.is_none_or(|t| now.saturating_sub(t) < flush_ns) {
+            return Ok(false);
+        }
+        let use_journal = chunk_ns > flush_ns;
+        self.records.clear();
+        self.journal_new(use_journal);
+        if use_journal {
+            self.journal.append(&self.records, fsync)?;
+        }
+        let wrote = self.write_due(now, chunk_ns.max(flush_ns), false)?;
+        if wrote {
+            self.flush_hdf5(fsync)?;
+            if use_journal {
+                self.records.clear();
+                self.journal_all();
+                self.journal.replace(&self.records, fsync)?;
             }
-        };
+        }
+        Ok(true)
+    }
+
+    /// Writes every buffered row to the HDF5 file and flushes it (fsynced when `fsync`);
+    /// the journal is then emptied when `reset_journal`.
+    fn write_all(&mut self, fsync: bool, reset_journal: bool) -> Result<(), StoreError> {
+        self.write_due(0, 0, true)?;
+        self.flush_hdf5(fsync)?;
+        if reset_journal {
+            self.journal.replace(&[], fsync)?;
+        }
+        Ok(())
+    }
+
+    fn flush_hdf5(&mut self, fsync: bool) -> Result<(), StoreError> {
+        let path = &self.partial_path;
+        self.file
+            .flush()
+            .map_err(|e| StoreError::h5(path, "flushing", e))?;
+        if fsync {
+            self.sync_handle
+                .sync_data()
+                .map_err(|e| StoreError::io(path, e))?;
+        }
+        Ok(())
+    }
+
+    /// Time of the oldest buffered row (of any table) not yet in the journal.
+    fn oldest_unjournaled(&self) -> Option<i64> {
+        let tables = self
+            .imu
+            .values()
+            .map(Table::oldest_unjournaled)
+            .chain(self.gnss.values().map(Table::oldest_unjournaled))
+            .chain(self.truth_imu.values().map(Table::oldest_unjournaled))
+            .chain(self.truth_nav.iter().map(Table::oldest_unjournaled))
+            .chain(self.raw.values().map(|r| r.index.oldest_unjournaled()))
+            .chain(std::iter::once(self.events.oldest_unjournaled()));
+        tables.flatten().min()
+    }
+
+    /// Records every buffered row not yet in the journal into `self.records` (or, when
+    /// `!use_journal`, only marks them as seen by this tick).
+    fn journal_new(&mut self, use_journal: bool) {
+        let (out, scratch) = (&mut self.records, &mut self.scratch);
+        let mut out = use_journal.then_some(out);
+        for t in self.imu.values_mut() {
+            t.journal_new(out.as_deref_mut(), scratch);
+        }
+        for t in self.gnss.values_mut() {
+            t.journal_new(out.as_deref_mut(), scratch);
+        }
+        for t in self.truth_imu.values_mut() {
+            t.journal_new(out.as_deref_mut(), scratch);
+        }
+        if let Some(t) = self.truth_nav.as_mut() {
+            t.journal_new(out.as_deref_mut(), scratch);
+        }
+        for r in self.raw.values_mut() {
+            r.journal_new(out.as_deref_mut(), scratch);
+        }
+        self.events.journal_new(out, scratch);
+    }
+
+    /// Records every journaled row still buffered into `self.records` (a fresh journal).
+    fn journal_all(&mut self) {
+        let (out, scratch) = (&mut self.records, &mut self.scratch);
+        for t in self.imu.values() {
+            t.journal_all(out, scratch);
+        }
+        for t in self.gnss.values() {
+            t.journal_all(out, scratch);
+        }
+        for t in self.truth_imu.values() {
+            t.journal_all(out, scratch);
+        }
+        if let Some(t) = self.truth_nav.as_ref() {
+            t.journal_all(out, scratch);
+        }
+        for r in self.raw.values() {
+            r.journal_all(out, scratch);
+        }
+        self.events.journal_all(out, scratch);
+    }
+
+    /// Writes to the HDF5 file what is due (see [`Table::write_aligned`]): complete chunks,
+    /// partial ones whose oldest row is `max_age_ns` old, everything when `force`. Events and
+    /// raw reads come at no fixed rate, so there is no chunk to fill: they are written with
+    /// the chunks, or once the oldest is `max_age_ns` old. Returns whether it wrote anything.
+    fn write_due(&mut self, now: i64, max_age_ns: i64, force: bool) -> Result<bool, StoreError> {
+        let path = self.partial_path.clone();
+        let mut wrote = false;
         let mut go = || -> hdf5::Result<()> {
             for t in self.imu.values_mut() {
-                note(t.write_aligned(now, max_age_ns, force)?);
+                wrote |= t.write_aligned(now, max_age_ns, force)?.is_some();
             }
             for t in self.gnss.values_mut() {
-                note(t.write_aligned(now, max_age_ns, force)?);
+                wrote |= t.write_aligned(now, max_age_ns, force)?.is_some();
             }
             for t in self.truth_imu.values_mut() {
-                note(t.write_aligned(now, max_age_ns, force)?);
+                wrote |= t.write_aligned(now, max_age_ns, force)?.is_some();
             }
             if let Some(t) = self.truth_nav.as_mut() {
-                note(t.write_aligned(now, max_age_ns, force)?);
+                wrote |= t.write_aligned(now, max_age_ns, force)?.is_some();
             }
-            // Events and raw reads come at no fixed rate, so there is no chunk to fill: they
-            // are written whole once the oldest has waited half a flush interval.
-            let half = max_age_ns / 2;
+            let stale =
+                |first: Option<i64>| first.is_some_and(|t| now.saturating_sub(t) >= max_age_ns);
             for r in self.raw.values_mut() {
-                let first = r.index.buf.first().map(|row| row.t_mono_ns);
-                if force || first.is_some_and(|t| now.saturating_sub(t) >= half) {
-                    note(r.write_all()?);
+                if force || wrote || stale(r.index.buf.first().map(|row| row.t_mono_ns)) {
+                    wrote |= r.write_all()?.is_some();
                 }
             }
-            let first = self.events.buf.first().map(|row| row.t_mono_ns);
-            if force || first.is_some_and(|t| now.saturating_sub(t) >= half) {
-                note(self.events.write_aligned(now, 0, true)?);
+            if force || wrote || stale(self.events.buf.first().map(|row| row.t_mono_ns)) {
+                wrote |= self.events.write_aligned(now, 0, true)?.is_some();
             }
             Ok(())
         };
         go().map_err(|e| StoreError::h5(&path, "writing rows", e))?;
-        if let Some(t) = oldest {
-            self.unflushed_since = Some(self.unflushed_since.map_or(t, |u| u.min(t)));
-        }
-        let due = self
-            .unflushed_since
-            .is_some_and(|t| force || now.saturating_sub(t) >= max_age_ns);
-        if !due {
-            return Ok(false);
-        }
-        self.file
-            .flush()
-            .map_err(|e| StoreError::h5(&path, "flushing", e))?;
-        self.unflushed_since = None;
-        if fsync {
-            self.sync_handle
-                .sync_data()
-                .map_err(|e| StoreError::io(&path, e))?;
-        }
-        Ok(true)
+        Ok(wrote)
     }
 
     /// Cuts every table back to the rows written (they were grown ahead).
@@ -436,8 +646,10 @@ impl ChunkFile {
     }
 
     /// Flushes everything, closes, fsyncs, renames to the final name and fsyncs the directory.
+    /// The journal goes last, once the renamed file is durable (an orphan journal beside a
+    /// completed file, left by a crash just before, is removed by `recover`).
     fn finish(mut self, dir: &Path) -> Result<PathBuf, StoreError> {
-        self.flush(0, 0, true, false)?;
+        self.write_all(false, false)?;
         self.trim()
             .map_err(|e| StoreError::h5(&self.partial_path, "trimming tables", e))?;
         let ChunkFile {
@@ -445,6 +657,7 @@ impl ChunkFile {
             final_path,
             file,
             sync_handle,
+            journal,
             ..
         } = self;
         file.close()
@@ -455,6 +668,7 @@ impl ChunkFile {
         drop(sync_handle);
         std::fs::rename(&partial_path, &final_path).map_err(|e| StoreError::io(&final_path, e))?;
         fsync_dir(dir)?;
+        journal.remove()?;
         Ok(final_path)
     }
 }
@@ -516,9 +730,12 @@ impl SessionWriter {
     /// manifest and opens chunk file 0.
     pub fn create(dir: &Path, manifest: Manifest, opts: WriterOptions) -> Result<Self, StoreError> {
         manifest.validate(&dir.join(super::manifest::MANIFEST_FILE))?;
-        if opts.flush_interval.is_zero() || opts.rotate_after.is_zero() {
+        if opts.flush_interval.is_zero()
+            || opts.rotate_after.is_zero()
+            || opts.chunk_interval.is_zero()
+        {
             return Err(StoreError::Invalid(
-                "flush_interval and rotate_after must be positive".into(),
+                "flush_interval, chunk_interval and rotate_after must be positive".into(),
             ));
         }
         std::fs::create_dir_all(dir).map_err(|e| StoreError::io(dir, e))?;
@@ -773,10 +990,11 @@ impl SessionWriter {
     fn maybe_flush(&mut self) -> Result<(), StoreError> {
         let Some(now) = self.max_t else { return Ok(()) };
         let (flush_ns, fsync) = (self.flush_ns(), self.opts.fsync_on_flush);
+        let chunk_ns = i64::try_from(self.opts.chunk_interval.as_nanos()).unwrap_or(i64::MAX);
         let Some(chunk) = self.current.as_mut() else {
             return Ok(());
         };
-        chunk.flush(now, flush_ns, false, fsync)?;
+        chunk.tick(now, flush_ns, chunk_ns, fsync)?;
         let size_check_due = self
             .last_size_check_t
             .is_none_or(|last| now.saturating_sub(last) >= flush_ns);
@@ -810,11 +1028,12 @@ impl SessionWriter {
         Ok(())
     }
 
-    /// Writes every buffered row and flushes (and fsyncs) the current file now.
+    /// Writes every buffered row to the current HDF5 file and flushes (and fsyncs) it now,
+    /// so it is readable there (not only in the journal).
     pub fn flush(&mut self) -> Result<(), StoreError> {
         let fsync = self.opts.fsync_on_flush;
         if let Some(chunk) = self.current.as_mut() {
-            chunk.flush(0, 0, true, fsync)?;
+            chunk.write_all(fsync, true)?;
         }
         self.last_size_check_t = self.max_t;
         Ok(())

@@ -55,6 +55,7 @@ fn example_config_in_systemd_dir_is_valid() {
 fn minimal_config_gets_defaults() {
     let c = parse(&with_session("", IMU), "t").unwrap();
     assert_eq!(c.session.flush_interval_ms, 1000);
+    assert_eq!(c.session.chunk_interval_ms(), 10_000);
     assert_eq!(c.session.deflate_level, 1);
     assert_eq!(c.devices[0].gap_factor, 3.0);
     assert_eq!(c.devices[0].gyro_scale, 1.0);
@@ -516,6 +517,16 @@ fn session_value_rules() {
         "flush_interval_ms = 100000",
         "session.flush_interval_ms",
         "out of range",
+    );
+    reject_session(
+        "chunk_interval_ms = 1500",
+        "session.chunk_interval_ms",
+        "not a whole multiple",
+    );
+    reject_session(
+        "flush_interval_ms = 300\nchunk_interval_ms = 100",
+        "session.chunk_interval_ms",
+        "flush_interval_ms = 300",
     );
     reject_session(
         "deflate_level = 12",

@@ -8,6 +8,7 @@ use crate::common::*;
 use imulab::store::{EventKind, EventRecord, SessionWriter};
 
 fn imulab(args: &[&str]) -> (bool, String, String) {
+    let _serial = crate::common::child_process_guard();
     let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
         .args(args)
         .env("RUST_LOG", "off")
@@ -210,7 +211,7 @@ fn non_sessions_and_bad_manifests_give_one_line_errors() {
     let text = std::fs::read_to_string(&manifest_path).unwrap();
     std::fs::write(
         &manifest_path,
-        text.replace("schema_version = 1", "schema_version = 99"),
+        text.replace("schema_version = 2", "schema_version = 99"),
     )
     .unwrap();
     let (ok, _, err) = imulab(&["inspect", dir.to_str().unwrap()]);
@@ -267,6 +268,7 @@ fn corrupted_bytes_inside_a_chunk_give_errors_not_crashes() {
             *b ^= 0x5a;
         }
         std::fs::write(dir.join("chunk-000000.h5"), &bytes).unwrap();
+        let _serial = crate::common::child_process_guard();
         let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
             .args(["inspect", "--json", dir.to_str().unwrap()])
             .env("RUST_LOG", "off")

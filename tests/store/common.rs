@@ -121,3 +121,15 @@ pub fn fast_opts() -> WriterOptions {
         ..WriterOptions::default()
     }
 }
+
+/// Held by every test that spawns a child writer, for its whole run. A child inherits the
+/// parent's open file descriptors, and with them the HDF5 file locks (flock) of whatever
+/// file another test thread has open at that moment, until it is killed: two such tests
+/// in parallel made each other's files unopenable ("unable to lock file").
+pub static CHILD_PROCESS_TESTS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+pub fn child_process_guard() -> std::sync::MutexGuard<'static, ()> {
+    CHILD_PROCESS_TESTS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}

@@ -2,6 +2,7 @@
 
 mod cli;
 mod common;
+mod journal;
 mod python;
 mod recover;
 mod roundtrip;

@@ -22,6 +22,7 @@ fn python_with_h5py() -> Option<PathBuf> {
     }
     // Build beside and rename, so a half-made venv is never mistaken for a good one.
     let tmp = root.join(format!("store-pyvenv.tmp-{}", std::process::id()));
+    let _serial = crate::common::child_process_guard();
     let ok = Command::new("python3")
         .args(["-m", "venv"])
         .arg(&tmp)
@@ -32,6 +33,7 @@ fn python_with_h5py() -> Option<PathBuf> {
         eprintln!("SKIP: python3 -m venv failed (install python3 and python3-venv)");
         return None;
     }
+    // (still holding the child-process guard taken above)
     let ok = Command::new(tmp.join("bin/python"))
         .args(["-m", "pip", "install", "--quiet", "h5py", "numpy"])
         .status()
@@ -124,6 +126,7 @@ fn h5py_snippet_reads_what_rust_wrote() {
     // The writer stays open: the last file is a live `.partial` that h5py reads with swmr=True.
     let dump = tmp.path().join("dump.json");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/read_session.py");
+    let _serial = crate::common::child_process_guard();
     let out = Command::new(&python)
         .arg(&script)
         .arg(&dir)

@@ -41,6 +41,7 @@ fn kill_9_then_recover_loses_at_most_one_flush_interval() {
     if std::env::var(CHILD_ENV).is_ok() {
         return;
     }
+    let _serial = child_process_guard();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("killed");
     let mut child = Command::new(std::env::current_exe().unwrap())

@@ -127,11 +127,11 @@ fn datasets_carry_units_axis_frame_and_schema_version() {
             });
         assert_eq!(v, imulab::store::SCHEMA_VERSION, "{path}");
     }
-    // Chunk rows = rate × flush interval, and the filters are on.
-    assert_eq!(gyro.chunk(), Some(vec![100, 3]));
+    // Chunk rows = rate × chunk interval (10 s by default), and the filters are on.
+    assert_eq!(gyro.chunk(), Some(vec![1000, 3]));
     assert_eq!(
         f.dataset("gnss/gps/lat_deg").unwrap().chunk(),
-        Some(vec![5])
+        Some(vec![50])
     );
     assert!(gyro.filters().len() >= 2);
     // The writer grows tables ahead of the rows written; a finished file has every column
@@ -182,11 +182,14 @@ fn writer_refuses_bad_input_with_clear_errors() {
 fn rotation_by_size_and_a_slow_device_still_read_back_in_order() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("s5");
+    // Chunks of 10 s reach the file every 10 s (before that the rows are in the journal),
+    // so the file passes 40 kB, and rotates, after each.
     let opts = imulab::store::WriterOptions {
         rotate_bytes: 40_000,
+        rotate_after: std::time::Duration::from_secs(3600),
         ..fast_opts()
     };
-    write_session(&dir, 8, 20, opts);
+    write_session(&dir, 40, 20, opts);
     let s = Session::open(&dir).unwrap();
     assert!(
         s.files().len() >= 3,
@@ -194,7 +197,7 @@ fn rotation_by_size_and_a_slow_device_still_read_back_in_order() {
         s.files()
     );
     assert!(s.problems().is_empty());
-    // The 5 Hz GNSS fills a 5-row chunk per second; everything comes back in order.
+    // The 5 Hz GNSS fills a 50-row chunk per 10 s; everything comes back in order.
     let mut n = 0;
     for b in s.gnss_blocks("gps", TimeRange::all(), 7).unwrap() {
         let b = b.unwrap();
@@ -203,9 +206,9 @@ fn rotation_by_size_and_a_slow_device_still_read_back_in_order() {
             n += 1;
         }
     }
-    assert_eq!(n, 40);
+    assert_eq!(n, 200);
     let sum = s.stream_summary(&layout::imu_path("imu_a"));
-    assert_eq!(sum.rows, 800);
+    assert_eq!(sum.rows, 4000);
 }
 
 #[test]

@@ -1,0 +1,272 @@
+//! The write-ahead journal (10 s chunks, 1 s flushes): a writer killed 7.3 s into a chunk
+//! loses at most one flush interval once `recover` has replayed its journal; a torn journal
+//! tail, recovering twice (or after an interrupted recover) and a partial file without a
+//! journal (sessions from before it) all recover. The child writer is this test binary.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use crate::common::*;
+use imulab::store::recover::repair_partial;
+use imulab::store::{
+    recover, EventKind, EventRecord, GnssRecord, ImuRecord, Session, SessionWriter, TimeRange,
+    WriterOptions,
+};
+
+const CHILD_ENV: &str = "IMULAB_STORE_TEST_JOURNAL_CHILD_DIR";
+const SECOND: i64 = 1_000_000_000;
+
+fn event(k: usize) -> EventRecord {
+    EventRecord {
+        t_mono_ns: imu_row(0, k * 100).t_mono_ns,
+        t_wall_ns: 7 + k as i64,
+        device: "imu_b".into(),
+        kind: EventKind::Resync,
+        detail: format!("resync {k}, ünïcode"),
+    }
+}
+
+/// The writer child: 10 s chunks, 1 s flushes, one file; 100 Hz IMUs in 0.1 s batches, the
+/// 5 Hz GNSS and an event every second; prints `T=<last t_mono_ns appended>` after each batch.
+#[test]
+fn journal_child_writer() {
+    let Ok(dir) = std::env::var(CHILD_ENV) else {
+        return; // only does something when run as the child
+    };
+    let opts = WriterOptions {
+        flush_interval: Duration::from_secs(1),
+        chunk_interval: Duration::from_secs(10),
+        fsync_on_flush: false, // SIGKILL keeps the page cache; fsync is for power loss
+        ..WriterOptions::default()
+    };
+    let mut w = SessionWriter::create(Path::new(&dir), manifest(), opts).unwrap();
+    let mut i = 0;
+    loop {
+        for (d, name) in ["imu_a", "imu_b"].iter().enumerate() {
+            let rows: Vec<_> = (i..i + 10).map(|k| imu_row(d, k)).collect();
+            w.append_imu(name, &rows).unwrap();
+        }
+        if i % 20 == 0 {
+            w.append_gnss("gps", &[gnss_row(i / 20)]).unwrap();
+        }
+        if i % 100 == 0 {
+            w.append_event(&event(i / 100)).unwrap();
+        }
+        i += 10;
+        println!("T={}", imu_row(0, i - 1).t_mono_ns);
+        std::thread::sleep(Duration::from_micros(300));
+    }
+}
+
+/// Runs the child until it has appended `until_ns` of data time, SIGKILLs it, and returns
+/// the last data time it reported.
+fn write_and_kill(dir: &Path, until_ns: i64) -> i64 {
+    let mut child = Command::new(std::env::current_exe().unwrap())
+        .args([
+            "--exact",
+            "journal::journal_child_writer",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .env(CHILD_ENV, dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let mut last_t = i64::MIN;
+    while last_t < until_ns {
+        let line = lines.next().expect("child ended early").unwrap();
+        if let Some(t) = line.strip_prefix("T=") {
+            last_t = t.parse().unwrap();
+        }
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    for line in lines {
+        if let Some(t) = line.unwrap().strip_prefix("T=") {
+            last_t = t.parse().unwrap();
+        }
+    }
+    last_t
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+    }
+}
+
+/// Everything a recovered session holds, in order.
+#[derive(Debug, PartialEq)]
+struct Contents {
+    imu: [Vec<ImuRecord>; 2],
+    gnss: Vec<GnssRecord>,
+    events: Vec<EventRecord>,
+}
+
+fn contents(dir: &Path) -> Contents {
+    let s = Session::open(dir).unwrap();
+    assert!(s.problems().is_empty(), "{:?}", s.problems());
+    assert!(s.files().iter().all(|f| !f.partial));
+    let imu = ["imu_a", "imu_b"].map(|name| {
+        let mut rows = Vec::new();
+        for b in s.imu_blocks(name, TimeRange::all(), 700).unwrap() {
+            let b = b.unwrap();
+            rows.extend((0..b.len()).map(|k| b.record(k)));
+        }
+        rows
+    });
+    let mut gnss = Vec::new();
+    for b in s.gnss_blocks("gps", TimeRange::all(), 700).unwrap() {
+        let b = b.unwrap();
+        gnss.extend((0..b.len()).map(|k| b.record(k)));
+    }
+    let (events, problems) = s.events();
+    assert!(problems.is_empty(), "{problems:?}");
+    Contents { imu, gnss, events }
+}
+
+/// Every row is the expected one for its position (so none is missing, repeated or
+/// changed), and the rows reach back to `last_t - max_lost_ns`.
+fn check(c: &Contents, last_t: i64, max_lost_ns: i64) {
+    for (d, rows) in c.imu.iter().enumerate() {
+        for (n, r) in rows.iter().enumerate() {
+            assert_eq!(*r, imu_row(d, n), "imu {d} row {n}");
+        }
+        let kept = rows.last().map_or(i64::MIN, |r| r.t_mono_ns);
+        assert!(
+            last_t - kept <= max_lost_ns,
+            "imu {d}: kept {} rows up to {kept}, last appended {last_t}: lost {:.3} s",
+            rows.len(),
+            (last_t - kept) as f64 * 1e-9
+        );
+    }
+    for (n, r) in c.gnss.iter().enumerate() {
+        assert_eq!(*r, gnss_row(n), "gnss row {n}");
+    }
+    let fixes_due = (0..).take_while(|&n| gnss_row(n).t_mono_ns <= last_t - max_lost_ns);
+    assert!(c.gnss.len() >= fixes_due.count(), "{} fixes", c.gnss.len());
+    for (k, e) in c.events.iter().enumerate() {
+        assert_eq!(*e, event(k), "event {k}");
+    }
+    let events_due = (0..).take_while(|&k| event(k).t_mono_ns <= last_t - max_lost_ns);
+    assert!(
+        c.events.len() >= events_due.count(),
+        "{} events",
+        c.events.len()
+    );
+}
+
+fn rows_from_journal(report: &imulab::store::RecoverReport, group: &str) -> u64 {
+    report.files[0]
+        .tables
+        .iter()
+        .find(|t| t.group == group)
+        .map_or(0, |t| t.rows_from_journal)
+}
+
+#[test]
+fn kill_mid_chunk_recovers_everything_but_the_last_flush_interval() {
+    if std::env::var(CHILD_ENV).is_ok() {
+        return;
+    }
+    let _serial = child_process_guard();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("killed");
+    // One complete 10 s chunk (from t = 1 s) and 7.3 s into the second.
+    let last_t = write_and_kill(&dir, imu_row(0, 1730).t_mono_ns);
+    let partial = dir.join("chunk-000000.h5.partial");
+    let journals =
+        |d: &Path| ["chunk-000000.h5.journal0", "chunk-000000.h5.journal1"].map(|n| d.join(n));
+    assert!(partial.exists() && journals(&dir).iter().any(|j| j.exists()));
+
+    let copies: Vec<PathBuf> = ["torn", "twice", "no-journal"]
+        .iter()
+        .map(|n| tmp.path().join(n))
+        .collect();
+    for c in &copies {
+        copy_dir(&dir, c);
+    }
+
+    // The plain case: everything older than one flush interval, exactly once.
+    let report = recover(&dir).unwrap();
+    assert_eq!(report.files.len(), 1);
+    assert_eq!(report.files[0].journal_bytes_dropped, 0);
+    assert!(
+        journals(&dir).iter().all(|j| !j.exists()),
+        "recover removes the journal"
+    );
+    let full = contents(&dir);
+    check(&full, last_t, SECOND);
+    // The HDF5 file held whole 10 s chunks only: the last 7.3 s came from the journal.
+    assert!(rows_from_journal(&report, "imu/imu_a") >= 600, "{report:?}");
+    assert!(rows_from_journal(&report, "gnss/gps") >= 12, "{report:?}");
+    assert!(recover(&dir).unwrap().files.is_empty());
+    assert_eq!(contents(&dir), full, "recovering again changes nothing");
+
+    // A torn journal tail: the cut record is dropped, every row before it kept. (Both
+    // files are cut: the one not being appended holds only rows the other, or the HDF5
+    // file, holds too.)
+    for j in journals(&copies[0]) {
+        let len = std::fs::metadata(&j).map_or(0, |m| m.len());
+        if len > 0 {
+            let f = std::fs::OpenOptions::new().write(true).open(&j).unwrap();
+            f.set_len(len - 5).unwrap();
+        }
+    }
+    let report = recover(&copies[0]).unwrap();
+    assert!(report.files[0].journal_bytes_dropped > 0);
+    let torn = contents(&copies[0]);
+    // The last record holds at most one flush interval of rows (and a batch).
+    check(&torn, last_t, 2 * SECOND + SECOND / 10);
+    assert!(torn.imu[0].len() >= 1000 + 500, "{}", torn.imu[0].len());
+
+    // An interrupted recover (the file repaired and replayed, not yet renamed), then a
+    // full one: the same session as recovering once.
+    let p = copies[1].join("chunk-000000.h5.partial");
+    let j = journals(&copies[1]);
+    let (_, first, _) = repair_partial(&p, &j).unwrap();
+    let (_, second, _) = repair_partial(&p, &j).unwrap();
+    assert!(first.iter().any(|t| t.rows_from_journal > 0));
+    assert!(
+        second.iter().all(|t| t.rows_from_journal == 0),
+        "{second:?}"
+    );
+    recover(&copies[1]).unwrap();
+    assert_eq!(contents(&copies[1]), full);
+
+    // A partial file without a journal (a session from before it) still recovers: the
+    // complete chunks are intact; the rest of the chunk being filled (up to a chunk
+    // interval and a flush interval) is lost.
+    for j in journals(&copies[2]) {
+        let _ = std::fs::remove_file(j);
+    }
+    let report = recover(&copies[2]).unwrap();
+    assert!(report.files[0]
+        .tables
+        .iter()
+        .all(|t| t.rows_from_journal == 0));
+    let old = contents(&copies[2]);
+    check(&old, last_t, 11 * SECOND);
+    assert!(old.imu[0].len() >= 1000, "{}", old.imu[0].len());
+}
+
+/// A completed file with a journal left beside it (a crash between the writer's rename and
+/// its removal of the journal): `recover` removes the journal and leaves the file alone.
+#[test]
+fn orphan_journal_beside_a_completed_file_is_removed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    write_session(&dir, 3, 10, fast_opts());
+    let before = contents(&dir);
+    std::fs::write(dir.join("chunk-000000.h5.journal1"), b"IMLJ torn").unwrap();
+    let report = recover(&dir).unwrap();
+    assert!(report.files.is_empty());
+    assert!(!dir.join("chunk-000000.h5.journal1").exists());
+    assert_eq!(contents(&dir), before);
+}
