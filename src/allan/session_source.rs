@@ -1,16 +1,19 @@
 //! Session input: a [`SampleSource`] over one IMU device of an `imulab` session, streamed
 //! block by block through `imulab::store::Session::imu_blocks`. Channels are `t` (seconds
-//! from the first sample in range), `gyro_x…z` (rad/s), `accel_x…z` (m/s²) and `temp` (°C).
+//! from the first sample in range), `gyro_x…z` (rad/s), `accel_x…z` (m/s²), `temp` (°C) and
+//! `t_sensor` (the device's own clock, as stored).
 
 use super::input::{BlockVisitor, InputError, RowVisitor, SampleSource};
 use super::units::RateUnit;
 use crate::store::manifest::DeviceKind;
-use crate::store::{Session, TimeRange};
+use crate::store::{ImuColumnSet, ImuColumns, Session, TimeRange};
 use std::path::{Path, PathBuf};
 
-const CHANNELS: [&str; 8] = [
-    "t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z", "temp",
+const CHANNELS: [&str; 9] = [
+    "t", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z", "temp", "t_sensor",
 ];
+const TEMP: usize = 7;
+const T_SENSOR: usize = 8;
 use super::input::BLOCK_ROWS;
 
 pub struct SessionSource {
@@ -18,6 +21,8 @@ pub struct SessionSource {
     session: Session,
     device: String,
     range: TimeRange,
+    /// Time 0 of channel `t`: the start of the range, or the device's first `t_mono_ns`.
+    first_ns: i64,
     channels: Vec<String>,
 }
 
@@ -68,15 +73,15 @@ impl SessionSource {
             }
             Ok(first.saturating_add((s * 1e9) as i64))
         };
-        let range = TimeRange::new(
-            Some(from_s.map(to_ns).transpose()?.unwrap_or(first)),
-            to_s.map(to_ns).transpose()?,
-        );
+        // No lower bound unless asked: every row is at or after the first one anyway.
+        let range = TimeRange::new(from_s.map(to_ns).transpose()?, to_s.map(to_ns).transpose()?);
+        let first = range.start_ns.unwrap_or(first);
         Ok(SessionSource {
             dir: dir.to_path_buf(),
             session,
             device,
             range,
+            first_ns: first,
             channels: CHANNELS.iter().map(|c| c.to_string()).collect(),
         })
     }
@@ -115,7 +120,9 @@ impl SampleSource for SessionSource {
         }
     }
 
-    /// Each stored block becomes one column slice per wanted channel (no per-row callback).
+    /// Only the datasets of the wanted channels are read (`Session::imu_columns`), into
+    /// buffers reused from block to block; each channel is handed on as the reader's own
+    /// per-axis vector, with no copy (the time column is converted to seconds).
     fn for_each_block(
         &self,
         wanted: &[usize],
@@ -125,25 +132,39 @@ impl SampleSource for SessionSource {
             path: self.dir.clone(),
             message,
         };
-        let start = self.range.start_ns.unwrap_or(0);
-        let blocks = self
+        if let Some(&c) = wanted.iter().find(|&&c| c >= CHANNELS.len()) {
+            return Err(fail(format!("no channel index {c}")));
+        }
+        let set = ImuColumnSet {
+            t_sensor: wanted.contains(&T_SENSOR),
+            gyro: wanted.iter().any(|c| (1..=3).contains(c)),
+            accel: wanted.iter().any(|c| (4..=6).contains(c)),
+            temp: wanted.contains(&TEMP),
+        };
+        let mut reader = self
             .session
-            .imu_blocks(&self.device, self.range, BLOCK_ROWS)
+            .imu_columns(&self.device, self.range, BLOCK_ROWS, set)
             .map_err(|e| fail(e.to_string()))?;
-        let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(BLOCK_ROWS); wanted.len()];
+        let mut block = ImuColumns::default();
+        let mut seconds: Vec<f64> = Vec::with_capacity(BLOCK_ROWS);
         let mut row = 0u64;
-        for block in blocks {
-            let block = block.map_err(|e| fail(format!("device `{}`: {e}", self.device)))?;
-            for (column, &c) in columns.iter_mut().zip(wanted) {
-                column.clear();
-                match c {
-                    0 => column.extend(block.t_mono_ns.iter().map(|&t| (t - start) as f64 * 1e-9)),
-                    1..=3 => column.extend(block.gyro.iter().map(|g| g[c - 1])),
-                    4..=6 => column.extend(block.accel.iter().map(|a| a[c - 4])),
-                    _ => column.extend_from_slice(&block.temp),
-                }
+        while let Some(result) = reader.next_into(&mut block) {
+            result.map_err(|e| fail(format!("device `{}`: {e}", self.device)))?;
+            if wanted.contains(&0) {
+                let first = self.first_ns;
+                seconds.clear();
+                seconds.extend(block.t_mono_ns.iter().map(|&t| (t - first) as f64 * 1e-9));
             }
-            let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+            let slices: Vec<&[f64]> = wanted
+                .iter()
+                .map(|&c| match c {
+                    0 => seconds.as_slice(),
+                    1..=3 => block.gyro[c - 1].as_slice(),
+                    4..=6 => block.accel[c - 4].as_slice(),
+                    TEMP => block.temp.as_slice(),
+                    _ => block.t_sensor.as_slice(),
+                })
+                .collect();
             visit(row, &slices)?;
             row += block.len() as u64;
         }
