@@ -3,9 +3,10 @@
 //! from the first sample in range), `gyro_x…z` (rad/s), `accel_x…z` (m/s²), `temp` (°C) and
 //! `t_sensor` (the device's own clock, as stored).
 
-use super::input::{BlockVisitor, InputError, RowVisitor, SampleSource};
+use super::input::{BlockVisitor, InputError, RowVisitor, SampleSource, SensorClock, Timing};
 use super::units::RateUnit;
 use crate::store::manifest::DeviceKind;
+use crate::store::Manifest;
 use crate::store::{ImuColumnSet, ImuColumns, Session, TimeRange};
 use std::path::{Path, PathBuf};
 
@@ -23,7 +24,50 @@ pub struct SessionSource {
     range: TimeRange,
     /// Time 0 of channel `t`: the start of the range, or the device's first `t_mono_ns`.
     first_ns: i64,
+    /// The device's own clock in `t_sensor`, when its protocol defines one and it was logged.
+    sensor_clock: Option<SensorClock>,
     channels: Vec<String>,
+}
+
+/// Xsens SampleTimeFine: a u32 of 1/10 000 s, stored as seconds (docs/protocols-imu-can.md).
+const XBUS_WRAP_S: f64 = 4_294_967_296.0 / 10_000.0;
+/// The simulator's default counter modulus (docs/simulator.md, `[imu.timing]`).
+const SIM_COUNTER_MODULO: i64 = 65_536;
+
+/// What `t_sensor` holds for `device`, by protocol (docs/session-format.md): the simulator's
+/// sample counter (wrapping at the scene's `counter_modulo`), Xsens' SampleTimeFine in
+/// seconds. Other protocols' sensor times (WitMotion's time of day at 1 ms resolution, CSV
+/// and CAN fields of user-defined meaning) are not used: `None`, the arrival times decide.
+fn sensor_clock(manifest: &Manifest, device: &str) -> Option<SensorClock> {
+    let info = manifest.device(device)?;
+    match info.protocol.as_str() {
+        "sim" => {
+            // The scene is the session's config: [[imu]] name = device, [imu.timing].
+            let modulo = manifest
+                .config
+                .get("imu")
+                .and_then(|v| v.as_array())
+                .and_then(|imus| {
+                    imus.iter()
+                        .find(|t| t.get("name").and_then(|n| n.as_str()) == Some(device))
+                })
+                .and_then(|t| t.get("timing"))
+                .and_then(|t| t.get("counter_modulo"))
+                .and_then(|m| m.as_integer())
+                .unwrap_or(SIM_COUNTER_MODULO);
+            Some(SensorClock {
+                unit_s: None,
+                wrap: (modulo > 0).then_some(modulo as f64),
+                name: "sensor sample counter (t_sensor)".into(),
+            })
+        }
+        "xbus" => Some(SensorClock {
+            unit_s: Some(1.0),
+            wrap: Some(XBUS_WRAP_S),
+            name: "sensor clock (t_sensor, Xsens SampleTimeFine)".into(),
+        }),
+        _ => None,
+    }
 }
 
 impl SessionSource {
@@ -60,11 +104,18 @@ impl SessionSource {
                 )))
             }
         };
-        let first = session
+        let (first, first_sensor) = session
             .imu_blocks(&device, TimeRange::all(), 1)
             .map_err(|e| fail(e.to_string()))?
-            .find_map(|b| b.ok().and_then(|b| b.t_mono_ns.first().copied()))
+            .find_map(|b| {
+                b.ok()
+                    .and_then(|b| Some((*b.t_mono_ns.first()?, *b.t_sensor.first()?)))
+            })
             .ok_or_else(|| fail(format!("device `{device}` has no readable IMU rows")))?;
+        let sensor_clock = first_sensor
+            .is_finite()
+            .then(|| sensor_clock(session.manifest(), &device))
+            .flatten();
         let to_ns = |s: f64| -> Result<i64, InputError> {
             if !(s.is_finite() && s >= 0.0) {
                 return Err(fail(format!(
@@ -82,6 +133,7 @@ impl SessionSource {
             device,
             range,
             first_ns: first,
+            sensor_clock,
             channels: CHANNELS.iter().map(|c| c.to_string()).collect(),
         })
     }
@@ -110,6 +162,23 @@ impl SampleSource for SessionSource {
             .session
             .stream_summary(&crate::store::layout::imu_path(&self.device));
         Some(summary.rows)
+    }
+
+    /// The sensor's own clock where the protocol defines one (gaps of a single sample are
+    /// found), otherwise the host arrival times.
+    fn native_timing(&self) -> Option<Timing> {
+        Some(match &self.sensor_clock {
+            Some(clock) => Timing::SensorTime {
+                channel: T_SENSOR,
+                clock: clock.clone(),
+                arrival: 0,
+                arrival_scale: 1.0,
+            },
+            None => Timing::ArrivalTimes {
+                channel: 0,
+                scale: 1.0,
+            },
+        })
     }
 
     fn channel_unit(&self, channel: usize) -> Option<RateUnit> {
