@@ -507,6 +507,15 @@ impl ColumnReader {
         let Some(size) = chunk_size(&self.ds, &offset[..self.rank])? else {
             return Ok(false);
         };
+        // A damaged index must not make us allocate whatever it says.
+        let largest = zlib_rs::compress_bound(chunk_bytes) + 1024;
+        if size > largest {
+            return Err(format!(
+                "{}: chunk at row {first} claims {size} stored bytes, more than any encoding of its {chunk_bytes} bytes",
+                self.ds.name()
+            )
+            .into());
+        }
         self.raw.resize(size, 0);
         let mask = read_chunk_raw(&self.ds, &offset[..self.rank], &mut self.raw)?;
         if mask != 0 {
