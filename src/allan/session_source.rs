@@ -1,5 +1,5 @@
 //! Session input: a [`SampleSource`] over one IMU device of an `imulab` session, streamed
-//! block by block through `imulab::store::Session::imu_blocks`. Channels are `t` (seconds
+//! block by block through `imulab::store::Session::imu_columns`. Channels are `t` (seconds
 //! from the first sample in range), `gyro_x…z` (rad/s), `accel_x…z` (m/s²), `temp` (°C) and
 //! `t_sensor` (the device's own clock, as stored).
 
