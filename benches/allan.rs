@@ -8,7 +8,12 @@
 //! `cargo bench --bench allan -- memory [DAYS] [session|npy]` (peak memory: writes DAYS
 //! (default 7) of 150 Hz data into /tmp as a session or a six-column .npy, runs
 //! `imulab allan` on three gyro axes and on one as child processes, reports their peak RSS
-//! against the one-axis size, and deletes the data).
+//! against the one-axis size, and deletes the data), or
+//! `cargo bench --bench allan -- session [FLUSH_S]` (the session read path alone: 6 h of the
+//! six simulated axes written as a session with FLUSH_S-second chunks (default 1) and the
+//! default 10-minute file rotation, kept in `target/allan-bench/session-FLUSH_Ss` for the next
+//! run; times reading six axes + time through `read_axes`, and the six-axis OADEV report with
+//! fit end to end).
 
 use clap::Parser;
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
@@ -164,6 +169,11 @@ fn main() {
         let days: f64 = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(7.0);
         let format = args.get(2).map_or("session", String::as_str);
         memory_benchmark(days, format);
+        return;
+    }
+    if args.first().map(String::as_str) == Some("session") {
+        let flush_s: u64 = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(1);
+        session_read_benchmark(flush_s.max(1));
         return;
     }
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/allan-bench");
@@ -529,14 +539,24 @@ fn bench_device() -> imulab::store::DeviceInfo {
 
 /// A session writer for the benchmark data (no fsync, no rotation within a week).
 fn bench_writer(path: &std::path::Path) -> imulab::store::SessionWriter {
-    use imulab::store::{Manifest, SessionWriter, WriterOptions};
-    let options = WriterOptions {
-        fsync_on_flush: false,
-        rotate_after: std::time::Duration::from_secs(86_400),
-        rotate_bytes: 8 << 30,
-        flush_interval: std::time::Duration::from_secs(60),
-        ..WriterOptions::default()
-    };
+    use imulab::store::WriterOptions;
+    bench_writer_with(
+        path,
+        WriterOptions {
+            fsync_on_flush: false,
+            rotate_after: std::time::Duration::from_secs(86_400),
+            rotate_bytes: 8 << 30,
+            flush_interval: std::time::Duration::from_secs(60),
+            ..WriterOptions::default()
+        },
+    )
+}
+
+fn bench_writer_with(
+    path: &std::path::Path,
+    options: imulab::store::WriterOptions,
+) -> imulab::store::SessionWriter {
+    use imulab::store::{Manifest, SessionWriter};
     SessionWriter::create(
         path,
         Manifest::new(vec![bench_device()], toml::Table::new()),
@@ -561,7 +581,10 @@ fn bench_record(row: usize, gyro: [f64; 3], accel: [f64; 3]) -> imulab::store::I
 
 /// Writes six axes (gyro x, y, z then accel x, y, z) as a session with one IMU `imu0`.
 fn write_axes_session(path: &std::path::Path, axes: &[Vec<f64>]) {
-    let mut writer = bench_writer(path);
+    write_axes_session_with(axes, bench_writer(path));
+}
+
+fn write_axes_session_with(axes: &[Vec<f64>], mut writer: imulab::store::SessionWriter) {
     let mut records = Vec::with_capacity(9_000);
     let rows = axes[0].len();
     for start in (0..rows).step_by(9_000) {
@@ -703,6 +726,95 @@ fn memory_benchmark(days: f64, format: &str) {
     }
     std::fs::remove_dir_all(&dir).expect("delete the benchmark data");
     println!("\ninput deleted");
+}
+
+/// The session read path: six axes + time of 6 h read through `read_axes` (what `imulab
+/// allan` does before analysing), then the six-axis OADEV report with fit end to end, on a
+/// session with `flush_s`-second chunks and the writer's default rotation (10 min files).
+fn session_read_benchmark(flush_s: u64) {
+    use imulab::allan::input::{read_axes, DataKind, GapPolicy, SampleSource, Timing};
+    use imulab::allan::session_source::SessionSource;
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/allan-bench");
+    std::fs::create_dir_all(&dir).expect("bench dir");
+    let axes = read_npy_axes(&dir.join("data.npy"))
+        .unwrap_or_else(|| (0..6).map(|a| simulate(100 + a)).collect());
+    let session = dir.join(format!("session-{flush_s}s"));
+    let complete = imulab::store::Session::open(&session).is_ok_and(|s| {
+        s.problems().is_empty() && s.stream_summary("imu/imu0").rows == SAMPLES as u64
+    });
+    if !complete {
+        let _ = std::fs::remove_dir_all(&session);
+        let t = Instant::now();
+        let options = imulab::store::WriterOptions {
+            fsync_on_flush: false,
+            flush_interval: std::time::Duration::from_secs(flush_s),
+            ..imulab::store::WriterOptions::default()
+        };
+        let writer = bench_writer_with(&session, options);
+        write_axes_session_with(&axes, writer);
+        println!(
+            "(wrote {} in {:.1} s)",
+            session.display(),
+            t.elapsed().as_secs_f64()
+        );
+    }
+    let files = std::fs::read_dir(&session).map_or(0, |d| d.count());
+    println!(
+        "# Session read benchmark: {SAMPLES} rows × 6 axes at {RATE_HZ} Hz, {flush_s} s chunks, {files} files in {}\n",
+        session.display()
+    );
+    let (read, series) = best_of_prepared(
+        3,
+        || (),
+        |()| {
+            let source = SessionSource::open(&session, None, None, None).expect("open session");
+            let wanted: Vec<usize> = [
+                "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z",
+            ]
+            .iter()
+            .map(|c| source.channel_index(c).expect("channel"))
+            .collect();
+            let t = source.channel_index("t").expect("time channel");
+            read_axes(
+                &source,
+                &wanted,
+                &Timing::ArrivalTimes {
+                    channel: t,
+                    scale: 1.0,
+                },
+                GapPolicy::Error,
+                DataKind::Rate,
+                None,
+            )
+            .expect("read six axes")
+        },
+    );
+    for (got, want) in series.iter().zip(&axes) {
+        assert_eq!(got.segments.len(), 1, "{}: one segment", got.name);
+        assert!(got.segments[0] == *want, "{}: values differ", got.name);
+    }
+    println!(
+        "Read six axes + time (read_axes, gap check included): {:.3} s, CPU {:.3} s, {:.1} M rows/s of CPU",
+        read.wall,
+        read.cpu,
+        SAMPLES as f64 / read.cpu / 1e6
+    );
+    drop(series);
+    let cli = AnalysisCli::parse_from(["bench", "--fit", "--kind", "oadev"]);
+    let (report, doc) = best_of_prepared(
+        3,
+        || (),
+        |()| {
+            analyse_inputs(std::slice::from_ref(&session), &cli.analysis)
+                .expect("analyse the session")
+        },
+    );
+    println!(
+        "Six-axis OADEV octave report with fit, from the session (reading included): {:.3} s, CPU {:.3} s ({} axes)",
+        report.wall,
+        report.cpu,
+        doc.axes.len()
+    );
 }
 
 /// What a straightforward f32 implementation does: cumulative f32 sum of the raw samples,

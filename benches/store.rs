@@ -7,14 +7,15 @@
 //!
 //! Run: `cargo bench --bench store` (full matrix), or `cargo bench --bench store -- --hours 1`.
 //! `--only 0,3` runs only those cases (numbered from 0 in table order); `--no-read` skips
-//! the reader table.
+//! the reader tables (whole rows of every stream from the first case; then the IMU rows of
+//! the first case and of the 10 s chunk case, as whole rows and as the analysis' columns).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use imulab::store::{
-    DeviceInfo, DeviceKind, GnssRecord, ImuRecord, Manifest, Session, SessionWriter, TimeRange,
-    WriterOptions,
+    DeviceInfo, DeviceKind, GnssRecord, ImuColumnSet, ImuColumns, ImuRecord, Manifest, Session,
+    SessionWriter, TimeRange, WriterOptions,
 };
 use imulab_drivers::types::FixType;
 use rand::SeedableRng;
@@ -203,6 +204,46 @@ fn read(dir: &Path, block_rows: usize) -> (u64, f64, f64) {
     (rows, cpu_seconds() - cpu0, wall0.elapsed().as_secs_f64())
 }
 
+/// Streams the IMU rows back only: all columns as rows (`imu_blocks`, HDF5's filter
+/// pipeline), or the numeric columns an analysis reads (`imu_columns`: t_mono, t_sensor,
+/// gyro, accel, temp; chunks decoded directly). Returns (rows, CPU s, wall s).
+fn read_imu(dir: &Path, block_rows: usize, columns: bool) -> (u64, f64, f64) {
+    let (cpu0, wall0) = (cpu_seconds(), Instant::now());
+    let s = Session::open(dir).expect("open");
+    let mut rows = 0u64;
+    let mut checksum = 0.0;
+    for name in ["imu0", "imu1"] {
+        if columns {
+            let set = ImuColumnSet {
+                t_sensor: true,
+                gyro: true,
+                accel: true,
+                temp: true,
+            };
+            let mut reader = s
+                .imu_columns(name, TimeRange::all(), block_rows, set)
+                .expect("imu");
+            let mut b = ImuColumns::default();
+            while let Some(r) = reader.next_into(&mut b) {
+                r.expect("block");
+                rows += b.len() as u64;
+                checksum += b.gyro[0].iter().sum::<f64>();
+            }
+        } else {
+            for b in s
+                .imu_blocks(name, TimeRange::all(), block_rows)
+                .expect("imu")
+            {
+                let b = b.expect("block");
+                rows += b.len() as u64;
+                checksum += b.gyro.iter().map(|g| g[0]).sum::<f64>();
+            }
+        }
+    }
+    std::hint::black_box(checksum);
+    (rows, cpu_seconds() - cpu0, wall0.elapsed().as_secs_f64())
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let hours: f64 = args
@@ -290,7 +331,7 @@ fn main() {
     println!("Session store benchmark: {hours} h × 150 Hz × 2 IMUs + 10 Hz GNSS, 150-row appends, fsync off unless said\n");
     println!("| case | rows | raw MB | disk MB | disk/raw | files | write CPU s | write wall s | Mrows/s (CPU) |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let mut first_dir = None;
+    let mut read_dirs = Vec::new();
     for (i, case) in cases.iter().enumerate() {
         if only.as_ref().is_some_and(|o| !o.contains(&i)) {
             continue;
@@ -309,27 +350,51 @@ fn main() {
             r.wall_s,
             r.rows as f64 / r.cpu_s / 1e6
         );
-        if first_dir.is_none() {
-            first_dir = Some(dir);
+        // The default case (1 s chunks) and the 10 s one are read back below.
+        if read_dirs.is_empty() || case.flush == 10 * s && case.deflate == 1 {
+            read_dirs.push((case.label, dir));
         } else {
             let _ = std::fs::remove_dir_all(&dir);
         }
     }
     let skip_read = args.iter().any(|a| a == "--no-read");
-    if let Some(dir) = first_dir.filter(|_| !skip_read) {
-        println!(
-            "\nReader, session of the first case above, all IMU and GNSS rows streamed back:\n"
-        );
-        println!("| block rows | rows | CPU s | wall s | Mrows/s (wall) |");
-        println!("|---:|---:|---:|---:|---:|");
-        for block_rows in [1024, 8192, 65536] {
-            let (rows, cpu, wall) = read(&dir, block_rows);
+    for (i, (label, dir)) in read_dirs.iter().enumerate() {
+        if skip_read {
+            break;
+        }
+        if i == 0 {
             println!(
-                "| {block_rows} | {rows} | {cpu:.2} | {wall:.2} | {:.2} |",
-                rows as f64 / wall / 1e6
+                "\nReader, session of the first case above, all IMU and GNSS rows streamed back:\n"
+            );
+            println!("| block rows | rows | CPU s | wall s | Mrows/s (wall) |");
+            println!("|---:|---:|---:|---:|---:|");
+            for block_rows in [1024, 8192, 65536] {
+                let (rows, cpu, wall) = read(dir, block_rows);
+                println!(
+                    "| {block_rows} | {rows} | {cpu:.2} | {wall:.2} | {:.2} |",
+                    rows as f64 / wall / 1e6
+                );
+            }
+            println!("\nReader, IMU rows only, blocks of 65536 rows:\n");
+            println!("| session | read | rows | CPU s | wall s | Mrows/s (CPU) |");
+            println!("|---|---|---:|---:|---:|---:|");
+        }
+        for (how, columns) in [
+            ("imu_blocks, all columns (HDF5 pipeline)", false),
+            (
+                "imu_columns: t_mono, t_sensor, gyro, accel, temp (direct chunks)",
+                true,
+            ),
+        ] {
+            let (rows, cpu, wall) = read_imu(dir, 65536, columns);
+            println!(
+                "| {label} | {how} | {rows} | {cpu:.2} | {wall:.2} | {:.2} |",
+                rows as f64 / cpu / 1e6
             );
         }
-        let _ = std::fs::remove_dir_all(&dir);
+    }
+    for (_, dir) in &read_dirs {
+        let _ = std::fs::remove_dir_all(dir);
     }
     let _ = std::fs::remove_dir_all(&root);
 }

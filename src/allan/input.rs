@@ -100,6 +100,13 @@ pub trait SampleSource {
         None
     }
 
+    /// How the source's own samples are timed when it knows (a session: its sensor clock
+    /// where the protocol defines one, else the host arrival times); `None` for plain files,
+    /// whose timing the user gives.
+    fn native_timing(&self) -> Option<Timing> {
+        None
+    }
+
     /// The physical unit of a channel when the source knows it (sessions do).
     fn channel_unit(&self, _channel: usize) -> Option<crate::allan::units::RateUnit> {
         None
@@ -642,6 +649,85 @@ pub enum Timing {
     /// `TimeChannel`. Frames of one read share an arrival time and the transport adds latency,
     /// so the intervals are judged on the sample clock [`ArrivalClock`] rebuilds from them.
     ArrivalTimes { channel: usize, scale: f64 },
+    /// The sensor's own clock in channel `channel` (a session's `t_sensor`): a time in known
+    /// units or a sample counter, unwrapped where it wraps (see [`SensorClock`]). The samples
+    /// it misses are counted exactly, even one at a time; `arrival` (host arrival times,
+    /// scaled to seconds by `arrival_scale`) gives τ0 for a counter.
+    SensorTime {
+        channel: usize,
+        clock: SensorClock,
+        arrival: usize,
+        arrival_scale: f64,
+    },
+}
+
+/// How to read a sensor's own clock channel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorClock {
+    /// Seconds per unit of the channel; `None` for a sample counter (one count per sample,
+    /// seconds = count × τ0 with τ0 from the arrival times).
+    pub unit_s: Option<f64>,
+    /// The channel wraps to 0 after this many units. `None` for a counter whose modulus is
+    /// not known: it is taken as the next power of two above the largest value seen.
+    pub wrap: Option<f64>,
+    /// What the report calls this clock, e.g. "sensor sample counter (t_sensor)".
+    pub name: String,
+}
+
+impl Timing {
+    /// What the report calls the clock that gaps are detected on.
+    pub fn clock_name(&self) -> String {
+        match self {
+            Timing::Rate(hz) => format!("fixed rate {hz} Hz (gaps not detectable)"),
+            Timing::TimeChannel { .. } => "time column".into(),
+            Timing::ArrivalTimes { .. } => {
+                "host arrival times (t_mono_ns; gaps under 50 ms not detectable)".into()
+            }
+            Timing::SensorTime { clock, .. } => clock.name.clone(),
+        }
+    }
+}
+
+/// Turns a wrapping sensor clock into a steadily increasing one, in seconds.
+struct Unwrapper {
+    unit_s: f64,
+    wrap: Option<f64>,
+    last: Option<f64>,
+    offset: f64,
+    largest: f64,
+}
+
+impl Unwrapper {
+    fn new(unit_s: f64, wrap: Option<f64>) -> Self {
+        Unwrapper {
+            unit_s,
+            wrap,
+            last: None,
+            offset: 0.0,
+            largest: 0.0,
+        }
+    }
+
+    /// Seconds of raw clock value `v`. A step back by more than half the modulus is a wrap;
+    /// a smaller one is left as it is (the gap check then reports a step back).
+    fn seconds(&mut self, v: f64) -> f64 {
+        if !v.is_finite() {
+            return v;
+        }
+        if let Some(prev) = self.last {
+            if v < prev {
+                let modulus = self
+                    .wrap
+                    .unwrap_or_else(|| (self.largest.max(1.0) + 1.0).log2().ceil().exp2());
+                if prev - v > modulus / 2.0 {
+                    self.offset += modulus;
+                }
+            }
+        }
+        self.largest = self.largest.max(v);
+        self.last = Some(v);
+        (v + self.offset) * self.unit_s
+    }
 }
 
 /// Whether samples are rates (frequency) or phase (integrated: clock time error).
@@ -659,6 +745,9 @@ pub enum DataKind {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Health {
     pub policy: Option<GapPolicy>,
+    /// The clock gaps were detected on (see [`Timing::clock_name`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock: Option<String>,
     pub samples: u64,
     pub duration_s: f64,
     /// Intervals longer than 1.5 τ0.
@@ -752,8 +841,29 @@ pub fn read_axes(
             arrival_interval(source, *channel, *scale)?,
             Some((*channel, *scale)),
         ),
+        Timing::SensorTime {
+            channel,
+            clock,
+            arrival,
+            arrival_scale,
+        } => match clock.unit_s {
+            Some(unit) => (
+                nominal_interval(source, *channel, unit)?,
+                Some((*channel, 1.0)),
+            ),
+            None => (
+                arrival_interval(source, *arrival, *arrival_scale)?,
+                Some((*channel, 1.0)),
+            ),
+        },
     };
     let mut clock = matches!(timing, Timing::ArrivalTimes { .. }).then(|| ArrivalClock::new(tau0));
+    let mut unwrapper = match timing {
+        Timing::SensorTime { clock, .. } => {
+            Some(Unwrapper::new(clock.unit_s.unwrap_or(tau0), clock.wrap))
+        }
+        _ => None,
+    };
     let mut wanted = axes.to_vec();
     let time_slot = time_channel.map(|(c, _)| {
         wanted.push(c);
@@ -771,6 +881,7 @@ pub fn read_axes(
         .iter()
         .map(|name| {
             let mut builder = SeriesBuilder::new(tau0, policy, name, source.describe());
+            builder.clock = timing.clock_name();
             // Ignoring a failed reservation is fine: the vector then grows as it goes.
             let _ = builder.current.try_reserve_exact(expected);
             (builder, temperature.map(|_| Vec::new()))
@@ -783,11 +894,12 @@ pub fn read_axes(
         let time = match (time_slot, time_channel) {
             (Some(slot), Some((_, scale))) => {
                 times.clear();
-                match clock.as_mut() {
-                    Some(clock) => {
+                match (clock.as_mut(), unwrapper.as_mut()) {
+                    (Some(clock), _) => {
                         times.extend(columns[slot].iter().map(|t| clock.sample_time(t * scale)))
                     }
-                    None => times.extend(columns[slot].iter().map(|t| t * scale)),
+                    (None, Some(u)) => times.extend(columns[slot].iter().map(|&t| u.seconds(t))),
+                    (None, None) => times.extend(columns[slot].iter().map(|t| t * scale)),
                 }
                 Some(times.as_slice())
             }
@@ -804,6 +916,7 @@ pub fn read_axes(
         .zip(names)
         .map(|((builder, temps), name)| {
             let (segments, mut health) = builder.finish()?;
+            health.clock = Some(timing.clock_name());
             if let Some(t) = &temps {
                 let finite = t.iter().filter(|v| v.is_finite());
                 health.temperature_min = finite.clone().copied().reduce(f32::min).map(f64::from);
@@ -960,6 +1073,8 @@ struct SeriesBuilder {
     /// Number of trailing invalid values waiting for the next valid one (fill policy).
     pending_invalid: usize,
     health: Health,
+    /// The clock the time stamps come from, for messages.
+    clock: String,
 }
 
 impl SeriesBuilder {
@@ -977,6 +1092,7 @@ impl SeriesBuilder {
                 policy: Some(policy),
                 ..Health::default()
             },
+            clock: String::new(),
         }
     }
 
@@ -1022,8 +1138,8 @@ impl SeriesBuilder {
                     self.health.gaps += 1;
                     self.health.missing_samples += missing;
                     self.problem(format!(
-                        "sample {row}: gap of {dt:.6} s at t = {t:.6} s ({missing} samples missing at τ0 = {:.6} s)",
-                        self.tau0
+                        "sample {row}: gap of {dt:.6} s at t = {t:.6} s ({missing} samples missing at τ0 = {:.6} s, found on the {})",
+                        self.tau0, self.clock
                     ))?;
                     match self.policy {
                         GapPolicy::Split => self.cut(),
@@ -1232,6 +1348,30 @@ mod tests {
         };
         let err = read_axis(&src, g, &exact, GapPolicy::Error, DataKind::Rate, None).unwrap_err();
         assert!(err.to_string().contains("time stamp"), "{err}");
+    }
+
+    #[test]
+    fn sensor_clock_unwraps_known_and_guessed_moduli() {
+        // Known modulus 1000, one count per 0.01 s; a small step back is not a wrap.
+        let mut u = Unwrapper::new(0.01, Some(1000.0));
+        let got: Vec<f64> = [998.0, 999.0, 1.0, 2.0, 1.0]
+            .iter()
+            .map(|&v| u.seconds(v))
+            .collect();
+        assert_eq!(got, [9.98, 9.99, 10.01, 10.02, 10.01]);
+        // Unknown modulus: the next power of two above the largest value seen (65 536).
+        let mut u = Unwrapper::new(1.0, None);
+        let got: Vec<f64> = [65_534.0, 65_535.0, 0.0, 3.0]
+            .iter()
+            .map(|&v| u.seconds(v))
+            .collect();
+        assert_eq!(got, [65_534.0, 65_535.0, 65_536.0, 65_539.0]);
+        // Seconds wrapping (Xsens SampleTimeFine), a sample lost across the wrap.
+        let wrap = 4_294_967_296.0 / 10_000.0;
+        let mut u = Unwrapper::new(1.0, Some(wrap));
+        let a = u.seconds(wrap - 0.01);
+        let b = u.seconds(0.0033);
+        assert!((b - a - 0.0133).abs() < 1e-9, "{}", b - a);
     }
 
     #[test]

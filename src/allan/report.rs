@@ -632,7 +632,7 @@ fn axes_health_html(axes: &[&AxisResult]) -> String {
 
 fn health_table_html(axes: &[&AxisResult]) -> String {
     let mut html = String::from(
-        "<table><thead><tr><th>device</th><th>axis</th><th>samples</th><th>duration</th><th>τ0</th><th>policy</th><th>gaps</th><th>missing</th><th>NaN/Inf</th><th>non-uniform</th><th>segments</th><th>temperature</th><th>first problem</th></tr></thead><tbody>",
+        "<table><thead><tr><th>device</th><th>axis</th><th>samples</th><th>duration</th><th>τ0</th><th>policy</th><th>gaps</th><th>gaps found on</th><th>missing</th><th>NaN/Inf</th><th>non-uniform</th><th>segments</th><th>temperature</th><th>first problem</th></tr></thead><tbody>",
     );
     for a in axes {
         let h = &a.health;
@@ -642,7 +642,7 @@ fn health_table_html(axes: &[&AxisResult]) -> String {
         };
         let _ = write!(
             html,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.1} s</td><td>{} s</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.1} s</td><td>{} s</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             escape(&a.device),
             escape(&a.axis),
             h.samples,
@@ -650,6 +650,7 @@ fn health_table_html(axes: &[&AxisResult]) -> String {
             sig3(a.tau0),
             h.policy.map(|p| format!("{p:?}").to_lowercase()).unwrap_or_default(),
             h.gaps,
+            escape(h.clock.as_deref().unwrap_or("–")),
             h.missing_samples,
             h.invalid_values,
             h.nonuniform_intervals,

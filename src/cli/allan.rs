@@ -154,13 +154,15 @@ pub fn summary_text(report: &AllanReport) -> String {
     for a in &report.axes {
         let _ = writeln!(
             out,
-            "{} {} ({}; {} samples, tau0 {} s, gaps policy {:?}):",
+            "{} {} ({}; {} samples, tau0 {} s, gaps policy {:?}, {} gap(s) found on the {}):",
             a.device,
             a.axis,
             a.curve.kind.name(),
             a.health.samples,
             a.tau0,
-            a.health.policy.unwrap_or_default()
+            a.health.policy.unwrap_or_default(),
+            a.health.gaps,
+            a.health.clock.as_deref().unwrap_or("time stamps")
         );
         let _ = writeln!(
             out,
@@ -372,10 +374,13 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             .map(|c| source.channel_index(c))
             .transpose()?;
         let timing = match (time_channel, args.rate) {
-            (Some(channel), None) if is_session => Timing::ArrivalTimes {
-                channel,
-                scale: 1.0,
-            },
+            // The sensor's own clock where the session has one, else the arrival times.
+            (Some(channel), None) if is_session => {
+                source.native_timing().unwrap_or(Timing::ArrivalTimes {
+                    channel,
+                    scale: 1.0,
+                })
+            }
             (Some(channel), None) => Timing::TimeChannel {
                 channel,
                 scale: time_scale(&args.time_unit)?,

@@ -19,6 +19,8 @@
 //! Only whole chunks of plain little-endian numbers go this way; a partial chunk (a stalled
 //! device, the last rows before close) and string columns still go through HDF5's pipeline.
 
+use std::ops::Range;
+
 use hdf5::{Dataset, H5Type};
 
 /// A value stored as its little-endian bytes; `ELEM` is the HDF5 element size the shuffle
@@ -333,6 +335,352 @@ fn write_chunk_raw(ds: &Dataset, offset: &[u64], bytes: &[u8]) -> hdf5::Result<(
     Ok(())
 }
 
+// --- Reading ------------------------------------------------------------------------------
+//
+// The read side mirrors the writer: a [`ColumnReader`] fetches a stored chunk with
+// `H5Dread_chunk`, inflates it with one reused `zlib_rs` stream and undoes the shuffle here,
+// instead of HDF5's filter pipeline (system zlib, a fresh inflate state, a hyperslab
+// selection and a type conversion per chunk and read). Measured in docs/bench/store.md.
+// Anything it does not understand (other filters, a filter skipped for a chunk, a chunk not
+// allocated, elements other than 8-byte numbers) goes through HDF5's ordinary read for
+// that chunk, so the result never depends on which path was taken.
+
+/// How a dataset's chunks are stored, when the direct path can decode them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum StoredAs {
+    /// No filters: a chunk is the little-endian bytes of its rows.
+    Plain,
+    /// Shuffle (by element size) then deflate, the pipeline `create_column` declares.
+    ShuffleDeflate,
+}
+
+/// Reads whole rows of one numeric dataset of 8-byte elements (`i64` or `f64`, 1-D or N×W)
+/// chunk by chunk, keeping the last decoded chunk so that consecutive reads that split a
+/// chunk decode it once. Values come out as their 64 bits; see [`ColumnReader::read_f64`]
+/// and [`ColumnReader::read_i64`].
+pub(crate) struct ColumnReader {
+    ds: Dataset,
+    /// Values per row: 1 for a 1-D dataset, W for N×W.
+    width: usize,
+    rank: usize,
+    /// f64 elements (else i64).
+    float: bool,
+    rows: usize,
+    chunk_rows: usize,
+    stored: Option<StoredAs>,
+    inflate: Option<zlib_rs::Inflate>,
+    raw: Vec<u8>,
+    inflated: Vec<u8>,
+    /// The decoded chunk, one u64 per value (row-major), and its chunk index.
+    words: Vec<u64>,
+    cached: Option<usize>,
+}
+
+impl ColumnReader {
+    /// `rows`: how many rows of the dataset are valid (the caller's table length). `direct`:
+    /// whether chunks may be read directly; only for a file no writer changes any more (a
+    /// live file may rewrite a partial chunk between the size query and the read).
+    pub fn new(ds: Dataset, rows: usize, direct: bool) -> hdf5::Result<Self> {
+        let shape = ds.shape();
+        let rank = shape.len();
+        let width = match shape.as_slice() {
+            [_] => 1,
+            [_, w] if *w > 0 => *w,
+            other => return Err(format!("{}: unsupported shape {other:?}", ds.name()).into()),
+        };
+        let float = match ds.dtype()?.to_descriptor()? {
+            hdf5::types::TypeDescriptor::Float(hdf5::types::FloatSize::U8) => true,
+            hdf5::types::TypeDescriptor::Integer(hdf5::types::IntSize::U8) => false,
+            other => return Err(format!("{}: elements are {other}, not i64/f64", ds.name()).into()),
+        };
+        let chunk = ds.chunk();
+        let chunk_rows = chunk.as_ref().and_then(|c| c.first().copied()).unwrap_or(0);
+        // Only chunks that span whole rows are decoded here (what the writer creates).
+        let whole_rows = chunk
+            .as_ref()
+            .is_some_and(|c| c.len() == rank && (rank == 1 || c[1] == width));
+        let filters = ds.filters();
+        let stored = match filters.as_slice() {
+            _ if !direct || !whole_rows || chunk_rows == 0 => None,
+            [] => Some(StoredAs::Plain),
+            [hdf5::filters::Filter::Shuffle, hdf5::filters::Filter::Deflate(_)] => {
+                Some(StoredAs::ShuffleDeflate)
+            }
+            _ => None,
+        };
+        Ok(ColumnReader {
+            width,
+            rank,
+            float,
+            rows: rows.min(shape.first().copied().unwrap_or(0)),
+            chunk_rows: chunk_rows.max(1),
+            inflate: (stored == Some(StoredAs::ShuffleDeflate))
+                .then(|| zlib_rs::Inflate::new(true, 15)),
+            stored,
+            ds,
+            raw: Vec::new(),
+            inflated: Vec::new(),
+            words: Vec::new(),
+            cached: None,
+        })
+    }
+
+    /// Appends rows `r` as f64: component `k` of each row to `out[k]` (`out.len()` must be
+    /// the dataset's width).
+    pub fn read_f64(&mut self, r: Range<usize>, out: &mut [&mut Vec<f64>]) -> hdf5::Result<()> {
+        self.read_with(r, out, f64::from_bits)
+    }
+
+    /// Appends rows `r` of a 1-D i64 column to `out`.
+    pub fn read_i64(&mut self, r: Range<usize>, out: &mut Vec<i64>) -> hdf5::Result<()> {
+        self.read_with(r, &mut [out], |w| w as i64)
+    }
+
+    fn read_with<T: Copy>(
+        &mut self,
+        r: Range<usize>,
+        out: &mut [&mut Vec<T>],
+        convert: impl Fn(u64) -> T + Copy,
+    ) -> hdf5::Result<()> {
+        if out.len() != self.width {
+            return Err(format!(
+                "{}: {} output columns for a width of {}",
+                self.ds.name(),
+                out.len(),
+                self.width
+            )
+            .into());
+        }
+        if r.end > self.rows {
+            return Err(format!(
+                "{}: rows {}..{} past the {} valid rows",
+                self.ds.name(),
+                r.start,
+                r.end,
+                self.rows
+            )
+            .into());
+        }
+        for o in out.iter_mut() {
+            o.reserve(r.len());
+        }
+        let c = self.chunk_rows;
+        let mut row = r.start;
+        while row < r.end {
+            let k = row / c;
+            self.load(k)?;
+            let first = k * c;
+            let (lo, hi) = (row - first, (r.end - first).min(c));
+            let w = self.width;
+            let words = &self.words[lo * w..hi * w];
+            for (axis, o) in out.iter_mut().enumerate() {
+                o.extend(words.iter().skip(axis).step_by(w).map(|&v| convert(v)));
+            }
+            row = first + hi;
+        }
+        Ok(())
+    }
+
+    /// Decodes chunk `k` into `words` (rows past the dataset's valid rows are left out).
+    fn load(&mut self, k: usize) -> hdf5::Result<()> {
+        if self.cached == Some(k) {
+            return Ok(());
+        }
+        self.cached = None;
+        let first = k * self.chunk_rows;
+        let rows_here = self.chunk_rows.min(self.rows.saturating_sub(first));
+        let values = rows_here * self.width;
+        if !self.load_direct(first, values)? {
+            self.load_through_hdf5(first, rows_here)?;
+        }
+        self.cached = Some(k);
+        Ok(())
+    }
+
+    /// The direct path; `Ok(false)` when this chunk must go through HDF5 instead.
+    fn load_direct(&mut self, first: usize, values: usize) -> hdf5::Result<bool> {
+        let Some(stored) = self.stored else {
+            return Ok(false);
+        };
+        let chunk_bytes = self.chunk_rows * self.width * 8;
+        let offset = [first as u64, 0];
+        let Some(size) = chunk_size(&self.ds, &offset[..self.rank])? else {
+            return Ok(false);
+        };
+        // A damaged index must not make us allocate whatever it says.
+        let largest = zlib_rs::compress_bound(chunk_bytes) + 1024;
+        if size > largest {
+            return Err(format!(
+                "{}: chunk at row {first} claims {size} stored bytes, more than any encoding of its {chunk_bytes} bytes",
+                self.ds.name()
+            )
+            .into());
+        }
+        self.raw.resize(size, 0);
+        let mask = read_chunk_raw(&self.ds, &offset[..self.rank], &mut self.raw)?;
+        if mask != 0 {
+            // A filter was skipped for this chunk: let the pipeline sort it out.
+            return Ok(false);
+        }
+        let plain: &[u8] = match stored {
+            StoredAs::Plain => &self.raw,
+            StoredAs::ShuffleDeflate => {
+                let inflate = self
+                    .inflate
+                    .as_mut()
+                    .ok_or_else(|| hdf5::Error::from("no inflate stream"))?;
+                self.inflated.resize(chunk_bytes, 0);
+                inflate.reset(true);
+                let status = inflate
+                    .decompress(&self.raw, &mut self.inflated, zlib_rs::InflateFlush::Finish)
+                    .map_err(|e| {
+                        hdf5::Error::from(format!(
+                            "{}: chunk at row {first}: inflate: {e:?}",
+                            self.ds.name()
+                        ))
+                    })?;
+                if status != zlib_rs::Status::StreamEnd || inflate.total_out() != chunk_bytes as u64
+                {
+                    return Err(format!(
+                        "{}: chunk at row {first}: inflated to {} bytes, expected {chunk_bytes}",
+                        self.ds.name(),
+                        inflate.total_out()
+                    )
+                    .into());
+                }
+                &self.inflated
+            }
+        };
+        if plain.len() != chunk_bytes {
+            return Err(format!(
+                "{}: chunk at row {first} holds {} bytes, expected {chunk_bytes}",
+                self.ds.name(),
+                plain.len()
+            )
+            .into());
+        }
+        match stored {
+            StoredAs::Plain => words_from_le(plain, values, &mut self.words),
+            StoredAs::ShuffleDeflate => unshuffle_words(plain, values, &mut self.words),
+        }
+        Ok(true)
+    }
+
+    /// HDF5's own read of the chunk's rows (its filter pipeline and fill values), read in the
+    /// dataset's own type and kept as bits.
+    fn load_through_hdf5(&mut self, first: usize, rows: usize) -> hdf5::Result<()> {
+        fn get<T: H5Type + Copy>(
+            ds: &Dataset,
+            rank: usize,
+            r: Range<usize>,
+            bits: impl Fn(T) -> u64,
+            out: &mut Vec<u64>,
+        ) -> hdf5::Result<()> {
+            if rank == 1 {
+                out.extend(ds.read_slice_1d::<T, _>(r)?.iter().map(|&v| bits(v)));
+            } else {
+                out.extend(ds.read_slice_2d::<T, _>((r, ..))?.iter().map(|&v| bits(v)));
+            }
+            Ok(())
+        }
+        self.words.clear();
+        let r = first..first + rows;
+        if self.float {
+            get::<f64>(&self.ds, self.rank, r, f64::to_bits, &mut self.words)
+        } else {
+            get::<i64>(&self.ds, self.rank, r, |v| v as u64, &mut self.words)
+        }
+    }
+}
+
+/// `values` little-endian 8-byte words from the start of `plain`.
+fn words_from_le(plain: &[u8], values: usize, out: &mut Vec<u64>) {
+    out.clear();
+    out.extend(
+        plain[..values * 8]
+            .chunks_exact(8)
+            .map(|b| u64::from_le_bytes(b.try_into().unwrap_or([0; 8]))),
+    );
+}
+
+/// Undoes HDF5's shuffle of 8-byte elements (byte `b` of element `i` at `b * n + i`, `n`
+/// elements in the chunk) for the first `values` elements. One byte plane at a time, so every
+/// pass is a sequential read and a sequential read-modify-write the compiler vectorises.
+fn unshuffle_words(shuffled: &[u8], values: usize, out: &mut Vec<u64>) {
+    let n = shuffled.len() / 8;
+    out.clear();
+    out.resize(values.min(n), 0);
+    for b in 0..8 {
+        let plane = &shuffled[b * n..b * n + out.len()];
+        for (o, &byte) in out.iter_mut().zip(plane) {
+            *o |= u64::from(byte) << (8 * b);
+        }
+    }
+}
+
+// Declared here because hdf5-metno-sys does not bind it; part of the HDF5 C API since 1.10.2.
+// (`H5Dget_chunk_info_by_coord`, which it does bind, walks the whole chunk index on every
+// call in 1.10.8: measured, 62 % of a session read.)
+unsafe extern "C" {
+    fn H5Dget_chunk_storage_size(
+        dset_id: hdf5_sys::h5i::hid_t,
+        offset: *const hdf5_sys::h5::hsize_t,
+        chunk_bytes: *mut hdf5_sys::h5::hsize_t,
+    ) -> hdf5_sys::h5::herr_t;
+}
+
+/// Stored size of the chunk at `offset`, or `None` when it is not allocated.
+fn chunk_size(ds: &Dataset, offset: &[u64]) -> hdf5::Result<Option<usize>> {
+    let id = ds.id();
+    let mut size: hdf5_sys::h5::hsize_t = 0;
+    let rc = hdf5::sync::sync(|| {
+        // SAFETY: `id` is a live dataset handle owned by `ds`; `offset` has one entry per
+        // dataset dimension (the caller passes the dataset's rank); `size` is a live local.
+        // The global HDF5 lock is held.
+        unsafe { H5Dget_chunk_storage_size(id, offset.as_ptr(), &mut size) }
+    });
+    if rc < 0 {
+        return Err(format!("{}: no chunk information at {offset:?}", ds.name()).into());
+    }
+    if size == 0 {
+        return Ok(None);
+    }
+    usize::try_from(size)
+        .map(Some)
+        .map_err(|_| hdf5::Error::from(format!("{}: chunk of {size} bytes", ds.name())))
+}
+
+/// `H5Dread_chunk`: the stored bytes of the chunk at `offset` into `buf`, whose length must
+/// be the chunk's stored size (from [`chunk_size`]); returns the chunk's filter mask.
+fn read_chunk_raw(ds: &Dataset, offset: &[u64], buf: &mut [u8]) -> hdf5::Result<u32> {
+    let id = ds.id();
+    let mut mask: u32 = 0;
+    let rc = hdf5::sync::sync(|| {
+        // SAFETY: `id` is a live dataset handle; `offset` has one entry per dimension;
+        // `buf` is exactly the chunk's stored size, which is all HDF5 writes into it (the
+        // size was read under the same lock-step use of this handle, and chunk files the
+        // reader sees are not rewritten: completed files never, a live file only appends).
+        unsafe {
+            hdf5_sys::h5d::H5Dread_chunk(
+                id,
+                hdf5_sys::h5p::H5P_DEFAULT,
+                offset.as_ptr(),
+                &mut mask,
+                buf.as_mut_ptr().cast(),
+            )
+        }
+    });
+    if rc < 0 {
+        return Err(format!(
+            "{}: H5Dread_chunk at {offset:?} ({} bytes) failed",
+            ds.name(),
+            buf.len()
+        )
+        .into());
+    }
+    Ok(mask)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -394,6 +742,104 @@ mod tests {
         // 20-row chunks take the small-chunk encoder, 200-row ones zlib-rs.
         direct_vs_pipeline(40, 20);
         direct_vs_pipeline(400, 200);
+    }
+
+    /// The direct chunk reader gives exactly what HDF5's own read gives: 1-D i64 and N×3
+    /// f64, with and without filters, chunks written directly and through the pipeline, a
+    /// partial last chunk, fewer valid rows than stored, and reads that split chunks.
+    #[test]
+    fn column_reader_matches_hdf5_reads() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let file = hdf5::File::create(dir.path().join("r.h5")).expect("create");
+        let rows = 1037usize;
+        let chunk = 100usize;
+        let times: Vec<i64> = (0..rows as i64)
+            .map(|i| 1_000_000 + 6_666_667 * i - (i % 7) * 13)
+            .collect();
+        let noise: Vec<[f64; 3]> = (0..rows)
+            .map(|i| {
+                let x = (i as f64 * 0.37).sin() * 1e-3;
+                [x, -x * 2.0 + 1e-9 * i as f64, 9.81 + x]
+            })
+            .collect();
+        for level in [0u8, 1, 6] {
+            let mut t = file.new_dataset::<i64>();
+            if level > 0 {
+                t = t.shuffle().deflate(level);
+            }
+            let t = t
+                .chunk(chunk)
+                .shape(0..)
+                .create(format!("t{level}").as_str())
+                .expect("1-D");
+            let mut b = file.new_dataset::<f64>();
+            if level > 0 {
+                b = b.shuffle().deflate(level);
+            }
+            let g = b
+                .chunk((chunk, 3))
+                .shape(hdf5::SimpleExtents::new([
+                    hdf5::Extent::resizable(0),
+                    hdf5::Extent::fixed(3),
+                ]))
+                .create(format!("g{level}").as_str())
+                .expect("2-D");
+            t.resize(rows).expect("resize");
+            g.resize((rows, 3)).expect("resize");
+            let mut enc = ChunkEncoder::new(level);
+            // A partial head through the pipeline, then whole chunks directly, then a tail.
+            put_rows(&t, &mut enc, chunk, 0, &times[..30]).expect("t head");
+            put_rows(&t, &mut enc, chunk, 30, &times[30..]).expect("t rest");
+            put_rows(&g, &mut enc, chunk, 0, &noise[..250]).expect("g head");
+            put_rows(&g, &mut enc, chunk, 250, &noise[250..]).expect("g rest");
+            for valid in [rows, 1000, 999] {
+                let mut tr = ColumnReader::new(t.clone(), valid, true).expect("t reader");
+                let mut gr = ColumnReader::new(g.clone(), valid, true).expect("g reader");
+                let mut got_t = Vec::new();
+                let mut got_g = [Vec::new(), Vec::new(), Vec::new()];
+                // Blocks of 73 rows: most of them split a chunk.
+                let mut start = 0;
+                while start < valid {
+                    let end = (start + 73).min(valid);
+                    tr.read_i64(start..end, &mut got_t).expect("read t");
+                    let [x, y, z] = &mut got_g;
+                    gr.read_f64(start..end, &mut [x, y, z]).expect("read g");
+                    start = end;
+                }
+                assert_eq!(got_t, times[..valid], "level {level}, {valid} rows");
+                for (axis, column) in got_g.iter().enumerate() {
+                    let want: Vec<f64> = noise[..valid].iter().map(|r| r[axis]).collect();
+                    assert_eq!(*column, want, "level {level}, axis {axis}, {valid} rows");
+                }
+                assert!(tr.read_i64(0..valid + 1, &mut got_t).is_err());
+            }
+            // The direct path was taken where it could be (a filtered dataset, whole chunks).
+            let mut gr = ColumnReader::new(g.clone(), rows, true).expect("g reader");
+            assert!(gr.stored.is_some(), "level {level}");
+            let mut x = Vec::new();
+            let (mut y, mut z) = (Vec::new(), Vec::new());
+            gr.read_f64(0..1, &mut [&mut x, &mut y, &mut z])
+                .expect("read");
+            assert!(gr.read_f64(0..1, &mut [&mut x]).is_err(), "wrong width");
+        }
+    }
+
+    #[test]
+    fn unshuffle_inverts_shuffle() {
+        let values: Vec<u64> = (0..37u64)
+            .map(|i| i.wrapping_mul(0x9E37_79B9_7F4A_7C15))
+            .collect();
+        let mut plain = Vec::new();
+        for v in &values {
+            v.put_le(&mut plain);
+        }
+        let mut shuffled = Vec::new();
+        shuffle(&plain, 8, &mut shuffled);
+        let mut back = Vec::new();
+        unshuffle_words(&shuffled, values.len(), &mut back);
+        assert_eq!(back, values);
+        unshuffle_words(&shuffled, 5, &mut back);
+        assert_eq!(back, values[..5]);
     }
 
     fn direct_vs_pipeline(rows: i64, chunk: usize) {

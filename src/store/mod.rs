@@ -21,8 +21,8 @@ pub mod writer;
 pub use error::StoreError;
 pub use manifest::{DeviceInfo, DeviceKind, Manifest};
 pub use reader::{
-    fix_type_from_code, ChunkFileInfo, GnssBlock, ImuBlock, RawBlock, Session, StreamSummary,
-    TimeRange, TruthImuBlock, TruthNavBlock,
+    fix_type_from_code, ChunkFileInfo, GnssBlock, ImuBlock, ImuColumnReader, ImuColumnSet,
+    ImuColumns, RawBlock, Session, StreamSummary, TimeRange, TruthImuBlock, TruthNavBlock,
 };
 pub use records::{EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 pub use recover::{recover, RecoverReport};

@@ -243,3 +243,165 @@ fn one_reading_pass_for_all_axes_equals_one_pass_per_axis() {
     );
     assert_eq!(one_pass.axes.len(), 6);
 }
+
+/// A simulated 150 Hz IMU whose frames reach the host in batches of 5 with 0-20 ms of
+/// latency, its sample counter (`t_sensor`) wrapping at 1000, with sample 3999 (counter 999,
+/// just before a wrap) lost on the link. Returns the gyro x values written.
+fn write_counter_session(dir: &Path, with_counter: bool) -> Vec<f64> {
+    let device = DeviceInfo {
+        name: "imu0".into(),
+        kind: DeviceKind::Imu,
+        model: "simulated".into(),
+        serial: String::new(),
+        port: "sim".into(),
+        protocol: "sim".into(),
+        rate_hz: 150.0,
+        axis_frame: "FRD".into(),
+        extra: Default::default(),
+    };
+    let config: toml::Table = toml::from_str(
+        "[[imu]]\nname = \"imu0\"\n[imu.timing]\ncounter_modulo = 1000\ndrop_probability = 0.0\n",
+    )
+    .unwrap();
+    let options = WriterOptions {
+        fsync_on_flush: false,
+        ..WriterOptions::default()
+    };
+    let mut writer =
+        SessionWriter::create(dir, Manifest::new(vec![device], config), options).unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(21);
+    let mut n = || -> f64 { StandardNormal.sample(&mut rng) };
+    let period = 1e9 / 150.0;
+    let mut last_arrival = 0i64;
+    let mut records = Vec::new();
+    for k in 0..9000usize {
+        let latency = 20e6 * ((k / 5 * 7919) % 100) as f64 / 100.0;
+        let arrival = (5e9 + (k / 5 * 5 + 4) as f64 * period + latency) as i64;
+        last_arrival = last_arrival.max(arrival);
+        let record = ImuRecord {
+            t_mono_ns: last_arrival,
+            t_wall_ns: 1_700_000_000_000_000_000 + last_arrival,
+            t_sensor: if with_counter {
+                (k % 1000) as f64
+            } else {
+                f64::NAN
+            },
+            gyro: [1e-3 * n(), 1e-3 * n(), 1e-3 * n()],
+            accel: [0.01 * n(), 0.01 * n(), -9.80665 + 0.01 * n()],
+            temp: 25.0,
+            status: 0,
+        };
+        if k != 3999 {
+            records.push(record);
+        }
+    }
+    for chunk in records.chunks(75) {
+        writer.append_imu("imu0", chunk).unwrap();
+    }
+    writer.close().unwrap();
+    records.iter().map(|r| r.gyro[0]).collect()
+}
+
+#[test]
+fn one_dropped_sample_is_found_on_the_sensor_counter() {
+    let dir = tempfile::tempdir().unwrap();
+    let session_dir = dir.path().join("dropped");
+    let gyro_x = write_counter_session(&session_dir, true);
+    let source = SessionSource::open(&session_dir, None, None, None).unwrap();
+    let timing = source.native_timing().unwrap();
+    assert!(
+        matches!(timing, Timing::SensorTime { .. }),
+        "a sim session has a sample counter: {timing:?}"
+    );
+    let x = source.channel_index("gyro_x").unwrap();
+    let read = |policy| read_axis(&source, x, &timing, policy, DataKind::Rate, None);
+
+    // Refused by default, naming the clock and the one missing sample.
+    let err = read(GapPolicy::Error).unwrap_err().to_string();
+    assert!(
+        err.contains("sample 3999: gap of") && err.contains("(1 samples missing"),
+        "{err}"
+    );
+    assert!(err.contains("sensor sample counter"), "{err}");
+
+    let split = read(GapPolicy::Split).unwrap();
+    assert!((split.tau0 * 150.0 - 1.0).abs() < 1e-3, "τ0 {}", split.tau0);
+    assert_eq!(split.health.gaps, 1, "{:?}", split.health);
+    assert_eq!(split.health.missing_samples, 1);
+    assert_eq!(split.health.nonuniform_intervals, 0, "{:?}", split.health);
+    assert_eq!(
+        split.health.clock.as_deref(),
+        Some("sensor sample counter (t_sensor)")
+    );
+    assert_eq!(
+        split.segments,
+        vec![gyro_x[..3999].to_vec(), gyro_x[3999..].to_vec()]
+    );
+
+    let fill = read(GapPolicy::Fill).unwrap();
+    assert_eq!(fill.segments.len(), 1);
+    assert_eq!(fill.segments[0].len(), 9000);
+    assert_eq!(
+        fill.segments[0][3999],
+        gyro_x[3998] + 0.5 * (gyro_x[3999] - gyro_x[3998])
+    );
+
+    let ignore = read(GapPolicy::Ignore).unwrap();
+    assert_eq!(ignore.segments, vec![gyro_x.clone()]);
+    assert_eq!(ignore.health.missing_samples, 1);
+
+    // The host arrival times alone cannot see it (the loss is under the batching latency).
+    let arrival = Timing::ArrivalTimes {
+        channel: source.channel_index("t").unwrap(),
+        scale: 1.0,
+    };
+    let blind = read_axis(&source, x, &arrival, GapPolicy::Error, DataKind::Rate, None).unwrap();
+    assert_eq!(blind.health.gaps, 0);
+
+    // Through the command: refused by default, and the report says which clock found it.
+    let exe = env!("CARGO_BIN_EXE_imulab");
+    let refused = std::process::Command::new(exe)
+        .args(["allan", session_dir.to_str().unwrap(), "--sensor", "gyro"])
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("1 samples missing"), "{stderr}");
+    let ok = std::process::Command::new(exe)
+        .args(["allan", session_dir.to_str().unwrap(), "--gaps", "split"])
+        .args(["--sensor", "gyro", "--axes", "x"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&ok.stdout);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    assert!(
+        stdout.contains("1 gap(s) found on the sensor sample counter (t_sensor)"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn without_a_sensor_clock_the_arrival_times_decide() {
+    let dir = tempfile::tempdir().unwrap();
+    let session_dir = dir.path().join("nocounter");
+    write_counter_session(&session_dir, false);
+    let source = SessionSource::open(&session_dir, None, None, None).unwrap();
+    let timing = source.native_timing().unwrap();
+    assert!(matches!(timing, Timing::ArrivalTimes { .. }), "{timing:?}");
+    let x = source.channel_index("gyro_x").unwrap();
+    let s = read_axis(&source, x, &timing, GapPolicy::Error, DataKind::Rate, None).unwrap();
+    assert_eq!(s.health.gaps, 0);
+    assert!(
+        s.health
+            .clock
+            .as_deref()
+            .unwrap_or("")
+            .starts_with("host arrival times"),
+        "{:?}",
+        s.health.clock
+    );
+}
