@@ -62,9 +62,12 @@ async fn sighup_rotates_and_sigterm_stops_cleanly_within_two_seconds() {
     let after_hup = sink.snapshot();
     assert_eq!(after_hup.rotations, 1, "SIGHUP rotates at once");
     assert!(!after_hup.closed);
-    assert_eq!(
-        after_hup.flushes, 0,
-        "the 5 s flush interval has not come yet"
+    // The store is looked at on the hand-over grid (250 ms apart with a 5 s flush
+    // interval; it writes rows only once they are old enough), not on every batch.
+    assert!(
+        (1..=4).contains(&after_hup.flushes),
+        "{} flushes in 600 ms on a 250 ms grid",
+        after_hup.flushes
     );
 
     let t = Instant::now();

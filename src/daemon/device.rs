@@ -4,11 +4,13 @@
 //! reconnect continue in the same session. The task never touches the disk: it hands
 //! batches to the writer queue, which drops and counts rather than block.
 //!
-//! Every frame keeps its own arrival time, but reads are handed to the writer in batches
-//! collected over a short window ([`batch_window`]): one queue hand-over, and one writer
-//! wake-up, per batch rather than per frame; at high rates it also keeps the number of
-//! queued batches, and with it the time the bounded queue can bridge, independent of the
-//! rate (one batch per read held ~0.35 s at 100×, see docs/bench/daemon.md).
+//! Every frame keeps its own arrival time, but reads are handed to the writer in batches,
+//! at the points of a grid shared with the writer and the other devices
+//! ([`super::cadence`], period [`batch_window`]): one queue hand-over per device and
+//! period rather than per frame, and one writer wake-up per period for all devices; at
+//! high rates the batch size limits also keep the number of queued batches, and with it the
+//! time the bounded queue can bridge, independent of the rate (one batch per read held
+//! ~0.35 s at 100×, see docs/bench/daemon.md).
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -21,6 +23,7 @@ use tokio::sync::{mpsc, watch};
 use crate::store::{EventKind, EventRecord};
 
 use super::backoff::Backoff;
+use super::cadence::Cadence;
 use super::clock::{self, Arrival};
 use super::config::DeviceSpec;
 use super::gap::{Gap, GapDetector};
@@ -32,17 +35,20 @@ use super::writer::{Batch, QueueSender};
 
 /// Size of one read; at 15 kHz × ~40 bytes a read rarely holds more than a few ms of data.
 const READ_BUFFER_BYTES: usize = 16 * 1024;
-/// Longest time a batch collects reads before it goes to the writer (see [`batch_window`]).
-pub const BATCH_WINDOW_MAX: Duration = Duration::from_millis(50);
+/// Longest hand-over period: how long a batch collects reads at most before it goes to the
+/// writer (see [`batch_window`]).
+pub const BATCH_WINDOW_MAX: Duration = Duration::from_millis(250);
 /// A batch goes to the writer early once it holds this many rows...
 const BATCH_MAX_ROWS: u64 = 1024;
 /// ...or this many raw journal bytes (so the queue's memory stays bounded at any rate).
 const BATCH_MAX_RAW_BYTES: usize = 64 * 1024;
 
-/// The batching window for a flush interval: [`BATCH_WINDOW_MAX`], or a tenth of the flush
-/// interval when that is shorter, so batching adds little to what a SIGKILL can lose.
+/// The hand-over period for a flush interval: [`BATCH_WINDOW_MAX`], or a quarter of the
+/// flush interval when that is shorter. The store gets the rest of the interval
+/// ([`super::run::writer_flush_interval`]): a row still reaches the disk within one flush
+/// interval of its arrival (what a SIGKILL can lose).
 pub fn batch_window(flush_interval: Duration) -> Duration {
-    BATCH_WINDOW_MAX.min(flush_interval / 10)
+    BATCH_WINDOW_MAX.min(flush_interval / 4)
 }
 
 /// Length of one GNSS-time ↔ host-time window.
@@ -58,9 +64,9 @@ pub struct DeviceTask {
     pub queue: QueueSender,
     pub shared: Arc<DeviceShared>,
     pub raw_journal: bool,
-    /// How long a batch collects reads before it is queued ([`batch_window`]; zero: every
-    /// read is queued at once).
-    pub batch_window: Duration,
+    /// When batches are handed to the writer (the grid the writer flushes on; period
+    /// [`batch_window`]).
+    pub handover: Cadence,
     /// Told this device's index once: after the first open, or the first failed attempt.
     pub settled: Option<mpsc::UnboundedSender<usize>>,
 }
@@ -116,6 +122,11 @@ impl DeviceTask {
             kind,
             detail,
         }
+    }
+
+    /// The grid point after `now` at which the batch being collected goes to the writer.
+    fn next_handover(&self, now: tokio::time::Instant) -> tokio::time::Instant {
+        tokio::time::Instant::from_std(self.handover.next_after(now.into_std()))
     }
 
     /// Sends one event on its own.
@@ -275,15 +286,20 @@ impl DeviceTask {
         shutdown: &mut watch::Receiver<bool>,
     ) -> ConnectionEnd {
         let mut buffer = vec![0u8; READ_BUFFER_BYTES];
-        // The batch being collected, and when it is due at the writer (set by its first read).
+        // The batch being collected, and the grid point it is due at the writer (set by its
+        // first read): one timer expiry per period, shared with the other devices' tasks.
         let mut batch = Batch::new(self.index);
         let mut due: Option<tokio::time::Instant> = None;
-        let timer = tokio::time::sleep(self.batch_window);
+        let timer = tokio::time::sleep_until(tokio::time::Instant::now());
         tokio::pin!(timer);
+        // Made once per connection: a fresh one per read registered and removed a waiter on
+        // the shutdown channel at every frame.
+        let stop = stopped(shutdown);
+        tokio::pin!(stop);
         let end = loop {
             let received = tokio::select! {
                 r = link.receive(&mut buffer) => r,
-                // A quiet device: what was collected goes out when its window closes.
+                // A quiet device: what was collected goes out at its grid point.
                 _ = &mut timer, if due.is_some() => {
                     due = None;
                     let ready = std::mem::replace(&mut batch, Batch::new(self.index));
@@ -292,7 +308,7 @@ impl DeviceTask {
                     }
                     continue;
                 }
-                _ = stopped(shutdown) => break ConnectionEnd::Stop,
+                _ = &mut stop => break ConnectionEnd::Stop,
             };
             let at = clock::now();
             decoding.link = link.stats();
@@ -320,14 +336,15 @@ impl DeviceTask {
             let now = tokio::time::Instant::now();
             let full =
                 batch.rows() >= BATCH_MAX_ROWS || batch.raw_bytes.len() >= BATCH_MAX_RAW_BYTES;
-            if full || self.batch_window.is_zero() || due.is_some_and(|d| now >= d) {
+            // A read that finds its grid point passed before the timer fired hands over too.
+            if full || due.is_some_and(|d| now >= d) {
                 due = None;
                 let ready = std::mem::replace(&mut batch, Batch::new(self.index));
                 if self.queue.send(ready).is_err() {
                     break ConnectionEnd::WriterGone;
                 }
             } else if due.is_none() {
-                let d = now + self.batch_window;
+                let d = self.next_handover(now);
                 timer.as_mut().reset(d);
                 due = Some(d);
             }

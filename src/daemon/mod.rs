@@ -4,6 +4,7 @@
 //! - [`config`]: the TOML configuration, validated with key paths and hints.
 //! - [`device`]: one tokio task per device (open, read, timestamp, decode, gaps, retry).
 //! - [`writer`]: the blocking writer thread behind a bounded, never-blocking queue.
+//! - [`cadence`]: the grid on which device tasks hand batches to the writer, and it flushes.
 //! - [`sink`]: the [`sink::RecordSink`] the writer writes to (session store or memory).
 //! - [`source`]: device links through the drivers' transports ([`source::Connector`], bytes or
 //!   CAN frames) and the drivers' codecs behind [`source::FrameDecoder`].
@@ -14,6 +15,7 @@
 
 pub mod args;
 pub mod backoff;
+pub mod cadence;
 pub mod clock;
 pub mod config;
 pub mod device;

@@ -10,6 +10,7 @@ use std::time::Duration;
 use tokio::signal::unix::{signal, SignalKind};
 use tokio::sync::{mpsc, oneshot, watch};
 
+use super::cadence::{self, Cadence};
 use super::clock;
 use super::config::CheckedConfig;
 use super::device::{self, DeviceTask};
@@ -28,12 +29,16 @@ const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
 const DISK_CHECK_INTERVAL: Duration = Duration::from_secs(1);
 
-/// How often the writer flushes for a configured flush interval: the interval less the
-/// device tasks' batching window ([`device::batch_window`]), so that a row waits at most the
-/// configured interval, batching included, before it is on disk (what a SIGKILL can lose).
+/// The store's flush interval for a configured flush interval: the interval less the
+/// hand-over period ([`device::batch_window`]) and the writer's flush lag
+/// ([`cadence::flush_lag`]). The store writes a row once it is this old at a grid point;
+/// the writer flushes the store at every grid point (at most the lag after it) and the
+/// device tasks hand rows over at the next one after their arrival, so a row is on disk at
+/// most the configured interval after it arrived (what a SIGKILL can lose).
 pub fn writer_flush_interval(flush_interval_ms: u64) -> Duration {
     let configured = Duration::from_millis(flush_interval_ms);
-    configured - device::batch_window(configured)
+    let period = device::batch_window(configured);
+    configured - period - cadence::flush_lag(period)
 }
 
 /// What the daemon runs with, built from the config (or by a test).
@@ -120,8 +125,13 @@ pub async fn run(
     };
 
     let (tx, rx) = writer::queue(config.session.queue_capacity);
+    // One grid for every device task and the writer.
+    let handover = Cadence::new(
+        std::time::Instant::now(),
+        device::batch_window(Duration::from_millis(config.session.flush_interval_ms)),
+    );
     let settings = WriterSettings {
-        flush_interval: writer_flush_interval(config.session.flush_interval_ms),
+        handover,
         reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
         disk_check_interval: DISK_CHECK_INTERVAL,
         drain_budget: WRITER_DRAIN_BUDGET,
@@ -184,9 +194,7 @@ pub async fn run(
             queue: QueueSender::new(tx.clone(), shared[index].clone()),
             shared: shared[index].clone(),
             raw_journal: config.session.raw_journal,
-            batch_window: device::batch_window(Duration::from_millis(
-                config.session.flush_interval_ms,
-            )),
+            handover,
             settled: Some(settled_tx.clone()),
         };
         device_tasks.push(tokio::spawn(task.run(shutdown_rx.clone())));

@@ -11,7 +11,6 @@ use crate::store::{
     WriterOptions,
 };
 
-use super::clock;
 use super::config::{expand_session_name, CheckedConfig, DeviceSpec, Transport};
 use super::sink::RecordSink;
 
@@ -142,8 +141,10 @@ impl RecordSink for StoreSink {
 
     /// The store writes on chunk boundaries by itself; this is its idle timer, so rows of a
     /// quiet device still reach the disk within a flush interval and time rotation happens.
-    fn flush(&mut self) -> anyhow::Result<()> {
-        Ok(self.writer()?.maybe_flush_and_rotate(clock::mono_ns())?)
+    /// Given the grid point rather than the time of the call: every device's rows are in up
+    /// to that point, so a chunk the next hand-over completes is not written half first.
+    fn flush(&mut self, now_mono_ns: i64) -> anyhow::Result<()> {
+        Ok(self.writer()?.maybe_flush_and_rotate(now_mono_ns)?)
     }
 
     fn rotate(&mut self) -> anyhow::Result<()> {

@@ -15,9 +15,11 @@ pub trait RecordSink: Send {
     fn append_gnss(&mut self, device: &str, rows: &[GnssRecord]) -> anyhow::Result<()>;
     fn append_event(&mut self, event: &EventRecord) -> anyhow::Result<()>;
     fn append_raw(&mut self, device: &str, t_mono_ns: i64, bytes: &[u8]) -> anyhow::Result<()>;
-    /// Called every flush interval: afterwards, rows older than one flush interval are
-    /// durable (a sink that writes on chunk boundaries may keep younger rows buffered).
-    fn flush(&mut self) -> anyhow::Result<()>;
+    /// Called at every point of the hand-over grid ([`super::cadence`]) once the writer has
+    /// written what the device tasks handed over there; `now_mono_ns` is that point
+    /// (CLOCK_MONOTONIC). Afterwards, rows older than the store's flush interval at that time
+    /// are durable (a sink that writes on chunk boundaries may keep younger rows buffered).
+    fn flush(&mut self, now_mono_ns: i64) -> anyhow::Result<()>;
     /// Closes the current chunk file and starts the next one, recording a `rotation` event.
     fn rotate(&mut self) -> anyhow::Result<()>;
     /// Flushes, closes and renames the last chunk file. Called once.
@@ -118,7 +120,7 @@ impl RecordSink for MemorySink {
         Ok(())
     }
 
-    fn flush(&mut self) -> anyhow::Result<()> {
+    fn flush(&mut self, _now_mono_ns: i64) -> anyhow::Result<()> {
         self.lock().flushes += 1;
         Ok(())
     }

@@ -1,8 +1,10 @@
 //! The writer thread: the only place that touches the disk. Device tasks hand it batches
 //! through one bounded queue with `try_send`, so a slow disk never blocks a reader; a batch
 //! the queue has no room for is dropped, counted per device and written as a
-//! `queue_overflow` event. The writer also flushes every interval, rotates on request and
-//! stops the session cleanly before the disk reserve is reached.
+//! `queue_overflow` event. The writer also flushes on the hand-over grid
+//! ([`super::cadence`]), rotates on request and stops the session cleanly before the disk
+//! reserve is reached. Between those it sleeps until the next batch, flush or disk check is
+//! due; it does not poll.
 
 use std::io;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -12,6 +14,7 @@ use std::time::{Duration, Instant};
 
 use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord};
 
+use super::cadence::{self, Cadence};
 use super::clock;
 use super::sink::RecordSink;
 use super::status::{DeviceShared, WriterShared};
@@ -122,10 +125,16 @@ impl WriterControl {
 /// Returns the free bytes on the session's filesystem (statvfs in the daemon, injected in tests).
 pub type FreeSpaceFn = Box<dyn FnMut() -> io::Result<u64> + Send>;
 
+/// The longest the writer works through a backlog before it looks at stop and rotation
+/// requests, the disk and its heartbeat again.
+const TURN: Duration = Duration::from_millis(50);
+
 /// Writer timing and limits.
 #[derive(Debug, Clone)]
 pub struct WriterSettings {
-    pub flush_interval: Duration,
+    /// The grid the device tasks hand batches over on; the sink is flushed at each of its
+    /// points, once the hand-overs there are written (or [`cadence::flush_lag`] after it).
+    pub handover: Cadence,
     /// Stop cleanly when free space falls below this many bytes.
     pub reserve_bytes: u64,
     pub disk_check_interval: Duration,
@@ -234,8 +243,11 @@ impl WriterState {
         settings: &WriterSettings,
         free_space: &mut FreeSpaceFn,
     ) -> anyhow::Result<WriterExit> {
-        let tick = Duration::from_millis(50).min(settings.flush_interval);
-        let mut last_flush = Instant::now();
+        let lag = cadence::flush_lag(settings.handover.period());
+        // The grid point the next flush is for: due once it has passed, and made at the
+        // latest `lag` after it (normally the device tasks' hand-overs there wake the writer
+        // first).
+        let mut flush_point = settings.handover.next_after(Instant::now());
         let mut last_disk_check: Option<Instant> = None;
         loop {
             self.shared.counters().heartbeat_mono_ns = clock::mono_ns();
@@ -275,17 +287,20 @@ impl WriterState {
                 w.current_file = sink.current_file();
                 tracing::info!("rotated to {:?}", w.current_file);
             }
-            let until_flush = settings.flush_interval.saturating_sub(last_flush.elapsed());
+            // Asleep until a batch comes, or the flush or the disk check is due.
+            let disk_due =
+                last_disk_check.map_or(Instant::now(), |t| t + settings.disk_check_interval);
+            let wake = (flush_point + lag).min(disk_due);
             // Whether the queue was empty at the end of this turn.
             let mut caught_up = true;
-            match rx.recv_timeout(tick.min(until_flush).max(Duration::from_millis(1))) {
+            match rx.recv_timeout(wake.saturating_duration_since(Instant::now())) {
                 Ok(batch) => {
                     self.write(sink, batch)?;
                     caught_up = false;
-                    // More of a backlog, for up to one tick before stop, rotation, disk and
+                    // More of a backlog, for up to one turn before stop, rotation, disk and
                     // heartbeat are looked at again.
                     let turn = Instant::now();
-                    while turn.elapsed() < tick && !control.stop.load(Ordering::SeqCst) {
+                    while turn.elapsed() < TURN && !control.stop.load(Ordering::SeqCst) {
                         match rx.try_recv() {
                             Ok(batch) => self.write(sink, batch)?,
                             Err(_) => {
@@ -305,10 +320,14 @@ impl WriterState {
             // at each append, which slowed a lagging writer further until it could never catch
             // up (the losses at 100× in docs/bench/daemon.md). So it waits until the queue is
             // empty; meanwhile the store writes whole chunks as they fill.
-            if caught_up && last_flush.elapsed() >= settings.flush_interval {
+            let now = Instant::now();
+            if caught_up && now >= flush_point {
                 self.report_drops(sink)?;
-                sink.flush()?;
-                last_flush = Instant::now();
+                // The grid point on the monotonic clock the rows are stamped with.
+                let point_mono_ns = clock::mono_ns()
+                    - i64::try_from(now.duration_since(flush_point).as_nanos()).unwrap_or(0);
+                sink.flush(point_mono_ns)?;
+                flush_point = settings.handover.next_after(now);
                 let mut w = self.shared.counters();
                 w.flushes += 1;
                 w.current_file = sink.current_file();

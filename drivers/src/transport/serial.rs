@@ -1,12 +1,17 @@
-//! Serial ports through `tokio-serial`: baud rate, data bits, parity, stop bits and flow
-//! control from a [`SerialConfig`]. Works on USB-serial adapters and on Linux ptys (whose
-//! baud setting is accepted and ignored by the kernel).
+//! Serial ports: opened and configured by `serialport` (baud rate, data bits, parity, stop
+//! bits and flow control from a [`SerialConfig`]), read and written through tokio's reactor
+//! by [`SerialStream`]. Works on USB-serial adapters and on Linux ptys (whose baud setting is
+//! accepted and ignored by the kernel).
 
 use std::io;
+use std::os::fd::{AsRawFd, RawFd};
+use std::pin::Pin;
+use std::task::{ready, Context, Poll};
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
-use tokio_serial::{SerialPortBuilderExt, SerialStream};
+use tokio::io::unix::AsyncFd;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 
 use super::{StreamTransport, TransportError};
 
@@ -94,6 +99,160 @@ impl SerialConfig {
     }
 }
 
+/// An open serial port as a tokio byte stream: the port `serialport` opened and
+/// configured, switched to non-blocking mode and registered with tokio's reactor.
+///
+/// Written here rather than taken from `tokio-serial` for one reason: its stream keeps the
+/// port's read readiness after a read that returned fewer bytes than asked for, so every read
+/// of a frame is followed by a second `read` that only returns `EAGAIN` before the task can
+/// wait again (at the daemon's nominal rate, 310 frames a second, half of all its `read`
+/// calls). A short read from a tty means its input queue was empty at that moment (the
+/// n_tty line discipline hands over everything it holds, up to the size asked for), and
+/// input arriving later raises a new edge-triggered epoll event, so readiness is cleared after
+/// a short read, as tokio's own `TcpStream` does. Readiness cleared by mistake would stall the
+/// reader; readiness kept by mistake only costs one `EAGAIN` read.
+///
+/// On a busy port (the previous short read less than [`BUSY_READ_GAP`] ago) readiness is
+/// kept: there the next read usually finds input that arrived meanwhile, and going back to
+/// `epoll_wait` instead put the reading thread to sleep ~25 % more often at 100× the
+/// nominal rate (docs/bench/daemon.md, round 5).
+#[derive(Debug)]
+pub struct SerialStream {
+    port: AsyncFd<serialport::TTYPort>,
+    /// When the previous short read returned.
+    last_short_read: Option<std::time::Instant>,
+}
+
+/// Short reads closer together than this mark a busy port (see [`SerialStream`]); at the
+/// nominal rates (150 Hz and below per port) reads are several ms apart.
+pub const BUSY_READ_GAP: Duration = Duration::from_millis(1);
+
+impl SerialStream {
+    /// Wraps a port opened by `serialport` (blocking mode), switching it to non-blocking.
+    fn new(port: serialport::TTYPort) -> io::Result<Self> {
+        let fd = port.as_raw_fd();
+        // SAFETY: fcntl on an fd this port owns; F_GETFL/F_SETFL take no pointers.
+        let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+        if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) } < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        // SAFETY: the TTYPort owns its descriptor and keeps it open, unchanged, until it is
+        // dropped; the AsyncFd owns the TTYPort and deregisters before dropping it.
+        let port = unsafe { AsyncFd::register(port) }.map_err(|e| e.into_parts().1)?;
+        Ok(SerialStream {
+            port,
+            last_short_read: None,
+        })
+    }
+
+    fn fd(&self) -> RawFd {
+        self.port.get_ref().as_raw_fd()
+    }
+}
+
+/// `read(2)` on a non-blocking fd, retried on EINTR.
+fn read_fd(fd: RawFd, buf: &mut [u8]) -> io::Result<usize> {
+    loop {
+        // SAFETY: `buf` is valid for writes of `buf.len()` bytes for the whole call.
+        let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
+        if n >= 0 {
+            return Ok(n as usize);
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
+/// `write(2)` on a non-blocking fd, retried on EINTR.
+fn write_fd(fd: RawFd, buf: &[u8]) -> io::Result<usize> {
+    loop {
+        // SAFETY: `buf` is valid for reads of `buf.len()` bytes for the whole call.
+        let n = unsafe { libc::write(fd, buf.as_ptr().cast(), buf.len()) };
+        if n >= 0 {
+            return Ok(n as usize);
+        }
+        let e = io::Error::last_os_error();
+        if e.kind() != io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
+impl AsyncRead for SerialStream {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        let fd = this.fd();
+        loop {
+            let mut guard = ready!(this.port.poll_read_ready(cx))?;
+            let unfilled = buf.initialize_unfilled();
+            let asked = unfilled.len();
+            match read_fd(fd, unfilled) {
+                Ok(n) => {
+                    if n > 0 && n < asked {
+                        let now = std::time::Instant::now();
+                        let busy = this
+                            .last_short_read
+                            .is_some_and(|t| now.duration_since(t) < BUSY_READ_GAP);
+                        this.last_short_read = Some(now);
+                        if !busy {
+                            // The tty's input queue is empty: wait for the next epoll event
+                            // instead of reading again only to get EAGAIN (see the type's doc).
+                            guard.clear_ready();
+                        }
+                    }
+                    buf.advance(n);
+                    return Poll::Ready(Ok(()));
+                }
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => guard.clear_ready(),
+                Err(e) => return Poll::Ready(Err(e)),
+            }
+        }
+    }
+}
+
+impl AsyncWrite for SerialStream {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let fd = self.fd();
+        loop {
+            let mut guard = ready!(self.port.poll_write_ready(cx))?;
+            match write_fd(fd, buf) {
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => guard.clear_ready(),
+                result => return Poll::Ready(result),
+            }
+        }
+    }
+
+    /// Waits until the port's output has been transmitted (`tcdrain`), as `tokio-serial`
+    /// did: only device commands are written (slcan set-up), never in the read path.
+    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        let fd = self.fd();
+        loop {
+            // SAFETY: tcdrain on an fd this stream owns.
+            if unsafe { libc::tcdrain(fd) } == 0 {
+                return Poll::Ready(Ok(()));
+            }
+            let e = io::Error::last_os_error();
+            if e.kind() != io::ErrorKind::Interrupted {
+                return Poll::Ready(Err(e));
+            }
+        }
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        self.poll_flush(cx)
+    }
+}
+
 /// An open serial port.
 pub type SerialTransport = StreamTransport<SerialStream>;
 
@@ -134,16 +293,19 @@ pub fn open_serial(config: &SerialConfig) -> Result<SerialTransport, TransportEr
         FlowControl::Software => tokio_serial::FlowControl::Software,
         FlowControl::Hardware => tokio_serial::FlowControl::Hardware,
     };
-    let stream = tokio_serial::new(&config.path, config.baud)
+    let builder = tokio_serial::new(&config.path, config.baud)
         .data_bits(data_bits)
         .parity(parity)
         .stop_bits(stop_bits)
-        .flow_control(flow)
-        .open_native_async()
-        .map_err(|e| TransportError::Open {
-            device: config.path.clone(),
-            source: open_error(&config.path, e),
-        })?;
+        .flow_control(flow);
+    let port = serialport::TTYPort::open(&builder).map_err(|e| TransportError::Open {
+        device: config.path.clone(),
+        source: open_error(&config.path, e),
+    })?;
+    let stream = SerialStream::new(port).map_err(|source| TransportError::Open {
+        device: config.path.clone(),
+        source,
+    })?;
     Ok(StreamTransport::new(
         stream,
         config.path.clone(),
