@@ -2,6 +2,10 @@
 //! 150 Hz, a 10 Hz GNSS receiver) on ptys at `--speed` times real time, the `imulogd`
 //! binary logs it as a separate process, and the daemon is watched from outside
 //! (`/proc/PID/stat` and `/proc/PID/status`). See the header of `daemon_load.rs`.
+//!
+//! For soaks: `--rotate-min M` rotates every M simulated minutes (the daemon rotates by its
+//! own clock, so the configuration gets M / speed), and `--curve FILE.csv` also records
+//! RssAnon and the number of finished chunk files at every sample.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -30,6 +34,8 @@ struct Options {
     curve: Option<PathBuf>,
     raw_journal: bool,
     nice: Option<i32>,
+    /// `--rotate-min`: rotate every this many simulated minutes (None: the daemon default).
+    rotate_sim_min: Option<f64>,
 }
 
 fn parse_options(args: Vec<String>) -> Result<Options, String> {
@@ -42,6 +48,7 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
         curve: None,
         raw_journal: false,
         nice: None,
+        rotate_sim_min: None,
     };
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
@@ -69,6 +76,9 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
             "--imulogd" => o.imulogd = PathBuf::from(value("--imulogd")?),
             "--curve" => o.curve = Some(PathBuf::from(value("--curve")?)),
             "--raw-journal" => o.raw_journal = true,
+            "--rotate-min" => {
+                o.rotate_sim_min = Some(number("--rotate-min", value("--rotate-min")?)?)
+            }
             "--nice" => {
                 o.nice = Some(
                     value("--nice")?
@@ -110,9 +120,10 @@ fn proc_cpu_s(pid: u32) -> Option<f64> {
     Some(ticks / hz)
 }
 
-fn proc_rss_mib(pid: u32) -> Option<f64> {
+/// A kB line of `/proc/PID/status` (`key` with its colon, e.g. `VmRSS:`), in MiB.
+fn proc_status_mib(pid: u32, key: &str) -> Option<f64> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let line = status.lines().find(|l| l.starts_with(key))?;
     Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? / 1024.0)
 }
 
@@ -138,6 +149,26 @@ struct Sample {
     wall_s: f64,
     cpu_s: f64,
     rss_mib: f64,
+    /// RssAnon (heap and other private memory; RSS less mapped files and shmem).
+    rss_anon_mib: f64,
+    /// Completed chunk files in the session (rotations so far).
+    chunk_files: usize,
+}
+
+/// One sample of daemon `pid` writing `session_dir`, `cpu_s` already measured.
+fn take_sample(pid: u32, wall_s: f64, cpu_s: f64, session_dir: &Path) -> Sample {
+    let status_mib = |key: &str| proc_status_mib(pid, key).unwrap_or(f64::NAN);
+    Sample {
+        wall_s,
+        cpu_s,
+        rss_mib: status_mib("VmRSS:"),
+        rss_anon_mib: status_mib("RssAnon:"),
+        chunk_files: std::fs::read_dir(session_dir).map_or(0, |d| {
+            d.flatten()
+                .filter(|e| e.file_name().to_string_lossy().ends_with(".h5"))
+                .count()
+        }),
+    }
 }
 
 struct RunResult {
@@ -225,6 +256,14 @@ fn wait_connected(status_path: &Path, child: &mut Child) {
     }
 }
 
+/// The `[session]` line for `--rotate-min` (simulated minutes, so wall minutes / speed:
+/// rotation goes by the host clock), or nothing for the daemon's default.
+fn rotation_line(o: &Options, speed: f64) -> String {
+    o.rotate_sim_min
+        .map(|m| format!("rotate_minutes = {}\n", m / speed))
+        .unwrap_or_default()
+}
+
 fn one_run(o: &Options, speed: f64) -> RunResult {
     let dir = tempfile::tempdir().expect("temp dir");
     let scene_s = o.secs * speed;
@@ -257,10 +296,11 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
     std::fs::write(
         &config,
         format!(
-            "[session]\noutput_dir = \"{}\"\nname = \"load\"\nraw_journal = {}\nstatus_file = \"{}\"\n\n{devices}",
+            "[session]\noutput_dir = \"{}\"\nname = \"load\"\nraw_journal = {}\nstatus_file = \"{}\"\n{}\n{devices}",
             dir.path().display(),
             o.raw_journal,
-            status_path.display()
+            status_path.display(),
+            rotation_line(o, speed)
         ),
     )
     .expect("config");
@@ -273,11 +313,7 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
     let self0 = self_cpu_s();
     let t0 = Instant::now();
     server.begin();
-    let mut samples = vec![Sample {
-        wall_s: 0.0,
-        cpu_s: 0.0,
-        rss_mib: proc_rss_mib(pid).unwrap_or(f64::NAN),
-    }];
+    let mut samples = vec![take_sample(pid, 0.0, 0.0, &session_dir)];
     let mut next = o.sample_s;
     let deadline = Duration::from_secs_f64(o.secs * 3.0 + 60.0);
     while !server.is_finished() {
@@ -288,11 +324,8 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
         let now = t0.elapsed().as_secs_f64();
         if now >= next {
             next += o.sample_s;
-            samples.push(Sample {
-                wall_s: now,
-                cpu_s: proc_cpu_s(pid).unwrap_or(f64::NAN) - cpu0,
-                rss_mib: proc_rss_mib(pid).unwrap_or(f64::NAN),
-            });
+            let cpu_s = proc_cpu_s(pid).unwrap_or(f64::NAN) - cpu0;
+            samples.push(take_sample(pid, now, cpu_s, &session_dir));
         }
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -300,11 +333,7 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
     let serve_wall_s = t0.elapsed().as_secs_f64();
     let daemon_cpu_s = proc_cpu_s(pid).unwrap_or(f64::NAN) - cpu0;
     let server_cpu_s = self_cpu_s() - self0;
-    samples.push(Sample {
-        wall_s: serve_wall_s,
-        cpu_s: daemon_cpu_s,
-        rss_mib: proc_rss_mib(pid).unwrap_or(f64::NAN),
-    });
+    samples.push(take_sample(pid, serve_wall_s, daemon_cpu_s, &session_dir));
     let load_after = loadavg();
     std::thread::sleep(DRAIN);
     // SAFETY: kill with a pid of our own child and a valid signal number.
@@ -407,7 +436,11 @@ pub fn main(args: Vec<String>) {
         .as_ref()
         .map(|p| std::fs::File::create(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())));
     if let Some(f) = curve.as_mut() {
-        writeln!(f, "speed,run,wall_s,scene_h,daemon_cpu_s,rss_mib").expect("curve");
+        writeln!(
+            f,
+            "speed,run,wall_s,scene_h,daemon_cpu_s,rss_mib,rss_anon_mib,chunk_files"
+        )
+        .expect("curve");
     }
     for &speed in &o.speeds {
         for run in 1..=o.runs {
@@ -456,13 +489,15 @@ pub fn main(args: Vec<String>) {
                 for s in &r.samples {
                     writeln!(
                         f,
-                        "{},{},{:.1},{:.4},{:.3},{:.2}",
+                        "{},{},{:.1},{:.4},{:.3},{:.2},{:.2},{}",
                         r.speed,
                         run,
                         s.wall_s,
                         s.wall_s * r.speed / 3600.0,
                         s.cpu_s,
-                        s.rss_mib
+                        s.rss_mib,
+                        s.rss_anon_mib,
+                        s.chunk_files
                     )
                     .expect("curve");
                 }

@@ -417,3 +417,35 @@ fn damaged_chunks_give_errors_from_the_column_reader() {
     // The damage lands in an IMU column's compressed data: the inflater refuses it.
     assert!(found > 0, "the damage went unnoticed");
 }
+
+/// Rotation must leave nothing of a finished file open in the HDF5 library: a leaked dataset
+/// or group handle keeps the whole file open (its metadata cache, chunk index, free space),
+/// and a daemon's memory would then grow with every rotation. Opening a finished file again
+/// shares HDF5's state of the file if it is still open, so the open-object count there
+/// includes any handle the writer leaked; only our own file handle may be open.
+#[test]
+fn rotation_leaves_nothing_of_the_finished_file_open_in_hdf5() {
+    use imulab::store::SessionWriter;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s7");
+    let mut w = SessionWriter::create(&dir, crate::common::manifest(), fast_opts()).unwrap();
+    for n in 0..24 {
+        let rows: Vec<_> = (n * 50..(n + 1) * 50).map(|k| imu_row(0, k)).collect();
+        w.append_imu("imu_a", &rows).unwrap();
+        w.rotate().unwrap();
+        let finished = dir.join(layout::chunk_file_name(n as u32));
+        let file = hdf5::File::open(&finished)
+            .unwrap_or_else(|e| panic!("{} after rotation {n}: {e}", finished.display()));
+        // SAFETY: `file` is a live file handle for the whole call; the HDF5 lock is held.
+        let open = hdf5::sync::sync(|| unsafe {
+            hdf5_sys::h5f::H5Fget_obj_count(file.id(), hdf5_sys::h5f::H5F_OBJ_ALL)
+        });
+        assert_eq!(
+            open,
+            1,
+            "{} after rotation {n}: HDF5 objects still open in it",
+            finished.display()
+        );
+    }
+    w.close().unwrap();
+}
