@@ -399,9 +399,9 @@ mod tests {
         let m = model_from_preset("tactical").expect("preset").model;
         // ARW 0.15 °/√h = 0.15° / 60 per √s.
         assert!((m.arw_rad_per_sqrt_s - 0.15f64.to_radians() / 60.0).abs() < 1e-12);
-        // Gyro bias instability 0.5 °/h: floor 0.664 · 0.5 °/h → GM σ = floor / 0.6174,
-        // τ_c = √(1·5000) / 1.89.
-        let floor = BIAS_INSTABILITY_FACTOR * 0.5f64.to_radians() / 3600.0;
+        // Gyro bias instability: the datasheet's Allan minimum 0.5 °/h is the floor (the
+        // preset holds B = 0.5 / 0.664) → GM σ = floor / 0.6174, τ_c = √(1·5000) / 1.89.
+        let floor = 0.5f64.to_radians() / 3600.0;
         assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
         assert!((m.gyro_bias.tau_s - 5000f64.sqrt() / GM_ADEV_PEAK_TAU).abs() < 1e-9);
         assert!(model_from_preset("nope").is_err());
