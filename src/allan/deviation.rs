@@ -16,7 +16,12 @@
 //! - the non-overlapping kinds (ADEV, HDEV) on the decimated phase z[k] = x[k·m], built
 //!   as a pyramid (each octave level compacts the previous one in place), where the
 //!   terms are contiguous second and third differences;
-//! - MDEV/TDEV with the sliding-window recurrence, factor by factor.
+//! - MDEV/TDEV in the same sweep, on the prefix sum S of the phase: the MDEV window
+//!   Σ_{i=j}^{j+m−1} (x[i+2m] − 2x[i+m] + x[i]) is the third difference
+//!   S[j+3m] − 3S[j+2m] + 3S[j+m] − S[j], O(1) per term. S grows like N·|x|, so it is
+//!   kept exactly enough in two parts ([`SplitPrefix`]): a coarse part on a power-of-two
+//!   grid, whose third differences are exact, and a small remainder;
+//! - [`variance_at`] for one MDEV factor slides the window instead (no O(N) prefix).
 //!
 //! The inner loops are compiled twice (portable and AVX2, [`Simd`]) and give the same
 //! bits on both paths.
@@ -188,8 +193,8 @@ pub fn variances_with(
     let n = x.len();
     let counts: Vec<usize> = factors.iter().map(|&m| kind.term_count(m, n)).collect();
     let sums: Vec<f64> = match kind {
-        DeviationKind::Oadev => overlapping_sums(x, factors, &counts, simd, second_difference),
-        DeviationKind::Ohdev => overlapping_sums(x, factors, &counts, simd, third_difference),
+        DeviationKind::Oadev => overlapping_sums(&[x], factors, &counts, simd, second_difference),
+        DeviationKind::Ohdev => overlapping_sums(&[x], factors, &counts, simd, third_difference),
         DeviationKind::Totdev => {
             // Interior: the OADEV stencil over i − m … i + m for m ≤ i ≤ n − 1 − m, i.e.
             // OADEV's n − 2m terms; the reflected edges are added per factor.
@@ -198,7 +203,7 @@ pub fn variances_with(
                 .zip(&counts)
                 .map(|(&m, &c)| if c > 0 { n.saturating_sub(2 * m) } else { 0 })
                 .collect();
-            let inner = overlapping_sums(x, factors, &interior, simd, second_difference);
+            let inner = overlapping_sums(&[x], factors, &interior, simd, second_difference);
             factors
                 .par_iter()
                 .zip(inner)
@@ -222,17 +227,20 @@ pub fn variances_with(
             });
             return out;
         }
-        DeviationKind::Mdev | DeviationKind::Tdev => factors
-            .par_iter()
-            .zip(&counts)
-            .map(|(&m, &c)| {
-                if c == 0 {
-                    0.0
-                } else {
-                    dispatch(simd, ModifiedSum { x, m, count: c })
-                }
-            })
-            .collect(),
+        DeviationKind::Mdev | DeviationKind::Tdev => {
+            if counts.iter().all(|&c| c == 0) {
+                vec![0.0; factors.len()]
+            } else {
+                let prefix = SplitPrefix::of(x);
+                overlapping_sums(
+                    &[&prefix.coarse, &prefix.fine],
+                    factors,
+                    &counts,
+                    simd,
+                    modified_term,
+                )
+            }
+        }
     };
     factors
         .iter()
@@ -291,6 +299,65 @@ fn third_difference([a, b, c, d]: [f64; 4]) -> f64 {
     v * v
 }
 
+/// Squared MDEV window W = S[j+3m] − 3S[j+2m] + 3S[j+m] − S[j] from the four coarse and
+/// the four fine values of the split prefix sum ([`SplitPrefix`]). The coarse third
+/// difference is exact (integers of the grid, below 2⁵³), so the only rounding is that
+/// of the small fine part and of the final addition.
+#[inline(always)]
+fn modified_term([a, b, c, d, e, f, g, h]: [f64; 8]) -> f64 {
+    let coarse = d - 3.0 * c + 3.0 * b - a;
+    let fine = h - 3.0 * g + 3.0 * f - e;
+    let w = coarse + fine;
+    w * w
+}
+
+/// Prefix sum of the phase, S[0] = 0, S[k] = Σ_{i<k} x[i] (n + 1 values for n phase
+/// points), held as `coarse[k] + fine[k]`: `coarse` is S rounded to a power-of-two grid
+/// chosen so that |S| stays below 2⁴⁹ grid steps, and `fine` the remainder (half a step
+/// plus the running sum's compensation, some ulps of S). S is about N times larger than the phase, and the MDEV window is a small
+/// difference of four S values, so S as one double would lose the window's digits to
+/// cancellation; on the grid the coarse third differences are exact integers and the
+/// fine ones are small, which keeps the window as exact as the sliding sum.
+///
+/// S itself is a compensated running sum (Knuth's TwoSum per addition), so sum +
+/// compensation carries it to about twice double precision before the split.
+struct SplitPrefix {
+    coarse: Vec<f64>,
+    fine: Vec<f64>,
+}
+
+impl SplitPrefix {
+    fn of(x: &[f64]) -> SplitPrefix {
+        let mut coarse = Vec::with_capacity(x.len() + 1);
+        let mut fine = Vec::with_capacity(x.len() + 1);
+        coarse.push(0.0);
+        fine.push(0.0);
+        let mut running = CompensatedSum::new();
+        let mut largest = 0.0f64;
+        for &v in x {
+            running.add(v);
+            let (sum, compensation) = running.parts();
+            coarse.push(sum);
+            fine.push(compensation);
+            largest = largest.max(sum.abs());
+        }
+        // Grid 2^g with |S| < 2^(g + 49): floor(log2 |S|max) + 1 − 49, from the exponent
+        // bits, clamped so the grid is a normal number and the rounding constant finite.
+        let exponent = ((largest.to_bits() >> 52) & 0x7ff) as i64 - 1023;
+        let grid_exponent = (exponent + 1 - 49).clamp(-1022, 969);
+        let grid = f64::from_bits(((grid_exponent + 1023) as u64) << 52);
+        // (s + 1.5·2⁵²·grid) − 1.5·2⁵²·grid rounds s to the grid (round to nearest) for
+        // |s| < 2⁵¹·grid, without a branch or a call, on every instruction set alike.
+        let round = 1.5 * 4_503_599_627_370_496.0 * grid;
+        for (high, low) in coarse.iter_mut().zip(fine.iter_mut()) {
+            let on_grid = (*high + round) - round;
+            *low += *high - on_grid;
+            *high = on_grid;
+        }
+        SplitPrefix { coarse, fine }
+    }
+}
+
 /// Terms per tile of the overlapping sweep: 16 KiB per stream, so the ≈ 22 distinct
 /// streams of an octave grid (≈ 350 KiB) stay in the 2 MiB L2 while a tile is swept.
 pub const TILE: usize = 2048;
@@ -299,9 +366,11 @@ pub const TILE: usize = 2048;
 const TILES_PER_JOB: usize = 32;
 
 /// Σ_{i < counts[j]} term(x[i], x[i + m], …, x[i + (K−1)m]) for every factor m = factors[j],
-/// in one tiled sweep (see the module docs).
+/// in one tiled sweep (see the module docs). With several `sources` (of equal length) the
+/// K streams are split evenly between them: with two sources and K = 8, the term gets
+/// a[i], a[i + m], …, a[i + 3m], b[i], b[i + m], …, b[i + 3m].
 fn overlapping_sums<const K: usize>(
-    x: &[f64],
+    sources: &[&[f64]],
     factors: &[usize],
     counts: &[usize],
     simd: Simd,
@@ -317,7 +386,7 @@ fn overlapping_sums<const K: usize>(
             dispatch(
                 simd,
                 SweepTiles::<K, _> {
-                    x,
+                    sources,
                     factors,
                     counts,
                     start,
@@ -338,7 +407,7 @@ fn overlapping_sums<const K: usize>(
 
 /// [`sweep_tiles`] as a [`Kernel`].
 struct SweepTiles<'a, const K: usize, T> {
-    x: &'a [f64],
+    sources: &'a [&'a [f64]],
     factors: &'a [usize],
     counts: &'a [usize],
     start: usize,
@@ -351,7 +420,7 @@ impl<const K: usize, T: Fn([f64; K]) -> f64 + Copy> Kernel for SweepTiles<'_, K,
     #[inline(always)]
     fn run(self) -> Vec<CompensatedSum> {
         sweep_tiles(
-            self.x,
+            self.sources,
             self.factors,
             self.counts,
             self.start,
@@ -395,25 +464,10 @@ impl Kernel for DecimatedSum<'_> {
     }
 }
 
-/// [`modified_sum`] as a [`Kernel`].
-struct ModifiedSum<'a> {
-    x: &'a [f64],
-    m: usize,
-    count: usize,
-}
-
-impl Kernel for ModifiedSum<'_> {
-    type Output = f64;
-    #[inline(always)]
-    fn run(self) -> f64 {
-        modified_sum(self.x, self.m, self.count)
-    }
-}
-
 /// The tiles of terms `start..end` of [`overlapping_sums`], every factor per tile.
 #[inline(always)]
 fn sweep_tiles<const K: usize>(
-    x: &[f64],
+    sources: &[&[f64]],
     factors: &[usize],
     counts: &[usize],
     start: usize,
@@ -421,6 +475,7 @@ fn sweep_tiles<const K: usize>(
     term: impl Fn([f64; K]) -> f64 + Copy,
 ) -> Vec<CompensatedSum> {
     let mut sums = vec![CompensatedSum::new(); factors.len()];
+    let per_source = K / sources.len().max(1);
     let mut t0 = start;
     while t0 < end {
         let t1 = (t0 + TILE).min(end);
@@ -429,7 +484,10 @@ fn sweep_tiles<const K: usize>(
                 continue;
             }
             let len = t1.min(count) - t0;
-            let streams: [&[f64]; K] = std::array::from_fn(|s| &x[t0 + s * m..t0 + s * m + len]);
+            let streams: [&[f64]; K] = std::array::from_fn(|s| {
+                let at = t0 + (s % per_source) * m;
+                &sources[s / per_source][at..at + len]
+            });
             sum.add(sum_streams(streams, term));
         }
         t0 = t1;
@@ -880,6 +938,68 @@ mod tests {
                     None => first = Some(all),
                     Some(f) => assert_eq!(f, &all, "{kind:?}: paths differ"),
                 }
+            }
+        }
+    }
+    #[test]
+    fn split_prefix_is_on_its_grid_and_sums_to_the_prefix() {
+        let phase = Phase::from_rate(noisy_rate(20_000, 3));
+        let x = &phase.points;
+        let prefix = SplitPrefix::of(x);
+        assert_eq!(prefix.coarse.len(), x.len() + 1);
+        let largest = prefix.coarse.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        // The grid step SplitPrefix chooses: |S| below 2⁴⁹ steps.
+        let step = 2f64.powi(largest.log2().floor() as i32 + 1 - 49);
+        let mut running = CompensatedSum::new();
+        for (k, (&c, &f)) in prefix.coarse.iter().zip(&prefix.fine).enumerate() {
+            assert_eq!(
+                (c / step).fract(),
+                0.0,
+                "k={k}: {c:e} off the grid {step:e}"
+            );
+            // Half a step (2⁻⁴⁹ of the largest S) from the rounding, plus the running
+            // sum's compensation (some ulps of S): tiny next to S.
+            assert!(
+                f.abs() <= 1e-12 * largest,
+                "k={k}: fine {f:e}, S up to {largest:e}"
+            );
+            let want = running.value();
+            assert!(
+                (c + f - want).abs() <= 1e-15 * (1.0 + want.abs()),
+                "k={k}: {c:e} + {f:e} vs {want:e}"
+            );
+            if k < x.len() {
+                running.add(x[k]);
+            }
+        }
+    }
+
+    #[test]
+    fn mdev_sweep_keeps_the_window_digits_under_a_large_prefix() {
+        // A rate drift makes the phase quadratic and its prefix sum about 1e12, while the
+        // MDEV windows at small τ are of order 1: one double for S would lose about
+        // 1e-4 of them; the split prefix must agree with the sliding window to 1e-12.
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(17);
+        let y: Vec<f64> = (0..200_000)
+            .map(|k| {
+                let w: f64 = StandardNormal.sample(&mut rng);
+                1e3 + 1e-3 * k as f64 + w
+            })
+            .collect();
+        let phase = Phase::from_rate(y);
+        let factors = [1, 2, 4, 16, 256, 4_096, 65_536];
+        for simd in Simd::available() {
+            let all = variances_with(DeviationKind::Mdev, &phase, &factors, simd);
+            for (j, &m) in factors.iter().enumerate() {
+                let (v, _) = all[j].unwrap();
+                let (w, _) = variance_at(DeviationKind::Mdev, &phase, m).unwrap();
+                assert!(
+                    (v - w).abs() <= 1e-12 * w,
+                    "m={m} {simd:?}: {v:e} vs {w:e} (rel {:e})",
+                    (v - w).abs() / w
+                );
             }
         }
     }
