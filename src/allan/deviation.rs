@@ -193,8 +193,8 @@ pub fn variances_with(
     let n = x.len();
     let counts: Vec<usize> = factors.iter().map(|&m| kind.term_count(m, n)).collect();
     let sums: Vec<f64> = match kind {
-        DeviationKind::Oadev => overlapping_sums(&[x], factors, &counts, simd, second_difference),
-        DeviationKind::Ohdev => overlapping_sums(&[x], factors, &counts, simd, third_difference),
+        DeviationKind::Oadev => overlapping_sums(x, factors, &counts, simd, second_difference),
+        DeviationKind::Ohdev => overlapping_sums(x, factors, &counts, simd, third_difference),
         DeviationKind::Totdev => {
             // Interior: the OADEV stencil over i − m … i + m for m ≤ i ≤ n − 1 − m, i.e.
             // OADEV's n − 2m terms; the reflected edges are added per factor.
@@ -203,7 +203,7 @@ pub fn variances_with(
                 .zip(&counts)
                 .map(|(&m, &c)| if c > 0 { n.saturating_sub(2 * m) } else { 0 })
                 .collect();
-            let inner = overlapping_sums(&[x], factors, &interior, simd, second_difference);
+            let inner = overlapping_sums(x, factors, &interior, simd, second_difference);
             factors
                 .par_iter()
                 .zip(inner)
@@ -232,13 +232,7 @@ pub fn variances_with(
                 vec![0.0; factors.len()]
             } else {
                 let prefix = SplitPrefix::of(x);
-                overlapping_sums(
-                    &[&prefix.coarse, &prefix.fine],
-                    factors,
-                    &counts,
-                    simd,
-                    modified_term,
-                )
+                tiled_sums(ModifiedWindows { prefix: &prefix }, factors, &counts, simd)
             }
         }
     };
@@ -299,18 +293,6 @@ fn third_difference([a, b, c, d]: [f64; 4]) -> f64 {
     v * v
 }
 
-/// Squared MDEV window W = S[j+3m] − 3S[j+2m] + 3S[j+m] − S[j] from the four coarse and
-/// the four fine values of the split prefix sum ([`SplitPrefix`]). The coarse third
-/// difference is exact (integers of the grid, below 2⁵³), so the only rounding is that
-/// of the small fine part and of the final addition.
-#[inline(always)]
-fn modified_term([a, b, c, d, e, f, g, h]: [f64; 8]) -> f64 {
-    let coarse = d - 3.0 * c + 3.0 * b - a;
-    let fine = h - 3.0 * g + 3.0 * f - e;
-    let w = coarse + fine;
-    w * w
-}
-
 /// Prefix sum of the phase, S[0] = 0, S[k] = Σ_{i<k} x[i] (n + 1 values for n phase
 /// points), held as `coarse[k] + fine[k]`: `coarse` is S rounded to a power-of-two grid
 /// chosen so that |S| stays below 2⁴⁹ grid steps, and `fine` the remainder (half a step
@@ -366,16 +348,82 @@ pub const TILE: usize = 2048;
 const TILES_PER_JOB: usize = 32;
 
 /// Σ_{i < counts[j]} term(x[i], x[i + m], …, x[i + (K−1)m]) for every factor m = factors[j],
-/// in one tiled sweep (see the module docs). With several `sources` (of equal length) the
-/// K streams are split evenly between them: with two sources and K = 8, the term gets
-/// a[i], a[i + m], …, a[i + 3m], b[i], b[i + m], …, b[i + 3m].
+/// in one tiled sweep (see the module docs).
 fn overlapping_sums<const K: usize>(
-    sources: &[&[f64]],
+    x: &[f64],
     factors: &[usize],
     counts: &[usize],
     simd: Simd,
     term: impl Fn([f64; K]) -> f64 + Copy + Sync,
 ) -> Vec<f64> {
+    tiled_sums(Stencil { x, term }, factors, counts, simd)
+}
+
+/// The sum of one tile of terms for one factor: what [`tiled_sums`] sweeps. `sum` must be
+/// `#[inline(always)]` (it runs inside the [`Kernel`]).
+trait TileSum: Copy + Sync {
+    /// Terms per tile (at most [`TILE`], a divisor of it).
+    const TERMS: usize;
+    /// Σ over terms `start..start + len` at factor `m` (`len` ≤ `TERMS`); `scratch` is a
+    /// buffer of [`TILE`] values the sum may overwrite.
+    fn sum(&self, scratch: &mut [f64], start: usize, m: usize, len: usize) -> f64;
+}
+
+/// `term` of the K streams x[i], x[i + m], …, x[i + (K−1)m].
+#[derive(Clone, Copy)]
+struct Stencil<'a, const K: usize, T> {
+    x: &'a [f64],
+    term: T,
+}
+
+impl<const K: usize, T: Fn([f64; K]) -> f64 + Copy + Sync> TileSum for Stencil<'_, K, T> {
+    const TERMS: usize = TILE;
+    #[inline(always)]
+    fn sum(&self, _scratch: &mut [f64], start: usize, m: usize, len: usize) -> f64 {
+        let streams: [&[f64]; K] =
+            std::array::from_fn(|s| &self.x[start + s * m..start + s * m + len]);
+        sum_streams(streams, self.term)
+    }
+}
+
+/// Squared MDEV windows from the split prefix sum ([`SplitPrefix`]): the coarse third
+/// differences into a tile buffer, the fine ones added and squared in a second pass (two
+/// simple four-stream loops, which vectorise; one eight-stream term did not).
+#[derive(Clone, Copy)]
+struct ModifiedWindows<'a> {
+    prefix: &'a SplitPrefix,
+}
+
+impl TileSum for ModifiedWindows<'_> {
+    /// Eight streams (two arrays) per factor: a quarter of [`TILE`] keeps the ≈ 86
+    /// distinct stretches of an octave grid within a 1 MiB L2.
+    const TERMS: usize = TILE / 4;
+    #[inline(always)]
+    fn sum(&self, scratch: &mut [f64], start: usize, m: usize, len: usize) -> f64 {
+        let window = &mut scratch[..len];
+        let len = window.len();
+        let [a, b, c, d] = four_streams(&self.prefix.coarse, start, m, len);
+        for ((((w, a), b), c), d) in window.iter_mut().zip(a).zip(b).zip(c).zip(d) {
+            *w = (d - a) + 3.0 * (b - c);
+        }
+        let [a, b, c, d] = four_streams(&self.prefix.fine, start, m, len);
+        for ((((w, a), b), c), d) in window.iter_mut().zip(a).zip(b).zip(c).zip(d) {
+            let total = *w + ((d - a) + 3.0 * (b - c));
+            *w = total * total;
+        }
+        sum_streams([&*window], |[v]| v)
+    }
+}
+
+/// v[start + s·m ..][..len] for s = 0 … 3.
+#[inline(always)]
+fn four_streams(v: &[f64], start: usize, m: usize, len: usize) -> [&[f64]; 4] {
+    std::array::from_fn(|s| &v[start + s * m..start + s * m + len])
+}
+
+/// Σ_{i < counts[j]} of the terms `tiles` sums, for every factor m = factors[j], in one
+/// tiled sweep (see the module docs).
+fn tiled_sums(tiles: impl TileSum, factors: &[usize], counts: &[usize], simd: Simd) -> Vec<f64> {
     let longest = counts.iter().copied().max().unwrap_or(0);
     let job_terms = TILE * TILES_PER_JOB;
     let partials: Vec<Vec<CompensatedSum>> = (0..longest.div_ceil(job_terms))
@@ -385,13 +433,12 @@ fn overlapping_sums<const K: usize>(
             let end = (start + job_terms).min(longest);
             dispatch(
                 simd,
-                SweepTiles::<K, _> {
-                    sources,
+                SweepTiles {
+                    tiles,
                     factors,
                     counts,
                     start,
                     end,
-                    term,
                 },
             )
         })
@@ -406,27 +453,19 @@ fn overlapping_sums<const K: usize>(
 }
 
 /// [`sweep_tiles`] as a [`Kernel`].
-struct SweepTiles<'a, const K: usize, T> {
-    sources: &'a [&'a [f64]],
+struct SweepTiles<'a, S> {
+    tiles: S,
     factors: &'a [usize],
     counts: &'a [usize],
     start: usize,
     end: usize,
-    term: T,
 }
 
-impl<const K: usize, T: Fn([f64; K]) -> f64 + Copy> Kernel for SweepTiles<'_, K, T> {
+impl<S: TileSum> Kernel for SweepTiles<'_, S> {
     type Output = Vec<CompensatedSum>;
     #[inline(always)]
     fn run(self) -> Vec<CompensatedSum> {
-        sweep_tiles(
-            self.sources,
-            self.factors,
-            self.counts,
-            self.start,
-            self.end,
-            self.term,
-        )
+        sweep_tiles(self.tiles, self.factors, self.counts, self.start, self.end)
     }
 }
 
@@ -464,31 +503,26 @@ impl Kernel for DecimatedSum<'_> {
     }
 }
 
-/// The tiles of terms `start..end` of [`overlapping_sums`], every factor per tile.
+/// The tiles of terms `start..end` of [`tiled_sums`], every factor per tile.
 #[inline(always)]
-fn sweep_tiles<const K: usize>(
-    sources: &[&[f64]],
+fn sweep_tiles<S: TileSum>(
+    tiles: S,
     factors: &[usize],
     counts: &[usize],
     start: usize,
     end: usize,
-    term: impl Fn([f64; K]) -> f64 + Copy,
 ) -> Vec<CompensatedSum> {
     let mut sums = vec![CompensatedSum::new(); factors.len()];
-    let per_source = K / sources.len().max(1);
+    let mut scratch = vec![0.0f64; TILE];
+    let terms = S::TERMS.clamp(1, TILE);
     let mut t0 = start;
     while t0 < end {
-        let t1 = (t0 + TILE).min(end);
+        let t1 = (t0 + terms).min(end);
         for ((&m, &count), sum) in factors.iter().zip(counts).zip(sums.iter_mut()) {
             if t0 >= count {
                 continue;
             }
-            let len = t1.min(count) - t0;
-            let streams: [&[f64]; K] = std::array::from_fn(|s| {
-                let at = t0 + (s % per_source) * m;
-                &sources[s / per_source][at..at + len]
-            });
-            sum.add(sum_streams(streams, term));
+            sum.add(tiles.sum(&mut scratch, t0, m, t1.min(count) - t0));
         }
         t0 = t1;
     }
