@@ -16,12 +16,7 @@
 //! - the non-overlapping kinds (ADEV, HDEV) on the decimated phase z[k] = x[k·m], built
 //!   as a pyramid (each octave level compacts the previous one in place), where the
 //!   terms are contiguous second and third differences;
-//! - MDEV/TDEV in the same sweep, on the prefix sum S of the phase: the MDEV window
-//!   Σ_{i=j}^{j+m−1} (x[i+2m] − 2x[i+m] + x[i]) is the third difference
-//!   S[j+3m] − 3S[j+2m] + 3S[j+m] − S[j], O(1) per term. S grows like N·|x|, so it is
-//!   kept exactly enough in two parts ([`SplitPrefix`]): a coarse part on a power-of-two
-//!   grid, whose third differences are exact, and a small remainder;
-//! - [`variance_at`] for one MDEV factor slides the window instead (no O(N) prefix).
+//! - MDEV/TDEV with the sliding-window recurrence, factor by factor.
 //!
 //! The inner loops are compiled twice (portable and AVX2, [`Simd`]) and give the same
 //! bits on both paths.
@@ -227,14 +222,17 @@ pub fn variances_with(
             });
             return out;
         }
-        DeviationKind::Mdev | DeviationKind::Tdev => {
-            if counts.iter().all(|&c| c == 0) {
-                vec![0.0; factors.len()]
-            } else {
-                let prefix = SplitPrefix::of(x);
-                tiled_sums(ModifiedWindows { prefix: &prefix }, factors, &counts, simd)
-            }
-        }
+        DeviationKind::Mdev | DeviationKind::Tdev => factors
+            .par_iter()
+            .zip(&counts)
+            .map(|(&m, &c)| {
+                if c == 0 {
+                    0.0
+                } else {
+                    dispatch(simd, ModifiedSum { x, m, count: c })
+                }
+            })
+            .collect(),
     };
     factors
         .iter()
@@ -293,53 +291,6 @@ fn third_difference([a, b, c, d]: [f64; 4]) -> f64 {
     v * v
 }
 
-/// Prefix sum of the phase, S[0] = 0, S[k] = Σ_{i<k} x[i] (n + 1 values for n phase
-/// points), held as `coarse[k] + fine[k]`: `coarse` is S rounded to a power-of-two grid
-/// chosen so that |S| stays below 2⁴⁹ grid steps, and `fine` the remainder (half a step
-/// plus the running sum's compensation, some ulps of S). S is about N times larger than the phase, and the MDEV window is a small
-/// difference of four S values, so S as one double would lose the window's digits to
-/// cancellation; on the grid the coarse third differences are exact integers and the
-/// fine ones are small, which keeps the window as exact as the sliding sum.
-///
-/// S itself is a compensated running sum (Knuth's TwoSum per addition), so sum +
-/// compensation carries it to about twice double precision before the split.
-struct SplitPrefix {
-    coarse: Vec<f64>,
-    fine: Vec<f64>,
-}
-
-impl SplitPrefix {
-    fn of(x: &[f64]) -> SplitPrefix {
-        let mut coarse = Vec::with_capacity(x.len() + 1);
-        let mut fine = Vec::with_capacity(x.len() + 1);
-        coarse.push(0.0);
-        fine.push(0.0);
-        let mut running = CompensatedSum::new();
-        let mut largest = 0.0f64;
-        for &v in x {
-            running.add(v);
-            let (sum, compensation) = running.parts();
-            coarse.push(sum);
-            fine.push(compensation);
-            largest = largest.max(sum.abs());
-        }
-        // Grid 2^g with |S| < 2^(g + 49): floor(log2 |S|max) + 1 − 49, from the exponent
-        // bits, clamped so the grid is a normal number and the rounding constant finite.
-        let exponent = ((largest.to_bits() >> 52) & 0x7ff) as i64 - 1023;
-        let grid_exponent = (exponent + 1 - 49).clamp(-1022, 969);
-        let grid = f64::from_bits(((grid_exponent + 1023) as u64) << 52);
-        // (s + 1.5·2⁵²·grid) − 1.5·2⁵²·grid rounds s to the grid (round to nearest) for
-        // |s| < 2⁵¹·grid, without a branch or a call, on every instruction set alike.
-        let round = 1.5 * 4_503_599_627_370_496.0 * grid;
-        for (high, low) in coarse.iter_mut().zip(fine.iter_mut()) {
-            let on_grid = (*high + round) - round;
-            *low += *high - on_grid;
-            *high = on_grid;
-        }
-        SplitPrefix { coarse, fine }
-    }
-}
-
 /// Terms per tile of the overlapping sweep: 16 KiB per stream, so the ≈ 22 distinct
 /// streams of an octave grid (≈ 350 KiB) stay in the 2 MiB L2 while a tile is swept.
 pub const TILE: usize = 2048;
@@ -356,74 +307,6 @@ fn overlapping_sums<const K: usize>(
     simd: Simd,
     term: impl Fn([f64; K]) -> f64 + Copy + Sync,
 ) -> Vec<f64> {
-    tiled_sums(Stencil { x, term }, factors, counts, simd)
-}
-
-/// The sum of one tile of terms for one factor: what [`tiled_sums`] sweeps. `sum` must be
-/// `#[inline(always)]` (it runs inside the [`Kernel`]).
-trait TileSum: Copy + Sync {
-    /// Terms per tile (at most [`TILE`], a divisor of it).
-    const TERMS: usize;
-    /// Σ over terms `start..start + len` at factor `m` (`len` ≤ `TERMS`); `scratch` is a
-    /// buffer of [`TILE`] values the sum may overwrite.
-    fn sum(&self, scratch: &mut [f64], start: usize, m: usize, len: usize) -> f64;
-}
-
-/// `term` of the K streams x[i], x[i + m], …, x[i + (K−1)m].
-#[derive(Clone, Copy)]
-struct Stencil<'a, const K: usize, T> {
-    x: &'a [f64],
-    term: T,
-}
-
-impl<const K: usize, T: Fn([f64; K]) -> f64 + Copy + Sync> TileSum for Stencil<'_, K, T> {
-    const TERMS: usize = TILE;
-    #[inline(always)]
-    fn sum(&self, _scratch: &mut [f64], start: usize, m: usize, len: usize) -> f64 {
-        let streams: [&[f64]; K] =
-            std::array::from_fn(|s| &self.x[start + s * m..start + s * m + len]);
-        sum_streams(streams, self.term)
-    }
-}
-
-/// Squared MDEV windows from the split prefix sum ([`SplitPrefix`]): the coarse third
-/// differences into a tile buffer, the fine ones added and squared in a second pass (two
-/// simple four-stream loops, which vectorise; one eight-stream term did not).
-#[derive(Clone, Copy)]
-struct ModifiedWindows<'a> {
-    prefix: &'a SplitPrefix,
-}
-
-impl TileSum for ModifiedWindows<'_> {
-    /// Eight streams (two arrays) per factor: a quarter of [`TILE`] keeps the ≈ 86
-    /// distinct stretches of an octave grid within a 1 MiB L2.
-    const TERMS: usize = TILE / 4;
-    #[inline(always)]
-    fn sum(&self, scratch: &mut [f64], start: usize, m: usize, len: usize) -> f64 {
-        let window = &mut scratch[..len];
-        let len = window.len();
-        let [a, b, c, d] = four_streams(&self.prefix.coarse, start, m, len);
-        for ((((w, a), b), c), d) in window.iter_mut().zip(a).zip(b).zip(c).zip(d) {
-            *w = (d - a) + 3.0 * (b - c);
-        }
-        let [a, b, c, d] = four_streams(&self.prefix.fine, start, m, len);
-        for ((((w, a), b), c), d) in window.iter_mut().zip(a).zip(b).zip(c).zip(d) {
-            let total = *w + ((d - a) + 3.0 * (b - c));
-            *w = total * total;
-        }
-        sum_streams([&*window], |[v]| v)
-    }
-}
-
-/// v[start + s·m ..][..len] for s = 0 … 3.
-#[inline(always)]
-fn four_streams(v: &[f64], start: usize, m: usize, len: usize) -> [&[f64]; 4] {
-    std::array::from_fn(|s| &v[start + s * m..start + s * m + len])
-}
-
-/// Σ_{i < counts[j]} of the terms `tiles` sums, for every factor m = factors[j], in one
-/// tiled sweep (see the module docs).
-fn tiled_sums(tiles: impl TileSum, factors: &[usize], counts: &[usize], simd: Simd) -> Vec<f64> {
     let longest = counts.iter().copied().max().unwrap_or(0);
     let job_terms = TILE * TILES_PER_JOB;
     let partials: Vec<Vec<CompensatedSum>> = (0..longest.div_ceil(job_terms))
@@ -433,12 +316,13 @@ fn tiled_sums(tiles: impl TileSum, factors: &[usize], counts: &[usize], simd: Si
             let end = (start + job_terms).min(longest);
             dispatch(
                 simd,
-                SweepTiles {
-                    tiles,
+                SweepTiles::<K, _> {
+                    x,
                     factors,
                     counts,
                     start,
                     end,
+                    term,
                 },
             )
         })
@@ -453,19 +337,27 @@ fn tiled_sums(tiles: impl TileSum, factors: &[usize], counts: &[usize], simd: Si
 }
 
 /// [`sweep_tiles`] as a [`Kernel`].
-struct SweepTiles<'a, S> {
-    tiles: S,
+struct SweepTiles<'a, const K: usize, T> {
+    x: &'a [f64],
     factors: &'a [usize],
     counts: &'a [usize],
     start: usize,
     end: usize,
+    term: T,
 }
 
-impl<S: TileSum> Kernel for SweepTiles<'_, S> {
+impl<const K: usize, T: Fn([f64; K]) -> f64 + Copy> Kernel for SweepTiles<'_, K, T> {
     type Output = Vec<CompensatedSum>;
     #[inline(always)]
     fn run(self) -> Vec<CompensatedSum> {
-        sweep_tiles(self.tiles, self.factors, self.counts, self.start, self.end)
+        sweep_tiles(
+            self.x,
+            self.factors,
+            self.counts,
+            self.start,
+            self.end,
+            self.term,
+        )
     }
 }
 
@@ -503,26 +395,42 @@ impl Kernel for DecimatedSum<'_> {
     }
 }
 
-/// The tiles of terms `start..end` of [`tiled_sums`], every factor per tile.
+/// [`modified_sum`] as a [`Kernel`].
+struct ModifiedSum<'a> {
+    x: &'a [f64],
+    m: usize,
+    count: usize,
+}
+
+impl Kernel for ModifiedSum<'_> {
+    type Output = f64;
+    #[inline(always)]
+    fn run(self) -> f64 {
+        modified_sum(self.x, self.m, self.count)
+    }
+}
+
+/// The tiles of terms `start..end` of [`overlapping_sums`], every factor per tile.
 #[inline(always)]
-fn sweep_tiles<S: TileSum>(
-    tiles: S,
+fn sweep_tiles<const K: usize>(
+    x: &[f64],
     factors: &[usize],
     counts: &[usize],
     start: usize,
     end: usize,
+    term: impl Fn([f64; K]) -> f64 + Copy,
 ) -> Vec<CompensatedSum> {
     let mut sums = vec![CompensatedSum::new(); factors.len()];
-    let mut scratch = vec![0.0f64; TILE];
-    let terms = S::TERMS.clamp(1, TILE);
     let mut t0 = start;
     while t0 < end {
-        let t1 = (t0 + terms).min(end);
+        let t1 = (t0 + TILE).min(end);
         for ((&m, &count), sum) in factors.iter().zip(counts).zip(sums.iter_mut()) {
             if t0 >= count {
                 continue;
             }
-            sum.add(tiles.sum(&mut scratch, t0, m, t1.min(count) - t0));
+            let len = t1.min(count) - t0;
+            let streams: [&[f64]; K] = std::array::from_fn(|s| &x[t0 + s * m..t0 + s * m + len]);
+            sum.add(sum_streams(streams, term));
         }
         t0 = t1;
     }
@@ -972,68 +880,6 @@ mod tests {
                     None => first = Some(all),
                     Some(f) => assert_eq!(f, &all, "{kind:?}: paths differ"),
                 }
-            }
-        }
-    }
-    #[test]
-    fn split_prefix_is_on_its_grid_and_sums_to_the_prefix() {
-        let phase = Phase::from_rate(noisy_rate(20_000, 3));
-        let x = &phase.points;
-        let prefix = SplitPrefix::of(x);
-        assert_eq!(prefix.coarse.len(), x.len() + 1);
-        let largest = prefix.coarse.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        // The grid step SplitPrefix chooses: |S| below 2⁴⁹ steps.
-        let step = 2f64.powi(largest.log2().floor() as i32 + 1 - 49);
-        let mut running = CompensatedSum::new();
-        for (k, (&c, &f)) in prefix.coarse.iter().zip(&prefix.fine).enumerate() {
-            assert_eq!(
-                (c / step).fract(),
-                0.0,
-                "k={k}: {c:e} off the grid {step:e}"
-            );
-            // Half a step (2⁻⁴⁹ of the largest S) from the rounding, plus the running
-            // sum's compensation (some ulps of S): tiny next to S.
-            assert!(
-                f.abs() <= 1e-12 * largest,
-                "k={k}: fine {f:e}, S up to {largest:e}"
-            );
-            let want = running.value();
-            assert!(
-                (c + f - want).abs() <= 1e-15 * (1.0 + want.abs()),
-                "k={k}: {c:e} + {f:e} vs {want:e}"
-            );
-            if k < x.len() {
-                running.add(x[k]);
-            }
-        }
-    }
-
-    #[test]
-    fn mdev_sweep_keeps_the_window_digits_under_a_large_prefix() {
-        // A rate drift makes the phase quadratic and its prefix sum about 1e12, while the
-        // MDEV windows at small τ are of order 1: one double for S would lose about
-        // 1e-4 of them; the split prefix must agree with the sliding window to 1e-12.
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(17);
-        let y: Vec<f64> = (0..200_000)
-            .map(|k| {
-                let w: f64 = StandardNormal.sample(&mut rng);
-                1e3 + 1e-3 * k as f64 + w
-            })
-            .collect();
-        let phase = Phase::from_rate(y);
-        let factors = [1, 2, 4, 16, 256, 4_096, 65_536];
-        for simd in Simd::available() {
-            let all = variances_with(DeviationKind::Mdev, &phase, &factors, simd);
-            for (j, &m) in factors.iter().enumerate() {
-                let (v, _) = all[j].unwrap();
-                let (w, _) = variance_at(DeviationKind::Mdev, &phase, m).unwrap();
-                assert!(
-                    (v - w).abs() <= 1e-12 * w,
-                    "m={m} {simd:?}: {v:e} vs {w:e} (rel {:e})",
-                    (v - w).abs() / w
-                );
             }
         }
     }

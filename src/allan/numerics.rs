@@ -108,13 +108,6 @@ impl CompensatedSum {
     pub fn value(&self) -> f64 {
         self.sum + self.compensation
     }
-
-    /// The running sum and its accumulated error separately (their sum is
-    /// [`value`](Self::value), to about twice double precision).
-    #[inline]
-    pub fn parts(&self) -> (f64, f64) {
-        (self.sum, self.compensation)
-    }
 }
 
 /// Mean of a slice (0 for an empty slice): eight-lane plain sums per block of 4096 values,
