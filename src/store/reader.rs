@@ -36,6 +36,19 @@ impl TimeRange {
     pub fn new(start_ns: Option<i64>, end_ns: Option<i64>) -> Self {
         TimeRange { start_ns, end_ns }
     }
+
+    /// The rows of a table of `len` rows whose times (`t`, non-decreasing) fall in the range.
+    fn rows(&self, t: &Dataset, len: usize) -> hdf5::Result<Range<usize>> {
+        let start = match self.start_ns {
+            Some(s) => lower_bound(t, len, s)?,
+            None => 0,
+        };
+        let end = match self.end_ns {
+            Some(e) => lower_bound(t, len, e)?,
+            None => len,
+        };
+        Ok(start..end.max(start))
+    }
 }
 
 /// One chunk file of a session and whether it can be read.
@@ -54,6 +67,40 @@ pub struct ChunkFileInfo {
 struct ChunkEntry {
     info: ChunkFileInfo,
     file: Option<hdf5::File>,
+}
+
+impl ChunkEntry {
+    /// The open file, or the error that says why the file was skipped.
+    fn readable(self) -> Result<(ChunkFileInfo, hdf5::File), StoreError> {
+        match self.file {
+            Some(file) => Ok((self.info, file)),
+            None => Err(StoreError::Corrupt {
+                msg: format!("skipped: {}", self.info.problem.unwrap_or_default()),
+                path: self.info.path,
+            }),
+        }
+    }
+}
+
+/// A chunk file whose tables could not be opened.
+fn file_error(info: ChunkFileInfo, e: &hdf5::Error) -> StoreError {
+    StoreError::Corrupt {
+        path: info.path,
+        msg: short_h5_error(e),
+    }
+}
+
+/// Rows `r` of table `/group` in a chunk file could not be read.
+fn rows_error(info: &ChunkFileInfo, group: &str, r: &Range<usize>, e: &hdf5::Error) -> StoreError {
+    StoreError::Corrupt {
+        path: info.path.clone(),
+        msg: format!(
+            "/{group} rows {}..{}: {}",
+            r.start,
+            r.end,
+            short_h5_error(e)
+        ),
+    }
 }
 
 /// Undecoded bytes from `/raw/<device>`: `len[i]` bytes arrived at `t_mono_ns[i]`; the reads
@@ -546,19 +593,12 @@ impl<B: Block> BlockIter<B> {
             return Ok(None);
         }
         let (ds, len) = open_table(file, &self.group, B::COLUMNS)?;
-        let start = match self.range.start_ns {
-            Some(s) => lower_bound(&ds[0], len, s)?,
-            None => 0,
-        };
-        let end = match self.range.end_ns {
-            Some(e) => lower_bound(&ds[0], len, e)?,
-            None => len,
-        };
+        let rows = self.range.rows(&ds[0], len)?;
         Ok(Some(Cursor {
             file_index,
             ds,
-            next: start,
-            end: end.max(start),
+            next: rows.start,
+            end: rows.end,
         }))
     }
 
@@ -570,18 +610,9 @@ impl<B: Block> BlockIter<B> {
                     let r: Range<usize> = c.next..(c.next + self.block_rows).min(c.end);
                     c.next = r.end;
                     let fi = c.file_index;
-                    let result = B::read(&c.ds, r.clone()).map(|b| (b, fi)).map_err(|e| {
-                        StoreError::Corrupt {
-                            path: self.files[fi].info.path.clone(),
-                            msg: format!(
-                                "/{} rows {}..{}: {}",
-                                self.group,
-                                r.start,
-                                r.end,
-                                short_h5_error(&e)
-                            ),
-                        }
-                    });
+                    let result = B::read(&c.ds, r.clone())
+                        .map(|b| (b, fi))
+                        .map_err(|e| rows_error(&self.files[fi].info, &self.group, &r, &e));
                     if result.is_err() {
                         self.cursor = None;
                     }
@@ -592,21 +623,13 @@ impl<B: Block> BlockIter<B> {
             let fi = self.pos;
             let entry = self.files.get(fi)?.clone();
             self.pos += 1;
-            let Some(file) = entry.file else {
-                let msg = entry.info.problem.unwrap_or_default();
-                return Some(Err(StoreError::Corrupt {
-                    path: entry.info.path,
-                    msg: format!("skipped: {msg}"),
-                }));
+            let (info, file) = match entry.readable() {
+                Ok(opened) => opened,
+                Err(e) => return Some(Err(e)),
             };
             match self.open_cursor(fi, &file) {
                 Ok(c) => self.cursor = c,
-                Err(e) => {
-                    return Some(Err(StoreError::Corrupt {
-                        path: entry.info.path,
-                        msg: short_h5_error(&e),
-                    }))
-                }
+                Err(e) => return Some(Err(file_error(info, &e))),
             }
         }
     }
@@ -695,15 +718,8 @@ impl ImuColumnReader {
                     let r = c.next..(c.next + self.block_rows).min(c.end);
                     c.next = r.end;
                     out.clear();
-                    let result = read_columns(c, r.clone(), out).map_err(|e| StoreError::Corrupt {
-                        path: self.files[c.file_index].info.path.clone(),
-                        msg: format!(
-                            "/{} rows {}..{}: {}",
-                            self.group,
-                            r.start,
-                            r.end,
-                            short_h5_error(&e)
-                        ),
+                    let result = read_columns(c, r.clone(), out).map_err(|e| {
+                        rows_error(&self.files[c.file_index].info, &self.group, &r, &e)
                     });
                     if result.is_err() {
                         out.clear();
@@ -716,21 +732,13 @@ impl ImuColumnReader {
             let fi = self.pos;
             let entry = self.files.get(fi)?.clone();
             self.pos += 1;
-            let Some(file) = entry.file else {
-                let msg = entry.info.problem.unwrap_or_default();
-                return Some(Err(StoreError::Corrupt {
-                    path: entry.info.path,
-                    msg: format!("skipped: {msg}"),
-                }));
+            let (info, file) = match entry.readable() {
+                Ok(opened) => opened,
+                Err(e) => return Some(Err(e)),
             };
-            match self.open_cursor(fi, &file, !entry.info.partial) {
+            match self.open_cursor(fi, &file, !info.partial) {
                 Ok(c) => self.cursor = Some(c),
-                Err(e) => {
-                    return Some(Err(StoreError::Corrupt {
-                        path: entry.info.path,
-                        msg: short_h5_error(&e),
-                    }))
-                }
+                Err(e) => return Some(Err(file_error(info, &e))),
             }
         }
     }
@@ -755,14 +763,7 @@ impl ImuColumnReader {
                 .map(|&(_, i)| IMU_COLUMNS[i]),
         );
         let (ds, len) = open_table(file, &self.group, &cols)?;
-        let start = match self.range.start_ns {
-            Some(s) => lower_bound(&ds[0], len, s)?,
-            None => 0,
-        };
-        let end = match self.range.end_ns {
-            Some(e) => lower_bound(&ds[0], len, e)?,
-            None => len,
-        };
+        let rows = self.range.rows(&ds[0], len)?;
         let mut ds = ds.into_iter();
         let mut next = |on: bool| -> hdf5::Result<Option<ColumnReader>> {
             if !on {
@@ -781,8 +782,8 @@ impl ImuColumnReader {
             gyro: next(self.set.gyro)?,
             accel: next(self.set.accel)?,
             temp: next(self.set.temp)?,
-            next: start,
-            end: end.max(start),
+            next: rows.start,
+            end: rows.end,
         })
     }
 }
