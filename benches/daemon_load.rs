@@ -17,6 +17,12 @@
 //! (`--nice` sets the nice value of the simulator and the daemon, e.g. -10 to stand in for
 //! a bench PC that runs nothing else; `--imulogd` compares another build.)
 //!
+//! **`floor` mode** (`daemon_load/floor.rs`): the same simulator and ptys read by minimal
+//! readers (blocking threads, one epoll thread, a tokio current-thread runtime) that only read
+//! and timestamp: the CPU any reader needs here, to compare `imulogd` with.
+//! `cargo bench --bench daemon_load -- floor [--secs S] [--speed F] [--runs N]
+//! [--readers threads,epoll,tokio,tokio-io] [--nice N] [--in-process]`
+//!
 //! **memory mode** (the default; rounds 1-2): the daemon loop in-process, fed from
 //! in-memory streams by a generator thread with pre-encoded frames in 1 ms bursts; prints,
 //! per rate: rows sent, written and dropped, whether the rate was held, the daemon's CPU as
@@ -45,6 +51,9 @@ use tokio::io::AsyncWriteExt;
 
 #[path = "daemon_load/pty.rs"]
 mod pty;
+
+#[path = "daemon_load/floor.rs"]
+mod floor;
 
 fn cpu_seconds(who: libc::c_int) -> f64 {
     // SAFETY: getrusage writes into the zeroed struct we own; `who` is RUSAGE_SELF/THREAD.
@@ -229,9 +238,11 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
 }
 
 fn main() {
-    if std::env::args().nth(1).as_deref() == Some("pty") {
-        pty::main(std::env::args().skip(2).collect());
-        return;
+    match std::env::args().nth(1).as_deref() {
+        Some("pty") => return pty::main(std::env::args().skip(2).collect()),
+        Some("floor") => return floor::main(std::env::args().skip(2).collect()),
+        Some("floor-reader") => return floor::reader_main(std::env::args().skip(2).collect()),
+        _ => {}
     }
     let mut secs = 10.0;
     let mut rates = Vec::new();

@@ -95,7 +95,7 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
 
 /// The bench scene: `scene_s` seconds, static, two IMUs in two protocols and a mixed
 /// UBX + NMEA receiver.
-fn scene(scene_s: f64) -> Scene {
+pub(super) fn scene(scene_s: f64) -> Scene {
     let text = format!(
         "duration_s = {scene_s}\nrate_hz = {IMU_HZ}\nseed = 7\n\
          [location]\nlat_deg = 48.1\nlon_deg = 11.6\nheight_m = 520.0\n\
@@ -137,10 +137,60 @@ fn self_cpu_s() -> f64 {
     t(usage.ru_utime) + t(usage.ru_stime)
 }
 
-fn loadavg() -> String {
+pub(super) fn loadavg() -> String {
     std::fs::read_to_string("/proc/loadavg")
         .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
         .unwrap_or_else(|_| "?".into())
+}
+
+/// Per thread of process `pid`: (tid, name, on-CPU ns, times scheduled in), from
+/// `/proc/PID/task/TID/schedstat` (its first and third fields).
+pub(super) fn thread_times(pid: u32) -> Vec<(u32, String, u64, u64)> {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for task in tasks.flatten() {
+        let Some(tid) = task.file_name().to_str().and_then(|t| t.parse().ok()) else {
+            continue;
+        };
+        let name = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
+        let Ok(stat) = std::fs::read_to_string(task.path().join("schedstat")) else {
+            continue;
+        };
+        let f: Vec<u64> = stat
+            .split_whitespace()
+            .filter_map(|v| v.parse().ok())
+            .collect();
+        if let (Some(&ns), Some(&runs)) = (f.first(), f.get(2)) {
+            out.push((tid, name.trim().to_string(), ns, runs));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Each thread's share over a window: "name CPU % of one core, wake-ups a second".
+fn thread_shares(
+    before: &[(u32, String, u64, u64)],
+    after: &[(u32, String, u64, u64)],
+    wall_s: f64,
+) -> String {
+    after
+        .iter()
+        .map(|(tid, name, ns, runs)| {
+            let (ns0, runs0) = before
+                .iter()
+                .find(|b| b.0 == *tid)
+                .map_or((0, 0), |b| (b.2, b.3));
+            format!(
+                "{name}[{tid}] {:.3} % {:.0}/s",
+                100.0 * ns.saturating_sub(ns0) as f64 * 1e-9 / wall_s,
+                runs.saturating_sub(runs0) as f64 / wall_s
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// One sample of the daemon from outside.
@@ -193,6 +243,8 @@ struct RunResult {
     session_mib: f64,
     load_before: String,
     load_after: String,
+    /// Per daemon thread over the serve: CPU % of one core and wake-ups a second.
+    threads: String,
 }
 
 impl RunResult {
@@ -310,6 +362,7 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
 
     let load_before = loadavg();
     let cpu0 = proc_cpu_s(pid).unwrap_or(f64::NAN);
+    let threads0 = thread_times(pid);
     let self0 = self_cpu_s();
     let t0 = Instant::now();
     server.begin();
@@ -332,6 +385,7 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
     let report: ServeReport = server.finish().unwrap_or_else(|e| panic!("serve: {e:#}"));
     let serve_wall_s = t0.elapsed().as_secs_f64();
     let daemon_cpu_s = proc_cpu_s(pid).unwrap_or(f64::NAN) - cpu0;
+    let threads = thread_shares(&threads0, &thread_times(pid), serve_wall_s);
     let server_cpu_s = self_cpu_s() - self0;
     samples.push(take_sample(pid, serve_wall_s, daemon_cpu_s, &session_dir));
     let load_after = loadavg();
@@ -396,6 +450,7 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
         session_mib: dir_size(&session_dir) as f64 / (1 << 20) as f64,
         load_before,
         load_after,
+        threads,
     }
 }
 
@@ -485,6 +540,7 @@ pub fn main(args: Vec<String>) {
                 .map(|s| format!("{:.0}s:{:.1}", s.wall_s, s.rss_mib))
                 .collect();
             println!("       RSS MiB (wall s:MiB) {}", shown.join(" "));
+            println!("       daemon threads (schedstat): {}", r.threads);
             if let Some(f) = curve.as_mut() {
                 for s in &r.samples {
                     writeln!(

@@ -289,7 +289,9 @@ impl DeviceTask {
         // The batch being collected, and the grid point it is due at the writer (set by its
         // first read): one timer expiry per period, shared with the other devices' tasks.
         let mut batch = Batch::new(self.index);
-        let mut due: Option<tokio::time::Instant> = None;
+        // (The point in CLOCK_MONOTONIC ns, the clock of the arrival times; `timer` holds it as
+        // a deadline.)
+        let mut due: Option<i64> = None;
         let timer = tokio::time::sleep_until(tokio::time::Instant::now());
         tokio::pin!(timer);
         // Made once per connection: a fresh one per read registered and removed a waiter on
@@ -297,8 +299,12 @@ impl DeviceTask {
         let stop = stopped(shutdown);
         tokio::pin!(stop);
         let end = loop {
+            // In a fixed order (no random start per frame): shutdown, the hand-over, then
+            // the device. A busy device cannot starve the other two: a read that finds the
+            // grid point passed hands over itself, and tokio's budget makes a read yield.
             let received = tokio::select! {
-                r = link.receive(&mut buffer) => r,
+                biased;
+                _ = &mut stop => break ConnectionEnd::Stop,
                 // A quiet device: what was collected goes out at its grid point.
                 _ = &mut timer, if due.is_some() => {
                     due = None;
@@ -308,7 +314,7 @@ impl DeviceTask {
                     }
                     continue;
                 }
-                _ = &mut stop => break ConnectionEnd::Stop,
+                r = link.receive(&mut buffer) => r,
             };
             let at = clock::now();
             decoding.link = link.stats();
@@ -333,20 +339,25 @@ impl DeviceTask {
             if batch.is_empty() {
                 continue;
             }
-            let now = tokio::time::Instant::now();
             let full =
                 batch.rows() >= BATCH_MAX_ROWS || batch.raw_bytes.len() >= BATCH_MAX_RAW_BYTES;
-            // A read that finds its grid point passed before the timer fired hands over too.
-            if full || due.is_some_and(|d| now >= d) {
+            // A read that finds its grid point passed before the timer fired hands over too
+            // (judged on the read's own arrival time: no further clock read per frame).
+            if full || due.is_some_and(|d_mono_ns| at.mono_ns >= d_mono_ns) {
                 due = None;
                 let ready = std::mem::replace(&mut batch, Batch::new(self.index));
                 if self.queue.send(ready).is_err() {
                     break ConnectionEnd::WriterGone;
                 }
             } else if due.is_none() {
+                let now = tokio::time::Instant::now();
                 let d = self.next_handover(now);
                 timer.as_mut().reset(d);
-                due = Some(d);
+                // The same point on the clock the arrival times are read from (both are
+                // CLOCK_MONOTONIC; `at` was read just before `now`).
+                let ahead =
+                    i64::try_from(d.saturating_duration_since(now).as_nanos()).unwrap_or(i64::MAX);
+                due = Some(at.mono_ns.saturating_add(ahead));
             }
         };
         // What was collected is not lost with the connection (nor at shutdown).

@@ -1,5 +1,5 @@
-//! The daemon's top level: starts the writer thread, one task per device and the status
-//! task; handles SIGTERM/SIGINT (flush, close, exit 0 within 2 s) and SIGHUP (rotate); tells
+//! The daemon's top level: starts the writer thread (which also writes the status file),
+//! one task per device and, under a systemd watchdog, the task that feeds it; handles SIGTERM/SIGINT (flush, close, exit 0 within 2 s) and SIGHUP (rotate); tells
 //! systemd READY once every device has opened or failed its first attempt, and feeds the
 //! watchdog while the writer thread is alive.
 
@@ -17,7 +17,9 @@ use super::device::{self, DeviceTask};
 use super::sink::RecordSink;
 use super::source::{Connector, DecoderFactory};
 use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
-use super::writer::{self, FreeSpaceFn, QueueSender, WriterControl, WriterExit, WriterSettings};
+use super::writer::{
+    self, FreeSpaceFn, QueueSender, StatusFile, WriterControl, WriterExit, WriterSettings,
+};
 
 /// How long device tasks get to stop before they are aborted.
 const DEVICE_STOP_TIMEOUT: Duration = Duration::from_millis(300);
@@ -28,6 +30,8 @@ const WRITER_STOP_TIMEOUT: Duration = Duration::from_millis(1500);
 const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
 const DISK_CHECK_INTERVAL: Duration = Duration::from_secs(1);
+/// How often the status file is written.
+const STATUS_INTERVAL: Duration = Duration::from_secs(1);
 
 /// The store's flush interval for a configured flush interval: the interval less the
 /// hand-over period ([`device::batch_window`]) and the writer's flush lag
@@ -124,6 +128,9 @@ pub async fn run(
         _ => return Outcome::Failed(anyhow::anyhow!("cannot install signal handlers")),
     };
 
+    // Held while the status file is written: the writer's last report, if it is still writing
+    // one (e.g. it timed out), finishes before the final report below is written.
+    let status_lock = Arc::new(std::sync::Mutex::new(()));
     let (tx, rx) = writer::queue(config.session.queue_capacity);
     // One grid for every device task and the writer.
     let handover = Cadence::new(
@@ -135,6 +142,11 @@ pub async fn run(
         reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
         disk_check_interval: DISK_CHECK_INTERVAL,
         drain_budget: WRITER_DRAIN_BUDGET,
+        status: StatusFile {
+            path: status_path.clone(),
+            interval: STATUS_INTERVAL,
+            lock: status_lock.clone(),
+        },
         start_detail: format!(
             "imulogd {} started: {} devices ({})",
             env!("CARGO_PKG_VERSION"),
@@ -216,59 +228,27 @@ pub async fn run(
         ]);
     });
 
-    // Held while the status file is written: a write already handed to the blocking pool when
-    // the status task is aborted finishes before the final report is written.
-    let status_lock = Arc::new(std::sync::Mutex::new(()));
-    let status_task = {
-        let status_lock = status_lock.clone();
-        let mut tracker =
-            StatusTracker::new(shared.clone(), writer_shared.clone(), clock::mono_ns());
+    // Only under a systemd watchdog: a task that feeds it while the writer turns over. The
+    // status file is written by the writer thread (no wake-up of the device thread for it).
+    let watchdog_task = sd_notify::watchdog_enabled().map(|watchdog| {
         let writer_shared = writer_shared.clone();
-        let status_path = status_path.clone();
-        let watchdog = sd_notify::watchdog_enabled();
         tokio::spawn(async move {
-            let tick = watchdog
-                .map(|w| (w / 2).min(Duration::from_secs(1)))
-                .unwrap_or(Duration::from_secs(1));
-            let mut interval = tokio::time::interval(tick);
-            let mut last_status = None::<tokio::time::Instant>;
+            let mut interval = tokio::time::interval((watchdog / 2).min(Duration::from_secs(1)));
             loop {
                 interval.tick().await;
                 let now = clock::mono_ns();
-                if let Some(w) = watchdog {
-                    // Feed the watchdog only while the writer thread is turning over.
-                    let heartbeat = writer_shared.counters().heartbeat_mono_ns;
-                    if (now - heartbeat) < w.as_nanos() as i64 / 2 {
-                        notify(&[sd_notify::NotifyState::Watchdog]);
-                    } else {
-                        tracing::warn!(
-                            "writer thread has not turned over for {} ms: not feeding the watchdog",
-                            (now - heartbeat) / 1_000_000
-                        );
-                    }
-                }
-                if last_status.is_none_or(|t| t.elapsed() >= Duration::from_millis(990)) {
-                    last_status = Some(tokio::time::Instant::now());
-                    let report = tracker.report(now, chrono::Utc::now());
-                    // A file create and rename can block on a busy disk: not on the thread
-                    // that reads the devices.
-                    let path = status_path.clone();
-                    let lock = status_lock.clone();
-                    let written = tokio::task::spawn_blocking(move || {
-                        let _held = lock.lock().unwrap_or_else(|p| p.into_inner());
-                        write_status_file(&path, &report)
-                    })
-                    .await;
-                    if let Ok(Err(e)) = written {
-                        tracing::warn!(
-                            "cannot write the status file {}: {e}",
-                            status_path.display()
-                        );
-                    }
+                let heartbeat = writer_shared.counters().heartbeat_mono_ns;
+                if (now - heartbeat) < watchdog.as_nanos() as i64 / 2 {
+                    notify(&[sd_notify::NotifyState::Watchdog]);
+                } else {
+                    tracing::warn!(
+                        "writer thread has not turned over for {} ms: not feeding the watchdog",
+                        (now - heartbeat) / 1_000_000
+                    );
                 }
             }
         })
-    };
+    });
 
     // Wait for a reason to stop.
     let early_exit: Option<WriterExit> = loop {
@@ -309,10 +289,9 @@ pub async fn run(
             )),
         },
     };
-    // Wait until the status task has really stopped: it must not write the file concurrently
-    // with the final report below.
-    status_task.abort();
-    let _ = status_task.await;
+    if let Some(task) = watchdog_task {
+        task.abort();
+    }
     let mut tracker = StatusTracker::new(shared, writer_shared, clock::mono_ns());
     let mut report = tracker.report(clock::mono_ns(), chrono::Utc::now());
     report.state = "stopped".to_string();

@@ -17,7 +17,7 @@ use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord};
 use super::cadence::{self, Cadence};
 use super::clock;
 use super::sink::RecordSink;
-use super::status::{DeviceShared, WriterShared};
+use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
 
 /// What one device produced over a few reads (a device task collects reads for a short
 /// window before it hands them over, so the writer wakes per batch, not per frame).
@@ -143,6 +143,24 @@ pub struct WriterSettings {
     /// Once stopping, how long the writer may spend writing what is still queued; batches
     /// left after that are dropped and counted, so the session still closes in time.
     pub drain_budget: Duration,
+    /// The status file, written by the writer about once a second at one of its turns.
+    pub status: StatusFile,
+}
+
+/// Where and how often the status file is written.
+///
+/// The writer writes it, at the first of its turns (it wakes at least at every grid point)
+/// that comes at least an interval less half a grid period after the previous report: the
+/// writer is the thread that touches the disk anyway and is awake then, so the report costs
+/// no wake-up of its own, and the device thread never waits for the file.
+#[derive(Debug, Clone)]
+pub struct StatusFile {
+    pub path: std::path::PathBuf,
+    /// About how often (the issue asks for every second).
+    pub interval: Duration,
+    /// Held while the file is written, so the daemon's final report after the writer's end
+    /// (or after it timed out) never interleaves with one from the writer.
+    pub lock: Arc<std::sync::Mutex<()>>,
 }
 
 /// Why the writer stopped.
@@ -166,10 +184,13 @@ pub fn run_writer(
     settings: WriterSettings,
     mut free_space: FreeSpaceFn,
 ) -> WriterExit {
+    let tracker = StatusTracker::new(devices.clone(), shared.clone(), clock::mono_ns());
     let mut state = WriterState {
         devices,
         shared,
         reported_drops: Vec::new(),
+        tracker,
+        last_status: None,
     };
     state.reported_drops = vec![(0, 0, 0); state.devices.len()];
     {
@@ -232,6 +253,9 @@ struct WriterState {
     shared: Arc<WriterShared>,
     /// Drop counts (batches, rows, events) already written as events, per device.
     reported_drops: Vec<(u64, u64, u64)>,
+    tracker: StatusTracker,
+    /// When the status file was last written.
+    last_status: Option<Instant>,
 }
 
 impl WriterState {
@@ -254,7 +278,8 @@ impl WriterState {
             if control.stop.load(Ordering::SeqCst) {
                 return Ok(WriterExit::Clean);
             }
-            if last_disk_check.is_none_or(|t| t.elapsed() >= settings.disk_check_interval) {
+            let early = settings.handover.period() / 2;
+            if last_disk_check.is_none_or(|t| t.elapsed() + early >= settings.disk_check_interval) {
                 last_disk_check = Some(Instant::now());
                 match free_space() {
                     Ok(free_bytes) => {
@@ -275,6 +300,14 @@ impl WriterState {
                     Err(e) => tracing::warn!("cannot read free disk space: {e}"),
                 }
             }
+            // No wake-up of its own: the writer turns over at every grid point.
+            if self
+                .last_status
+                .is_none_or(|t| t.elapsed() + early >= settings.status.interval)
+            {
+                self.last_status = Some(Instant::now());
+                self.write_status(&settings.status);
+            }
             if control.rotate.swap(false, Ordering::SeqCst) {
                 self.report_drops(sink)?;
                 sink.append_event(&session_event(
@@ -287,10 +320,10 @@ impl WriterState {
                 w.current_file = sink.current_file();
                 tracing::info!("rotated to {:?}", w.current_file);
             }
-            // Asleep until a batch comes, or the flush or the disk check is due.
-            let disk_due =
-                last_disk_check.map_or(Instant::now(), |t| t + settings.disk_check_interval);
-            let wake = (flush_point + lag).min(disk_due);
+            // Asleep until a batch comes or the flush is due. The disk check and the status
+            // report wait for that turn rather than wake the writer themselves (at most one
+            // period late).
+            let wake = flush_point + lag;
             // Whether the queue was empty at the end of this turn.
             let mut caught_up = true;
             match rx.recv_timeout(wake.saturating_duration_since(Instant::now())) {
@@ -332,6 +365,21 @@ impl WriterState {
                 w.flushes += 1;
                 w.current_file = sink.current_file();
             }
+        }
+    }
+
+    /// Writes the status file; a failure is logged, never fatal.
+    fn write_status(&mut self, status: &StatusFile) {
+        let report = self.tracker.report(clock::mono_ns(), chrono::Utc::now());
+        let written = {
+            let _held = status.lock.lock().unwrap_or_else(|p| p.into_inner());
+            write_status_file(&status.path, &report)
+        };
+        if let Err(e) = written {
+            tracing::warn!(
+                "cannot write the status file {}: {e}",
+                status.path.display()
+            );
         }
     }
 
