@@ -4,15 +4,17 @@
 //!
 //! [`variance_at`] evaluates one factor; [`variances`] a whole grid at once, which is how
 //! curves are computed:
-//! - the overlapping kinds (OADEV, OHDEV and the interior of TOTDEV, whose stencil and
-//!   term count equal OADEV's) in **one sweep** over the phase: the term range is cut
-//!   into tiles of [`TILE`] terms and every factor's sum advances over a tile before the
-//!   next one. The streams x[i + s·m] of neighbouring octave factors coincide (2m of m is
-//!   m of 2m), so each tile reads about 22 distinct stretches of the phase once from
-//!   memory and the rest from cache, instead of three full passes per factor. Tile sums
-//!   are plain eight-lane sums, compensated across tiles; groups of tiles run on the
-//!   rayon pool and are merged in a fixed order, so the result does not depend on the
-//!   number of threads;
+//! - OADEV and the interior of TOTDEV (whose stencil and term count equal OADEV's) in
+//!   **one register-blocked sweep** over the phase for all factors of the grid
+//!   ([`super::sweep`]: chains m, 2m, 4m, … share their loads, AVX-512/AVX2/portable
+//!   paths with identical bits);
+//! - OHDEV in one tiled sweep: the term range is cut into tiles of [`TILE`] terms and
+//!   every factor's sum advances over a tile before the next one. The streams x[i + s·m]
+//!   of neighbouring octave factors coincide (2m of m is m of 2m), so each tile reads
+//!   about 22 distinct stretches of the phase once from memory and the rest from cache,
+//!   instead of four full passes per factor. Tile sums are plain eight-lane sums,
+//!   compensated across tiles; groups of tiles run on the rayon pool and are merged in a
+//!   fixed order, so the result does not depend on the number of threads;
 //! - the non-overlapping kinds (ADEV, HDEV) on the decimated phase z[k] = x[k·m], built
 //!   as a pyramid (each octave level compacts the previous one in place), where the
 //!   terms are contiguous second and third differences;
@@ -24,6 +26,7 @@
 use super::numerics::{
     blocked_sum, dispatch, for_each_decimation, sum_streams, CompensatedSum, Kernel, Phase, Simd,
 };
+use super::sweep::{second_difference_sums, SweepPath};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -188,7 +191,9 @@ pub fn variances_with(
     let n = x.len();
     let counts: Vec<usize> = factors.iter().map(|&m| kind.term_count(m, n)).collect();
     let sums: Vec<f64> = match kind {
-        DeviationKind::Oadev => overlapping_sums(x, factors, &counts, simd, second_difference),
+        DeviationKind::Oadev => {
+            second_difference_sums(x, factors, &counts, SweepPath::for_simd(simd))
+        }
         DeviationKind::Ohdev => overlapping_sums(x, factors, &counts, simd, third_difference),
         DeviationKind::Totdev => {
             // Interior: the OADEV stencil over i − m … i + m for m ≤ i ≤ n − 1 − m, i.e.
@@ -198,7 +203,7 @@ pub fn variances_with(
                 .zip(&counts)
                 .map(|(&m, &c)| if c > 0 { n.saturating_sub(2 * m) } else { 0 })
                 .collect();
-            let inner = overlapping_sums(x, factors, &interior, simd, second_difference);
+            let inner = second_difference_sums(x, factors, &interior, SweepPath::for_simd(simd));
             factors
                 .par_iter()
                 .zip(inner)
