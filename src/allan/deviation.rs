@@ -445,6 +445,11 @@ fn sweep_tiles<const K: usize>(
 /// The reflected edge terms of TOTDEV at factor `m` (1 ≤ i < m and n − m ≤ i ≤ n − 2 of
 /// [`total_sum`]), vectorised when one reflection suffices (2m ≤ n − 1, every generated
 /// grid), else point by point.
+///
+/// The reflected values run backwards through the phase; they are copied reversed into a
+/// stack buffer one block of [`EDGE_BLOCK`] terms at a time (a heap copy of all m − 1 of
+/// them cost fresh pages, i.e. page faults, for every large factor), and each block is
+/// one [`sum_streams`] block, compensated across blocks.
 #[inline(always)]
 fn total_edges(x: &[f64], m: usize) -> f64 {
     let n = x.len();
@@ -452,31 +457,48 @@ fn total_edges(x: &[f64], m: usize) -> f64 {
     if m < 2 || 2 * m > last {
         return total_edges_pointwise(x, m);
     }
-    let mut reversed: Vec<f64> = Vec::with_capacity(m - 1);
+    let mut reversed = [0.0f64; EDGE_BLOCK];
     let mut total = CompensatedSum::new();
     // Leading: i = 1 … m−1, x*[i − m] = 2x[0] − x[m − i].
-    reversed.extend(x[1..m].iter().rev());
     let first = 2.0 * x[0];
-    total.add(sum_streams(
-        [&reversed, &x[1..m], &x[m + 1..2 * m]],
-        |[r, b, c]| {
-            let d = (first - r) - 2.0 * b + c;
-            d * d
-        },
-    ));
-    // Trailing: i = n−m … n−2, x*[i + m] = 2x[last] − x[n − 2 − (i − (n − m))].
-    reversed.clear();
-    reversed.extend(x[n - m..last].iter().rev());
+    let mut i = 1;
+    while i < m {
+        let len = EDGE_BLOCK.min(m - i);
+        for (k, slot) in reversed[..len].iter_mut().enumerate() {
+            *slot = x[m - i - k];
+        }
+        total.add(sum_streams(
+            [&reversed[..len], &x[i..i + len], &x[i + m..i + m + len]],
+            |[r, b, c]| {
+                let d = (first - r) - 2.0 * b + c;
+                d * d
+            },
+        ));
+        i += len;
+    }
+    // Trailing: i = n−m … n−2, x*[i + m] = 2x[last] − x[2·last − i − m].
     let end = 2.0 * x[last];
-    total.add(sum_streams(
-        [&x[n - 2 * m..n - m - 1], &x[n - m..last], &reversed],
-        |[a, b, r]| {
-            let d = a - 2.0 * b + (end - r);
-            d * d
-        },
-    ));
+    let mut i = n - m;
+    while i < last {
+        let len = EDGE_BLOCK.min(last - i);
+        for (k, slot) in reversed[..len].iter_mut().enumerate() {
+            *slot = x[2 * last - i - m - k];
+        }
+        total.add(sum_streams(
+            [&x[i - m..i - m + len], &x[i..i + len], &reversed[..len]],
+            |[a, b, r]| {
+                let d = a - 2.0 * b + (end - r);
+                d * d
+            },
+        ));
+        i += len;
+    }
     total.value()
 }
+
+/// Edge terms per reversed block of [`total_edges`] (sum_streams' own block length, so
+/// the result has the same bits as one pass over a reversed copy).
+const EDGE_BLOCK: usize = 4096;
 
 /// [`total_edges`] point by point, for any `m < n − 1`.
 fn total_edges_pointwise(x: &[f64], m: usize) -> f64 {
