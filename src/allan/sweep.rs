@@ -196,9 +196,11 @@ struct Group {
 
 /// Groups for the factors `live` (indices into `factors`): greedy chains m, 2m, 4m, … of
 /// at least two factors from the smallest factor up, then the rest in shared groups.
+/// O(F log F) for F factors (the `all` grid has one per m).
 fn plan(factors: &[usize], live: &[usize]) -> Vec<Group> {
     let mut order: Vec<usize> = live.to_vec();
     order.sort_by_key(|&j| factors[j]);
+    let sorted: Vec<usize> = order.iter().map(|&j| factors[j]).collect();
     let mut taken = vec![false; order.len()];
     let mut groups = Vec::new();
     let mut singles = Vec::new();
@@ -212,8 +214,12 @@ fn plan(factors: &[usize], live: &[usize]) -> Vec<Group> {
         let mut len = 1;
         let mut at = start;
         while len < GROUP {
-            let want = factors[order[at]].saturating_mul(2);
-            match (at + 1..order.len()).find(|&k| !taken[k] && factors[order[k]] == want) {
+            let want = sorted[at].saturating_mul(2);
+            let first = sorted.partition_point(|&m| m < want).max(at + 1);
+            match (first..sorted.len())
+                .take_while(|&k| sorted[k] == want)
+                .find(|&k| !taken[k])
+            {
                 Some(k) => {
                     taken[k] = true;
                     members[len] = order[k];
@@ -662,6 +668,26 @@ mod tests {
                 (Sharing::Shared, vec![10]),
             ]
         );
+    }
+
+    #[test]
+    fn plan_of_the_all_grid_covers_every_factor_once() {
+        // 50 000 factors (one per m): each in exactly one group, chains exact doublings.
+        let factors: Vec<usize> = (1..=50_000).collect();
+        let live: Vec<usize> = (0..factors.len()).collect();
+        let mut seen = vec![0u8; factors.len()];
+        for group in plan(&factors, &live) {
+            let members = &group.members[..group.len];
+            if group.sharing == Sharing::Chain {
+                assert!(members
+                    .windows(2)
+                    .all(|w| factors[w[1]] == 2 * factors[w[0]]));
+            }
+            for &j in members {
+                seen[j] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1));
     }
 
     #[test]
