@@ -13,7 +13,9 @@
 //! six simulated axes written as a session with FLUSH_S-second chunks (default 1) and the
 //! default 10-minute file rotation, kept in `target/allan-bench/session-FLUSH_Ss` for the next
 //! run; times reading six axes + time through `read_axes`, and the six-axis OADEV report with
-//! fit end to end).
+//! fit end to end), or
+//! `cargo bench --bench allan -- --only KIND[:GRID] [--runs N]` (the per-type table for the
+//! matching rows alone, best of N runs, e.g. `--only oadev:octave --runs 30` under `perf`).
 
 use clap::Parser;
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
@@ -160,10 +162,41 @@ fn write_npy(path: &std::path::Path, axes: &[Vec<f64>]) {
     w.finish().expect("npy finish");
 }
 
+/// `--only KIND[:GRID]` (e.g. `oadev`, `oadev:dense:10`): section 1 for the matching
+/// cases alone, then exit; `--runs N` sets its best-of count (default 3), so a profiler
+/// can record one deviation type many times. `None` when no filter was given.
+fn only_filter(args: &[String]) -> Option<(String, Option<String>, usize)> {
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1).cloned())
+            .or_else(|| {
+                let prefix = format!("{flag}=");
+                args.iter()
+                    .find_map(|a| a.strip_prefix(&prefix).map(str::to_string))
+            })
+    };
+    let only = value("--only")?;
+    let runs = value("--runs").and_then(|r| r.parse().ok()).unwrap_or(3);
+    let (kind, grid) = match only.split_once(':') {
+        Some((k, g)) => (k.to_string(), Some(g.to_string())),
+        None => (only, None),
+    };
+    Some((kind, grid, runs))
+}
+
 fn main() {
-    let args: Vec<String> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with("--"))
+    let raw: Vec<String> = std::env::args().skip(1).collect();
+    let only = only_filter(&raw);
+    let mut skip_value = false;
+    let args: Vec<String> = raw
+        .iter()
+        .filter(|a| {
+            let value = std::mem::take(&mut skip_value);
+            skip_value = *a == "--only" || *a == "--runs";
+            !value && !a.starts_with("--")
+        })
+        .cloned()
         .collect();
     if args.first().map(String::as_str) == Some("memory") {
         let days: f64 = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(7.0);
@@ -214,17 +247,23 @@ fn main() {
         (DeviationKind::Ohdev, TauGrid::Octave, "octave"),
         (DeviationKind::Totdev, TauGrid::Octave, "octave"),
     ];
+    let runs = only.as_ref().map_or(3, |o| o.2.max(1));
     // Phase building, deviations, noise identification, EDF and intervals are all timed; the
     // copy of the input (which the analysis consumes) is not.
     for (kind, grid, label) in &cases {
+        if let Some((k, g, _)) = &only {
+            if kind.name() != k || g.as_ref().is_some_and(|g| g != label) {
+                continue;
+            }
+        }
         let (one, result) = best_of_prepared(
-            3,
+            runs,
             || vec![axes[0].clone()],
             |a| analyse_all(a, *kind, grid, false),
         );
         let (serial, _) = single.install(|| {
             best_of_prepared(
-                3,
+                runs,
                 || vec![axes[0].clone()],
                 |a| analyse_all(a, *kind, grid, false),
             )
@@ -241,6 +280,10 @@ fn main() {
             six.wall,
             six.cpu
         );
+    }
+
+    if only.is_some() {
+        return;
     }
 
     // 2. Full six-axis OADEV report with fit (phase, curve with EDF/CI/noise id, IRLS fit,

@@ -4,15 +4,17 @@
 //!
 //! [`variance_at`] evaluates one factor; [`variances`] a whole grid at once, which is how
 //! curves are computed:
-//! - the overlapping kinds (OADEV, OHDEV and the interior of TOTDEV, whose stencil and
-//!   term count equal OADEV's) in **one sweep** over the phase: the term range is cut
-//!   into tiles of [`TILE`] terms and every factor's sum advances over a tile before the
-//!   next one. The streams x[i + s·m] of neighbouring octave factors coincide (2m of m is
-//!   m of 2m), so each tile reads about 22 distinct stretches of the phase once from
-//!   memory and the rest from cache, instead of three full passes per factor. Tile sums
-//!   are plain eight-lane sums, compensated across tiles; groups of tiles run on the
-//!   rayon pool and are merged in a fixed order, so the result does not depend on the
-//!   number of threads;
+//! - OADEV and the interior of TOTDEV (whose stencil and term count equal OADEV's) in
+//!   **one register-blocked sweep** over the phase for all factors of the grid
+//!   ([`super::sweep`]: chains m, 2m, 4m, … share their loads, AVX-512/AVX2/portable
+//!   paths with identical bits);
+//! - OHDEV in one tiled sweep: the term range is cut into tiles of [`TILE`] terms and
+//!   every factor's sum advances over a tile before the next one. The streams x[i + s·m]
+//!   of neighbouring octave factors coincide (2m of m is m of 2m), so each tile reads
+//!   about 22 distinct stretches of the phase once from memory and the rest from cache,
+//!   instead of four full passes per factor. Tile sums are plain eight-lane sums,
+//!   compensated across tiles; groups of tiles run on the rayon pool and are merged in a
+//!   fixed order, so the result does not depend on the number of threads;
 //! - the non-overlapping kinds (ADEV, HDEV) on the decimated phase z[k] = x[k·m], built
 //!   as a pyramid (each octave level compacts the previous one in place), where the
 //!   terms are contiguous second and third differences;
@@ -24,6 +26,7 @@
 use super::numerics::{
     blocked_sum, dispatch, for_each_decimation, sum_streams, CompensatedSum, Kernel, Phase, Simd,
 };
+use super::sweep::{second_difference_sums, SweepPath};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -188,7 +191,9 @@ pub fn variances_with(
     let n = x.len();
     let counts: Vec<usize> = factors.iter().map(|&m| kind.term_count(m, n)).collect();
     let sums: Vec<f64> = match kind {
-        DeviationKind::Oadev => overlapping_sums(x, factors, &counts, simd, second_difference),
+        DeviationKind::Oadev => {
+            second_difference_sums(x, factors, &counts, SweepPath::for_simd(simd))
+        }
         DeviationKind::Ohdev => overlapping_sums(x, factors, &counts, simd, third_difference),
         DeviationKind::Totdev => {
             // Interior: the OADEV stencil over i − m … i + m for m ≤ i ≤ n − 1 − m, i.e.
@@ -198,7 +203,7 @@ pub fn variances_with(
                 .zip(&counts)
                 .map(|(&m, &c)| if c > 0 { n.saturating_sub(2 * m) } else { 0 })
                 .collect();
-            let inner = overlapping_sums(x, factors, &interior, simd, second_difference);
+            let inner = second_difference_sums(x, factors, &interior, SweepPath::for_simd(simd));
             factors
                 .par_iter()
                 .zip(inner)
@@ -440,6 +445,11 @@ fn sweep_tiles<const K: usize>(
 /// The reflected edge terms of TOTDEV at factor `m` (1 ≤ i < m and n − m ≤ i ≤ n − 2 of
 /// [`total_sum`]), vectorised when one reflection suffices (2m ≤ n − 1, every generated
 /// grid), else point by point.
+///
+/// The reflected values run backwards through the phase; they are copied reversed into a
+/// stack buffer one block of [`EDGE_BLOCK`] terms at a time (a heap copy of all m − 1 of
+/// them cost fresh pages, i.e. page faults, for every large factor), and each block is
+/// one [`sum_streams`] block, compensated across blocks.
 #[inline(always)]
 fn total_edges(x: &[f64], m: usize) -> f64 {
     let n = x.len();
@@ -447,31 +457,48 @@ fn total_edges(x: &[f64], m: usize) -> f64 {
     if m < 2 || 2 * m > last {
         return total_edges_pointwise(x, m);
     }
-    let mut reversed: Vec<f64> = Vec::with_capacity(m - 1);
+    let mut reversed = [0.0f64; EDGE_BLOCK];
     let mut total = CompensatedSum::new();
     // Leading: i = 1 … m−1, x*[i − m] = 2x[0] − x[m − i].
-    reversed.extend(x[1..m].iter().rev());
     let first = 2.0 * x[0];
-    total.add(sum_streams(
-        [&reversed, &x[1..m], &x[m + 1..2 * m]],
-        |[r, b, c]| {
-            let d = (first - r) - 2.0 * b + c;
-            d * d
-        },
-    ));
-    // Trailing: i = n−m … n−2, x*[i + m] = 2x[last] − x[n − 2 − (i − (n − m))].
-    reversed.clear();
-    reversed.extend(x[n - m..last].iter().rev());
+    let mut i = 1;
+    while i < m {
+        let len = EDGE_BLOCK.min(m - i);
+        for (k, slot) in reversed[..len].iter_mut().enumerate() {
+            *slot = x[m - i - k];
+        }
+        total.add(sum_streams(
+            [&reversed[..len], &x[i..i + len], &x[i + m..i + m + len]],
+            |[r, b, c]| {
+                let d = (first - r) - 2.0 * b + c;
+                d * d
+            },
+        ));
+        i += len;
+    }
+    // Trailing: i = n−m … n−2, x*[i + m] = 2x[last] − x[2·last − i − m].
     let end = 2.0 * x[last];
-    total.add(sum_streams(
-        [&x[n - 2 * m..n - m - 1], &x[n - m..last], &reversed],
-        |[a, b, r]| {
-            let d = a - 2.0 * b + (end - r);
-            d * d
-        },
-    ));
+    let mut i = n - m;
+    while i < last {
+        let len = EDGE_BLOCK.min(last - i);
+        for (k, slot) in reversed[..len].iter_mut().enumerate() {
+            *slot = x[2 * last - i - m - k];
+        }
+        total.add(sum_streams(
+            [&x[i - m..i - m + len], &x[i..i + len], &reversed[..len]],
+            |[a, b, r]| {
+                let d = a - 2.0 * b + (end - r);
+                d * d
+            },
+        ));
+        i += len;
+    }
     total.value()
 }
+
+/// Edge terms per reversed block of [`total_edges`] (sum_streams' own block length, so
+/// the result has the same bits as one pass over a reversed copy).
+const EDGE_BLOCK: usize = 4096;
 
 /// [`total_edges`] point by point, for any `m < n − 1`.
 fn total_edges_pointwise(x: &[f64], m: usize) -> f64 {

@@ -17,6 +17,7 @@ pub mod noise_id;
 pub mod numerics;
 pub mod report;
 pub mod session_source;
+pub mod sweep;
 pub mod taus;
 pub mod thermal;
 pub mod units;

@@ -1,0 +1,702 @@
+//! The overlapping second-difference sweep behind OADEV and the interior of TOTDEV:
+//! S_j = Σ_{i < count_j} (x[i + 2m_j] − 2x[i + m_j] + x[i])² for every factor m_j of a
+//! grid, in one pass over the phase x.
+//!
+//! How (figures in docs/bench/allan.md, "Round 5"):
+//! - The term range is cut into tiles of [`TILE`] terms. Within a tile the factors are
+//!   processed in **register-blocked groups** of up to [`GROUP`] factors whose eight-lane
+//!   accumulators stay in registers over the whole tile:
+//!   - a *chain* m, 2m, 4m, … (every octave grid; a few runs inside dense grids): the
+//!     outer point x[i + 2m] of one factor is the middle point of the next, so G terms
+//!     take G + 2 loads instead of 3G;
+//!   - other factors share the load of x[i]: 2G + 1 loads for G terms.
+//! - Lane l of a tile accumulates the terms i ≡ l (mod 8) (tiles start at multiples of
+//!   8); a tile's eight lanes are added in lane order and the tile sums are compensated
+//!   ([`CompensatedSum`]); jobs of [`TILES_PER_JOB`] tiles run on the rayon pool and are
+//!   merged in a fixed order. So each S_j has the same bits whatever the grouping (chain,
+//!   shared or alone), the number of threads and the instruction-set path.
+//! - Three paths ([`SweepPath`]): portable (plain arrays, vectorised by the compiler with
+//!   SSE2), AVX2 + FMA and AVX-512F (explicit `std::arch` intrinsics, chosen at run time).
+//!   c − 2b is one fused negative multiply-add on the SIMD paths: 2b is exact, so the
+//!   single rounding of the FMA is the rounding of the subtraction, the same bits as the
+//!   portable c − 2.0·b, and each term costs two floating-point additions instead of
+//!   three (the adder pipes are what limits the loop on Zen 4).
+//!
+//! Written with intrinsics rather than left to the auto-vectoriser (as the other kernels
+//! in this module tree are): register-blocked loops over several factors were vectorised
+//! unpredictably (13 to 130 ms for the same octave sweep depending on the group size, in
+//! a scratch comparison), and `std::arch` gives AVX-512 with runtime detection without a
+//! new dependency. No crate offering portable SIMD on stable Rust (e.g. `wide`) does the
+//! runtime dispatch to AVX-512, and the few operations needed fit in one small trait.
+
+use super::numerics::{CompensatedSum, Simd};
+use rayon::prelude::*;
+
+/// Terms per tile (32 KiB per stream). Measured flat between 1024 and 32 768 terms on
+/// the 6 h bench data; 4096 keeps a shared group's 2G + 1 streams within L2.
+pub const TILE: usize = 4096;
+
+/// Tiles per parallel job (and per entry of the fixed-order merge).
+pub const TILES_PER_JOB: usize = 32;
+
+/// Most factors one register-blocked group holds: 4 eight-lane accumulators are 8 ymm
+/// registers on the AVX2 path, leaving room for the loaded streams.
+pub const GROUP: usize = 4;
+
+/// Lanes of every accumulation.
+const LANES: usize = 8;
+
+/// Instruction-set path of the sweep. All give identical bits (tested).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SweepPath {
+    /// Plain arrays; any CPU.
+    Portable,
+    /// AVX2 and FMA.
+    Avx2,
+    /// AVX-512F (with AVX2 and FMA).
+    Avx512,
+}
+
+impl SweepPath {
+    /// The fastest path this CPU supports.
+    pub fn detected() -> SweepPath {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let avx2 = std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma");
+            if avx2 && std::arch::is_x86_feature_detected!("avx512f") {
+                return SweepPath::Avx512;
+            }
+            if avx2 {
+                return SweepPath::Avx2;
+            }
+        }
+        SweepPath::Portable
+    }
+
+    /// The path for the module-wide choice `simd`: portable stays portable, otherwise the
+    /// fastest this CPU has.
+    pub fn for_simd(simd: Simd) -> SweepPath {
+        match simd {
+            Simd::Portable => SweepPath::Portable,
+            Simd::Avx2 => SweepPath::detected(),
+        }
+    }
+
+    /// Every path this CPU can run, portable first (for tests and benchmarks).
+    pub fn available() -> Vec<SweepPath> {
+        match SweepPath::detected() {
+            SweepPath::Portable => vec![SweepPath::Portable],
+            SweepPath::Avx2 => vec![SweepPath::Portable, SweepPath::Avx2],
+            SweepPath::Avx512 => vec![SweepPath::Portable, SweepPath::Avx2, SweepPath::Avx512],
+        }
+    }
+}
+
+/// S_j for every factor (see the module docs); `counts[j]` terms for `factors[j]`, each
+/// needing `counts[j] + 2·factors[j] ≤ x.len()` (the caller's term counts guarantee it;
+/// a factor that breaks it gets 0 rather than reading out of bounds).
+pub fn second_difference_sums(
+    x: &[f64],
+    factors: &[usize],
+    counts: &[usize],
+    path: SweepPath,
+) -> Vec<f64> {
+    let counts: Vec<usize> = factors
+        .iter()
+        .zip(counts)
+        .map(|(&m, &c)| {
+            if m == 0 || c.saturating_add(m.saturating_mul(2)) > x.len() {
+                0
+            } else {
+                c
+            }
+        })
+        .collect();
+    let longest = counts.iter().copied().max().unwrap_or(0);
+    let job_terms = TILE * TILES_PER_JOB;
+    let partials: Vec<Vec<CompensatedSum>> = (0..longest.div_ceil(job_terms))
+        .into_par_iter()
+        .map(|job| {
+            let start = job * job_terms;
+            let job = Job {
+                x,
+                factors,
+                counts: &counts,
+                start,
+                end: (start + job_terms).min(longest),
+            };
+            run_job(path, &job)
+        })
+        .collect();
+    let mut totals = vec![CompensatedSum::new(); factors.len()];
+    for partial in partials {
+        for (total, part) in totals.iter_mut().zip(partial) {
+            total.merge(part);
+        }
+    }
+    totals.iter().map(CompensatedSum::value).collect()
+}
+
+/// The terms `start..end` (a multiple of [`TILE`] apart from the last job) of every factor.
+struct Job<'a> {
+    x: &'a [f64],
+    factors: &'a [usize],
+    counts: &'a [usize],
+    start: usize,
+    end: usize,
+}
+
+fn run_job(path: SweepPath, job: &Job) -> Vec<CompensatedSum> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let best = SweepPath::detected();
+        if path == SweepPath::Avx512 && best == SweepPath::Avx512 {
+            // SAFETY: the CPU has AVX-512F, AVX2 and FMA (detected just above).
+            return unsafe { job_avx512(job) };
+        }
+        if path == SweepPath::Avx2 && best != SweepPath::Portable {
+            // SAFETY: the CPU has AVX2 and FMA (detected just above).
+            return unsafe { job_avx2(job) };
+        }
+    }
+    let _ = path;
+    // SAFETY: the portable lanes need no CPU feature.
+    unsafe { job_lanes::<Portable>(job) }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn job_avx2(job: &Job) -> Vec<CompensatedSum> {
+    job_lanes::<x86::Avx2>(job)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn job_avx512(job: &Job) -> Vec<CompensatedSum> {
+    job_lanes::<x86::Avx512>(job)
+}
+
+/// How a group's factors share their loads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Sharing {
+    /// m, 2m, 4m, …: factor k + 1's middle stream is factor k's outer one.
+    Chain,
+    /// Only x[i] is shared.
+    Shared,
+}
+
+/// Factors (indices into the grid) swept together.
+#[derive(Debug, Clone, Copy)]
+struct Group {
+    sharing: Sharing,
+    members: [usize; GROUP],
+    len: usize,
+}
+
+/// Groups for the factors `live` (indices into `factors`): greedy chains m, 2m, 4m, … of
+/// at least two factors from the smallest factor up, then the rest in shared groups.
+/// O(F log F) for F factors (the `all` grid has one per m).
+fn plan(factors: &[usize], live: &[usize]) -> Vec<Group> {
+    let mut order: Vec<usize> = live.to_vec();
+    order.sort_by_key(|&j| factors[j]);
+    let sorted: Vec<usize> = order.iter().map(|&j| factors[j]).collect();
+    let mut taken = vec![false; order.len()];
+    let mut groups = Vec::new();
+    let mut singles = Vec::new();
+    for start in 0..order.len() {
+        if taken[start] {
+            continue;
+        }
+        taken[start] = true;
+        let mut members = [0usize; GROUP];
+        members[0] = order[start];
+        let mut len = 1;
+        let mut at = start;
+        while len < GROUP {
+            let want = sorted[at].saturating_mul(2);
+            let first = sorted.partition_point(|&m| m < want).max(at + 1);
+            match (first..sorted.len())
+                .take_while(|&k| sorted[k] == want)
+                .find(|&k| !taken[k])
+            {
+                Some(k) => {
+                    taken[k] = true;
+                    members[len] = order[k];
+                    len += 1;
+                    at = k;
+                }
+                None => break,
+            }
+        }
+        if len >= 2 {
+            groups.push(Group {
+                sharing: Sharing::Chain,
+                members,
+                len,
+            });
+        } else {
+            singles.push(members[0]);
+        }
+    }
+    for chunk in singles.chunks(GROUP) {
+        let mut members = [0usize; GROUP];
+        members[..chunk.len()].copy_from_slice(chunk);
+        groups.push(Group {
+            sharing: Sharing::Shared,
+            members,
+            len: chunk.len(),
+        });
+    }
+    groups
+}
+
+/// The job's tiles on lanes `V`. Factors whose terms cover the whole job are swept in the
+/// groups of [`plan`]; a factor whose terms end inside the job runs alone, up to its end.
+///
+/// Safety: `V`'s instructions must be available.
+#[inline(always)]
+unsafe fn job_lanes<V: Lanes>(job: &Job) -> Vec<CompensatedSum> {
+    let Job {
+        x,
+        factors,
+        counts,
+        start,
+        end,
+    } = *job;
+    let full: Vec<usize> = (0..factors.len()).filter(|&j| counts[j] >= end).collect();
+    let ending: Vec<usize> = (0..factors.len())
+        .filter(|&j| counts[j] > start && counts[j] < end)
+        .collect();
+    let groups = plan(factors, &full);
+    let mut sums = vec![CompensatedSum::new(); factors.len()];
+    let mut t0 = start;
+    while t0 < end {
+        let t1 = (t0 + TILE).min(end);
+        for group in &groups {
+            let lanes = sweep_group::<V>(x, factors, group, t0, t1);
+            for (k, lane) in lanes.iter().enumerate().take(group.len) {
+                sums[group.members[k]].add(lane_total(lane));
+            }
+        }
+        for &j in &ending {
+            if counts[j] > t0 {
+                let single = Group {
+                    sharing: Sharing::Shared,
+                    members: [j; GROUP],
+                    len: 1,
+                };
+                let lanes = sweep_group::<V>(x, factors, &single, t0, t1.min(counts[j]));
+                sums[j].add(lane_total(&lanes[0]));
+            }
+        }
+        t0 = t1;
+    }
+    sums
+}
+
+/// Sum of the eight lanes in lane order.
+#[inline(always)]
+fn lane_total(lanes: &[f64; LANES]) -> f64 {
+    lanes.iter().fold(0.0, |s, v| s + v)
+}
+
+/// The lanes of the terms `t0..t1` (t0 a multiple of 8) of `group`'s factors.
+#[inline(always)]
+unsafe fn sweep_group<V: Lanes>(
+    x: &[f64],
+    factors: &[usize],
+    group: &Group,
+    t0: usize,
+    t1: usize,
+) -> [[f64; LANES]; GROUP] {
+    let steps = (t1 - t0) / LANES;
+    let m: [usize; GROUP] = std::array::from_fn(|k| factors[group.members[k.min(group.len - 1)]]);
+    let mut lanes = match (group.sharing, group.len) {
+        (Sharing::Chain, 2) => widen(chain::<V, 2>(x, t0, steps, [m[0], m[1]])),
+        (Sharing::Chain, 3) => widen(chain::<V, 3>(x, t0, steps, [m[0], m[1], m[2]])),
+        (Sharing::Chain, 4) => widen(chain::<V, 4>(x, t0, steps, m)),
+        (_, 1) => widen(shared::<V, 1>(x, t0, steps, [m[0]])),
+        (_, 2) => widen(shared::<V, 2>(x, t0, steps, [m[0], m[1]])),
+        (_, 3) => widen(shared::<V, 3>(x, t0, steps, [m[0], m[1], m[2]])),
+        _ => widen(shared::<V, 4>(x, t0, steps, m)),
+    };
+    // The last (t1 − t0) mod 8 terms, each into its own lane.
+    for (k, lane) in lanes.iter_mut().enumerate().take(group.len) {
+        let m = m[k];
+        for i in t0 + steps * LANES..t1 {
+            let d = x[i + 2 * m] - 2.0 * x[i + m] + x[i];
+            lane[i % LANES] += d * d;
+        }
+    }
+    lanes
+}
+
+/// `G` lane arrays padded to [`GROUP`].
+#[inline(always)]
+fn widen<const G: usize>(lanes: [[f64; LANES]; G]) -> [[f64; LANES]; GROUP] {
+    std::array::from_fn(|k| if k < G { lanes[k] } else { [0.0; LANES] })
+}
+
+/// Lanes of `steps` eight-term steps from `t0` for the chain `m` (m[k+1] = 2m[k]).
+#[inline(always)]
+unsafe fn chain<V: Lanes, const G: usize>(
+    x: &[f64],
+    t0: usize,
+    steps: usize,
+    m: [usize; G],
+) -> [[f64; LANES]; G] {
+    let outer = 2 * m[G - 1];
+    assert!(
+        (1..G).all(|k| m[k] == 2 * m[k - 1]) && t0 + steps * LANES + outer <= x.len(),
+        "sweep chain out of range"
+    );
+    let base = x.as_ptr().add(t0);
+    let mut acc = [V::zero(); G];
+    for step in 0..steps {
+        let p = base.add(step * LANES);
+        let a = V::load(p);
+        let mut b = V::load(p.add(m[0]));
+        for k in 0..G {
+            let c = V::load(p.add(if k + 1 < G { m[k + 1] } else { outer }));
+            let d = c.minus_twice(b).add(a);
+            acc[k] = acc[k].add(d.mul(d));
+            b = c;
+        }
+    }
+    acc.map(|v| v.to_array())
+}
+
+/// Lanes of `steps` eight-term steps from `t0` for any factors `m` (x[i] shared).
+#[inline(always)]
+unsafe fn shared<V: Lanes, const G: usize>(
+    x: &[f64],
+    t0: usize,
+    steps: usize,
+    m: [usize; G],
+) -> [[f64; LANES]; G] {
+    assert!(
+        m.iter().all(|&m| t0 + steps * LANES + 2 * m <= x.len()),
+        "sweep group out of range"
+    );
+    let base = x.as_ptr().add(t0);
+    let mut acc = [V::zero(); G];
+    for step in 0..steps {
+        let p = base.add(step * LANES);
+        let a = V::load(p);
+        for k in 0..G {
+            let b = V::load(p.add(m[k]));
+            let c = V::load(p.add(2 * m[k]));
+            let d = c.minus_twice(b).add(a);
+            acc[k] = acc[k].add(d.mul(d));
+        }
+    }
+    acc.map(|v| v.to_array())
+}
+
+/// Eight f64 lanes. Every method is `unsafe` because the SIMD implementations need their
+/// CPU features; each operation is the correctly rounded IEEE one per lane, so all
+/// implementations give the same bits.
+trait Lanes: Copy {
+    unsafe fn zero() -> Self;
+    /// Loads eight values from `p` (unaligned).
+    unsafe fn load(p: *const f64) -> Self;
+    unsafe fn add(self, other: Self) -> Self;
+    unsafe fn mul(self, other: Self) -> Self;
+    /// self − 2·b, rounded once.
+    unsafe fn minus_twice(self, b: Self) -> Self;
+    unsafe fn to_array(self) -> [f64; LANES];
+}
+
+/// Portable lanes (the compiler vectorises them for the baseline target).
+#[derive(Clone, Copy)]
+struct Portable([f64; LANES]);
+
+impl Lanes for Portable {
+    #[inline(always)]
+    unsafe fn zero() -> Self {
+        Portable([0.0; LANES])
+    }
+    #[inline(always)]
+    unsafe fn load(p: *const f64) -> Self {
+        Portable(p.cast::<[f64; LANES]>().read_unaligned())
+    }
+    #[inline(always)]
+    unsafe fn add(self, other: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] + other.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn mul(self, other: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] * other.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn minus_twice(self, b: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] - 2.0 * b.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn to_array(self) -> [f64; LANES] {
+        self.0
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    //! AVX2 and AVX-512 lanes. The methods carry their target features, so they inline
+    //! into the `#[target_feature]` job functions that instantiate the sweep with them.
+    use super::{Lanes, LANES};
+    use std::arch::x86_64::*;
+
+    /// Two 256-bit halves.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx2(__m256d, __m256d);
+
+    impl Lanes for Avx2 {
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn zero() -> Self {
+            Avx2(_mm256_setzero_pd(), _mm256_setzero_pd())
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn load(p: *const f64) -> Self {
+            Avx2(_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4)))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn add(self, o: Self) -> Self {
+            Avx2(_mm256_add_pd(self.0, o.0), _mm256_add_pd(self.1, o.1))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn mul(self, o: Self) -> Self {
+            Avx2(_mm256_mul_pd(self.0, o.0), _mm256_mul_pd(self.1, o.1))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn minus_twice(self, b: Self) -> Self {
+            let two = _mm256_set1_pd(2.0);
+            Avx2(
+                _mm256_fnmadd_pd(two, b.0, self.0),
+                _mm256_fnmadd_pd(two, b.1, self.1),
+            )
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn to_array(self) -> [f64; LANES] {
+            let mut out = [0.0; LANES];
+            _mm256_storeu_pd(out.as_mut_ptr(), self.0);
+            _mm256_storeu_pd(out.as_mut_ptr().add(4), self.1);
+            out
+        }
+    }
+
+    /// One 512-bit register.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx512(__m512d);
+
+    impl Lanes for Avx512 {
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn zero() -> Self {
+            Avx512(_mm512_setzero_pd())
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn load(p: *const f64) -> Self {
+            Avx512(_mm512_loadu_pd(p))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn add(self, o: Self) -> Self {
+            Avx512(_mm512_add_pd(self.0, o.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn mul(self, o: Self) -> Self {
+            Avx512(_mm512_mul_pd(self.0, o.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn minus_twice(self, b: Self) -> Self {
+            Avx512(_mm512_fnmadd_pd(_mm512_set1_pd(2.0), b.0, self.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn to_array(self) -> [f64; LANES] {
+            let mut out = [0.0; LANES];
+            _mm512_storeu_pd(out.as_mut_ptr(), self.0);
+            out
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic random-walk phase of `n` points.
+    fn phase(n: usize, seed: u64) -> Vec<f64> {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut x = 0.0;
+        let mut walk = 0.0;
+        (0..n)
+            .map(|_| {
+                let w: f64 = StandardNormal.sample(&mut rng);
+                let s: f64 = StandardNormal.sample(&mut rng);
+                walk += 0.01 * s;
+                x += w + walk;
+                x
+            })
+            .collect()
+    }
+
+    /// Compensated sum of the squared second differences, term by term.
+    fn direct(x: &[f64], m: usize, count: usize) -> f64 {
+        let mut total = CompensatedSum::new();
+        for i in 0..count {
+            let d = x[i + 2 * m] - 2.0 * x[i + m] + x[i];
+            total.add(d * d);
+        }
+        total.value()
+    }
+
+    fn counts(factors: &[usize], n: usize) -> Vec<usize> {
+        factors.iter().map(|&m| n.saturating_sub(2 * m)).collect()
+    }
+
+    /// Octave, dense (chains inside), decade and odd factors, unsorted and repeated; the
+    /// phase spans several jobs with a partial last tile, and large factors end inside
+    /// jobs and tiles.
+    fn grids(n: usize) -> Vec<Vec<usize>> {
+        let octave: Vec<usize> = (0..)
+            .map(|k| 1usize << k)
+            .take_while(|&m| m <= n / 4)
+            .collect();
+        let mut dense: Vec<usize> = (0..)
+            .map(|k| 10f64.powf(k as f64 / 10.0).round() as usize)
+            .take_while(|&m| m <= n / 3)
+            .collect();
+        dense.dedup();
+        vec![
+            octave,
+            dense,
+            vec![
+                1, 2, 4, 10, 20, 40, 100, 200, 400, 1_000, 2_000, 4_000, 10_000,
+            ],
+            vec![7, 3, 3, 96, 48, 24, 12, 1, 50_001, 77_777, 1_000_000],
+        ]
+    }
+
+    #[test]
+    fn sweep_equals_the_direct_sums_on_every_path() {
+        let n = 2 * TILE * TILES_PER_JOB + 3 * TILE + 5;
+        let x = phase(n, 3);
+        for factors in grids(n) {
+            let counts = counts(&factors, n);
+            let mut first: Option<Vec<f64>> = None;
+            for path in SweepPath::available() {
+                let sums = second_difference_sums(&x, &factors, &counts, path);
+                for (j, (&m, &c)) in factors.iter().zip(&counts).enumerate() {
+                    let want = direct(&x, m, c);
+                    assert!(
+                        (sums[j] - want).abs() <= 1e-13 * want,
+                        "{path:?} m={m}: {:e} vs {want:e}",
+                        sums[j]
+                    );
+                }
+                match &first {
+                    None => first = Some(sums),
+                    Some(f) => assert_eq!(f, &sums, "{path:?} differs from the portable path"),
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn each_sum_is_independent_of_the_other_factors_and_of_the_threads() {
+        // Chained, shared and single runs of a factor must give the same bits.
+        let n = TILE * TILES_PER_JOB + 2 * TILE + 3;
+        let x = phase(n, 9);
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("pool");
+        let two_threads = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .expect("pool");
+        for factors in grids(n) {
+            let counts = counts(&factors, n);
+            for path in SweepPath::available() {
+                let all = second_difference_sums(&x, &factors, &counts, path);
+                for (j, &m) in factors.iter().enumerate() {
+                    let alone = second_difference_sums(&x, &[m], &[counts[j]], path);
+                    assert_eq!(alone[0].to_bits(), all[j].to_bits(), "{path:?} m={m}");
+                }
+                let serial =
+                    one_thread.install(|| second_difference_sums(&x, &factors, &counts, path));
+                let parallel =
+                    two_threads.install(|| second_difference_sums(&x, &factors, &counts, path));
+                assert_eq!(serial, all, "{path:?}: one thread");
+                assert_eq!(parallel, all, "{path:?}: two threads");
+            }
+        }
+    }
+
+    #[test]
+    fn plans_chain_doubling_factors_and_share_the_rest() {
+        let factors = [1, 2, 3, 4, 6, 8, 10, 16, 32];
+        let live: Vec<usize> = (0..factors.len()).collect();
+        let groups = plan(&factors, &live);
+        let described: Vec<(Sharing, Vec<usize>)> = groups
+            .iter()
+            .map(|g| {
+                (
+                    g.sharing,
+                    g.members[..g.len].iter().map(|&j| factors[j]).collect(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            described,
+            vec![
+                (Sharing::Chain, vec![1, 2, 4, 8]),
+                (Sharing::Chain, vec![3, 6]),
+                (Sharing::Chain, vec![16, 32]),
+                (Sharing::Shared, vec![10]),
+            ]
+        );
+    }
+
+    #[test]
+    fn plan_of_the_all_grid_covers_every_factor_once() {
+        // 50 000 factors (one per m): each in exactly one group, chains exact doublings.
+        let factors: Vec<usize> = (1..=50_000).collect();
+        let live: Vec<usize> = (0..factors.len()).collect();
+        let mut seen = vec![0u8; factors.len()];
+        for group in plan(&factors, &live) {
+            let members = &group.members[..group.len];
+            if group.sharing == Sharing::Chain {
+                assert!(members
+                    .windows(2)
+                    .all(|w| factors[w[1]] == 2 * factors[w[0]]));
+            }
+            for &j in members {
+                seen[j] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1));
+    }
+
+    #[test]
+    fn factors_that_do_not_fit_give_zero() {
+        let x = phase(100, 1);
+        let sums = second_difference_sums(&x, &[0, 10, 60], &[100, 80, 1], SweepPath::Portable);
+        assert_eq!(sums[0], 0.0);
+        let want = direct(&x, 10, 80);
+        assert!((sums[1] - want).abs() <= 1e-13 * want);
+        assert_eq!(sums[2], 0.0);
+    }
+}
