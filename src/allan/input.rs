@@ -885,7 +885,6 @@ pub fn read_axes(
             builder.clock = timing.clock_name();
             // Ignoring a failed reservation is fine: the vector then grows as it goes.
             let _ = builder.current.try_reserve_exact(expected);
-            advise_huge_pages(&mut builder.current);
             (builder, temperature.map(|_| Vec::new()))
         })
         .collect();
@@ -1069,32 +1068,6 @@ impl ArrivalClock {
         self.last = Some(t);
         t
     }
-}
-
-/// Asks the kernel to back the capacity of `v` with transparent huge pages where it can
-/// (`MADV_HUGEPAGE`; Debian's default THP mode is `madvise`). An axis of a long series is
-/// tens to hundreds of MB written once from start to end: with 4 KiB pages, taking a page
-/// fault for each 4 KiB of it cost about as much CPU as copying the samples (measured,
-/// docs/bench/allan.md). Nothing changes when THP is off or the call fails.
-fn advise_huge_pages(v: &mut Vec<f64>) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE: usize = 2 << 20;
-        let start = v.as_mut_ptr() as usize;
-        let bytes = v.capacity() * std::mem::size_of::<f64>();
-        let (from, to) = (start.next_multiple_of(HUGE), (start + bytes) / HUGE * HUGE);
-        if to > from {
-            // SAFETY: [from, to) lies inside the allocation `v` owns (its capacity), which
-            // stays alive for the call; MADV_HUGEPAGE only changes how the kernel backs those
-            // pages, never their contents or the mapping. Its result is ignored: on failure
-            // the pages simply stay small.
-            unsafe {
-                libc::madvise(from as *mut libc::c_void, to - from, libc::MADV_HUGEPAGE);
-            }
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = v;
 }
 
 /// Whether an interval `dt` counts as one nominal sample step: the same tests as
