@@ -4,6 +4,7 @@
 //! under an explicit [`GapPolicy`]. Only one axis (plus an optional temperature channel)
 //! is held in memory at a time.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::BufReader;
@@ -906,10 +907,18 @@ pub fn read_axes(
             _ => None,
         };
         let temp = temp_slot.map(|s| columns[s]);
-        for (i, (builder, temps)) in builders.iter_mut().enumerate() {
-            builder.push_block(first_row, time, columns[i], temp, temps.as_mut())?;
-        }
-        Ok(())
+        // The time stamps' own intervals are checked once for all axes; each axis then
+        // appends its column on the rayon pool (results taken in axis order, so the first
+        // axis with a problem is the one reported, as when they ran one after the other).
+        let steady = time.is_none_or(|t| steady_intervals(tau0, t));
+        let results: Vec<Result<(), InputError>> = builders
+            .par_iter_mut()
+            .enumerate()
+            .map(|(i, (builder, temps))| {
+                builder.push_block(first_row, time, steady, columns[i], temp, temps.as_mut())
+            })
+            .collect();
+        results.into_iter().collect()
     })?;
     builders
         .into_iter()
@@ -1059,6 +1068,23 @@ impl ArrivalClock {
         self.last = Some(t);
         t
     }
+}
+
+/// Whether an interval `dt` counts as one nominal sample step: the same tests as
+/// `SeriesBuilder::push`, so the bulk and the row-by-row paths classify every interval alike.
+#[inline(always)]
+fn steady_interval(tau0: f64, dt: f64) -> bool {
+    let ratio = dt / tau0;
+    ratio < 1.5 && dt > 0.0 && (ratio - 1.0).abs() <= JITTER_TOLERANCE
+}
+
+/// Whether the time stamps `t` are all finite and every interval between them is within the
+/// jitter tolerance of τ0 (no gap, no step back). Folds without early exit, so that the
+/// divisions and tests vectorise.
+fn steady_intervals(tau0: f64, t: &[f64]) -> bool {
+    t.iter().fold(true, |ok, v| ok & v.is_finite())
+        && t.windows(2)
+            .fold(true, |ok, w| ok & steady_interval(tau0, w[1] - w[0]))
 }
 
 /// Streams samples into uniform segments under a gap policy.
@@ -1211,17 +1237,22 @@ impl SeriesBuilder {
     /// every interval (including the one from the previous block) is within the jitter
     /// tolerance, the block is appended in bulk, with exactly the bookkeeping [`Self::push`]
     /// would do; otherwise it goes through `push` row by row.
+    ///
+    /// `steady`: whether `times` (when given) are all finite with every interval between
+    /// them within the tolerance ([`steady_intervals`], computed once for all axes).
     fn push_block(
         &mut self,
         first_row: u64,
         times: Option<&[f64]>,
+        steady: bool,
         values: &[f64],
         temperatures: Option<&[f64]>,
         mut temps: Option<&mut Vec<f32>>,
     ) -> Result<(), InputError> {
+        // Folds without early exit, so that the checks vectorise.
         let clean = self.pending_invalid == 0
-            && values.iter().all(|v| v.is_finite())
-            && times.is_none_or(|t| self.uniform(t));
+            && values.iter().fold(true, |ok, v| ok & v.is_finite())
+            && times.is_none_or(|t| steady && self.continues(t));
         if !clean {
             for (k, &value) in values.iter().enumerate() {
                 self.push(
@@ -1254,19 +1285,13 @@ impl SeriesBuilder {
         Ok(())
     }
 
-    /// Whether the time stamps `t` are all finite and every interval, from the last time
-    /// stamp seen on, is within the jitter tolerance of τ0 (no gap, no step back).
-    fn uniform(&self, t: &[f64]) -> bool {
-        // The same tests as `push`, so both paths classify every interval alike.
-        let within = |dt: f64| {
-            let ratio = dt / self.tau0;
-            ratio < 1.5 && dt > 0.0 && (ratio - 1.0).abs() <= JITTER_TOLERANCE
-        };
-        t.iter().all(|v| v.is_finite())
-            && self
-                .last_time
-                .is_none_or(|prev| t.first().is_none_or(|&f| within(f - prev)))
-            && t.windows(2).all(|w| within(w[1] - w[0]))
+    /// Whether the interval from the last time stamp seen to the first of `t` is within the
+    /// jitter tolerance of τ0 (the rest of `t` is [`steady_intervals`]' business).
+    fn continues(&self, t: &[f64]) -> bool {
+        self.last_time.is_none_or(|prev| {
+            t.first()
+                .is_none_or(|&f| steady_interval(self.tau0, f - prev))
+        })
     }
 
     fn finish(mut self) -> Result<(Vec<Vec<f64>>, Health), InputError> {

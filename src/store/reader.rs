@@ -715,7 +715,14 @@ impl ImuColumnReader {
         loop {
             if let Some(c) = &mut self.cursor {
                 if c.next < c.end {
-                    let r = c.next..(c.next + self.block_rows).min(c.end);
+                    // Blocks end on a chunk boundary where they can, so that no chunk is
+                    // split between two blocks (a split one is decoded apart, not in parallel).
+                    let mut end = (c.next + self.block_rows).min(c.end);
+                    let chunk = c.t_mono.chunk_rows();
+                    if end < c.end && end / chunk * chunk > c.next {
+                        end = end / chunk * chunk;
+                    }
+                    let r = c.next..end;
                     c.next = r.end;
                     out.clear();
                     let result = read_columns(c, r.clone(), out).map_err(|e| {
