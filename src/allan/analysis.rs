@@ -2,7 +2,7 @@
 //! the noise-term fit and slope-line readings in engineering units. [`AllanReport`] is
 //! the document `--json` writes (schema in docs/allan.md).
 
-use super::curve::{compute_curve_segments, Curve};
+use super::curve::{compute_curve_from_rate, compute_curve_segments, Curve};
 use super::deviation::DeviationKind;
 use super::fit::{fit_noise_terms, slope_readings, NoiseFit, SlopeReadings};
 use super::input::{AxisSeries, Health};
@@ -54,15 +54,28 @@ pub struct AnalysisOptions {
 /// Runs the analysis of one axis; the series is consumed so its memory is reused for phase.
 pub fn analyse_axis(device: &str, series: AxisSeries, options: &AnalysisOptions) -> AxisResult {
     let total: usize = series.sample_count();
-    let phases: Vec<Phase> = series.segments.into_iter().map(Phase::from_rate).collect();
-    // Each phase removed its segment's mean; the axis mean weighs them by length.
-    let mean = phases
-        .iter()
-        .map(|p| p.removed_mean * (p.len() - 1) as f64)
-        .sum::<f64>()
-        / total.max(1) as f64;
-    let curve = compute_curve_segments(&phases, series.tau0, options.kind, &options.grid);
-    drop(phases);
+    // ADEV and HDEV on an octave grid need no phase (one read of the samples).
+    let direct = match series.segments.as_slice() {
+        [rate] => compute_curve_from_rate(rate, series.tau0, options.kind, &options.grid),
+        _ => None,
+    };
+    let (curve, mean) = match direct {
+        Some(done) => {
+            drop(series.segments);
+            done
+        }
+        None => {
+            let phases: Vec<Phase> = series.segments.into_iter().map(Phase::from_rate).collect();
+            // Each phase removed its segment's mean; the axis mean weighs them by length.
+            let mean = phases
+                .iter()
+                .map(|p| p.removed_mean * (p.len() - 1) as f64)
+                .sum::<f64>()
+                / total.max(1) as f64;
+            let curve = compute_curve_segments(&phases, series.tau0, options.kind, &options.grid);
+            (curve, mean)
+        }
+    };
     let (fit, fit_error) = if options.fit {
         match fit_noise_terms(&curve) {
             Ok(f) => (Some(f), None),

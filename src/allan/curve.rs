@@ -1,6 +1,7 @@
 //! One deviation curve: for every averaging factor of a grid, the deviation, its count of
 //! terms, the dominant noise type, the EDF and the chi-squared confidence interval.
 
+use super::block_sums::non_overlapping_from_rate;
 use super::deviation::{
     decimated_variance, deviation_from_variance, variances_with, DeviationKind,
 };
@@ -128,6 +129,43 @@ pub fn compute_curve_segments(
         })
         .collect();
     Curve { kind, tau0, points }
+}
+
+/// [`compute_curve`] straight from one uniform series of rate samples, without building
+/// the phase, where that is possible: ADEV and HDEV on grids whose factors are all
+/// powers of two (octave), see [`super::block_sums`]. Returns the curve and the mean
+/// that the phase would have removed, or `None` for other kinds and grids.
+pub fn compute_curve_from_rate(
+    rate: &[f64],
+    tau0: f64,
+    kind: DeviationKind,
+    grid: &TauGrid,
+) -> Option<(Curve, f64)> {
+    let phase_points = rate.len() + 1;
+    let factors = grid.factors(kind, phase_points, tau0);
+    let analysis = non_overlapping_from_rate(rate, kind, &factors, Simd::detected())?;
+    let mut kept = Vec::with_capacity(factors.len());
+    let mut defined = Vec::with_capacity(factors.len());
+    for ((&m, variance), alpha) in factors
+        .iter()
+        .zip(&analysis.variances)
+        .zip(&analysis.alphas)
+    {
+        if let Some((variance, count)) = *variance {
+            defined.push((m, variance, count));
+            kept.push(*alpha);
+        }
+    }
+    let points = assign_alpha(&kept, kind)
+        .into_iter()
+        .zip(defined)
+        .map(|(alpha, (m, variance, count))| {
+            let tau = m as f64 * tau0;
+            let deviation = deviation_from_variance(kind, variance, tau);
+            point_with_interval(kind, alpha, m, tau, deviation, count, phase_points)
+        })
+        .collect();
+    Some((Curve { kind, tau0, points }, analysis.mean))
 }
 
 /// Builds a point with EDF and interval for a known noise exponent.

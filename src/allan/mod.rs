@@ -7,6 +7,7 @@
 //! [`fit`] fits the IMU noise model → [`report`] and [`export`] write the results.
 
 pub mod analysis;
+pub mod block_sums;
 pub mod curve;
 pub mod deviation;
 pub mod edf;

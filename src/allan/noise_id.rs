@@ -47,30 +47,61 @@ pub fn identify_alphas(
 
 /// [`identify_alpha`] on the already decimated phase `z`.
 pub fn identify_alpha_decimated(z: &[f64], max_differences: u32, simd: Simd) -> Option<Alpha> {
-    let decimated = z.len();
+    // Orders are evaluated two per pass, only as far as the decision reaches.
+    let mut pair: Option<(usize, [Option<f64>; 2])> = None;
+    decide_alpha(z.len(), max_differences, |order| {
+        let d = order & !1;
+        let values = match pair {
+            Some((held, values)) if held == d => values,
+            _ => {
+                let values = lag1_pair(z, d, simd);
+                pair = Some((d, values));
+                values
+            }
+        };
+        values[order - d].map_or(Lag1::Undefined, Lag1::Value)
+    })
+}
+
+/// What the decision of [`decide_alpha`] learns about one difference order.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Lag1 {
+    /// The lag-1 autocorrelation.
+    Value(f64),
+    /// Zero variance or too few values: no noise type.
+    Undefined,
+    /// Proven to be at least 1/3 (δ ≥ 0.25) without its value: take the next order.
+    /// Only valid below `max_differences`.
+    Correlated,
+}
+
+/// The noise exponent from the lag-1 autocorrelations of the difference orders 0, 1, …
+/// of a decimated phase of `points` points (`lag1(d)` is asked in ascending order and
+/// only as far as the decision goes): the first order d whose δ = r/(1 + r) is below
+/// 0.25, or the last allowed one, gives α = 2 − round(2δ) − 2d. Orders that would leave
+/// fewer than [`MIN_POINTS`] values are not allowed.
+pub fn decide_alpha(
+    points: usize,
+    max_differences: u32,
+    mut lag1: impl FnMut(usize) -> Lag1,
+) -> Option<Alpha> {
     let levels = (0..=max_differences.min(MAX_LEVEL as u32) as usize)
-        .take_while(|&d| {
-            decimated
-                .checked_sub(d)
-                .is_some_and(|len| len >= MIN_POINTS)
-        })
+        .take_while(|&d| points.checked_sub(d).is_some_and(|len| len >= MIN_POINTS))
         .count();
-    let mut d = 0;
-    while d < levels {
-        let pair = lag1_pair(z, d, simd);
-        for (offset, r1) in pair.into_iter().enumerate() {
-            let order = d + offset;
-            if order >= levels {
-                break;
-            }
-            let r1 = r1?;
-            let delta = r1 / (1.0 + r1);
-            if delta < 0.25 || order as u32 >= max_differences {
-                let p = -(2.0 * delta).round() as i32 - 2 * order as i32;
-                return Some(p + 2);
-            }
+    for order in 0..levels {
+        let last = order as u32 >= max_differences;
+        let r1 = match lag1(order) {
+            Lag1::Value(r1) => r1,
+            Lag1::Undefined => return None,
+            Lag1::Correlated if !last => continue,
+            // A caller error; no value to round.
+            Lag1::Correlated => return None,
+        };
+        let delta = r1 / (1.0 + r1);
+        if delta < 0.25 || last {
+            let p = -(2.0 * delta).round() as i32 - 2 * order as i32;
+            return Some(p + 2);
         }
-        d += 2;
     }
     // No order was allowed (too few points), or the next difference would have had fewer
     // than MIN_POINTS points.
@@ -118,16 +149,16 @@ impl Moments {
     }
 }
 
-/// Lag-1 autocorrelations of the difference orders `d` and `d + 1` (`d` is 0 or 2) of the
-/// decimated phase `z`, in one pass (`None` for an order with zero variance or fewer
-/// than two values).
-fn lag1_pair(z: &[f64], d: usize, simd: Simd) -> [Option<f64>; 2] {
-    debug_assert!(d == 0 || d == 2, "difference orders are taken in pairs");
+/// Lag-1 autocorrelations of the difference orders `d` and `d + 1` (`d` is 0, 1 or 2) of
+/// the series `z` (the decimated phase, or for d = 1 its first difference), in one pass
+/// (`None` for an order with zero variance or fewer than two values).
+pub(super) fn lag1_pair(z: &[f64], d: usize, simd: Simd) -> [Option<f64>; 2] {
+    debug_assert!(d <= 2, "difference orders 0 to 3");
     // Monomorphised per pair so the difference cascade lives in registers.
-    if d == 0 {
-        dispatch(simd, Lag1Orders::<0, 3>(z))
-    } else {
-        dispatch(simd, Lag1Orders::<2, 5>(z))
+    match d {
+        0 => dispatch(simd, Lag1Orders::<0, 3>(z)),
+        1 => dispatch(simd, Lag1Orders::<1, 4>(z)),
+        _ => dispatch(simd, Lag1Orders::<2, 5>(z)),
     }
 }
 

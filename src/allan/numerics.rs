@@ -75,7 +75,7 @@ pub fn dispatch<K: Kernel>(simd: Simd, kernel: K) -> K::Output {
 
 /// Compensated (Neumaier/Kahan–Babuška) accumulator: the running error of each addition is kept in
 /// `compensation`, so summing millions of terms loses no more than a couple of ulps.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CompensatedSum {
     sum: f64,
     compensation: f64,

@@ -3,9 +3,10 @@
 //! The data are read from there at test time, never copied; each test skips with a
 //! printed message when the directory is absent.
 
+use imulab::allan::curve::compute_curve_from_rate;
 use imulab::allan::curve::point_with_interval;
 use imulab::allan::deviation::deviation_at;
-use imulab::allan::{DeviationKind, Phase};
+use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
 use std::path::PathBuf;
 
 fn reference_dir() -> Option<PathBuf> {
@@ -181,6 +182,56 @@ fn phase_dat_every_kind_matches_stable32() {
             &format!("PHASE.DAT {name} all-tau"),
             1.0,
         );
+    }
+}
+
+/// ADEV and HDEV straight from the rate (no phase built: `compute_curve_from_rate`) give
+/// Stable32's octave tables too, and the same curve as the phase path.
+#[test]
+fn phase_dat_rate_path_matches_stable32_and_the_phase_path() {
+    let Some(dir) = reference_dir() else { return };
+    let phase_values = read_numbers(&dir.join("phasedat/PHASE.DAT"));
+    let rate: Vec<f64> = phase_values.windows(2).map(|w| w[1] - w[0]).collect();
+    let phase = Phase::from_phase(&phase_values, 1.0);
+    for name in ["adev", "hdev"] {
+        let kind = kind_from_name(name);
+        let rows = read_table(&dir.join(format!("phasedat/phase_dat_{name}_octave.txt")));
+        let (curve, mean) = compute_curve_from_rate(&rate, 1.0, kind, &TauGrid::Octave)
+            .unwrap_or_else(|| panic!("{name}: no rate path"));
+        let scale = rate.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        assert!(
+            (mean - phase.removed_mean).abs() <= 1e-12 * scale,
+            "{name}: mean"
+        );
+        let reference = compute_curve(&phase, 1.0, kind, &TauGrid::Octave);
+        assert_eq!(curve.points.len(), reference.points.len(), "{name}");
+        for (p, q) in curve.points.iter().zip(&reference.points) {
+            assert_eq!(
+                (p.m, p.count, p.alpha, p.edf),
+                (q.m, q.count, q.alpha, q.edf),
+                "{name}"
+            );
+            assert!(
+                (p.deviation - q.deviation).abs() <= 1e-12 * q.deviation,
+                "{name} m={}",
+                p.m
+            );
+        }
+        for row in &rows {
+            let p = curve
+                .points
+                .iter()
+                .find(|p| p.m == row.m)
+                .unwrap_or_else(|| panic!("{name} m={}: missing", row.m));
+            assert_eq!(p.count, row.count, "{name} m={} count", row.m);
+            assert!(
+                matches_printed(p.deviation, row.sigma, 1.0),
+                "{name} m={}: {:.6e} vs printed {:.4e}",
+                row.m,
+                p.deviation,
+                row.sigma
+            );
+        }
     }
 }
 
