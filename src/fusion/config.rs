@@ -83,6 +83,49 @@ impl ImuModel {
         self.accel_bias_initial_sigma
             .unwrap_or(self.accel_bias.sigma)
     }
+
+    /// The process the filter's gyro bias state follows, see [`bias_state_process`].
+    pub fn gyro_bias_state(&self) -> GaussMarkov {
+        bias_state_process(&self.gyro_bias, self.gyro_bias_sigma0())
+    }
+
+    /// The process the filter's accelerometer bias state follows, see
+    /// [`bias_state_process`].
+    pub fn accel_bias_state(&self) -> GaussMarkov {
+        bias_state_process(&self.accel_bias, self.accel_bias_sigma0())
+    }
+}
+
+/// The first-order Gauss-Markov process of the filter's one bias state per axis, which
+/// carries both the in-run bias `in_run` and, when the initial 1σ `sigma0` is larger, the
+/// turn-on bias (constant for the run). A Gauss-Markov state whose initial variance is above
+/// its stationary one relaxes to the stationary variance within τ/2 whether anything was
+/// observed or not: with the in-run process as it is (STIM300: 0.8 °/h, τ 37 s, turn-on
+/// 4 °/h) the filter told itself within a minute that it knew the turn-on bias to 0.8 °/h,
+/// never estimated the yaw bias, and its heading was 4–15× over-confident on a long
+/// straight (docs/bench/fusion.md, "Heading consistency"). So the state keeps `sigma0` as
+/// its stationary σ and gets the correlation time that keeps the in-run driving noise
+/// 2σ²/τ: short-term bias changes are modelled as before, and the turn-on part is forgotten
+/// only over τ·(σ0/σ)² instead of τ. A process that is already a random constant, or whose
+/// initial σ is not above its stationary σ, is returned as it is; a process with no in-run
+/// noise (σ = 0) becomes a random constant of σ0.
+pub fn bias_state_process(in_run: &GaussMarkov, sigma0: f64) -> GaussMarkov {
+    // Written so that a NaN σ0 keeps the in-run process.
+    let carries_more = sigma0 > in_run.sigma;
+    if in_run.is_constant() || !carries_more {
+        *in_run
+    } else if in_run.sigma > 0.0 {
+        let ratio = sigma0 / in_run.sigma;
+        GaussMarkov {
+            sigma: sigma0,
+            tau_s: in_run.tau_s * ratio * ratio,
+        }
+    } else {
+        GaussMarkov {
+            sigma: sigma0,
+            tau_s: 0.0,
+        }
+    }
 }
 
 impl Default for ImuModel {
@@ -552,5 +595,43 @@ mod tests {
         assert!(e.to_string().contains("covariance_interval_s"), "{e}");
         let e = FusionConfig::from_toml_str("[nhc]\nsigma_mps = nan\n", "x").expect_err("nan");
         assert!(e.to_string().contains("nhc.sigma_mps"), "{e}");
+    }
+
+    /// The bias state keeps the initial σ as its stationary σ and the in-run driving noise;
+    /// without that it relaxed to the in-run σ whatever was observed.
+    #[test]
+    fn bias_state_keeps_the_initial_sigma_and_the_in_run_driving_noise() {
+        let in_run = GaussMarkov {
+            sigma: 1.0,
+            tau_s: 40.0,
+        };
+        let s = bias_state_process(&in_run, 5.0);
+        assert_eq!(s.sigma, 5.0);
+        assert!((s.tau_s - 1000.0).abs() < 1e-9, "{}", s.tau_s);
+        assert!((s.driving_psd() - in_run.driving_psd()).abs() < 1e-15);
+        // Nothing to carry: unchanged.
+        assert_eq!(bias_state_process(&in_run, 1.0), in_run);
+        assert_eq!(bias_state_process(&in_run, 0.5), in_run);
+        assert_eq!(bias_state_process(&in_run, f64::NAN), in_run);
+        let constant = GaussMarkov {
+            sigma: 1.0,
+            tau_s: 0.0,
+        };
+        assert_eq!(bias_state_process(&constant, 5.0), constant);
+        // No in-run noise: a random constant of the initial σ (it decayed to zero before).
+        let quiet = GaussMarkov {
+            sigma: 0.0,
+            tau_s: 40.0,
+        };
+        let s = bias_state_process(&quiet, 5.0);
+        assert_eq!((s.sigma, s.decay(), s.driving_psd()), (5.0, 0.0, 0.0));
+        // What the filter uses.
+        let model = ImuModel {
+            gyro_bias: in_run,
+            gyro_bias_initial_sigma: Some(5.0),
+            ..ImuModel::default()
+        };
+        assert_eq!(model.gyro_bias_state(), bias_state_process(&in_run, 5.0));
+        assert_eq!(model.accel_bias_state(), model.accel_bias);
     }
 }

@@ -87,9 +87,13 @@ pub fn dynamics_matrix<const N: usize>(
 
     // Sensor errors as first-order Gauss-Markov processes.
     let imu = &config.imu;
+    let (gyro_decay, accel_decay) = (
+        imu.gyro_bias_state().decay(),
+        imu.accel_bias_state().decay(),
+    );
     for i in 0..3 {
-        f[(BG + i, BG + i)] = -imu.gyro_bias.decay();
-        f[(BA + i, BA + i)] = -imu.accel_bias.decay();
+        f[(BG + i, BG + i)] = -gyro_decay;
+        f[(BA + i, BA + i)] = -accel_decay;
     }
     if N == 21 {
         f.fixed_view_mut::<3, 3>(ATT, SG)
@@ -112,8 +116,8 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
     for i in 0..3 {
         q[VEL + i] = imu.vrw_mps_per_sqrt_s.powi(2);
         q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
-        q[BG + i] = imu.gyro_bias.driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
-        q[BA + i] = imu.accel_bias.driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
+        q[BG + i] = imu.gyro_bias_state().driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
+        q[BA + i] = imu.accel_bias_state().driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
         if N == 21 {
             q[SG + i] = imu.gyro_scale.driving_psd();
             q[SA + i] = imu.accel_scale.driving_psd();

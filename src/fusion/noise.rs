@@ -13,8 +13,12 @@
 //!   same convention as the fit) is flat over a band [τ₁, τ₂], the band's geometric centre
 //!   √(τ₁τ₂). A spec built from a fit gets B = F / 0.664 back.
 //! - rate random walk K: white noise on the bias (`*_rrw_*`), besides the GM driving noise;
-//! - the initial bias σ: √(σ_GM² + turn-on σ² + constant bias²) for a preset; for an Allan
-//!   fit, the GM σ (an Allan curve says nothing about the turn-on bias).
+//! - the initial bias σ: √(σ_in-run² + turn-on σ² + constant bias²) for a preset, σ_in-run
+//!   the larger of σ_GM and the flicker's spread over the band ([`flicker_band_sigma`],
+//!   2.5·F for 1–5000 s); for an Allan fit, the GM σ (an Allan curve says nothing about the
+//!   turn-on bias). The filter keeps this σ as its bias state's stationary σ and keeps the
+//!   GM's driving noise (`config::bias_state_process`): the turn-on bias and the flicker's
+//!   slow part are constants over a drive, which a GM of τ_c ≈ 37 s would forget.
 //! - scale factors (21 states): the preset's scale-factor error as a random constant (100 ppm
 //!   when the preset gives none); an Allan fit does not identify them, so they fall back.
 //! - gyro g-sensitivity G (a preset's `g_sensitivity_dph_per_g`), which the 15/21-state
@@ -69,6 +73,20 @@ pub fn gauss_markov_from_floor(floor: f64, tau_min: f64) -> GaussMarkov {
     }
 }
 
+/// 1σ of a bias instability whose Allan deviation is flat at `floor` over the band
+/// `band_s` of τ: a flicker (1/f) bias, PSD h/f with Allan variance 2·ln 2·h, holds the
+/// variance h·ln(τ₂/τ₁) between the band's frequencies, so σ = floor·√(ln(τ₂/τ₁) / (2 ln 2)).
+/// For the default band 1–5000 s that is 2.5·floor, against 1.6·floor of the Gauss-Markov
+/// process fitted to the Allan peak: the flicker's slow part (periods of minutes to hours)
+/// that process leaves out is, over one drive, a nearly constant bias.
+pub fn flicker_band_sigma(floor: f64, band_s: [f64; 2]) -> f64 {
+    let ratio = band_s[1] / band_s[0];
+    if !(floor > 0.0 && ratio.is_finite() && ratio > 1.0) {
+        return 0.0;
+    }
+    floor * (ratio.ln() / (2.0 * std::f64::consts::LN_2)).sqrt()
+}
+
 fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64) {
     let floor = max3(t.instability_floor);
     let band = t.bias_instability_band_s;
@@ -81,7 +99,9 @@ fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64) {
             tau_s: 0.0,
         }
     };
-    let initial = (gm.sigma.powi(2) + max3(t.turn_on_sigma).powi(2) + max3(t.bias).powi(2)).sqrt();
+    // The in-run bias's spread: the GM's σ, or the flicker's over its band when larger.
+    let in_run = gm.sigma.max(flicker_band_sigma(floor, band));
+    let initial = (in_run.powi(2) + max3(t.turn_on_sigma).powi(2) + max3(t.bias).powi(2)).sqrt();
     (gm, initial, max3(t.random_walk))
 }
 
@@ -413,10 +433,10 @@ mod tests {
         let floor_sigma = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0 / GM_ADEV_PEAK;
         let dynamic = 0.1f64.to_radians() * VEHICLE_ACCEL_SIGMA_G;
         assert!((c.gyro_bias.sigma - floor_sigma.hypot(dynamic)).abs() < 1e-12);
-        let initial = (floor_sigma.powi(2)
-            + (20f64 / 3.0).to_radians().powi(2)
-            + 0.1f64.to_radians().powi(2))
-        .sqrt();
+        let band_sigma = flicker_band_sigma(floor_sigma * GM_ADEV_PEAK, [1.0, 5000.0]);
+        let initial =
+            (band_sigma.powi(2) + (20f64 / 3.0).to_radians().powi(2) + 0.1f64.to_radians().powi(2))
+                .sqrt();
         assert!(
             (c.gyro_bias_sigma0() - initial).abs() < 1e-9,
             "{} vs {initial}",
@@ -424,6 +444,18 @@ mod tests {
         );
         // Presets without g-sensitivity keep the floor's σ.
         assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
+        // The initial σ holds the flicker's spread over the band and the turn-on bias.
+        let band = floor * (5000f64.ln() / (2.0 * std::f64::consts::LN_2)).sqrt();
+        assert!((band / floor - 2.48).abs() < 0.01, "{}", band / floor);
+        let turn_on = 4f64.to_radians() / 3600.0;
+        assert!((m.gyro_bias_sigma0() - band.hypot(turn_on)).abs() < 1e-12);
+        // Without a turn-on bias the initial σ is the band's, above the Allan-peak GM's.
+        let i = model_from_preset("industrial").expect("preset").model;
+        let floor = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0;
+        assert!((i.gyro_bias_sigma0() - flicker_band_sigma(floor, [1.0, 5000.0])).abs() < 1e-15);
+        assert!(i.gyro_bias_sigma0() > 1.5 * i.gyro_bias.sigma);
+        assert_eq!(flicker_band_sigma(floor, [10.0, 10.0]), 0.0);
+        assert_eq!(flicker_band_sigma(0.0, [1.0, 10.0]), 0.0);
     }
 
     #[test]

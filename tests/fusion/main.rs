@@ -2,6 +2,7 @@
 
 mod filter;
 mod fuzz;
+mod heading;
 mod kfgins;
 mod mechanisation;
 mod noise;
