@@ -12,23 +12,27 @@
 //! (≈ 1 GB of traffic for 20 factors). Instead, two phases:
 //! - **tiles** (m < [`M`]): the phase is cut into tiles of [`T`] positions; each tile is
 //!   copied with a halo of 3M/2 points (the dependency cone of the highest small factor)
-//!   into an L2-resident scratch where all small factors are passed in turn. Each tile
-//!   also writes W_M at its positions, transposed into column blocks (below);
+//!   into an L2-resident scratch where all small factors are passed in turn;
 //! - **columns** (m ≥ M): with j = q·M + r, the column r of W_M, V_r[q] = W_M[q·M + r],
 //!   holds everything the large factors need: W_{M·2^s}[q·M + r] is a sum of 2^s
 //!   consecutive V_r, so the same hierarchy runs on each column with strides 1, 2, 4, …
 //!   in rows. [`B`] neighbouring columns form a block of rows of B lanes (one cache line,
 //!   a vector loop over lanes), a few hundred KB that stays in L2 while all large factors
-//!   are passed.
+//!   are passed. The blocks are not stored for the whole phase: the tiles write W_M only
+//!   at the first block of each of [`CHAINS`] chains of blocks, and each next block of a
+//!   chain slides the previous one by B positions, W_M[j + B] = W_M[j] + W_B[j + M] −
+//!   W_B[j], with B-point window sums of the phase (a few roundings of |W_M| per step, at
+//!   most B·(blocks per chain − 1) positions from an exact start).
 //!
 //! Each term is evaluated as (S/2)² = (½(a + c) − b)², then × 4: the scaling by powers of
 //! two is exact, so this equals (a + c − 2b)² bit for bit, with one addition fewer (LLVM
-//! turns 2b into b + b). Tiles and column blocks are independent jobs on the rayon pool;
-//! their partial sums are merged in a fixed order, so 1 and 2 threads give the same bits,
-//! and the loops run through [`dispatch`] (portable and AVX2 paths, same bits: no FMA).
+//! turns 2b into b + b). Tiles and chains are independent jobs on the rayon pool; their
+//! partial sums are merged in a fixed order, so any number of threads gives the same
+//! bits, and the loops run through [`dispatch`] (portable and AVX2 paths, same bits: no
+//! FMA).
 //!
-//! Memory: the transposed W_M, one f64 per phase point (an axis' size), plus the scratch
-//! of the jobs in flight.
+//! Memory: W_M at the chains' first blocks, one f64 per M/(B·CHAINS) = 8 phase points,
+//! plus two column blocks (≈ 1.6 MB for 6 h at 150 Hz) per chain in flight.
 
 use super::numerics::{dispatch, CompensatedSum, Kernel, Simd};
 use rayon::prelude::*;
@@ -44,10 +48,19 @@ const T: usize = 8 * 1024;
 const H: usize = 3 * M / 2;
 /// Rows of W_M that one tile contributes to each column block.
 const ROWS_PER_TILE: usize = T / M;
-/// Lanes (neighbouring columns) per column block: one 64-byte row.
+/// Lanes (neighbouring columns) per column block: one 64-byte row ([`window_sums`]
+/// is written for 8).
 const B: usize = 8;
+const _: () = assert!(B == 8 && BLOCKS.is_multiple_of(CHAINS));
 /// Column blocks.
 const BLOCKS: usize = M / B;
+/// Chains of neighbouring column blocks: the first block of a chain starts from W_M as
+/// the tiles computed it, each next one slides the previous by B positions.
+const CHAINS: usize = 4;
+/// Column blocks per chain.
+const BLOCKS_PER_CHAIN: usize = BLOCKS / CHAINS;
+/// Values of W_M one tile writes: the first block of every chain, for each of its rows.
+const TILE_OUT: usize = ROWS_PER_TILE * CHAINS * B;
 /// Tiles per parallel job.
 const TILES_PER_JOB: usize = 16;
 
@@ -100,10 +113,10 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
             })
             .collect()
     } else {
-        columns.reserve_exact(tiles * T);
-        let spare = &mut columns.spare_capacity_mut()[..tiles * T];
+        columns.reserve_exact(tiles * TILE_OUT);
+        let spare = &mut columns.spare_capacity_mut()[..tiles * TILE_OUT];
         let sums = spare
-            .par_chunks_mut(TILES_PER_JOB * T)
+            .par_chunks_mut(TILES_PER_JOB * TILE_OUT)
             .enumerate()
             .map(|(job, out)| {
                 dispatch(
@@ -111,17 +124,17 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
                     TileJob {
                         x,
                         first_tile: job * TILES_PER_JOB,
-                        tiles: out.len() / T,
+                        tiles: out.len() / TILE_OUT,
                         small,
                         out: Some(out),
                     },
                 )
             })
             .collect();
-        // SAFETY: every tile wrote all T values of its chunk (`write_columns` writes each
-        // position, zero past the end of W_M), and the chunks cover the first tiles·T
-        // elements of the reserved capacity.
-        unsafe { columns.set_len(tiles * T) };
+        // SAFETY: every tile wrote all TILE_OUT values of its chunk (`write_columns`
+        // writes each one, zero past the end of W_M), and the chunks cover the first
+        // tiles·TILE_OUT elements of the reserved capacity.
+        unsafe { columns.set_len(tiles * TILE_OUT) };
         sums
     };
     let mut totals = vec![CompensatedSum::new(); levels];
@@ -131,23 +144,23 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
         }
     }
     if big > 0 {
-        let column_sums: Vec<Vec<CompensatedSum>> = (0..BLOCKS)
+        let chain_sums: Vec<Vec<CompensatedSum>> = (0..CHAINS)
             .into_par_iter()
-            .map(|block| {
+            .map(|chain| {
                 dispatch(
                     simd,
-                    ColumnJob {
+                    ChainJob {
+                        x,
                         columns: &columns,
                         tiles,
-                        block,
-                        n,
+                        chain,
                         big,
                     },
                 )
             })
             .collect();
-        for block in column_sums {
-            for (total, part) in totals[small..].iter_mut().zip(block) {
+        for chain in chain_sums {
+            for (total, part) in totals[small..].iter_mut().zip(chain) {
                 total.merge(part);
             }
         }
@@ -176,7 +189,9 @@ impl Kernel for TileJob<'_> {
         let mut scratch = Vec::with_capacity(T + H);
         let mut out = self.out;
         for t in 0..self.tiles {
-            let tile_out = out.as_deref_mut().map(|o| &mut o[t * T..(t + 1) * T]);
+            let tile_out = out
+                .as_deref_mut()
+                .map(|o| &mut o[t * TILE_OUT..(t + 1) * TILE_OUT]);
             tile(
                 self.x,
                 (self.first_tile + t) * T,
@@ -229,14 +244,15 @@ fn tile(
     }
 }
 
-/// Writes the tile's W_M (the first `valid` positions of `scratch`, zero after) into
-/// `out` in the layout [column block][row][lane].
+/// Writes the tile's W_M at the lanes of each chain's first column block (the first
+/// `valid` positions of `scratch` are W_M, zero after) into `out` in the layout
+/// [chain][row][lane].
 #[inline(always)]
 fn write_columns(scratch: &[f64], valid: usize, out: &mut [MaybeUninit<f64>]) {
-    for block in 0..BLOCKS {
+    for chain in 0..CHAINS {
         for row in 0..ROWS_PER_TILE {
-            let from = row * M + block * B;
-            let to = (block * ROWS_PER_TILE + row) * B;
+            let from = row * M + chain * BLOCKS_PER_CHAIN * B;
+            let to = (chain * ROWS_PER_TILE + row) * B;
             let dst = &mut out[to..to + B];
             if from + B <= valid {
                 for (d, s) in dst.iter_mut().zip(&scratch[from..from + B]) {
@@ -323,108 +339,162 @@ fn level_pass(s: &mut [f64], m: usize, term_end: usize, next_end: usize) -> f64 
     4.0 * (acc.iter().sum::<f64>() + tail)
 }
 
-/// One column block through the large factors m = M·2^s, s < `big`: Σ S² per factor.
-struct ColumnJob<'a> {
-    /// The transposed W_M: [tile][column block][row of the tile][lane].
+/// One chain of column blocks through the large factors m = M·2^s, s < `big`: Σ S² per
+/// factor.
+struct ChainJob<'a> {
+    /// The phase.
+    x: &'a [f64],
+    /// W_M at each chain's first column block: [tile][chain][row of the tile][lane].
     columns: &'a [f64],
     tiles: usize,
-    block: usize,
-    /// Phase points.
-    n: usize,
+    chain: usize,
     big: usize,
 }
 
-impl Kernel for ColumnJob<'_> {
+impl Kernel for ChainJob<'_> {
     type Output = Vec<CompensatedSum>;
     #[inline(always)]
-    #[allow(clippy::needless_range_loop)] // one index walks the lanes of three rows
+    #[allow(clippy::needless_range_loop)] // one index walks the lanes of a row
     fn run(self) -> Vec<CompensatedSum> {
-        let ColumnJob {
+        let ChainJob {
+            x,
             columns,
             tiles,
-            block,
-            n,
+            chain,
             big,
         } = self;
-        let mut rows: Vec<Row> = Vec::with_capacity(tiles * ROWS_PER_TILE);
+        // V[q][l] = W_M[q·M + block·B + l] for the current block, starting exact.
+        let mut column: Vec<Row> = Vec::with_capacity(tiles * ROWS_PER_TILE);
         for tile in 0..tiles {
-            let at = (tile * BLOCKS + block) * ROWS_PER_TILE * B;
+            let at = (tile * CHAINS + chain) * ROWS_PER_TILE * B;
             let chunk = &columns[at..at + ROWS_PER_TILE * B];
-            rows.extend(chunk.as_chunks::<B>().0.iter().map(|r| Row(*r)));
+            column.extend(chunk.as_chunks::<B>().0.iter().map(|r| Row(*r)));
         }
-        let total_rows = rows.len();
-        let r0 = block * B;
         let mut sums = vec![CompensatedSum::new(); big];
-        for (s, sum) in sums.iter_mut().enumerate() {
-            let d = 1usize << s;
-            let m = M << s;
-            let count = term_count(m, n);
-            // Rows whose B lanes all carry a term: q·M + r0 + B − 1 < count.
-            let full = if count >= r0 + B {
-                (count - r0 - B) / M + 1
-            } else {
-                0
-            };
-            // W_{2m} is needed only for a further factor.
-            let next_rows = if s + 1 < big {
-                total_rows.saturating_sub(d)
-            } else {
-                0
-            };
-            let both = full.min(next_rows);
-            // Two rows per step into two accumulators, so their additions overlap.
-            let mut acc = [[0.0f64; B]; 2];
-            let mut q = 0;
-            while q + 2 <= both {
-                for u in 0..2 {
-                    let a = rows[q + u].0;
-                    let b = rows[q + u + d].0;
-                    let c = rows[q + u + 2 * d].0;
-                    let mut next = [0.0; B];
+        let mut rows: Vec<Row> = Vec::with_capacity(column.len());
+        for step in 0..BLOCKS_PER_CHAIN {
+            let block = chain * BLOCKS_PER_CHAIN + step;
+            if step > 0 {
+                // W_M[j + B] = W_M[j] + W_B[j + M] − W_B[j] at j = q·M + (block − 1)·B + l:
+                // the previous block's V plus a difference of two B-point window sums
+                // of the phase (rows q + 1 and q), so no full-length W_M is stored.
+                let from = (block - 1) * B;
+                let mut here = window_sums(x, from);
+                for (q, v) in column.iter_mut().enumerate() {
+                    let next = window_sums(x, (q + 1) * M + from);
                     for l in 0..B {
-                        let half = 0.5 * (a[l] + c[l]) - b[l];
-                        acc[u][l] += half * half;
-                        next[l] = a[l] + b[l];
+                        v.0[l] += next[l] - here[l];
                     }
-                    rows[q + u].0 = next;
-                }
-                q += 2;
-            }
-            while q < both {
-                let (a, b, c) = (rows[q].0, rows[q + d].0, rows[q + 2 * d].0);
-                for l in 0..B {
-                    let half = 0.5 * (a[l] + c[l]) - b[l];
-                    acc[0][l] += half * half;
-                    rows[q].0[l] = a[l] + b[l];
-                }
-                q += 1;
-            }
-            for q in both..full {
-                let (a, b, c) = (rows[q].0, rows[q + d].0, rows[q + 2 * d].0);
-                for l in 0..B {
-                    let half = 0.5 * (a[l] + c[l]) - b[l];
-                    acc[1][l] += half * half;
+                    here = next;
                 }
             }
-            // The row where the terms end part-way through the lanes.
-            let mut tail = 0.0;
-            for l in 0..B {
-                if full * M + r0 + l < count {
-                    let half =
-                        0.5 * (rows[full].0[l] + rows[full + 2 * d].0[l]) - rows[full + d].0[l];
-                    tail += half * half;
-                }
-            }
-            for q in both..next_rows {
-                let b = rows[q + d].0;
-                for l in 0..B {
-                    rows[q].0[l] += b[l];
-                }
-            }
-            let lanes: f64 = acc[0].iter().sum::<f64>() + acc[1].iter().sum::<f64>();
-            sum.add(4.0 * (lanes + tail));
+            rows.clear();
+            rows.extend_from_slice(&column);
+            column_levels(&mut rows, block, x.len(), &mut sums);
         }
         sums
+    }
+}
+
+/// The B window sums W_B[p + l] = Σ_{i<B} x[p + l + i] (pairwise, l < B), 0 for windows
+/// that run past the end of `x`.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // one index walks the lanes and their windows
+fn window_sums(x: &[f64], p: usize) -> [f64; B] {
+    let mut out = [0.0; B];
+    if p + 2 * B - 1 <= x.len() {
+        // One expression per lane over a borrowed slice: vectorised across the lanes
+        // (unaligned loads at offsets 0 … 7), the same association as the slow path.
+        let w: &[f64; 2 * B - 1] = x[p..p + 2 * B - 1].try_into().expect("2B − 1 values");
+        for l in 0..B {
+            out[l] = ((w[l] + w[l + 1]) + (w[l + 2] + w[l + 3]))
+                + ((w[l + 4] + w[l + 5]) + (w[l + 6] + w[l + 7]));
+        }
+    } else {
+        for (l, o) in out.iter_mut().enumerate() {
+            if let Some(w) = x.get(p + l..p + l + B) {
+                *o = ((w[0] + w[1]) + (w[2] + w[3])) + ((w[4] + w[5]) + (w[6] + w[7]));
+            }
+        }
+    }
+    out
+}
+
+/// The large factors m = M·2^s over one column block's rows (`rows[q]` = W_M at
+/// q·M + block·B + lane, destroyed): Σ S² added to `sums[s]`.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // one index walks the lanes of three rows
+fn column_levels(rows: &mut [Row], block: usize, n: usize, sums: &mut [CompensatedSum]) {
+    let big = sums.len();
+    let total_rows = rows.len();
+    let r0 = block * B;
+    for (s, sum) in sums.iter_mut().enumerate() {
+        let d = 1usize << s;
+        let m = M << s;
+        let count = term_count(m, n);
+        // Rows whose B lanes all carry a term: q·M + r0 + B − 1 < count.
+        let full = if count >= r0 + B {
+            (count - r0 - B) / M + 1
+        } else {
+            0
+        };
+        // W_{2m} is needed only for a further factor.
+        let next_rows = if s + 1 < big {
+            total_rows.saturating_sub(d)
+        } else {
+            0
+        };
+        let both = full.min(next_rows);
+        // Two rows per step into two accumulators, so their additions overlap.
+        let mut acc = [[0.0f64; B]; 2];
+        let mut q = 0;
+        while q + 2 <= both {
+            for u in 0..2 {
+                let a = rows[q + u].0;
+                let b = rows[q + u + d].0;
+                let c = rows[q + u + 2 * d].0;
+                let mut next = [0.0; B];
+                for l in 0..B {
+                    let half = 0.5 * (a[l] + c[l]) - b[l];
+                    acc[u][l] += half * half;
+                    next[l] = a[l] + b[l];
+                }
+                rows[q + u].0 = next;
+            }
+            q += 2;
+        }
+        while q < both {
+            let (a, b, c) = (rows[q].0, rows[q + d].0, rows[q + 2 * d].0);
+            for l in 0..B {
+                let half = 0.5 * (a[l] + c[l]) - b[l];
+                acc[0][l] += half * half;
+                rows[q].0[l] = a[l] + b[l];
+            }
+            q += 1;
+        }
+        for q in both..full {
+            let (a, b, c) = (rows[q].0, rows[q + d].0, rows[q + 2 * d].0);
+            for l in 0..B {
+                let half = 0.5 * (a[l] + c[l]) - b[l];
+                acc[1][l] += half * half;
+            }
+        }
+        // The row where the terms end part-way through the lanes.
+        let mut tail = 0.0;
+        for l in 0..B {
+            if full * M + r0 + l < count {
+                let half = 0.5 * (rows[full].0[l] + rows[full + 2 * d].0[l]) - rows[full + d].0[l];
+                tail += half * half;
+            }
+        }
+        for q in both..next_rows {
+            let b = rows[q + d].0;
+            for l in 0..B {
+                rows[q].0[l] += b[l];
+            }
+        }
+        let lanes: f64 = acc[0].iter().sum::<f64>() + acc[1].iter().sum::<f64>();
+        sum.add(4.0 * (lanes + tail));
     }
 }
 
