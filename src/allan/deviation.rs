@@ -18,11 +18,14 @@
 //! - the non-overlapping kinds (ADEV, HDEV) on the decimated phase z[k] = x[k·m], built
 //!   as a pyramid (each octave level compacts the previous one in place), where the
 //!   terms are contiguous second and third differences;
-//! - MDEV/TDEV with the sliding-window recurrence, factor by factor.
+//! - MDEV/TDEV at power-of-two factors through a hierarchy of window sums, all octaves
+//!   in one tiled pass plus one pass per column block ([`super::modified`]); other
+//!   factors (and [`variance_at`]) with the sliding-window recurrence, factor by factor.
 //!
 //! The inner loops are compiled twice (portable and AVX2, [`Simd`]) and give the same
 //! bits on both paths.
 
+use super::modified::octave_window_sums;
 use super::numerics::{
     blocked_sum, dispatch, for_each_decimation, sum_streams, CompensatedSum, Kernel, Phase, Simd,
 };
@@ -227,23 +230,46 @@ pub fn variances_with(
             });
             return out;
         }
-        DeviationKind::Mdev | DeviationKind::Tdev => factors
-            .par_iter()
-            .zip(&counts)
-            .map(|(&m, &c)| {
-                if c == 0 {
-                    0.0
-                } else {
-                    dispatch(simd, ModifiedSum { x, m, count: c })
-                }
-            })
-            .collect(),
+        DeviationKind::Mdev | DeviationKind::Tdev => modified_sums(x, factors, &counts, simd),
     };
     factors
         .iter()
         .zip(counts)
         .zip(sums)
         .map(|((&m, count), sum)| (count > 0).then(|| (normalise(kind, sum, m, count), count)))
+        .collect()
+}
+
+/// MDEV window sums Σ_j S_j(m)² for every factor of a grid (0 where `counts` is 0): the
+/// powers of two through the octave hierarchy of [`super::modified`] when at least a
+/// third of the octaves it passes through are in the grid (each octave costs about a
+/// third of a sliding-window factor), every other factor with the sliding window.
+fn modified_sums(x: &[f64], factors: &[usize], counts: &[usize], simd: Simd) -> Vec<f64> {
+    let octaves: Vec<u32> = factors
+        .iter()
+        .zip(counts)
+        .filter(|&(&m, &c)| c > 0 && m.is_power_of_two())
+        .map(|(&m, _)| m.trailing_zeros())
+        .collect();
+    let levels = octaves.iter().max().map_or(0, |&k| k as usize + 1);
+    let by_octave = if !octaves.is_empty() && 3 * octaves.len() >= levels {
+        octave_window_sums(x, levels, simd)
+    } else {
+        Vec::new()
+    };
+    factors
+        .par_iter()
+        .zip(counts)
+        .map(|(&m, &c)| {
+            let octave = m.trailing_zeros() as usize;
+            if c == 0 {
+                0.0
+            } else if m.is_power_of_two() && octave < by_octave.len() {
+                by_octave[octave]
+            } else {
+                dispatch(simd, ModifiedSum { x, m, count: c })
+            }
+        })
         .collect()
 }
 
@@ -585,7 +611,7 @@ fn third_difference_sum(x: &[f64], m: usize, stride: usize, count: usize) -> f64
 /// which bounds the rounding drift of the recurrence to about √65 536 ulps. Four segments
 /// are scanned in lock-step so their independent additions overlap in the CPU.
 #[inline(always)]
-fn modified_sum(x: &[f64], m: usize, count: usize) -> f64 {
+pub(super) fn modified_sum(x: &[f64], m: usize, count: usize) -> f64 {
     modified_sum_in_segments(x, m, count, SEGMENT_STEPS)
 }
 
