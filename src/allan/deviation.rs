@@ -27,7 +27,8 @@
 
 use super::modified::octave_window_sums;
 use super::numerics::{
-    blocked_sum, dispatch, for_each_decimation, sum_streams, CompensatedSum, Kernel, Phase, Simd,
+    blocked_sum, dispatch, for_each_decimation, sum_in_jobs, sum_streams, CompensatedSum, Kernel,
+    Phase, Simd,
 };
 use super::sweep::{second_difference_sums, SweepPath};
 use rayon::prelude::*;
@@ -339,12 +340,11 @@ fn overlapping_sums<const K: usize>(
     term: impl Fn([f64; K]) -> f64 + Copy + Sync,
 ) -> Vec<f64> {
     let longest = counts.iter().copied().max().unwrap_or(0);
-    let job_terms = TILE * TILES_PER_JOB;
-    let partials: Vec<Vec<CompensatedSum>> = (0..longest.div_ceil(job_terms))
-        .into_par_iter()
-        .map(|job| {
-            let start = job * job_terms;
-            let end = (start + job_terms).min(longest);
+    sum_in_jobs(
+        longest,
+        TILE * TILES_PER_JOB,
+        factors.len(),
+        |start, end| {
             dispatch(
                 simd,
                 SweepTiles::<K, _> {
@@ -356,15 +356,8 @@ fn overlapping_sums<const K: usize>(
                     term,
                 },
             )
-        })
-        .collect();
-    let mut totals = vec![CompensatedSum::new(); factors.len()];
-    for partial in partials {
-        for (total, part) in totals.iter_mut().zip(partial) {
-            total.merge(part);
-        }
-    }
-    totals.iter().map(CompensatedSum::value).collect()
+        },
+    )
 }
 
 /// [`sweep_tiles`] as a [`Kernel`].

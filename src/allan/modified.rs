@@ -34,7 +34,7 @@
 //! Memory: W_M at the chains' first blocks, one f64 per M/(B·CHAINS) = 8 phase points,
 //! plus two column blocks (≈ 1.6 MB for 6 h at 150 Hz) per chain in flight.
 
-use super::numerics::{dispatch, CompensatedSum, Kernel, Simd};
+use super::numerics::{dispatch, merge_in_order, CompensatedSum, Kernel, Simd};
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 
@@ -138,11 +138,7 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
         sums
     };
     let mut totals = vec![CompensatedSum::new(); levels];
-    for job in tile_sums {
-        for (total, part) in totals.iter_mut().zip(job) {
-            total.merge(part);
-        }
-    }
+    merge_in_order(&mut totals, tile_sums);
     if big > 0 {
         let chain_sums: Vec<Vec<CompensatedSum>> = (0..CHAINS)
             .into_par_iter()
@@ -159,11 +155,7 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
                 )
             })
             .collect();
-        for chain in chain_sums {
-            for (total, part) in totals[small..].iter_mut().zip(chain) {
-                total.merge(part);
-            }
-        }
+        merge_in_order(&mut totals[small..], chain_sums);
     }
     for (o, total) in out.iter_mut().zip(&totals) {
         *o = total.value();

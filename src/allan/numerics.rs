@@ -9,6 +9,8 @@
 //! fixed-size lane arrays that LLVM vectorises by itself, so all they need is to be
 //! compiled a second time with AVX2 enabled, which one small generic function does.
 
+use rayon::prelude::*;
+
 /// Instruction set the hot loops run with. The build targets baseline x86-64 (SSE2);
 /// [`Simd::detected`] picks AVX2 + FMA when the CPU has them. Both paths evaluate the
 /// same expressions in the same order (Rust never contracts `a * b + c` into an FMA on
@@ -108,6 +110,40 @@ impl CompensatedSum {
     pub fn value(&self) -> f64 {
         self.sum + self.compensation
     }
+}
+
+/// Merges per-job partial sums into `totals` (one per factor) in job order, so the result
+/// does not depend on how many threads ran the jobs.
+pub fn merge_in_order(
+    totals: &mut [CompensatedSum],
+    jobs: impl IntoIterator<Item = Vec<CompensatedSum>>,
+) {
+    for job in jobs {
+        for (total, part) in totals.iter_mut().zip(job) {
+            total.merge(part);
+        }
+    }
+}
+
+/// Per-factor sums over the terms `0..terms`, cut into jobs of `job_terms` terms that run
+/// on the rayon pool: `job(start, end)` returns one partial sum per factor (`factors` of
+/// them), merged in job order (see [`merge_in_order`]).
+pub fn sum_in_jobs(
+    terms: usize,
+    job_terms: usize,
+    factors: usize,
+    job: impl Fn(usize, usize) -> Vec<CompensatedSum> + Sync,
+) -> Vec<f64> {
+    let partials: Vec<Vec<CompensatedSum>> = (0..terms.div_ceil(job_terms))
+        .into_par_iter()
+        .map(|j| {
+            let start = j * job_terms;
+            job(start, (start + job_terms).min(terms))
+        })
+        .collect();
+    let mut totals = vec![CompensatedSum::new(); factors];
+    merge_in_order(&mut totals, partials);
+    totals.iter().map(CompensatedSum::value).collect()
 }
 
 /// Mean of a slice (0 for an empty slice): eight-lane plain sums per block of 4096 values,

@@ -29,8 +29,7 @@
 //! new dependency. No crate offering portable SIMD on stable Rust (e.g. `wide`) does the
 //! runtime dispatch to AVX-512, and the few operations needed fit in one small trait.
 
-use super::numerics::{CompensatedSum, Simd};
-use rayon::prelude::*;
+use super::numerics::{sum_in_jobs, CompensatedSum, Simd};
 
 /// Terms per tile (32 KiB per stream). Measured flat between 1024 and 32 768 terms on
 /// the 6 h bench data; 4096 keeps a shared group's 2G + 1 streams within L2.
@@ -114,28 +113,21 @@ pub fn second_difference_sums(
         })
         .collect();
     let longest = counts.iter().copied().max().unwrap_or(0);
-    let job_terms = TILE * TILES_PER_JOB;
-    let partials: Vec<Vec<CompensatedSum>> = (0..longest.div_ceil(job_terms))
-        .into_par_iter()
-        .map(|job| {
-            let start = job * job_terms;
+    sum_in_jobs(
+        longest,
+        TILE * TILES_PER_JOB,
+        factors.len(),
+        |start, end| {
             let job = Job {
                 x,
                 factors,
                 counts: &counts,
                 start,
-                end: (start + job_terms).min(longest),
+                end,
             };
             run_job(path, &job)
-        })
-        .collect();
-    let mut totals = vec![CompensatedSum::new(); factors.len()];
-    for partial in partials {
-        for (total, part) in totals.iter_mut().zip(partial) {
-            total.merge(part);
-        }
-    }
-    totals.iter().map(CompensatedSum::value).collect()
+        },
+    )
 }
 
 /// The terms `start..end` (a multiple of [`TILE`] apart from the last job) of every factor.
