@@ -55,6 +55,22 @@ mod pty;
 #[path = "daemon_load/floor.rs"]
 mod floor;
 
+/// The value of option `name` as a positive finite number (the modes' option parsers).
+fn positive_number(name: &str, v: &str) -> Result<f64, String> {
+    v.parse::<f64>()
+        .ok()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .ok_or(format!("{name}: {v:?} is not a positive number"))
+}
+
+/// The value of option `name` parsed as a `T`.
+fn parsed<T: std::str::FromStr>(name: &str, v: &str) -> Result<T, String>
+where
+    T::Err: std::fmt::Display,
+{
+    v.parse().map_err(|e| format!("{name}: {e}"))
+}
+
 fn cpu_seconds(who: libc::c_int) -> f64 {
     // SAFETY: getrusage writes into the zeroed struct we own; `who` is RUSAGE_SELF/THREAD.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };

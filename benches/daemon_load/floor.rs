@@ -39,6 +39,7 @@ use nix::sys::stat::Mode;
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 
 use super::pty::{loadavg, scene, thread_times};
+use super::{parsed, positive_number};
 use std::io::{BufRead, Write};
 
 /// The daemon's read size.
@@ -98,33 +99,17 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
         let mut value = |name: &str| args.next().ok_or(format!("{name} needs a value"));
-        let number = |name: &str, v: String| {
-            v.parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite() && *x > 0.0)
-                .ok_or(format!("{name}: {v:?} is not a positive number"))
-        };
         match arg.as_str() {
-            "--secs" => o.secs = number("--secs", value("--secs")?)?,
-            "--speed" => o.speed = number("--speed", value("--speed")?)?,
-            "--runs" => {
-                o.runs = value("--runs")?
-                    .parse()
-                    .map_err(|e| format!("--runs: {e}"))?
-            }
+            "--secs" => o.secs = positive_number("--secs", &value("--secs")?)?,
+            "--speed" => o.speed = positive_number("--speed", &value("--speed")?)?,
+            "--runs" => o.runs = parsed("--runs", &value("--runs")?)?,
             "--readers" => {
                 o.kinds = value("--readers")?
                     .split(',')
                     .map(Kind::parse)
                     .collect::<Result<_, _>>()?
             }
-            "--nice" => {
-                o.nice = Some(
-                    value("--nice")?
-                        .parse()
-                        .map_err(|e| format!("--nice: {e}"))?,
-                )
-            }
+            "--nice" => o.nice = Some(parsed("--nice", &value("--nice")?)?),
             "--in-process" => o.in_process = true,
             "--bench" => {}
             other => return Err(format!("floor: unknown argument {other:?}")),

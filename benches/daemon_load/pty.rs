@@ -13,6 +13,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use super::common::daemon::connected_report;
+use super::{parsed, positive_number};
 use imulab::daemon::status::read_status_file;
 use imulab::sim::scene::Scene;
 use imulab::sim::serve::{Sent, ServeOptions, ServeReport, Server, Speed, StartWhen};
@@ -53,39 +54,23 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
         let mut value = |name: &str| args.next().ok_or(format!("{name} needs a value"));
-        let number = |name: &str, v: String| {
-            v.parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite() && *x > 0.0)
-                .ok_or(format!("{name}: {v:?} is not a positive number"))
-        };
         match arg.as_str() {
-            "--secs" => o.secs = number("--secs", value("--secs")?)?,
-            "--sample-s" => o.sample_s = number("--sample-s", value("--sample-s")?)?,
-            "--runs" => {
-                o.runs = value("--runs")?
-                    .parse()
-                    .map_err(|e| format!("--runs: {e}"))?
-            }
+            "--secs" => o.secs = positive_number("--secs", &value("--secs")?)?,
+            "--sample-s" => o.sample_s = positive_number("--sample-s", &value("--sample-s")?)?,
+            "--runs" => o.runs = parsed("--runs", &value("--runs")?)?,
             "--speed" => {
                 o.speeds = value("--speed")?
                     .split(',')
-                    .map(|v| number("--speed", v.to_string()))
+                    .map(|v| positive_number("--speed", v))
                     .collect::<Result<_, _>>()?
             }
             "--imulogd" => o.imulogd = PathBuf::from(value("--imulogd")?),
             "--curve" => o.curve = Some(PathBuf::from(value("--curve")?)),
             "--raw-journal" => o.raw_journal = true,
             "--rotate-min" => {
-                o.rotate_sim_min = Some(number("--rotate-min", value("--rotate-min")?)?)
+                o.rotate_sim_min = Some(positive_number("--rotate-min", &value("--rotate-min")?)?)
             }
-            "--nice" => {
-                o.nice = Some(
-                    value("--nice")?
-                        .parse()
-                        .map_err(|e| format!("--nice: {e}"))?,
-                )
-            }
+            "--nice" => o.nice = Some(parsed("--nice", &value("--nice")?)?),
             "--bench" => {}
             other => return Err(format!("unknown argument {other:?}")),
         }
