@@ -775,6 +775,7 @@ mod tests {
     use super::*;
     use crate::allan::deviation::variances_with;
     use crate::allan::noise_id::identify_alphas;
+    use crate::allan::noise_id::tests::textbook_lag1;
     use crate::allan::numerics::Phase;
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
@@ -812,15 +813,6 @@ mod tests {
                 3.0 + state
             })
             .collect()
-    }
-
-    /// Textbook lag-1 autocorrelation (mean removed in a first pass).
-    fn direct_lag1(w: &[f64]) -> Option<f64> {
-        let mean = w.iter().sum::<f64>() / w.len() as f64;
-        let c: Vec<f64> = w.iter().map(|v| v - mean).collect();
-        let numerator: f64 = c.windows(2).map(|p| p[0] * p[1]).sum();
-        let denominator: f64 = c.iter().map(|v| v * v).sum();
-        (denominator > 0.0).then(|| numerator / denominator)
     }
 
     #[test]
@@ -861,10 +853,10 @@ mod tests {
                             }
                             let s: Vec<f64> = z.windows(2).map(|w| w[1] - w[0]).collect();
                             for (got, want) in [
-                                (level.lag1(p.delta()), direct_lag1(&z)),
+                                (level.lag1(p.delta()), textbook_lag1(&z)),
                                 (
                                     level.lag1_of_sums(),
-                                    (s.len() >= 2).then(|| direct_lag1(&s)).flatten(),
+                                    (s.len() >= 2).then(|| textbook_lag1(&s)).flatten(),
                                 ),
                             ] {
                                 match (got, want) {

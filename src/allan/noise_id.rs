@@ -305,7 +305,7 @@ fn lag1_orders<const D: usize, const K: usize>(z: &[f64]) -> [Option<f64>; 2] {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
@@ -356,12 +356,17 @@ mod tests {
     }
 
     /// Textbook lag-1 autocorrelation of the d-th difference of the decimated phase: the
-    /// series is built explicitly, its mean removed in a first pass.
+    /// series is built explicitly, then [`textbook_lag1`].
     fn direct_lag1(phase: &[f64], m: usize, d: usize) -> Option<f64> {
         let mut w: Vec<f64> = phase.iter().step_by(m).copied().collect();
         for _ in 0..d {
             w = w.windows(2).map(|p| p[1] - p[0]).collect();
         }
+        textbook_lag1(&w)
+    }
+
+    /// Textbook lag-1 autocorrelation of `w` (mean removed in a first pass).
+    pub(crate) fn textbook_lag1(w: &[f64]) -> Option<f64> {
         let mean = w.iter().sum::<f64>() / w.len() as f64;
         let c: Vec<f64> = w.iter().map(|v| v - mean).collect();
         let numerator: f64 = c.windows(2).map(|p| p[0] * p[1]).sum();
