@@ -69,9 +69,12 @@ struct ChunkEntry {
     file: Option<hdf5::File>,
 }
 
+/// A chunk file opened for reading, or why it was skipped.
+type OpenedFile = Result<(ChunkFileInfo, hdf5::File), StoreError>;
+
 impl ChunkEntry {
     /// The open file, or the error that says why the file was skipped.
-    fn readable(self) -> Result<(ChunkFileInfo, hdf5::File), StoreError> {
+    fn readable(self) -> OpenedFile {
         match self.file {
             Some(file) => Ok((self.info, file)),
             None => Err(StoreError::Corrupt {
@@ -80,6 +83,15 @@ impl ChunkEntry {
             }),
         }
     }
+}
+
+/// The next file of `files` from `*pos` on (advancing `pos`): its index and the open file,
+/// or the error that says why it was skipped; `None` past the last file.
+fn next_file(files: &[ChunkEntry], pos: &mut usize) -> Option<(usize, OpenedFile)> {
+    let fi = *pos;
+    let entry = files.get(fi)?.clone();
+    *pos += 1;
+    Some((fi, entry.readable()))
 }
 
 /// A chunk file whose tables could not be opened.
@@ -620,10 +632,8 @@ impl<B: Block> BlockIter<B> {
                 }
                 self.cursor = None;
             }
-            let fi = self.pos;
-            let entry = self.files.get(fi)?.clone();
-            self.pos += 1;
-            let (info, file) = match entry.readable() {
+            let (fi, opened) = next_file(&self.files, &mut self.pos)?;
+            let (info, file) = match opened {
                 Ok(opened) => opened,
                 Err(e) => return Some(Err(e)),
             };
@@ -736,10 +746,8 @@ impl ImuColumnReader {
                 }
                 self.cursor = None;
             }
-            let fi = self.pos;
-            let entry = self.files.get(fi)?.clone();
-            self.pos += 1;
-            let (info, file) = match entry.readable() {
+            let (fi, opened) = next_file(&self.files, &mut self.pos)?;
+            let (info, file) = match opened {
                 Ok(opened) => opened,
                 Err(e) => return Some(Err(e)),
             };
