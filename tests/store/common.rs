@@ -2,7 +2,9 @@
 //! session written with known values so readers can compare exactly.
 #![allow(dead_code)]
 
+use std::io::{BufRead, BufReader, Lines};
 use std::path::Path;
+use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
 use imulab::store::{
@@ -132,4 +134,82 @@ pub fn child_process_guard() -> std::sync::MutexGuard<'static, ()> {
     CHILD_PROCESS_TESTS
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The body of a writer child (a test that does something only when this test binary is
+/// re-run by [`WriterChild::spawn`] with `env` naming the session directory): writes 100 Hz
+/// data for `imu_a` and `imu_b` in 10-row batches (0.1 s of data time), calls `extra` with
+/// the batch's first row index for whatever else the test appends, and prints
+/// `T=<last t_mono_ns appended>` after each batch, until it is killed.
+pub fn run_writer_child(
+    env: &str,
+    opts: WriterOptions,
+    mut extra: impl FnMut(&mut SessionWriter, usize),
+) {
+    let Ok(dir) = std::env::var(env) else {
+        return; // only does something when run as the child
+    };
+    let mut w = SessionWriter::create(Path::new(&dir), manifest(), opts).unwrap();
+    let mut i = 0;
+    loop {
+        for (d, name) in ["imu_a", "imu_b"].iter().enumerate() {
+            let rows: Vec<_> = (i..i + 10).map(|k| imu_row(d, k)).collect();
+            w.append_imu(name, &rows).unwrap();
+        }
+        extra(&mut w, i);
+        i += 10;
+        println!("T={}", imu_row(0, i - 1).t_mono_ns);
+        std::thread::sleep(Duration::from_micros(300));
+    }
+}
+
+/// A writer child: this test binary re-run with only the test `test` (one that calls
+/// [`run_writer_child`]) and `env` naming the session directory. Hold
+/// [`child_process_guard`] while it lives.
+pub struct WriterChild {
+    child: Child,
+    lines: Lines<BufReader<ChildStdout>>,
+    last_t: i64,
+}
+
+impl WriterChild {
+    pub fn spawn(test: &str, env: &str, dir: &Path) -> Self {
+        let mut child = Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", test, "--nocapture", "--test-threads=1"])
+            .env(env, dir)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let lines = BufReader::new(child.stdout.take().unwrap()).lines();
+        WriterChild {
+            child,
+            lines,
+            last_t: i64::MIN,
+        }
+    }
+
+    /// Waits until the child reports having appended data up to `t_mono_ns`.
+    pub fn wait_for(&mut self, t_mono_ns: i64) {
+        while self.last_t < t_mono_ns {
+            let line = self.lines.next().expect("child ended early").unwrap();
+            self.note(&line);
+        }
+    }
+
+    /// SIGKILLs the child and returns the last data time it reported.
+    pub fn kill(mut self) -> i64 {
+        self.child.kill().unwrap(); // SIGKILL
+        self.child.wait().unwrap();
+        while let Some(line) = self.lines.next() {
+            self.note(&line.unwrap());
+        }
+        self.last_t
+    }
+
+    fn note(&mut self, line: &str) {
+        if let Some(t) = line.strip_prefix("T=") {
+            self.last_t = t.parse().unwrap();
+        }
+    }
 }

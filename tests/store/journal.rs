@@ -3,16 +3,13 @@
 //! tail, recovering twice (or after an interrupted recover) and a partial file without a
 //! journal (sessions from before it) all recover. The child writer is this test binary.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use crate::common::*;
 use imulab::store::recover::repair_partial;
 use imulab::store::{
-    recover, EventKind, EventRecord, GnssRecord, ImuRecord, Session, SessionWriter, TimeRange,
-    WriterOptions,
+    recover, EventKind, EventRecord, GnssRecord, ImuRecord, Session, TimeRange, WriterOptions,
 };
 
 const CHILD_ENV: &str = "IMULAB_STORE_TEST_JOURNAL_CHILD_DIR";
@@ -28,69 +25,32 @@ fn event(k: usize) -> EventRecord {
     }
 }
 
-/// The writer child: 10 s chunks, 1 s flushes, one file; 100 Hz IMUs in 0.1 s batches, the
-/// 5 Hz GNSS and an event every second; prints `T=<last t_mono_ns appended>` after each batch.
+/// The writer child ([`run_writer_child`]): 10 s chunks, 1 s flushes, one file; besides
+/// the two IMUs, the 5 Hz GNSS and an event every second.
 #[test]
 fn journal_child_writer() {
-    let Ok(dir) = std::env::var(CHILD_ENV) else {
-        return; // only does something when run as the child
-    };
     let opts = WriterOptions {
         flush_interval: Duration::from_secs(1),
         chunk_interval: Duration::from_secs(10),
         fsync_on_flush: false, // SIGKILL keeps the page cache; fsync is for power loss
         ..WriterOptions::default()
     };
-    let mut w = SessionWriter::create(Path::new(&dir), manifest(), opts).unwrap();
-    let mut i = 0;
-    loop {
-        for (d, name) in ["imu_a", "imu_b"].iter().enumerate() {
-            let rows: Vec<_> = (i..i + 10).map(|k| imu_row(d, k)).collect();
-            w.append_imu(name, &rows).unwrap();
-        }
+    run_writer_child(CHILD_ENV, opts, |w, i| {
         if i % 20 == 0 {
             w.append_gnss("gps", &[gnss_row(i / 20)]).unwrap();
         }
         if i % 100 == 0 {
             w.append_event(&event(i / 100)).unwrap();
         }
-        i += 10;
-        println!("T={}", imu_row(0, i - 1).t_mono_ns);
-        std::thread::sleep(Duration::from_micros(300));
-    }
+    });
 }
 
 /// Runs the child until it has appended `until_ns` of data time, SIGKILLs it, and returns
 /// the last data time it reported.
 fn write_and_kill(dir: &Path, until_ns: i64) -> i64 {
-    let mut child = Command::new(std::env::current_exe().unwrap())
-        .args([
-            "--exact",
-            "journal::journal_child_writer",
-            "--nocapture",
-            "--test-threads=1",
-        ])
-        .env(CHILD_ENV, dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let mut last_t = i64::MIN;
-    while last_t < until_ns {
-        let line = lines.next().expect("child ended early").unwrap();
-        if let Some(t) = line.strip_prefix("T=") {
-            last_t = t.parse().unwrap();
-        }
-    }
-    child.kill().unwrap(); // SIGKILL
-    child.wait().unwrap();
-    for line in lines {
-        if let Some(t) = line.unwrap().strip_prefix("T=") {
-            last_t = t.parse().unwrap();
-        }
-    }
-    last_t
+    let mut child = WriterChild::spawn("journal::journal_child_writer", CHILD_ENV, dir);
+    child.wait_for(until_ns);
+    child.kill()
 }
 
 fn copy_dir(from: &Path, to: &Path) {

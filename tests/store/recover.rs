@@ -2,38 +2,22 @@
 //! make the partial file readable, completed chunks must be intact, and at most one flush
 //! interval of data may be lost. The child is this same test binary, re-run with an env var.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use crate::common::*;
-use imulab::store::{recover, Session, SessionWriter, TimeRange, WriterOptions};
+use imulab::store::{recover, Session, TimeRange, WriterOptions};
 
 const CHILD_ENV: &str = "IMULAB_STORE_TEST_CHILD_DIR";
 
-/// The writer child: writes 100 Hz data for two IMUs in 10-row batches (0.1 s of data time)
-/// forever, printing `T=<last t_mono_ns appended>` after each batch.
+/// The writer child ([`run_writer_child`]): the two IMUs only, a new file every 10 s.
 #[test]
 fn child_writer() {
-    let Ok(dir) = std::env::var(CHILD_ENV) else {
-        return; // only does something when run as the child
-    };
     let opts = WriterOptions {
         rotate_after: Duration::from_secs(10),
         fsync_on_flush: false, // SIGKILL keeps the page cache; fsync is for power loss
         ..WriterOptions::default()
     };
-    let mut w = SessionWriter::create(std::path::Path::new(&dir), manifest(), opts).unwrap();
-    let mut i = 0;
-    loop {
-        for (d, name) in ["imu_a", "imu_b"].iter().enumerate() {
-            let rows: Vec<_> = (i..i + 10).map(|k| imu_row(d, k)).collect();
-            w.append_imu(name, &rows).unwrap();
-        }
-        i += 10;
-        println!("T={}", imu_row(0, i - 1).t_mono_ns);
-        std::thread::sleep(Duration::from_micros(300));
-    }
+    run_writer_child(CHILD_ENV, opts, |_, _| {});
 }
 
 #[test]
@@ -44,37 +28,13 @@ fn kill_9_then_recover_loses_at_most_one_flush_interval() {
     let _serial = child_process_guard();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("killed");
-    let mut child = Command::new(std::env::current_exe().unwrap())
-        .args([
-            "--exact",
-            "recover::child_writer",
-            "--nocapture",
-            "--test-threads=1",
-        ])
-        .env(CHILD_ENV, &dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let mut last_t = i64::MIN;
+    let mut child = WriterChild::spawn("recover::child_writer", CHILD_ENV, &dir);
     // Let it write 25.3 s of data: two completed 10 s chunks and a partial one.
-    while last_t < imu_row(0, 2530).t_mono_ns {
-        let line = lines.next().expect("child ended early").unwrap();
-        if let Some(t) = line.strip_prefix("T=") {
-            last_t = t.parse().unwrap();
-        }
-    }
+    child.wait_for(imu_row(0, 2530).t_mono_ns);
     // While the writer lives, recover must refuse to touch its file.
     let e = recover(&dir).unwrap_err().to_string();
     assert!(e.contains("still running"), "{e}");
-    child.kill().unwrap(); // SIGKILL
-    child.wait().unwrap();
-    for line in lines {
-        if let Some(t) = line.unwrap().strip_prefix("T=") {
-            last_t = t.parse().unwrap();
-        }
-    }
+    let last_t = child.kill();
 
     assert!(dir.join("chunk-000000.h5").exists());
     assert!(dir.join("chunk-000001.h5").exists());
