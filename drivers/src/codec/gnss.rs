@@ -702,16 +702,10 @@ impl Decoder for GnssDecoder {
             if let Some(frame) = self.ready.pop_front() {
                 return Some(frame);
             }
-            let data = self.buffer.data();
-            let Some(start) = memchr::memchr3(b'$', b'!', 0xB5, data) else {
-                let n = data.len();
-                self.buffer.skip(n);
+            if !self.buffer.skip_to_start(&[b'$', b'!', 0xB5]) {
                 return None;
-            };
-            if start > 0 {
-                self.buffer.skip(start);
-                continue;
             }
+            let data = self.buffer.data();
             let (len, outcome) = if data[0] == 0xB5 {
                 match ubx::scan_frame(data) {
                     Scan::Incomplete => return None,

@@ -371,6 +371,24 @@ impl StreamBuffer {
         self.synced = true;
     }
 
+    /// Drops the bytes before the first one that may start a frame (one of `starts`), all of
+    /// them when there is none; returns whether a frame may start at the front now. The
+    /// search every decoder with start bytes makes before it tries a frame. In sync the next
+    /// frame starts right at the front, so that is looked at before searching.
+    pub(crate) fn skip_to_start(&mut self, starts: &[u8]) -> bool {
+        let data = self.data();
+        let found = match (starts, data.first()) {
+            (_, Some(first)) if starts.contains(first) => Some(0),
+            (&[a], _) => memchr::memchr(a, data),
+            (&[a, b], _) => memchr::memchr2(a, b, data),
+            (&[a, b, c], _) => memchr::memchr3(a, b, c, data),
+            _ => data.iter().position(|b| starts.contains(b)),
+        };
+        let skipped = found.unwrap_or(data.len());
+        self.skip(skipped);
+        found.is_some()
+    }
+
     /// Drops `len` bytes that belong to no frame. Filler is not counted and does not
     /// break sync; anything else is `bytes_skipped` and loses sync.
     pub(crate) fn skip(&mut self, len: usize) {

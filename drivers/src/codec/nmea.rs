@@ -1051,17 +1051,10 @@ impl Decoder for NmeaDecoder {
 
     fn poll(&mut self) -> Option<NmeaSentence> {
         loop {
-            let data = self.buffer.data();
-            let Some(start) = memchr::memchr2(b'$', b'!', data) else {
-                // Keep nothing: no start character in the buffer.
-                let skipped = data.len();
-                self.buffer.skip(skipped);
+            if !self.buffer.skip_to_start(b"$!") {
                 return None;
-            };
-            if start > 0 {
-                self.buffer.skip(start);
-                continue;
             }
+            let data = self.buffer.data();
             match scan_sentence(data) {
                 Scan::Incomplete => return None,
                 Scan::Frame { len, frame } => {

@@ -736,16 +736,10 @@ impl Decoder for UbxDecoder {
 
     fn poll(&mut self) -> Option<UbxMessage> {
         loop {
-            let data = self.buffer.data();
-            let Some(start) = memchr::memchr(SYNC[0], data) else {
-                let n = data.len();
-                self.buffer.skip(n);
+            if !self.buffer.skip_to_start(&[SYNC[0]]) {
                 return None;
-            };
-            if start > 0 {
-                self.buffer.skip(start);
-                continue;
             }
+            let data = self.buffer.data();
             match scan_frame(data) {
                 Scan::Incomplete => return None,
                 Scan::Frame { len, frame } => {

@@ -262,22 +262,10 @@ impl Decoder for WitDecoder {
 
     fn poll(&mut self) -> Option<WitPacket> {
         loop {
-            let data = self.buf.data();
-            // In sync the next frame starts right here; only search when it does not.
-            let found = if data.first() == Some(&HEADER) {
-                Some(0)
-            } else {
-                memchr::memchr(HEADER, data)
-            };
-            let Some(pos) = found else {
-                let n = data.len();
-                self.buf.skip(n);
+            if !self.buf.skip_to_start(&[HEADER]) {
                 return None;
-            };
-            if pos > 0 {
-                self.buf.skip(pos);
-                continue;
             }
+            let data = self.buf.data();
             if data.len() < 2 {
                 return None;
             }

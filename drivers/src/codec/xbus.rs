@@ -318,22 +318,10 @@ impl Decoder for XbusDecoder {
 
     fn poll(&mut self) -> Option<XbusMessage> {
         loop {
-            let data = self.buf.data();
-            // In sync the next frame starts right here; only search when it does not.
-            let found = if data.first() == Some(&PREAMBLE) {
-                Some(0)
-            } else {
-                memchr::memchr(PREAMBLE, data)
-            };
-            let Some(pos) = found else {
-                let n = data.len();
-                self.buf.skip(n);
+            if !self.buf.skip_to_start(&[PREAMBLE]) {
                 return None;
-            };
-            if pos > 0 {
-                self.buf.skip(pos);
-                continue;
             }
+            let data = self.buf.data();
             if data.len() < 4 {
                 return None;
             }
