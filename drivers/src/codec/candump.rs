@@ -205,28 +205,8 @@ impl Decoder for CandumpDecoder {
 
     fn poll(&mut self) -> Option<CandumpRecord> {
         loop {
+            let pos = self.buf.next_line(MAX_LINE, &mut self.discarding)?;
             let data = self.buf.data();
-            let newline = memchr::memchr(b'\n', data);
-            if self.discarding {
-                let n = newline.map_or(data.len(), |p| p + 1);
-                self.buf.skip(n);
-                newline?;
-                self.discarding = false;
-                continue;
-            }
-            let Some(pos) = newline else {
-                if data.len() > MAX_LINE {
-                    // Counted now; its bytes are skipped as they arrive.
-                    self.buf.reject(0, Reject::TooLong);
-                    self.discarding = true;
-                    continue;
-                }
-                return None;
-            };
-            if pos > MAX_LINE {
-                self.buf.reject(pos + 1, Reject::TooLong);
-                continue;
-            }
             let mut line = &data[..pos];
             if let Some(stripped) = line.strip_suffix(b"\r") {
                 line = stripped;

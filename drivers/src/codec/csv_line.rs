@@ -261,28 +261,10 @@ impl Decoder for CsvLineDecoder {
 
     fn poll(&mut self) -> Option<ImuSample> {
         loop {
+            let pos = self
+                .buf
+                .next_line(self.config.max_line_len, &mut self.discarding)?;
             let data = self.buf.data();
-            let newline = memchr::memchr(b'\n', data);
-            if self.discarding {
-                let n = newline.map_or(data.len(), |pos| pos + 1);
-                self.buf.skip(n);
-                newline?;
-                self.discarding = false;
-                continue;
-            }
-            let Some(pos) = newline else {
-                if data.len() > self.config.max_line_len {
-                    // Counted now; its bytes are skipped as they arrive.
-                    self.buf.reject(0, Reject::TooLong);
-                    self.discarding = true;
-                    continue;
-                }
-                return None;
-            };
-            if pos > self.config.max_line_len {
-                self.buf.reject(pos + 1, Reject::TooLong);
-                continue;
-            }
             match self.parse_line(&data[..pos]) {
                 Ok(Some(sample)) => {
                     self.buf.accept(pos + 1);

@@ -389,6 +389,37 @@ impl StreamBuffer {
         found.is_some()
     }
 
+    /// The length of the next complete `\n`-terminated line of at most `max_len` bytes (without
+    /// the `\n`), for the line protocols; `None` until one is there. A longer line is rejected
+    /// as too long: counted once, as soon as it is known, and its bytes skipped as they
+    /// arrive, with `discarding` (the decoder's, kept between calls) set until its end.
+    pub(crate) fn next_line(&mut self, max_len: usize, discarding: &mut bool) -> Option<usize> {
+        loop {
+            let data = self.data();
+            let newline = memchr::memchr(b'\n', data);
+            if *discarding {
+                let n = newline.map_or(data.len(), |pos| pos + 1);
+                self.skip(n);
+                newline?;
+                *discarding = false;
+                continue;
+            }
+            let Some(pos) = newline else {
+                if data.len() > max_len {
+                    self.reject(0, Reject::TooLong);
+                    *discarding = true;
+                    continue;
+                }
+                return None;
+            };
+            if pos > max_len {
+                self.reject(pos + 1, Reject::TooLong);
+                continue;
+            }
+            return Some(pos);
+        }
+    }
+
     /// Drops `len` bytes that belong to no frame. Filler is not counted and does not
     /// break sync; anything else is `bytes_skipped` and loses sync.
     pub(crate) fn skip(&mut self, len: usize) {
