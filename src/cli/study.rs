@@ -186,17 +186,7 @@ where
         .y_desc("horizontal drift, m")
         .draw()
         .map_err(err)?;
-    for req in result
-        .grades
-        .first()
-        .map(|g| {
-            g.bridges
-                .iter()
-                .map(|b| b.requirement_m)
-                .collect::<Vec<_>>()
-        })
-        .unwrap_or_default()
-    {
+    for req in result.requirements_m() {
         chart
             .draw_series(LineSeries::new(
                 [(x_min, req), (x_max, req)],

@@ -718,6 +718,14 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
 }
 
 impl StudyResult {
+    /// The horizontal requirements the grades were judged against, m (every grade has a
+    /// bridge per requirement, in the same order).
+    pub fn requirements_m(&self) -> Vec<f64> {
+        self.grades.first().map_or_else(Vec::new, |g| {
+            g.bridges.iter().map(|b| b.requirement_m).collect()
+        })
+    }
+
     /// The table and the answer as text.
     pub fn summary_text(&self) -> String {
         use std::fmt::Write;
@@ -750,19 +758,7 @@ impl StudyResult {
             .first()
             .and_then(|g| g.lengths.first())
             .map_or(0, |l| l.count);
-        for (k, req) in self
-            .grades
-            .first()
-            .map(|g| {
-                g.bridges
-                    .iter()
-                    .map(|b| b.requirement_m)
-                    .collect::<Vec<_>>()
-            })
-            .unwrap_or_default()
-            .iter()
-            .enumerate()
-        {
+        for (k, req) in self.requirements_m().iter().enumerate() {
             let _ = writeln!(
                 s,
                 "Longest outage each grade bridges within {req} m (95 % of {n} outages over {} runs):",
