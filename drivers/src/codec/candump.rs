@@ -10,7 +10,7 @@
 //! lines and lines starting with `#` are skipped silently.
 
 use super::can::{hex_value, parse_hex_u32, write_hex, CanFrame, CanKind};
-use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Longest accepted line (FD frame with 64 bytes plus a long timestamp and name fits).
@@ -278,8 +278,5 @@ impl Encoder for CandumpEncoder {
 
 /// Auto-detection score: candump records in `sample`.
 pub fn detect_score(sample: &[u8]) -> u32 {
-    let mut d = CandumpDecoder::new();
-    d.push(sample);
-    while d.poll().is_some() {}
-    u32::try_from(d.stats().frames_ok).unwrap_or(u32::MAX)
+    accepted_frames(CandumpDecoder::new(), sample)
 }

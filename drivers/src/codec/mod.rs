@@ -58,6 +58,12 @@ pub trait Decoder {
     }
 }
 
+/// Auto-detection score of a protocol: the frames its decoder accepts in `sample`.
+pub(crate) fn accepted_frames(mut decoder: impl Decoder, sample: &[u8]) -> u32 {
+    decoder.decode(sample, |_| {});
+    u32::try_from(decoder.stats().frames_ok).unwrap_or(u32::MAX)
+}
+
 /// Why a frame could not be encoded.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EncodeError {
@@ -387,6 +393,28 @@ impl StreamBuffer {
         let skipped = found.unwrap_or(data.len());
         self.skip(skipped);
         found.is_some()
+    }
+
+    /// The next frame of a protocol whose frames begin with one of `starts` and that `scan`
+    /// frames: garbage before a start is skipped, a rejected frame counted and dropped.
+    pub(crate) fn next_scanned<F>(
+        &mut self,
+        starts: &[u8],
+        scan: impl Fn(&[u8]) -> Scan<F>,
+    ) -> Option<F> {
+        loop {
+            if !self.skip_to_start(starts) {
+                return None;
+            }
+            match scan(self.data()) {
+                Scan::Incomplete => return None,
+                Scan::Frame { len, frame } => {
+                    self.accept(len);
+                    return Some(frame);
+                }
+                Scan::Reject { len, reject } => self.reject(len, reject),
+            }
+        }
     }
 
     /// The length of the next complete `\n`-terminated line of at most `max_len` bytes (without

@@ -27,7 +27,7 @@ use std::io::Write as _;
 
 use serde::{Serialize, Serializer};
 
-use super::{Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Longest talker sentence accepted, from `$` to the last checksum digit. The standard says
@@ -1050,20 +1050,7 @@ impl Decoder for NmeaDecoder {
     }
 
     fn poll(&mut self) -> Option<NmeaSentence> {
-        loop {
-            if !self.buffer.skip_to_start(b"$!") {
-                return None;
-            }
-            let data = self.buffer.data();
-            match scan_sentence(data) {
-                Scan::Incomplete => return None,
-                Scan::Frame { len, frame } => {
-                    self.buffer.accept(len);
-                    return Some(frame);
-                }
-                Scan::Reject { len, reject } => self.buffer.reject(len, reject),
-            }
-        }
+        self.buffer.next_scanned(b"$!", scan_sentence)
     }
 
     fn stats(&self) -> DecoderStats {
@@ -1073,10 +1060,7 @@ impl Decoder for NmeaDecoder {
 
 /// Auto-detection score: number of valid sentences in the sample.
 pub fn detect_score(sample: &[u8]) -> u32 {
-    let mut decoder = NmeaDecoder::new();
-    let mut n = 0u32;
-    decoder.decode(sample, |_| n += 1);
-    n
+    accepted_frames(NmeaDecoder::new(), sample)
 }
 
 /// NMEA encoder: writes `$…*hh\r\n` with the checksum computed.

@@ -16,7 +16,7 @@
 
 use serde::Serialize;
 
-use super::{Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
 use crate::types::DecoderStats;
 
 /// Largest payload accepted (RXM-RAWX with 255 measurements is 8176 bytes).
@@ -735,20 +735,7 @@ impl Decoder for UbxDecoder {
     }
 
     fn poll(&mut self) -> Option<UbxMessage> {
-        loop {
-            if !self.buffer.skip_to_start(&[SYNC[0]]) {
-                return None;
-            }
-            let data = self.buffer.data();
-            match scan_frame(data) {
-                Scan::Incomplete => return None,
-                Scan::Frame { len, frame } => {
-                    self.buffer.accept(len);
-                    return Some(frame);
-                }
-                Scan::Reject { len, reject } => self.buffer.reject(len, reject),
-            }
-        }
+        self.buffer.next_scanned(&[SYNC[0]], scan_frame)
     }
 
     fn stats(&self) -> DecoderStats {
@@ -758,10 +745,7 @@ impl Decoder for UbxDecoder {
 
 /// Auto-detection score: number of checksum-valid frames in the sample.
 pub fn detect_score(sample: &[u8]) -> u32 {
-    let mut decoder = UbxDecoder::new();
-    let mut n = 0u32;
-    decoder.decode(sample, |_| n += 1);
-    n
+    accepted_frames(UbxDecoder::new(), sample)
 }
 
 /// UBX encoder: writes sync, class, id, length, payload and checksum.

@@ -13,7 +13,7 @@
 //! the raw int16 words stay in the [`WitPacket`] so nothing is lost.
 
 use super::cycle::{Action, CycleGrouper};
-use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Packet header byte.
@@ -461,8 +461,5 @@ impl Decoder for WitImuDecoder {
 
 /// Auto-detection score: packets with a valid checksum in `sample`.
 pub fn detect_score(sample: &[u8]) -> u32 {
-    let mut d = WitDecoder::new();
-    d.push(sample);
-    while d.poll().is_some() {}
-    u32::try_from(d.stats().frames_ok).unwrap_or(u32::MAX)
+    accepted_frames(WitDecoder::new(), sample)
 }

@@ -10,7 +10,7 @@
 //! the coordinate frame. Values are big-endian and already SI (m/s², rad/s, m/s, °C).
 //! The data id is kept with each value, so the wire form is recoverable exactly.
 
-use super::{Decoder, EncodeError, Encoder, Reject, StreamBuffer};
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Frame preamble.
@@ -435,8 +435,5 @@ fn encode_into(frame: &XbusMessage, out: &mut Vec<u8>) -> Result<(), EncodeError
 
 /// Auto-detection score: frames with a valid checksum in `sample`.
 pub fn detect_score(sample: &[u8]) -> u32 {
-    let mut d = XbusDecoder::new();
-    d.push(sample);
-    while d.poll().is_some() {}
-    u32::try_from(d.stats().frames_ok).unwrap_or(u32::MAX)
+    accepted_frames(XbusDecoder::new(), sample)
 }
