@@ -20,7 +20,7 @@
 use clap::Parser;
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
 use imulab::allan::fit::{fit_noise_terms, Term};
-use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::input::AxisSeries;
 use imulab::allan::units::RateUnit;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
 use imulab::cli::allan::{analyse_inputs, AnalysisArgs};
@@ -98,17 +98,7 @@ fn best_of_prepared<I, T>(
 
 /// One axis as the analysis receives it after reading.
 fn series(name: &str, rate: Vec<f64>) -> AxisSeries {
-    AxisSeries {
-        name: name.into(),
-        tau0: 1.0 / RATE_HZ,
-        health: Health {
-            samples: rate.len() as u64,
-            segments: 1,
-            ..Health::default()
-        },
-        segments: vec![rate],
-        temperature: None,
-    }
+    AxisSeries::one_segment(name, 1.0 / RATE_HZ, rate)
 }
 
 /// The analysis of every axis in parallel (axes × τ), as `imulab allan` runs it.

@@ -7,7 +7,7 @@
 //! `cargo run --release --example hdev_probe -- KIND [RUNS] [THREADS] [phase] [print]`
 //! (KIND hdev, adev or oadev).
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions};
-use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::input::AxisSeries;
 use imulab::allan::units::RateUnit;
 use imulab::allan::{DeviationKind, TauGrid};
 use rand::SeedableRng;
@@ -38,17 +38,7 @@ fn cpu(id: nix::time::ClockId) -> f64 {
 }
 
 fn series(rate: Vec<f64>) -> AxisSeries {
-    AxisSeries {
-        name: "0".into(),
-        tau0: 1.0 / RATE_HZ,
-        health: Health {
-            samples: rate.len() as u64,
-            segments: 1,
-            ..Health::default()
-        },
-        segments: vec![rate],
-        temperature: None,
-    }
+    AxisSeries::one_segment("0", 1.0 / RATE_HZ, rate)
 }
 
 fn main() {

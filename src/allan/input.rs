@@ -780,6 +780,24 @@ pub struct AxisSeries {
 }
 
 impl AxisSeries {
+    /// One axis of uniform `rate` samples every `tau0` seconds, in one segment, with the
+    /// health of a clean read (no gaps, no invalid values): how a series built in memory
+    /// (a simulation, a benchmark, a test) enters the analysis.
+    pub fn one_segment(name: impl Into<String>, tau0: f64, rate: Vec<f64>) -> Self {
+        AxisSeries {
+            name: name.into(),
+            tau0,
+            health: Health {
+                samples: rate.len() as u64,
+                duration_s: rate.len() as f64 * tau0,
+                segments: 1,
+                ..Health::default()
+            },
+            segments: vec![rate],
+            temperature: None,
+        }
+    }
+
     pub fn sample_count(&self) -> usize {
         self.segments.iter().map(Vec::len).sum()
     }

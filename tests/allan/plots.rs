@@ -3,7 +3,7 @@
 
 use imulab::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions};
 use imulab::allan::fit::Term;
-use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::input::AxisSeries;
 use imulab::allan::report::{html_report, svg_plot, term_lines, write_png};
 use imulab::allan::units::RateUnit;
 use imulab::allan::{DeviationKind, TauGrid};
@@ -23,17 +23,7 @@ fn analysed_gyro_axis() -> imulab::allan::analysis::AxisResult {
             2e-3 * 10.0 * white + walk
         })
         .collect();
-    let series = AxisSeries {
-        name: "gyro_x".into(),
-        tau0: 0.01,
-        health: Health {
-            samples: rate.len() as u64,
-            segments: 1,
-            ..Health::default()
-        },
-        segments: vec![rate],
-        temperature: None,
-    };
+    let series = AxisSeries::one_segment("gyro_x", 0.01, rate);
     let options = AnalysisOptions {
         kind: DeviationKind::Oadev,
         grid: TauGrid::Octave,

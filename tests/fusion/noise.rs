@@ -5,7 +5,7 @@
 
 use imulab::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions};
 use imulab::allan::deviation::DeviationKind;
-use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::input::AxisSeries;
 use imulab::allan::taus::TauGrid;
 use imulab::allan::units::{RateUnit, SensorKind};
 use imulab::fusion::config::FusionConfig;
@@ -102,13 +102,7 @@ fn allan_report_of(preset: &str, minutes: f64) -> AllanReport {
             .iter()
             .map(|r| if gyro { r.gyro[k] } else { r.accel[k - 3] })
             .collect();
-        let series = AxisSeries {
-            name: name.to_string(),
-            tau0: 0.01,
-            segments: vec![values],
-            temperature: None,
-            health: Health::default(),
-        };
+        let series = AxisSeries::one_segment(*name, 0.01, values);
         let options = AnalysisOptions {
             kind: DeviationKind::Oadev,
             grid: TauGrid::Dense(8),
