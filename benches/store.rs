@@ -178,70 +178,84 @@ fn write(dir: &Path, hours: f64, case: &Case, pools: &[Vec<ImuRecord>; 2]) -> Wr
     }
 }
 
-/// Streams every IMU and GNSS row back; returns (rows, CPU s, wall s).
-fn read(dir: &Path, block_rows: usize) -> (u64, f64, f64) {
+/// Runs `read` on the session in `dir`; returns (the rows it counted, CPU s, wall s).
+fn timed_read(dir: &Path, read: impl FnOnce(&Session) -> u64) -> (u64, f64, f64) {
     let (cpu0, wall0) = (cpu_seconds(), Instant::now());
-    let s = Session::open(dir).expect("open");
-    let mut rows = 0u64;
-    let mut checksum = 0.0;
-    for name in ["imu0", "imu1"] {
-        for b in s
-            .imu_blocks(name, TimeRange::all(), block_rows)
-            .expect("imu")
-        {
-            let b = b.expect("block");
-            rows += b.len() as u64;
-            checksum += b.gyro.iter().map(|g| g[0]).sum::<f64>();
-        }
-    }
-    for b in s
-        .gnss_blocks("gnss0", TimeRange::all(), block_rows)
-        .expect("gnss")
-    {
-        rows += b.expect("block").len() as u64;
-    }
-    std::hint::black_box(checksum);
+    let rows = read(&Session::open(dir).expect("open"));
     (rows, cpu_seconds() - cpu0, wall0.elapsed().as_secs_f64())
 }
 
-/// Streams the IMU rows back only: all columns as rows (`imu_blocks`, HDF5's filter
-/// pipeline), or the numeric columns an analysis reads (`imu_columns`: t_mono, t_sensor,
-/// gyro, accel, temp; chunks decoded directly). Returns (rows, CPU s, wall s).
-fn read_imu(dir: &Path, block_rows: usize, columns: bool) -> (u64, f64, f64) {
-    let (cpu0, wall0) = (cpu_seconds(), Instant::now());
-    let s = Session::open(dir).expect("open");
+/// Streams every row of IMU `name` back as whole rows (`imu_blocks`, HDF5's filter
+/// pipeline); returns the row count.
+fn imu_rows_as_blocks(s: &Session, name: &str, block_rows: usize) -> u64 {
     let mut rows = 0u64;
     let mut checksum = 0.0;
-    for name in ["imu0", "imu1"] {
-        if columns {
-            let set = ImuColumnSet {
-                t_sensor: true,
-                gyro: true,
-                accel: true,
-                temp: true,
-            };
-            let mut reader = s
-                .imu_columns(name, TimeRange::all(), block_rows, set)
-                .expect("imu");
-            let mut b = ImuColumns::default();
-            while let Some(r) = reader.next_into(&mut b) {
-                r.expect("block");
-                rows += b.len() as u64;
-                checksum += b.gyro[0].iter().sum::<f64>();
-            }
-        } else {
-            for b in s
-                .imu_blocks(name, TimeRange::all(), block_rows)
-                .expect("imu")
-            {
-                let b = b.expect("block");
-                rows += b.len() as u64;
-                checksum += b.gyro.iter().map(|g| g[0]).sum::<f64>();
-            }
-        }
+    for b in s
+        .imu_blocks(name, TimeRange::all(), block_rows)
+        .expect("imu")
+    {
+        let b = b.expect("block");
+        rows += b.len() as u64;
+        checksum += b.gyro.iter().map(|g| g[0]).sum::<f64>();
     }
     std::hint::black_box(checksum);
-    (rows, cpu_seconds() - cpu0, wall0.elapsed().as_secs_f64())
+    rows
+}
+
+/// Streams IMU `name` back as the numeric columns an analysis reads (`imu_columns`: t_mono,
+/// t_sensor, gyro, accel, temp; chunks decoded directly); returns the row count.
+fn imu_rows_as_columns(s: &Session, name: &str, block_rows: usize) -> u64 {
+    let set = ImuColumnSet {
+        t_sensor: true,
+        gyro: true,
+        accel: true,
+        temp: true,
+    };
+    let mut reader = s
+        .imu_columns(name, TimeRange::all(), block_rows, set)
+        .expect("imu");
+    let mut rows = 0u64;
+    let mut checksum = 0.0;
+    let mut b = ImuColumns::default();
+    while let Some(r) = reader.next_into(&mut b) {
+        r.expect("block");
+        rows += b.len() as u64;
+        checksum += b.gyro[0].iter().sum::<f64>();
+    }
+    std::hint::black_box(checksum);
+    rows
+}
+
+/// Streams every IMU and GNSS row back; returns (rows, CPU s, wall s).
+fn read(dir: &Path, block_rows: usize) -> (u64, f64, f64) {
+    timed_read(dir, |s| {
+        let imu: u64 = ["imu0", "imu1"]
+            .iter()
+            .map(|name| imu_rows_as_blocks(s, name, block_rows))
+            .sum();
+        let gnss: u64 = s
+            .gnss_blocks("gnss0", TimeRange::all(), block_rows)
+            .expect("gnss")
+            .map(|b| b.expect("block").len() as u64)
+            .sum();
+        imu + gnss
+    })
+}
+
+/// Streams the IMU rows back only, as whole rows or as the analysis' columns. Returns
+/// (rows, CPU s, wall s).
+fn read_imu(dir: &Path, block_rows: usize, columns: bool) -> (u64, f64, f64) {
+    let read_one = if columns {
+        imu_rows_as_columns
+    } else {
+        imu_rows_as_blocks
+    };
+    timed_read(dir, |s| {
+        ["imu0", "imu1"]
+            .iter()
+            .map(|name| read_one(s, name, block_rows))
+            .sum()
+    })
 }
 
 fn main() {
