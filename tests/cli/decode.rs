@@ -3,6 +3,7 @@
 //! values come out in SI units with the sentence text kept in `raw`; a bad protocol name and
 //! an undecodable file fail with a clear message.
 
+use std::path::Path;
 use std::process::Command;
 
 use imulab_drivers::codec::nmea::{Decimal, Hdt, NmeaDecoder, NmeaEncoder, NmeaSentence, Talker};
@@ -11,6 +12,25 @@ use imulab_drivers::codec::{Decoder, Encoder};
 
 fn imulab() -> Command {
     Command::new(env!("CARGO_BIN_EXE_imulab"))
+}
+
+/// Runs `imulab decode ARGS… PATH`, which must succeed; returns its stdout, the JSON object
+/// of each stdout line, and its stderr.
+fn decode_json(args: &[&str], path: &Path) -> (String, Vec<serde_json::Value>, String) {
+    let out = imulab()
+        .arg("decode")
+        .args(args)
+        .arg(path)
+        .output()
+        .expect("run imulab");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{stderr}");
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let lines = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
+        .collect();
+    (stdout, lines, stderr)
 }
 
 #[test]
@@ -33,28 +53,13 @@ fn decodes_mixed_capture_to_json_lines() {
     }
     std::fs::write(&path, &bytes).expect("write capture");
 
-    let out = imulab()
-        .arg("decode")
-        .arg(&path)
-        .output()
-        .expect("run imulab");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let lines: Vec<serde_json::Value> = stdout
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
-        .collect();
+    let (stdout, lines, stderr) = decode_json(&[], &path);
     let count = |kind: &str| lines.iter().filter(|v| v["kind"] == kind).count();
     assert_eq!(count("ubx"), 3, "{stdout}");
     assert_eq!(count("nmea"), 3, "{stdout}");
     assert_eq!(count("fix"), 3, "{stdout}");
     let fix = lines.iter().find(|v| v["kind"] == "fix").expect("a fix");
     assert_eq!(fix["lat_deg"], 44.06);
-    let stderr = String::from_utf8_lossy(&out.stderr);
     let summary: serde_json::Value =
         serde_json::from_str(stderr.lines().last().unwrap_or("")).expect("summary JSON");
     assert_eq!(summary["protocol"], "gnss");
@@ -86,21 +91,7 @@ fn nmea_json_is_si_with_the_sentence_text_kept() {
     let gga = sentence("GPGGA,123519,4807.038,S,01131.000,W,1,08,0.9,545.4,M,46.9,M,,");
     std::fs::write(&path, format!("{rmc}{vtg}{gga}")).expect("write capture");
 
-    let out = imulab()
-        .args(["decode", "--protocol", "nmea"])
-        .arg(&path)
-        .output()
-        .expect("run imulab");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let lines: Vec<serde_json::Value> = stdout
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
-        .collect();
+    let (stdout, lines, _) = decode_json(&["--protocol", "nmea"], &path);
     assert_eq!(lines.len(), 3, "{stdout}");
     let close = |v: &serde_json::Value, want: f64| {
         let got = v.as_f64().unwrap_or(f64::NAN);
