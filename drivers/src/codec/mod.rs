@@ -380,7 +380,9 @@ impl StreamBuffer {
     /// Drops the bytes before the first one that may start a frame (one of `starts`), all of
     /// them when there is none; returns whether a frame may start at the front now. The
     /// search every decoder with start bytes makes before it tries a frame. In sync the next
-    /// frame starts right at the front, so that is looked at before searching.
+    /// frame starts right at the front, so that is looked at before searching. Inlined so
+    /// that the match on `starts` folds away in each decoder's poll loop.
+    #[inline]
     pub(crate) fn skip_to_start(&mut self, starts: &[u8]) -> bool {
         let data = self.data();
         let found = match (starts, data.first()) {
@@ -421,6 +423,7 @@ impl StreamBuffer {
     /// the `\n`), for the line protocols; `None` until one is there. A longer line is rejected
     /// as too long: counted once, as soon as it is known, and its bytes skipped as they
     /// arrive, with `discarding` (the decoder's, kept between calls) set until its end.
+    #[inline]
     pub(crate) fn next_line(&mut self, max_len: usize, discarding: &mut bool) -> Option<usize> {
         loop {
             let data = self.data();
