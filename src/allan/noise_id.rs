@@ -113,7 +113,7 @@ pub fn identify_alphas_fused(
             late.push((j, m));
         }
     }
-    run_tiles(x, &mut small, &mut large, simd);
+    run_tiles(x, &mut small, &mut large, FeedPath::fastest(simd));
     let mut alphas = vec![None; factors.len()];
     for (j, sums) in &small {
         let low = sums.finish(x);
@@ -153,7 +153,7 @@ fn run_tiles(
     x: &[f64],
     small: &mut [(usize, PairSums)],
     large: &mut [(usize, usize, Vec<f64>)],
-    simd: Simd,
+    path: FeedPath,
 ) {
     let n = x.len();
     let mut buffer = Vec::with_capacity(TILE + 2 * LANES);
@@ -161,7 +161,7 @@ fn run_tiles(
     while t0 < n {
         let t1 = (t0 + TILE).min(n);
         for (_, sums) in small.iter_mut() {
-            sums.advance(x, t1, &mut buffer, simd);
+            sums.advance(x, t1, &mut buffer, path);
         }
         for (_, m, z) in large.iter_mut() {
             let first = t0.div_ceil(*m) * *m;
@@ -213,7 +213,7 @@ impl PairSums {
     /// Adds the terms whose first point lies before phase index `t1` (all remaining ones
     /// when `t1` is the end of the phase), cut down to a multiple of 8 terms so the lanes
     /// stay aligned; the rest waits for the next tile.
-    fn advance(&mut self, x: &[f64], t1: usize, buffer: &mut Vec<f64>, simd: Simd) {
+    fn advance(&mut self, x: &[f64], t1: usize, buffer: &mut Vec<f64>, path: FeedPath) {
         let m = self.m;
         let target = if t1 == x.len() {
             self.bulk
@@ -231,19 +231,13 @@ impl PairSums {
             buffer.extend(x[self.next * m..=(target + 1) * m].iter().step_by(m));
             buffer
         };
-        dispatch(
-            simd,
-            Feed {
-                sums: self,
-                z,
-                end: target,
-            },
-        );
+        path.feed(self, z, target);
     }
 
-    /// Adds terms `next … end − 1`, z[i] being the decimated phase at `next + i`.
+    /// Adds terms `next … end − 1`, z[i] being the decimated phase at `next + i`, `W`
+    /// lanes at a time (see [`add_chunks`]).
     #[inline(always)]
-    fn feed(&mut self, z: &[f64], end: usize) {
+    fn feed<const W: usize>(&mut self, z: &[f64], end: usize) {
         const BLOCK: usize = 4096;
         let first = self.next;
         let mut k = first;
@@ -252,7 +246,7 @@ impl PairSums {
             let stop = block_end.min(end);
             let full = (stop - k) / LANES;
             let at = k - first;
-            add_chunks(
+            add_chunks::<W>(
                 &mut self.lanes,
                 &z[at..at + full * LANES + 2],
                 full,
@@ -321,52 +315,131 @@ impl PairSums {
     }
 }
 
-/// [`PairSums::feed`] as a [`Kernel`].
-struct Feed<'a> {
+/// Instruction set of the tiled lag-1 sums ([`PairSums::feed`]), with the lanes each
+/// sub-pass keeps in registers: six accumulators of 8 lanes are 6 AVX-512 registers, but
+/// 12 of AVX2's 16 (24 of SSE2's 16) before the streams and temporaries, which made the
+/// compiler spill them in the loop. So AVX2 runs the eight lanes as two sub-passes of
+/// four over the (cache-resident) stretch, the baseline as four of two. Every lane sees
+/// the same terms in the same order on every path, so all give the same bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FeedPath {
+    Portable,
+    Avx2,
+    Avx512,
+}
+
+impl FeedPath {
+    /// The fastest path for `simd` on this CPU (AVX-512F when `simd` allows vector code
+    /// and the CPU has it).
+    fn fastest(simd: Simd) -> FeedPath {
+        match simd {
+            Simd::Portable => FeedPath::Portable,
+            Simd::Avx2 if FeedPath::has_avx512() => FeedPath::Avx512,
+            Simd::Avx2 => FeedPath::Avx2,
+        }
+    }
+
+    fn has_avx512() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if Simd::detected() == Simd::Avx2 && std::arch::is_x86_feature_detected!("avx512f") {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Every path this CPU runs, for the tests.
+    #[cfg(test)]
+    fn available() -> Vec<FeedPath> {
+        let mut paths = vec![FeedPath::Portable];
+        if Simd::detected() == Simd::Avx2 {
+            paths.push(FeedPath::Avx2);
+        }
+        if FeedPath::has_avx512() {
+            paths.push(FeedPath::Avx512);
+        }
+        paths
+    }
+
+    /// [`PairSums::feed`] compiled for this path.
+    fn feed(self, sums: &mut PairSums, z: &[f64], end: usize) {
+        match self {
+            FeedPath::Portable => sums.feed::<2>(z, end),
+            FeedPath::Avx2 => dispatch(Simd::Avx2, Feed::<4> { sums, z, end }),
+            FeedPath::Avx512 => {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    #[target_feature(enable = "avx512f,avx2,fma")]
+                    fn with_avx512(kernel: Feed<'_, 8>) {
+                        kernel.run()
+                    }
+                    if FeedPath::has_avx512() {
+                        // SAFETY: the CPU supports AVX-512F (checked at run time just above).
+                        return unsafe { with_avx512(Feed::<8> { sums, z, end }) };
+                    }
+                }
+                sums.feed::<8>(z, end)
+            }
+        }
+    }
+}
+
+/// [`PairSums::feed`] as a [`Kernel`], `W` lanes per sub-pass.
+struct Feed<'a, const W: usize> {
     sums: &'a mut PairSums,
     z: &'a [f64],
     end: usize,
 }
 
-impl Kernel for Feed<'_> {
+impl<const W: usize> Kernel for Feed<'_, W> {
     type Output = ();
     #[inline(always)]
     fn run(self) {
-        self.sums.feed(self.z, self.end);
+        self.sums.feed::<W>(self.z, self.end);
     }
 }
 
 /// The lane step of [`bulk_moments`] for orders 0 and 1 over `chunks` chunks of eight
 /// terms, z holding the chunks' points and the two after them: term i adds
 /// a = z[i] − low_shift, a·a, a·a_next, b = (z[i+1] − z[i]) − high_shift, b·b, b·b_next
-/// to lane i mod 8, the same operations in the same order as there.
+/// to lane i mod 8, the same operations in the same order as there. The lanes run in
+/// sub-passes of `W` (a divisor of 8) over all chunks, so that their accumulators stay in
+/// registers; a lane's sum does not depend on `W`.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)] // one index walks the lane arrays in lock-step
-fn add_chunks(
+fn add_chunks<const W: usize>(
     acc: &mut [[f64; LANES]; 6],
     z: &[f64],
     chunks: usize,
     low_shift: f64,
     high_shift: f64,
 ) {
+    debug_assert!(LANES.is_multiple_of(W));
     let streams: [&[[f64; LANES]]; 3] = std::array::from_fn(|s| z[s..].as_chunks::<LANES>().0);
-    let mut local = *acc;
-    for j in 0..chunks {
-        let v: [[f64; LANES]; 3] = std::array::from_fn(|s| streams[s][j]);
-        for l in 0..LANES {
-            let a0 = v[0][l] - low_shift;
-            let a1 = v[1][l] - low_shift;
-            let b0 = (v[1][l] - v[0][l]) - high_shift;
-            let b1 = (v[2][l] - v[1][l]) - high_shift;
-            local[0][l] += a0;
-            local[1][l] += a0 * a0;
-            local[2][l] += a0 * a1;
-            local[3][l] += b0;
-            local[4][l] += b0 * b0;
-            local[5][l] += b0 * b1;
+    for group in 0..LANES / W {
+        let mut local: [[f64; W]; 6] =
+            std::array::from_fn(|i| std::array::from_fn(|l| acc[i][group * W + l]));
+        for j in 0..chunks {
+            let v: [[f64; W]; 3] =
+                std::array::from_fn(|s| std::array::from_fn(|l| streams[s][j][group * W + l]));
+            for l in 0..W {
+                let a0 = v[0][l] - low_shift;
+                let a1 = v[1][l] - low_shift;
+                let b0 = (v[1][l] - v[0][l]) - high_shift;
+                let b1 = (v[2][l] - v[1][l]) - high_shift;
+                local[0][l] += a0;
+                local[1][l] += a0 * a0;
+                local[2][l] += a0 * a1;
+                local[3][l] += b0;
+                local[4][l] += b0 * b0;
+                local[5][l] += b0 * b1;
+            }
+        }
+        for (i, lanes) in local.iter().enumerate() {
+            acc[i][group * W..group * W + W].copy_from_slice(lanes);
         }
     }
-    *acc = local;
 }
 
 /// [`identify_alpha`] on the already decimated phase `z`.
@@ -700,12 +773,12 @@ pub(crate) mod tests {
     fn fused_sums_equal_the_gathered_pair_bit_for_bit() {
         for (n, seed) in [(FUSED_MIN_POINTS, 7), (3 * TILE + 4_101, 8), (100_003, 9)] {
             let x = imu_phase(n, seed);
-            for simd in Simd::available() {
+            for path in FeedPath::available() {
                 let mut small: Vec<(usize, PairSums)> = (1..ON_THE_FLY_BELOW)
                     .map(|m| (m, PairSums::new(&x, m)))
                     .collect();
                 let mut large = vec![(0, 40, Vec::new()), (1, 97, Vec::new())];
-                run_tiles(&x, &mut small, &mut large, simd);
+                run_tiles(&x, &mut small, &mut large, path);
                 for (m, sums) in &small {
                     let z: Vec<f64> = x.iter().step_by(*m).copied().collect();
                     let want = lag1_pair(&z, 0, Simd::Portable);
@@ -714,7 +787,7 @@ pub(crate) mod tests {
                         assert_eq!(
                             got[order].map(f64::to_bits),
                             want[order].map(f64::to_bits),
-                            "n={n} m={m} order {order} {simd:?}: {got:?} vs {want:?}"
+                            "n={n} m={m} order {order} {path:?}: {got:?} vs {want:?}"
                         );
                     }
                 }
