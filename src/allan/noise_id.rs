@@ -228,7 +228,12 @@ impl PairSums {
             &x[self.next..target + 2]
         } else {
             buffer.clear();
-            buffer.extend(x[self.next * m..=(target + 1) * m].iter().step_by(m));
+            gather(
+                &x[self.next * m..=(target + 1) * m],
+                m,
+                target + 2 - self.next,
+                buffer,
+            );
             buffer
         };
         path.feed(self, z, target);
@@ -383,6 +388,24 @@ impl FeedPath {
             }
         }
     }
+}
+
+/// Appends the `count` values x[0], x[m], x[2m], … to `out` (`x` ends on the last one).
+/// Strides 2 and 4 (octave and decade factors) go through fixed-size chunks, which the
+/// compiler turns into vector shuffles instead of a scalar load and store per value.
+fn gather(x: &[f64], m: usize, count: usize, out: &mut Vec<f64>) {
+    fn fixed<const S: usize>(x: &[f64], count: usize, out: &mut Vec<f64>) {
+        let (chunks, rest) = x.as_chunks::<S>();
+        let full = chunks.len().min(count);
+        out.extend(chunks[..full].iter().map(|c| c[0]));
+        out.extend(rest.iter().take(count - full).copied());
+    }
+    match m {
+        2 => fixed::<2>(x, count, out),
+        4 => fixed::<4>(x, count, out),
+        _ => out.extend(x.iter().step_by(m).take(count)),
+    }
+    debug_assert_eq!(out.len(), count);
 }
 
 /// [`PairSums::feed`] as a [`Kernel`], `W` lanes per sub-pass.
