@@ -3,11 +3,14 @@
 //! 2004): decimate the phase by m, difference it until the lag-1 autocorrelation says
 //! the result is close to white, and read α from the number of differences taken.
 //!
-//! Cost: the decimated phase z[k] = x[k·m] is contiguous (the caller's octave pyramid,
-//! [`for_each_decimation`], or a gathered copy), and only the difference orders the
-//! decision reaches are evaluated, two orders per pass: orders 0 and 1 (enough for every
-//! noise from white PM to white FM), then 2 and 3 only when the first pair still looks
-//! correlated. Each pass accumulates shifted sums (Σu, Σu², Σu·u_next with u = w − w₀)
+//! Cost: only the difference orders the decision reaches are evaluated, two orders per
+//! pass: orders 0 and 1 (enough for every noise from white PM to white FM), then 2 and 3
+//! only when the first pair still looks correlated. For a whole grid on a long phase
+//! ([`identify_alphas`]) orders 0 and 1 of every factor below 32 are summed in one tiled
+//! pass over the phase while each tile is in cache, and the larger factors copy their
+//! decimation in the same pass ([`identify_alphas_fused`]); otherwise the decimated phase
+//! z[k] = x[k·m] comes from the octave pyramid ([`for_each_decimation`]) or a gathered
+//! copy. Each pass accumulates shifted sums (Σu, Σu², Σu·u_next with u = w − w₀)
 //! in eight vector lanes and removes the mean algebraically afterwards, so one
 //! vectorised pass replaces the textbook's mean pass plus product pass.
 
