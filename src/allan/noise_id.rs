@@ -3,11 +3,14 @@
 //! 2004): decimate the phase by m, difference it until the lag-1 autocorrelation says
 //! the result is close to white, and read α from the number of differences taken.
 //!
-//! Cost: the decimated phase z[k] = x[k·m] is contiguous (the caller's octave pyramid,
-//! [`for_each_decimation`], or a gathered copy), and only the difference orders the
-//! decision reaches are evaluated, two orders per pass: orders 0 and 1 (enough for every
-//! noise from white PM to white FM), then 2 and 3 only when the first pair still looks
-//! correlated. Each pass accumulates shifted sums (Σu, Σu², Σu·u_next with u = w − w₀)
+//! Cost: only the difference orders the decision reaches are evaluated, two orders per
+//! pass: orders 0 and 1 (enough for every noise from white PM to white FM), then 2 and 3
+//! only when the first pair still looks correlated. For a whole grid on a long phase
+//! ([`identify_alphas`]) orders 0 and 1 of every factor below 32 are summed in one tiled
+//! pass over the phase while each tile is in cache, and the larger factors copy their
+//! decimation in the same pass ([`identify_alphas_fused`]); otherwise the decimated phase
+//! z[k] = x[k·m] comes from the octave pyramid ([`for_each_decimation`]) or a gathered
+//! copy. Each pass accumulates shifted sums (Σu, Σu², Σu·u_next with u = w − w₀)
 //! in eight vector lanes and removes the mean algebraically afterwards, so one
 //! vectorised pass replaces the textbook's mean pass plus product pass.
 
@@ -30,9 +33,22 @@ pub fn identify_alpha(phase: &[f64], m: usize, max_differences: u32) -> Option<A
     identify_alpha_decimated(&decimated, max_differences, Simd::detected())
 }
 
-/// [`identify_alpha`] at every factor of `factors` (ascending), from one octave pyramid of
-/// the decimated phase.
+/// [`identify_alpha`] at every factor of `factors` (ascending): one tiled pass over the
+/// phase when it is long enough (see [`identify_alphas_fused`]), otherwise from one octave
+/// pyramid of the decimated phase. Both give the same bits.
 pub fn identify_alphas(
+    phase: &[f64],
+    factors: &[usize],
+    max_differences: u32,
+    simd: Simd,
+) -> Vec<Option<Alpha>> {
+    identify_alphas_fused(phase, factors, max_differences, simd)
+        .unwrap_or_else(|| identify_alphas_by_decimation(phase, factors, max_differences, simd))
+}
+
+/// [`identify_alphas`] from [`for_each_decimation`]: every factor reads its own decimated
+/// copy of the phase (the path for short phases and for `all`-like grids).
+pub fn identify_alphas_by_decimation(
     phase: &[f64],
     factors: &[usize],
     max_differences: u32,
@@ -43,6 +59,413 @@ pub fn identify_alphas(
         alphas[j] = identify_alpha_decimated(z, max_differences, simd);
     });
     alphas
+}
+
+/// Phase points per tile of the fused pass: 64 KiB, so a tile and the gathered decimation
+/// of it stay in L2 while every small factor reads them.
+const TILE: usize = 8192;
+
+/// Factors below this bound get their order-0/1 lag-1 sums accumulated tile by tile
+/// ([`PairSums`]); factors from it up collect their decimated phase (at most n/32 points
+/// each) during the same pass and are identified from it afterwards.
+const ON_THE_FLY_BELOW: usize = 32;
+
+/// Shortest phase the fused pass runs on (below it the per-factor copies are cheap).
+const FUSED_MIN_POINTS: usize = 1 << 16;
+
+/// [`identify_alphas`] in one pass over the phase, cut into [`TILE`]s: while a tile is in
+/// cache, every factor m < [`ON_THE_FLY_BELOW`] adds the lag-1 sums of orders 0 and 1 of
+/// its decimation z[k] = x[k·m] for the terms that start in the tile (m = 1 straight from
+/// the phase, the others from a gathered copy of the tile's z values, a few KiB), and
+/// every larger factor appends its z values to its own decimated copy (while the copies
+/// hold at most n/4 points in all; the factors beyond, in `all`-like grids, are gathered
+/// one at a time afterwards). The phase is read from memory once instead of once per
+/// factor (plus once per pyramid level).
+///
+/// The sums are those of [`lag1_pair`] on the gathered z, bit for bit: the same shifts,
+/// the same blocks of 4096 terms, the same lane of each term, the same order of
+/// additions ([`PairSums`]). Orders 2 and 3 (asked only when orders 0 and 1 still look
+/// correlated, rare at small m) gather z from the phase as before.
+///
+/// `None` when the phase is shorter than [`FUSED_MIN_POINTS`]: the caller takes
+/// [`identify_alphas_by_decimation`].
+pub fn identify_alphas_fused(
+    x: &[f64],
+    factors: &[usize],
+    max_differences: u32,
+    simd: Simd,
+) -> Option<Vec<Option<Alpha>>> {
+    let n = x.len();
+    if n < FUSED_MIN_POINTS {
+        return None;
+    }
+    let mut small: Vec<(usize, PairSums)> = Vec::new();
+    let mut large: Vec<(usize, usize, Vec<f64>)> = Vec::new();
+    let mut late: Vec<(usize, usize)> = Vec::new();
+    let mut copied = 0;
+    for (j, &m) in factors.iter().enumerate() {
+        if m == 0 {
+            continue;
+        }
+        if m < ON_THE_FLY_BELOW {
+            small.push((j, PairSums::new(x, m)));
+        } else if copied + n.div_ceil(m) <= n / 4 {
+            copied += n.div_ceil(m);
+            large.push((j, m, Vec::with_capacity(n.div_ceil(m))));
+        } else {
+            late.push((j, m));
+        }
+    }
+    run_tiles(x, &mut small, &mut large, FeedPath::fastest(simd));
+    let mut alphas = vec![None; factors.len()];
+    for (j, sums) in &small {
+        let low = sums.finish(x);
+        let m = sums.m;
+        let mut high: Option<[Option<f64>; 2]> = None;
+        alphas[*j] = decide_alpha(n.div_ceil(m), max_differences, |order| {
+            let value = if order < 2 {
+                low[order]
+            } else {
+                // Orders 2 and 3: the decimated phase, gathered once.
+                let pair = *high.get_or_insert_with(|| {
+                    let z: Vec<f64> = x.iter().step_by(m).copied().collect();
+                    lag1_pair(&z, 2, simd)
+                });
+                pair[order - 2]
+            };
+            value.map_or(Lag1::Undefined, Lag1::Value)
+        });
+    }
+    for (j, _, z) in &large {
+        alphas[*j] = identify_alpha_decimated(z, max_differences, simd);
+    }
+    // Dense grids beyond the copy budget (`all`, dense:N with large N): one gathered copy
+    // at a time, as the pyramid path gathers them.
+    let mut z = Vec::new();
+    for (j, m) in late {
+        z.clear();
+        z.extend(x.iter().step_by(m));
+        alphas[j] = identify_alpha_decimated(&z, max_differences, simd);
+    }
+    Some(alphas)
+}
+
+/// The tile loop of [`identify_alphas_fused`]: feeds every `small` factor's sums and fills
+/// every `large` factor's decimated copy (`(index, m, copy)`), one [`TILE`] at a time.
+fn run_tiles(
+    x: &[f64],
+    small: &mut [(usize, PairSums)],
+    large: &mut [(usize, usize, Vec<f64>)],
+    path: FeedPath,
+) {
+    let n = x.len();
+    let mut buffer = Vec::with_capacity(TILE + 2 * LANES);
+    let mut t0 = 0;
+    while t0 < n {
+        let t1 = (t0 + TILE).min(n);
+        for (_, sums) in small.iter_mut() {
+            sums.advance(x, t1, &mut buffer, path);
+        }
+        for (_, m, z) in large.iter_mut() {
+            let first = t0.div_ceil(*m) * *m;
+            if first < t1 {
+                z.extend(x[first..t1].iter().step_by(*m));
+            }
+        }
+        t0 = t1;
+    }
+}
+
+/// The running sums of [`lag1_orders::<0, 3>`] on z[k] = x[k·m] (orders 0 and 1 of the
+/// decimated phase), fed a stretch of terms at a time by the tiled pass of
+/// [`identify_alphas_fused`]. Terms k = 0 … bulk − 1 (bulk = len − 2) go into eight lanes
+/// (term k into lane k mod 8) within blocks of 4096 terms, each block's lane total and
+/// tail compensated into `totals` when the block is complete: exactly the additions of
+/// [`bulk_moments`], so the sums are the same bits.
+struct PairSums {
+    m: usize,
+    /// Points of the decimated phase, ⌈n/m⌉ (at least 3: the phase is long).
+    len: usize,
+    /// Terms of the bulk, `len − 2`.
+    bulk: usize,
+    /// Next term to add (a multiple of 8 until the last stretch).
+    next: usize,
+    low_shift: f64,
+    high_shift: f64,
+    lanes: [[f64; LANES]; 6],
+    totals: [CompensatedSum; 6],
+}
+
+impl PairSums {
+    fn new(x: &[f64], m: usize) -> Self {
+        let len = x.len().div_ceil(m);
+        debug_assert!(len >= 3, "the fused pass runs on long phases only");
+        PairSums {
+            m,
+            len,
+            bulk: len - 2,
+            next: 0,
+            // The first value of each order, as `lag1_orders` takes them.
+            low_shift: x[0],
+            high_shift: x[m] - x[0],
+            lanes: [[0.0; LANES]; 6],
+            totals: [CompensatedSum::new(); 6],
+        }
+    }
+
+    /// Adds the terms whose first point lies before phase index `t1` (all remaining ones
+    /// when `t1` is the end of the phase), cut down to a multiple of 8 terms so the lanes
+    /// stay aligned; the rest waits for the next tile.
+    fn advance(&mut self, x: &[f64], t1: usize, buffer: &mut Vec<f64>, path: FeedPath) {
+        let m = self.m;
+        let target = if t1 == x.len() {
+            self.bulk
+        } else {
+            t1.div_ceil(m).min(self.bulk) & !(LANES - 1)
+        };
+        if target <= self.next {
+            return;
+        }
+        // Terms next … target − 1 read z[next … target + 1]; (target + 1)·m < n.
+        let z: &[f64] = if m == 1 {
+            &x[self.next..target + 2]
+        } else {
+            buffer.clear();
+            gather(
+                &x[self.next * m..=(target + 1) * m],
+                m,
+                target + 2 - self.next,
+                buffer,
+            );
+            buffer
+        };
+        path.feed(self, z, target);
+    }
+
+    /// Adds terms `next … end − 1`, z[i] being the decimated phase at `next + i`, `W`
+    /// lanes at a time (see [`add_chunks`]).
+    #[inline(always)]
+    fn feed<const W: usize>(&mut self, z: &[f64], end: usize) {
+        const BLOCK: usize = 4096;
+        let first = self.next;
+        let mut k = first;
+        while k < end {
+            let block_end = ((k / BLOCK + 1) * BLOCK).min(self.bulk);
+            let stop = block_end.min(end);
+            let full = (stop - k) / LANES;
+            let at = k - first;
+            add_chunks::<W>(
+                &mut self.lanes,
+                &z[at..at + full * LANES + 2],
+                full,
+                self.low_shift,
+                self.high_shift,
+            );
+            k += full * LANES;
+            if stop < block_end {
+                // `end` is a multiple of 8 here: nothing is left over.
+                continue;
+            }
+            // The block is complete: the terms after its last full chunk (the last block
+            // only), then its lane totals and tail into the compensated totals.
+            let mut tail = [0.0f64; 6];
+            for t in k..block_end {
+                let a0 = difference_at(z, t - first, 0) - self.low_shift;
+                let a1 = difference_at(z, t - first + 1, 0) - self.low_shift;
+                let b0 = difference_at(z, t - first, 1) - self.high_shift;
+                let b1 = difference_at(z, t - first + 1, 1) - self.high_shift;
+                for (s, v) in tail
+                    .iter_mut()
+                    .zip([a0, a0 * a0, a0 * a1, b0, b0 * b0, b0 * b1])
+                {
+                    *s += v;
+                }
+            }
+            for (total, lanes) in self.totals.iter_mut().zip(&self.lanes) {
+                total.add(lanes.iter().sum());
+            }
+            for (total, t) in self.totals.iter_mut().zip(tail) {
+                total.add(t);
+            }
+            self.lanes = [[0.0; LANES]; 6];
+            k = block_end;
+        }
+        self.next = end;
+    }
+
+    /// The lag-1 autocorrelations of orders 0 and 1 once every term is in, as
+    /// [`lag1_orders`] finishes them (its last two order-0 values and last order-1 value
+    /// point by point).
+    fn finish(&self, x: &[f64]) -> [Option<f64>; 2] {
+        debug_assert_eq!(self.next, self.bulk, "every term fed");
+        let (m, len) = (self.m, self.len);
+        let z_last = x[(len - 1) * m];
+        let z_before = x[(len - 2) * m];
+        let totals = self.totals.map(|t| t.value());
+        let a0 = z_before - self.low_shift;
+        let a1 = z_last - self.low_shift;
+        let b0 = (z_last - z_before) - self.high_shift;
+        let low = Moments {
+            len,
+            sum: totals[0] + a0 + a1,
+            squares: totals[1] + a0 * a0 + a1 * a1,
+            lag1: totals[2] + a0 * a1,
+            last: a1,
+        };
+        let high = Moments {
+            len: len - 1,
+            sum: totals[3] + b0,
+            squares: totals[4] + b0 * b0,
+            lag1: totals[5],
+            last: b0,
+        };
+        [low.lag1(), high.lag1()]
+    }
+}
+
+/// Instruction set of the tiled lag-1 sums ([`PairSums::feed`]), with the lanes each
+/// sub-pass keeps in registers: six accumulators of 8 lanes are 6 AVX-512 registers, but
+/// 12 of AVX2's 16 (24 of SSE2's 16) before the streams and temporaries, which made the
+/// compiler spill them in the loop. So AVX2 runs the eight lanes as two sub-passes of
+/// four over the (cache-resident) stretch, the baseline as four of two. Every lane sees
+/// the same terms in the same order on every path, so all give the same bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FeedPath {
+    Portable,
+    Avx2,
+    Avx512,
+}
+
+impl FeedPath {
+    /// The fastest path for `simd` on this CPU (AVX-512F when `simd` allows vector code
+    /// and the CPU has it).
+    fn fastest(simd: Simd) -> FeedPath {
+        match simd {
+            Simd::Portable => FeedPath::Portable,
+            Simd::Avx2 if FeedPath::has_avx512() => FeedPath::Avx512,
+            Simd::Avx2 => FeedPath::Avx2,
+        }
+    }
+
+    fn has_avx512() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if Simd::detected() == Simd::Avx2 && std::arch::is_x86_feature_detected!("avx512f") {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Every path this CPU runs, for the tests.
+    #[cfg(test)]
+    fn available() -> Vec<FeedPath> {
+        let mut paths = vec![FeedPath::Portable];
+        if Simd::detected() == Simd::Avx2 {
+            paths.push(FeedPath::Avx2);
+        }
+        if FeedPath::has_avx512() {
+            paths.push(FeedPath::Avx512);
+        }
+        paths
+    }
+
+    /// [`PairSums::feed`] compiled for this path.
+    fn feed(self, sums: &mut PairSums, z: &[f64], end: usize) {
+        match self {
+            FeedPath::Portable => sums.feed::<2>(z, end),
+            FeedPath::Avx2 => dispatch(Simd::Avx2, Feed::<4> { sums, z, end }),
+            FeedPath::Avx512 => {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    #[target_feature(enable = "avx512f,avx2,fma")]
+                    fn with_avx512(kernel: Feed<'_, 8>) {
+                        kernel.run()
+                    }
+                    if FeedPath::has_avx512() {
+                        // SAFETY: the CPU supports AVX-512F (checked at run time just above).
+                        return unsafe { with_avx512(Feed::<8> { sums, z, end }) };
+                    }
+                }
+                sums.feed::<8>(z, end)
+            }
+        }
+    }
+}
+
+/// Appends the `count` values x[0], x[m], x[2m], … to `out` (`x` ends on the last one).
+/// Strides 2 and 4 (octave and decade factors) go through fixed-size chunks, which the
+/// compiler turns into vector shuffles instead of a scalar load and store per value.
+fn gather(x: &[f64], m: usize, count: usize, out: &mut Vec<f64>) {
+    fn fixed<const S: usize>(x: &[f64], count: usize, out: &mut Vec<f64>) {
+        let (chunks, rest) = x.as_chunks::<S>();
+        let full = chunks.len().min(count);
+        out.extend(chunks[..full].iter().map(|c| c[0]));
+        out.extend(rest.iter().take(count - full).copied());
+    }
+    match m {
+        2 => fixed::<2>(x, count, out),
+        4 => fixed::<4>(x, count, out),
+        _ => out.extend(x.iter().step_by(m).take(count)),
+    }
+    debug_assert_eq!(out.len(), count);
+}
+
+/// [`PairSums::feed`] as a [`Kernel`], `W` lanes per sub-pass.
+struct Feed<'a, const W: usize> {
+    sums: &'a mut PairSums,
+    z: &'a [f64],
+    end: usize,
+}
+
+impl<const W: usize> Kernel for Feed<'_, W> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        self.sums.feed::<W>(self.z, self.end);
+    }
+}
+
+/// The lane step of [`bulk_moments`] for orders 0 and 1 over `chunks` chunks of eight
+/// terms, z holding the chunks' points and the two after them: term i adds
+/// a = z[i] − low_shift, a·a, a·a_next, b = (z[i+1] − z[i]) − high_shift, b·b, b·b_next
+/// to lane i mod 8, the same operations in the same order as there. The lanes run in
+/// sub-passes of `W` (a divisor of 8) over all chunks, so that their accumulators stay in
+/// registers; a lane's sum does not depend on `W`.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)] // one index walks the lane arrays in lock-step
+fn add_chunks<const W: usize>(
+    acc: &mut [[f64; LANES]; 6],
+    z: &[f64],
+    chunks: usize,
+    low_shift: f64,
+    high_shift: f64,
+) {
+    debug_assert!(LANES.is_multiple_of(W));
+    let streams: [&[[f64; LANES]]; 3] = std::array::from_fn(|s| z[s..].as_chunks::<LANES>().0);
+    for group in 0..LANES / W {
+        let mut local: [[f64; W]; 6] =
+            std::array::from_fn(|i| std::array::from_fn(|l| acc[i][group * W + l]));
+        for j in 0..chunks {
+            let v: [[f64; W]; 3] =
+                std::array::from_fn(|s| std::array::from_fn(|l| streams[s][j][group * W + l]));
+            for l in 0..W {
+                let a0 = v[0][l] - low_shift;
+                let a1 = v[1][l] - low_shift;
+                let b0 = (v[1][l] - v[0][l]) - high_shift;
+                let b1 = (v[2][l] - v[1][l]) - high_shift;
+                local[0][l] += a0;
+                local[1][l] += a0 * a0;
+                local[2][l] += a0 * a1;
+                local[3][l] += b0;
+                local[4][l] += b0 * b0;
+                local[5][l] += b0 * b1;
+            }
+        }
+        for (i, lanes) in local.iter().enumerate() {
+            acc[i][group * W..group * W + W].copy_from_slice(lanes);
+        }
+    }
 }
 
 /// [`identify_alpha`] on the already decimated phase `z`.
@@ -347,6 +770,108 @@ pub(crate) mod tests {
                 assert_eq!(all[j], identify_alpha(&walk, m, 3), "m={m} {simd:?}");
             }
         }
+    }
+
+    /// Phase of a simulated IMU rate: white rate noise, rate random walk and white phase
+    /// noise with weights varied by the seed (so the noise type changes at different τ),
+    /// on a large constant offset, built as the analysis builds it.
+    fn imu_phase(n: usize, seed: u64) -> Vec<f64> {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut normal = move || -> f64 { StandardNormal.sample(&mut rng) };
+        let white_fm = [1e-3, 2e-3, 5e-4][seed as usize % 3];
+        let walk = [0.0, 2e-6, 5e-5, 1e-4][seed as usize % 4];
+        let white_pm = [0.0, 0.0, 3e-3, 1e-2, 5e-2][seed as usize % 5];
+        let mut drift = 0.0;
+        let mut previous = 0.0;
+        let rate: Vec<f64> = (0..n)
+            .map(|_| {
+                drift += walk * normal();
+                let pm = white_pm * normal();
+                let y = 9.80665 + white_fm * normal() + drift + pm - previous;
+                previous = pm;
+                y
+            })
+            .collect();
+        crate::allan::numerics::Phase::from_rate(rate).points
+    }
+
+    #[test]
+    fn fused_sums_equal_the_gathered_pair_bit_for_bit() {
+        for (n, seed) in [(FUSED_MIN_POINTS, 7), (3 * TILE + 4_101, 8), (100_003, 9)] {
+            let x = imu_phase(n, seed);
+            for path in FeedPath::available() {
+                let mut small: Vec<(usize, PairSums)> = (1..ON_THE_FLY_BELOW)
+                    .map(|m| (m, PairSums::new(&x, m)))
+                    .collect();
+                let mut large = vec![(0, 40, Vec::new()), (1, 97, Vec::new())];
+                run_tiles(&x, &mut small, &mut large, path);
+                for (m, sums) in &small {
+                    let z: Vec<f64> = x.iter().step_by(*m).copied().collect();
+                    let want = lag1_pair(&z, 0, Simd::Portable);
+                    let got = sums.finish(&x);
+                    for order in 0..2 {
+                        assert_eq!(
+                            got[order].map(f64::to_bits),
+                            want[order].map(f64::to_bits),
+                            "n={n} m={m} order {order} {path:?}: {got:?} vs {want:?}"
+                        );
+                    }
+                }
+                for (_, m, copy) in &large {
+                    let z: Vec<f64> = x.iter().step_by(*m).copied().collect();
+                    assert_eq!(copy, &z, "n={n} m={m}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fused_alphas_equal_the_per_factor_alphas_on_simulated_imu_series() {
+        use crate::allan::deviation::DeviationKind;
+        use crate::allan::taus::TauGrid;
+        let grids = [
+            TauGrid::Octave,
+            TauGrid::Decade,
+            TauGrid::Dense(10),
+            TauGrid::Dense(40),
+            TauGrid::List(vec![0.03, 0.05, 0.07, 1.1, 13.0]),
+        ];
+        let mut changes = 0;
+        for seed in 0..20u64 {
+            let n = FUSED_MIN_POINTS + 977 * seed as usize;
+            let x = imu_phase(n, seed);
+            for grid in &grids {
+                for (kind, differences) in [(DeviationKind::Oadev, 2), (DeviationKind::Ohdev, 3)] {
+                    let factors = grid.factors(kind, x.len(), 0.01);
+                    let want =
+                        identify_alphas_by_decimation(&x, &factors, differences, Simd::Portable);
+                    for simd in Simd::available() {
+                        let got = identify_alphas_fused(&x, &factors, differences, simd)
+                            .expect("the fused pass runs on this length");
+                        assert_eq!(got, want, "seed {seed} {grid:?} {kind:?} {simd:?}");
+                    }
+                    changes += want.windows(2).filter(|w| w[0] != w[1]).count();
+                }
+            }
+        }
+        // The series must exercise the decision, not only one noise type.
+        assert!(changes > 50, "{changes} changes of α along the grids");
+    }
+
+    #[test]
+    fn fused_pass_declines_short_phases_and_gathers_beyond_its_copy_budget() {
+        let x = imu_phase(FUSED_MIN_POINTS, 3);
+        let short = &x[..FUSED_MIN_POINTS - 1];
+        assert!(identify_alphas_fused(short, &[1, 2], 2, Simd::Portable).is_none());
+        // Σ n/m over these factors is about n, four times the copy budget.
+        let many: Vec<usize> = [0, 1, 5]
+            .into_iter()
+            .chain((32..x.len() / 4).step_by(7))
+            .collect();
+        assert_eq!(
+            identify_alphas_fused(&x, &many, 3, Simd::detected()),
+            Some(identify_alphas_by_decimation(&x, &many, 3, Simd::Portable))
+        );
     }
 
     #[test]

@@ -317,8 +317,9 @@ impl Phase {
 /// A single running sum is one long chain of dependent additions (≈ 4 cycles per
 /// sample). Here the samples are cut into [`SCAN_LANES`] equal chunks, and the chunks are
 /// scanned in lock-step, one lane each, so the additions of different chunks fill the
-/// vector lanes; blocks of eight samples per lane are copied in and out so the loads and
-/// stores stay contiguous. Each chunk's scan starts from the exact running state (sum and
+/// vector lanes; blocks of eight samples per lane are copied in and out, transposed into
+/// step-major order (8 × 8), so the loads and stores stay contiguous and each step of the
+/// scan is one vector operation over the lanes. Each chunk's scan starts from the exact running state (sum and
 /// compensation) at its start, which needs the chunk totals of y − mean before the mean
 /// is known: the first pass sums y − y₀ per chunk (small values, eight-lane blocks,
 /// compensated), which gives the mean, and each chunk's total of y − mean is then its
@@ -368,19 +369,27 @@ fn integrate_in_place(values: &mut [f64]) -> f64 {
     };
     let blocks = chunk / B;
     for b in 0..blocks {
-        let mut tile = [[0.0f64; B]; L];
+        // Transposed (step-major: tile[j] holds step j of every lane), so each step is
+        // one vector operation across the lanes instead of L scalar ones.
+        let mut tile = [[0.0f64; L]; B];
         for l in 0..L {
             let at = l * chunk + b * B;
-            tile[l].copy_from_slice(&values[at..at + B]);
+            let row: &[f64; B] = values[at..at + B].try_into().expect("B values");
+            for j in 0..B {
+                tile[j][l] = row[j];
+            }
         }
-        for j in 0..B {
+        for row in &mut tile {
             for l in 0..L {
-                step(&mut sum[l], &mut compensation[l], &mut tile[l][j]);
+                step(&mut sum[l], &mut compensation[l], &mut row[l]);
             }
         }
         for l in 0..L {
             let at = l * chunk + b * B;
-            values[at..at + B].copy_from_slice(&tile[l]);
+            let row: &mut [f64; B] = (&mut values[at..at + B]).try_into().expect("B values");
+            for j in 0..B {
+                row[j] = tile[j][l];
+            }
         }
     }
     for l in 0..L {
