@@ -10,9 +10,10 @@
 //!
 //! Done over the whole phase, each pass would stream 26 MB in and out for 6 h at 150 Hz
 //! (≈ 1 GB of traffic for 20 factors). Instead, two phases:
-//! - **tiles** (m < [`M`]): the phase is cut into tiles of [`T`] positions; each tile is
-//!   copied with a halo of 3M/2 points (the dependency cone of the highest small factor)
-//!   into an L2-resident scratch where all small factors are passed in turn;
+//! - **tiles** (m < [`M`]): the phase is cut into tiles of [`T`] positions plus a halo
+//!   of 3M/2 points (the dependency cone of the highest small factor); the pass of m = 1
+//!   reads the phase and writes W_2 into an L2-resident scratch, where the other small
+//!   factors are passed in turn;
 //! - **columns** (m ≥ M): with j = q·M + r, the column r of W_M, V_r[q] = W_M[q·M + r],
 //!   holds everything the large factors need: W_{M·2^s}[q·M + r] is a sum of 2^s
 //!   consecutive V_r, so the same hierarchy runs on each column with strides 1, 2, 4, …
@@ -270,8 +271,12 @@ unsafe fn tile<V: Lanes>(
 ) {
     let n = x.len();
     let len0 = (T + H).min(n - t0);
-    scratch.clear();
-    scratch.extend_from_slice(&x[t0..t0 + len0]);
+    // The first factor reads the phase itself; W_2 and above live in the scratch. A
+    // pass reads only positions the previous one wrote (see `need`), so the scratch is
+    // sized once and not cleared between tiles.
+    if scratch.len() != len0 {
+        scratch.resize(len0, 0.0);
+    }
     // Positions of W_{2^k} the tile needs, from the top factor down: its own terms
     // (T + 2m) and what the next factor needs (its need + m).
     let mut need = [0usize; SMALL + 1];
@@ -289,7 +294,19 @@ unsafe fn tile<V: Lanes>(
         } else {
             0
         };
-        sums[k].add(level_pass::<V>(scratch, m, term_end, next_end));
+        sums[k].add(if k == 0 {
+            let src = &x[t0..t0 + len0];
+            level_pass_from::<V>(
+                src.as_ptr(),
+                scratch.as_mut_ptr(),
+                len0,
+                m,
+                term_end,
+                next_end,
+            )
+        } else {
+            level_pass::<V>(scratch, m, term_end, next_end)
+        });
     }
     if let Some(out) = out {
         write_starts(scratch, (len0 + 1).saturating_sub(M).min(T), out);
@@ -328,40 +345,58 @@ fn term1(a: f64, b: f64, c: f64) -> f64 {
 /// s[j] = W_{2m}[j] = s[j] + s[j + m] for j < `next_end`.
 #[inline(always)]
 unsafe fn level_pass<V: Lanes>(s: &mut [f64], m: usize, term_end: usize, next_end: usize) -> f64 {
+    let len = s.len();
+    let p = s.as_mut_ptr();
+    level_pass_from::<V>(p, p, len, m, term_end, next_end)
+}
+
+/// [`level_pass`] reading W_m from `src` and writing W_{2m} to `dst` (both at least
+/// `len` long; the same pointer for the pass in place): the loads of a step all come
+/// before its stores, so in place each position j + m is still W_m when it is read.
+///
+/// Safety: `src` must be readable and `dst` writable for `len` values.
+#[inline(always)]
+unsafe fn level_pass_from<V: Lanes>(
+    src: *const f64,
+    dst: *mut f64,
+    len: usize,
+    m: usize,
+    term_end: usize,
+    next_end: usize,
+) -> f64 {
     // Two vectors per step into two accumulators, so their additions overlap.
     const L: usize = 2 * LANES;
     assert!(
-        (term_end == 0 || term_end + 2 * m <= s.len())
-            && (next_end == 0 || next_end + m <= s.len()),
+        (term_end == 0 || term_end + 2 * m <= len) && (next_end == 0 || next_end + m <= len),
         "level pass out of range"
     );
-    let p = s.as_mut_ptr();
     let mut acc = [V::zero(); 2];
     let both = term_end.min(next_end);
     let mut j = 0;
     while j + L <= both {
-        let q = p.add(j);
+        let q = src.add(j);
         let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
         let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
         let (c0, c1) = (V::load(q.add(2 * m)), V::load(q.add(2 * m + LANES)));
         acc[0] = acc[0].add(term(a0, b0, c0));
         acc[1] = acc[1].add(term(a1, b1, c1));
-        // Stored after all loads: for m < L the loads above read positions of this
-        // step that are overwritten here, and must see W_m.
-        a0.add(b0).store(q);
-        a1.add(b1).store(q.add(LANES));
+        // Stored after all loads: in place, for m < L the loads above read positions
+        // of this step that are overwritten here, and must see W_m.
+        a0.add(b0).store(dst.add(j));
+        a1.add(b1).store(dst.add(j + LANES));
         j += L;
     }
     let mut tail = 0.0;
     while j < both {
-        tail += term1(s[j], s[j + m], s[j + 2 * m]);
-        s[j] += s[j + m];
+        let (a, b) = (*src.add(j), *src.add(j + m));
+        tail += term1(a, b, *src.add(j + 2 * m));
+        *dst.add(j) = a + b;
         j += 1;
     }
     // Whichever of the two ranges is longer goes on alone.
     let mut i = j;
     while i + L <= term_end {
-        let q = p.add(i);
+        let q = src.add(i);
         let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
         let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
         let (c0, c1) = (V::load(q.add(2 * m)), V::load(q.add(2 * m + LANES)));
@@ -370,20 +405,20 @@ unsafe fn level_pass<V: Lanes>(s: &mut [f64], m: usize, term_end: usize, next_en
         i += L;
     }
     while i < term_end {
-        tail += term1(s[i], s[i + m], s[i + 2 * m]);
+        tail += term1(*src.add(i), *src.add(i + m), *src.add(i + 2 * m));
         i += 1;
     }
     let mut i = j;
     while i + L <= next_end {
-        let q = p.add(i);
+        let q = src.add(i);
         let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
         let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
-        a0.add(b0).store(q);
-        a1.add(b1).store(q.add(LANES));
+        a0.add(b0).store(dst.add(i));
+        a1.add(b1).store(dst.add(i + LANES));
         i += L;
     }
     while i < next_end {
-        s[i] += s[i + m];
+        *dst.add(i) = *src.add(i) + *src.add(i + m);
         i += 1;
     }
     lane_total(acc[0]) + lane_total(acc[1]) + tail
@@ -412,34 +447,44 @@ impl Job for BlockJob<'_> {
     #[inline(always)]
     unsafe fn run<V: Lanes>(self) -> Vec<CompensatedSum> {
         let mut sums = vec![CompensatedSum::new(); self.big];
-        let mut rows: Vec<Row> = Vec::with_capacity(self.tiles * ROWS_PER_TILE);
+        let total = self.tiles * ROWS_PER_TILE;
+        let mut rows: Vec<Row> = Vec::with_capacity(total);
         for block in self.blocks.clone() {
             rows.clear();
-            for tile in 0..self.tiles {
+            let spare = &mut rows.spare_capacity_mut()[..total];
+            for (tile, out) in spare.chunks_exact_mut(ROWS_PER_TILE).enumerate() {
                 let at = (tile * BLOCKS + block) * ROWS_PER_TILE * GROUPS;
-                let first = tile * ROWS_PER_TILE;
                 column_rows::<V>(
                     self.x,
                     &self.starts[at..at + ROWS_PER_TILE * GROUPS],
-                    first * M + block * B,
-                    &mut rows,
+                    tile * T + block * B,
+                    out,
                 );
             }
+            // SAFETY: `column_rows` wrote every lane of each of the `total` rows.
+            rows.set_len(total);
             column_levels::<V>(&mut rows, block, self.x.len(), &mut sums);
         }
         sums
     }
 }
 
-/// Appends the rows V[q][l] = W_M[p + q·M + l] (l < B) for the rows of `starts`
+/// Writes the rows V[q][l] = W_M[p + q·M + l] (l < B) for the rows of `starts` to `rows`
 /// (W_M[p + q·M + g·8] for each vector g of the row, zero past the end of W_M): each
 /// lane slides its vector's first one by single positions, W_M[j + l] = W_M[j] +
 /// Σ_{i<l} (x[j + M + i] − x[j + i]), the differences summed by the in-register scan
 /// [`Lanes::exclusive_scan`]. Lanes past the end of W_M are 0.
 #[inline(always)]
-unsafe fn column_rows<V: Lanes>(x: &[f64], starts: &[f64], p: usize, rows: &mut Vec<Row>) {
+unsafe fn column_rows<V: Lanes>(
+    x: &[f64],
+    starts: &[f64],
+    p: usize,
+    rows: &mut [MaybeUninit<Row>],
+) {
     let n = x.len();
     let count = starts.len() / GROUPS;
+    assert_eq!(rows.len(), count, "one row per start");
+    let out = rows.as_mut_ptr().cast::<f64>();
     let mut j = p;
     let mut q = 0;
     // Rows whose B lanes are all valid and readable: j + M + B − 1 ≤ n − 1.
@@ -448,14 +493,12 @@ unsafe fn column_rows<V: Lanes>(x: &[f64], starts: &[f64], p: usize, rows: &mut 
         while q < count && j + M + B - 1 < n {
             prefetch(x, j + PREFETCH_ROWS * M);
             let hi: [V; GROUPS] = std::array::from_fn(|g| V::load(x[j + M + g * LANES..].as_ptr()));
-            let mut row = Row([0.0; B]);
             for g in 0..GROUPS {
                 let e = hi[g].sub(lo[g]).exclusive_scan();
                 V::splat(starts[q * GROUPS + g])
                     .add(e)
-                    .store(row.0[g * LANES..].as_mut_ptr());
+                    .store(out.add(q * B + g * LANES));
             }
-            rows.push(row);
             lo = hi;
             q += 1;
             j += M;
@@ -464,13 +507,13 @@ unsafe fn column_rows<V: Lanes>(x: &[f64], starts: &[f64], p: usize, rows: &mut 
     // The rest: the same expressions lane by lane, 0 where the window runs past the end.
     while q < count {
         let at = |i: usize| x.get(i).copied().unwrap_or(0.0);
-        let mut row = Row([0.0; B]);
+        let mut row = [0.0; B];
         for g in 0..GROUPS {
             let k = j + g * LANES;
             let d: [f64; LANES] = std::array::from_fn(|i| at(k + M + i) - at(k + i));
             let e = Portable(d).exclusive_scan().0;
             let w = starts[q * GROUPS + g];
-            for (l, (v, e)) in row.0[g * LANES..(g + 1) * LANES]
+            for (l, (v, e)) in row[g * LANES..(g + 1) * LANES]
                 .iter_mut()
                 .zip(e)
                 .enumerate()
@@ -480,7 +523,7 @@ unsafe fn column_rows<V: Lanes>(x: &[f64], starts: &[f64], p: usize, rows: &mut 
                 }
             }
         }
-        rows.push(row);
+        rows[q].write(Row(row));
         q += 1;
         j += M;
     }
