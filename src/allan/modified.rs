@@ -5,8 +5,9 @@
 //! octave's window sums are W_{2m}[j] = W_m[j] + W_m[j+m]. One pass over W_m therefore
 //! sums S_j(m)² and overwrites W_m[j] with W_{2m}[j] in ascending j (position j + m is
 //! read before it is overwritten): three loads, one store and five floating-point
-//! operations per term (a + c, then − 2b as one FMA, the square, its accumulation, W_2m), every W
-//! a pairwise sum of phase points (no running sum, so no drift). Σ S² for all octave factors m = 1, 2, 4, … costs one such pass per factor.
+//! operations per term (a + c, then − 2b as one FMA, the square, its accumulation,
+//! W_2m), every W a pairwise sum of phase points (no running sum, so no drift). Σ S² for
+//! all octave factors m = 1, 2, 4, … costs one such pass per factor.
 //!
 //! Done over the whole phase, each pass would stream 26 MB in and out for 6 h at 150 Hz
 //! (≈ 1 GB of traffic for 20 factors). Instead, two phases:
