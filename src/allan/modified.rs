@@ -4,65 +4,82 @@
 //! S_j(m) = W_m[j] − 2·W_m[j+m] + W_m[j+2m] (an OADEV-like stencil on W_m), and the next
 //! octave's window sums are W_{2m}[j] = W_m[j] + W_m[j+m]. One pass over W_m therefore
 //! sums S_j(m)² and overwrites W_m[j] with W_{2m}[j] in ascending j (position j + m is
-//! read before it is overwritten): three loads, one store and four additions per term,
-//! every W a pairwise sum of phase points (no running sum, so no drift). Σ S² for all
-//! octave factors m = 1, 2, 4, … costs one such pass per factor.
+//! read before it is overwritten): three loads, one store and five floating-point
+//! operations per term (a + c, then − 2b as one FMA, the square, its accumulation,
+//! W_2m), every W a pairwise sum of phase points (no running sum, so no drift). Σ S² for
+//! all octave factors m = 1, 2, 4, … costs one such pass per factor.
 //!
 //! Done over the whole phase, each pass would stream 26 MB in and out for 6 h at 150 Hz
 //! (≈ 1 GB of traffic for 20 factors). Instead, two phases:
-//! - **tiles** (m < [`M`]): the phase is cut into tiles of [`T`] positions; each tile is
-//!   copied with a halo of 3M/2 points (the dependency cone of the highest small factor)
-//!   into an L2-resident scratch where all small factors are passed in turn;
+//! - **tiles** (m < [`M`]): the phase is cut into tiles of [`T`] positions plus a halo
+//!   of 3M/2 points (the dependency cone of the highest small factor); the pass of m = 1
+//!   reads the phase and writes W_2 into an L2-resident scratch, where the other small
+//!   factors are passed in turn;
 //! - **columns** (m ≥ M): with j = q·M + r, the column r of W_M, V_r[q] = W_M[q·M + r],
 //!   holds everything the large factors need: W_{M·2^s}[q·M + r] is a sum of 2^s
 //!   consecutive V_r, so the same hierarchy runs on each column with strides 1, 2, 4, …
-//!   in rows. [`B`] neighbouring columns form a block of rows of B lanes (one cache line,
-//!   a vector loop over lanes), a few hundred KB that stays in L2 while all large factors
-//!   are passed. The blocks are not stored for the whole phase: the tiles write W_M only
-//!   at the first block of each of [`CHAINS`] chains of blocks, and each next block of a
-//!   chain slides the previous one by B positions, W_M[j + B] = W_M[j] + W_B[j + M] −
-//!   W_B[j], with B-point window sums of the phase (a few roundings of |W_M| per step, at
-//!   most B·(blocks per chain − 1) positions from an exact start).
+//!   in rows. [`B`] neighbouring columns form a block of rows (four cache lines per row,
+//!   vector loops over the lanes), ≈ 800 KB for 6 h that stays in L2 while all large
+//!   factors are passed. The blocks are not stored for the whole phase: the tiles keep
+//!   W_M only at every eighth column (n/8 values), and a block's row is rebuilt from
+//!   those exact starts and the phase itself: W_M[j + l] = W_M[j] + Σ_{i<l} (x[j + M + i]
+//!   − x[j + i]) for the seven columns after a start, the differences summed by an
+//!   in-register prefix scan (three shift-and-add steps). So building a block reads
+//!   256 contiguous bytes of the phase per row (prefetched ahead: the stride of M·8 bytes
+//!   is one the hardware prefetchers do not follow), and each lane is at most seven
+//!   small slides from an exact pairwise sum.
 //!
-//! Each term is evaluated as (S/2)² = (½(a + c) − b)², then × 4: the scaling by powers of
-//! two is exact, so this equals (a + c − 2b)² bit for bit, with one addition fewer (LLVM
-//! turns 2b into b + b). Tiles and chains are independent jobs on the rayon pool; their
-//! partial sums are merged in a fixed order, so any number of threads gives the same
-//! bits, and the loops run through [`dispatch`] (portable and AVX2 paths, same bits: no
-//! FMA).
+//! Each term is (a + c − 2b)²; on the SIMD paths c − 2b is one fused multiply-add, which
+//! gives the same bits as the portable subtraction (2b is exact, so the single rounding
+//! is that of the subtraction). The loops are written once over a small eight-lane
+//! vector trait ([`Lanes`]) with portable, AVX2 + FMA and AVX-512F implementations,
+//! chosen at run time as for the OADEV sweep ([`SweepPath`]): explicit `std::arch`
+//! intrinsics because the auto-vectorised version of these loops spilled its
+//! accumulators and scan shuffles to the stack. All paths evaluate the same operations
+//! in the same order, so they give the same bits. Tiles and column blocks are
+//! independent jobs on the rayon pool; their partial sums are merged in a fixed order,
+//! so any number of threads gives the same bits too.
 //!
-//! Memory: W_M at the chains' first blocks, one f64 per M/(B·CHAINS) = 8 phase points,
-//! plus two column blocks (≈ 1.6 MB for 6 h at 150 Hz) per chain in flight.
+//! Memory: W_M at every eighth column (one f64 per 8 phase points) plus one column
+//! block (≈ 800 KB for 6 h at 150 Hz) per job in flight.
 
-use super::numerics::{dispatch, merge_in_order, CompensatedSum, Kernel, Simd};
+use super::numerics::{merge_in_order, CompensatedSum, Simd};
+use super::sweep::SweepPath;
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 
 /// Octave factors handled in tiles: m = 1, 2, …, 2^(SMALL−1).
-const SMALL: usize = 8;
+const SMALL: usize = 10;
 /// First factor of the column phase (2^SMALL).
 const M: usize = 1 << SMALL;
-/// Positions per tile (a multiple of [`M`]); with its halo ≈ 68 KB of scratch.
-const T: usize = 8 * 1024;
+/// Positions per tile (a multiple of [`M`]); with its halo ≈ 140 KB of scratch.
+const T: usize = 16 * 1024;
 /// Halo of a tile: the highest small factor M/2 reads up to 3·M/2 − 1 points ahead.
 const H: usize = 3 * M / 2;
 /// Rows of W_M that one tile contributes to each column block.
 const ROWS_PER_TILE: usize = T / M;
-/// Lanes (neighbouring columns) per column block: one 64-byte row ([`window_sums`]
-/// is written for 8).
-const B: usize = 8;
-const _: () = assert!(B == 8 && BLOCKS.is_multiple_of(CHAINS));
+/// Lanes of one vector of every path.
+const LANES: usize = 8;
+/// Lanes (neighbouring columns) per column block: four 64-byte lines per row, so that
+/// building a block reads 256 contiguous bytes of the phase per row.
+const B: usize = 32;
+/// Vectors per row.
+const GROUPS: usize = B / LANES;
+const _: () = assert!(BLOCKS.is_multiple_of(BLOCK_JOBS) && B.is_multiple_of(LANES));
 /// Column blocks.
 const BLOCKS: usize = M / B;
-/// Chains of neighbouring column blocks: the first block of a chain starts from W_M as
-/// the tiles computed it, each next one slides the previous by B positions.
-const CHAINS: usize = 4;
-/// Column blocks per chain.
-const BLOCKS_PER_CHAIN: usize = BLOCKS / CHAINS;
-/// Values of W_M one tile writes: the first block of every chain, for each of its rows.
-const TILE_OUT: usize = ROWS_PER_TILE * CHAINS * B;
+/// Values of W_M one tile writes: the first lane of every vector of every column block,
+/// for each of its rows.
+const TILE_OUT: usize = ROWS_PER_TILE * BLOCKS * GROUPS;
+/// Parallel jobs of the column phase, each [`BLOCKS_PER_JOB`] neighbouring blocks.
+const BLOCK_JOBS: usize = 4;
+const BLOCKS_PER_JOB: usize = BLOCKS / BLOCK_JOBS;
 /// Tiles per parallel job.
-const TILES_PER_JOB: usize = 16;
+const TILES_PER_JOB: usize = 8;
+/// Rows ahead that [`column_rows`] asks the memory system for: a block reads 256 bytes
+/// of every M·8 bytes of the phase, a stride the hardware prefetchers do not follow far
+/// enough to hide the latency of main memory.
+const PREFETCH_ROWS: usize = 8;
 
 /// One row of a column block, aligned to a cache line.
 #[derive(Clone, Copy)]
@@ -77,6 +94,11 @@ fn term_count(m: usize, n: usize) -> usize {
 /// Σ_j S_j(m)² (S the MDEV window sum, see the module docs) for every m = 2^k, k <
 /// `levels`, on the phase `x`; 0 where a factor has no term.
 pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f64> {
+    octave_window_sums_on(x, levels, SweepPath::for_simd(simd))
+}
+
+/// [`octave_window_sums`] on the given instruction-set path.
+fn octave_window_sums_on(x: &[f64], levels: usize, path: SweepPath) -> Vec<f64> {
     let n = x.len();
     // Factors without a single term need no pass.
     let levels = (0..levels)
@@ -95,13 +117,13 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
     }
     let tiles = span.div_ceil(T);
     let jobs = tiles.div_ceil(TILES_PER_JOB);
-    let mut columns: Vec<f64> = Vec::new();
+    let mut starts: Vec<f64> = Vec::new();
     let tile_sums: Vec<Vec<CompensatedSum>> = if big == 0 {
         (0..jobs)
             .into_par_iter()
             .map(|job| {
-                dispatch(
-                    simd,
+                run_on(
+                    path,
                     TileJob {
                         x,
                         first_tile: job * TILES_PER_JOB,
@@ -113,14 +135,14 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
             })
             .collect()
     } else {
-        columns.reserve_exact(tiles * TILE_OUT);
-        let spare = &mut columns.spare_capacity_mut()[..tiles * TILE_OUT];
+        starts.reserve_exact(tiles * TILE_OUT);
+        let spare = &mut starts.spare_capacity_mut()[..tiles * TILE_OUT];
         let sums = spare
             .par_chunks_mut(TILES_PER_JOB * TILE_OUT)
             .enumerate()
             .map(|(job, out)| {
-                dispatch(
-                    simd,
+                run_on(
+                    path,
                     TileJob {
                         x,
                         first_tile: job * TILES_PER_JOB,
@@ -131,36 +153,74 @@ pub(super) fn octave_window_sums(x: &[f64], levels: usize, simd: Simd) -> Vec<f6
                 )
             })
             .collect();
-        // SAFETY: every tile wrote all TILE_OUT values of its chunk (`write_columns`
+        // SAFETY: every tile wrote all TILE_OUT values of its chunk (`write_starts`
         // writes each one, zero past the end of W_M), and the chunks cover the first
         // tiles·TILE_OUT elements of the reserved capacity.
-        unsafe { columns.set_len(tiles * TILE_OUT) };
+        unsafe { starts.set_len(tiles * TILE_OUT) };
         sums
     };
     let mut totals = vec![CompensatedSum::new(); levels];
     merge_in_order(&mut totals, tile_sums);
     if big > 0 {
-        let chain_sums: Vec<Vec<CompensatedSum>> = (0..CHAINS)
+        let block_sums: Vec<Vec<CompensatedSum>> = (0..BLOCK_JOBS)
             .into_par_iter()
-            .map(|chain| {
-                dispatch(
-                    simd,
-                    ChainJob {
+            .map(|job| {
+                run_on(
+                    path,
+                    BlockJob {
                         x,
-                        columns: &columns,
+                        starts: &starts,
                         tiles,
-                        chain,
+                        blocks: job * BLOCKS_PER_JOB..(job + 1) * BLOCKS_PER_JOB,
                         big,
                     },
                 )
             })
             .collect();
-        merge_in_order(&mut totals[small..], chain_sums);
+        merge_in_order(&mut totals[small..], block_sums);
     }
     for (o, total) in out.iter_mut().zip(&totals) {
         *o = total.value();
     }
     out
+}
+
+/// A job that runs on the lanes of any path (see [`run_on`]).
+trait Job {
+    type Output;
+    /// Safety: `V`'s instructions must be available.
+    unsafe fn run<V: Lanes>(self) -> Self::Output;
+}
+
+/// Runs `job` on the lanes of `path` (the portable ones if the CPU lacks its features).
+fn run_on<J: Job>(path: SweepPath, job: J) -> J::Output {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let best = SweepPath::detected();
+        if path == SweepPath::Avx512 && best == SweepPath::Avx512 {
+            // SAFETY: the CPU has AVX-512F, AVX2 and FMA (detected just above).
+            return unsafe { with_avx512(job) };
+        }
+        if path == SweepPath::Avx2 && best != SweepPath::Portable {
+            // SAFETY: the CPU has AVX2 and FMA (detected just above).
+            return unsafe { with_avx2(job) };
+        }
+    }
+    let _ = path;
+    // SAFETY: the portable lanes need no CPU feature.
+    unsafe { job.run::<Portable>() }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn with_avx2<J: Job>(job: J) -> J::Output {
+    job.run::<x86::Avx2>()
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn with_avx512<J: Job>(job: J) -> J::Output {
+    job.run::<x86::Avx512>()
 }
 
 /// Consecutive tiles as one job: their Σ S² per small factor.
@@ -169,14 +229,15 @@ struct TileJob<'a> {
     first_tile: usize,
     tiles: usize,
     small: usize,
-    /// This job's share of the transposed W_M (tiles × T values), when columns follow.
+    /// This job's share of W_M at the first lane of every vector of the column blocks
+    /// (tiles × [`TILE_OUT`] values), when columns follow.
     out: Option<&'a mut [MaybeUninit<f64>]>,
 }
 
-impl Kernel for TileJob<'_> {
+impl Job for TileJob<'_> {
     type Output = Vec<CompensatedSum>;
     #[inline(always)]
-    fn run(self) -> Vec<CompensatedSum> {
+    unsafe fn run<V: Lanes>(self) -> Vec<CompensatedSum> {
         let mut sums = vec![CompensatedSum::new(); self.small];
         let mut scratch = Vec::with_capacity(T + H);
         let mut out = self.out;
@@ -184,7 +245,7 @@ impl Kernel for TileJob<'_> {
             let tile_out = out
                 .as_deref_mut()
                 .map(|o| &mut o[t * TILE_OUT..(t + 1) * TILE_OUT]);
-            tile(
+            tile::<V>(
                 self.x,
                 (self.first_tile + t) * T,
                 self.small,
@@ -198,9 +259,10 @@ impl Kernel for TileJob<'_> {
 }
 
 /// The small factors over the tile starting at `t0`: Σ S² added to `sums[k]` for m = 2^k,
-/// and W_M of the tile's positions written to `out` (row-major per column block) if given.
+/// and W_M at the first lane of every vector of every column block written to `out` if
+/// given.
 #[inline(always)]
-fn tile(
+unsafe fn tile<V: Lanes>(
     x: &[f64],
     t0: usize,
     small: usize,
@@ -210,8 +272,12 @@ fn tile(
 ) {
     let n = x.len();
     let len0 = (T + H).min(n - t0);
-    scratch.clear();
-    scratch.extend_from_slice(&x[t0..t0 + len0]);
+    // The first factor reads the phase itself; W_2 and above live in the scratch. A
+    // pass reads only positions the previous one wrote (see `need`), so the scratch is
+    // sized once and not cleared between tiles.
+    if scratch.len() != len0 {
+        scratch.resize(len0, 0.0);
+    }
     // Positions of W_{2^k} the tile needs, from the top factor down: its own terms
     // (T + 2m) and what the next factor needs (its need + m).
     let mut need = [0usize; SMALL + 1];
@@ -229,194 +295,267 @@ fn tile(
         } else {
             0
         };
-        sums[k].add(level_pass(scratch, m, term_end, next_end));
+        sums[k].add(if k == 0 {
+            let src = &x[t0..t0 + len0];
+            level_pass_from::<V>(
+                src.as_ptr(),
+                scratch.as_mut_ptr(),
+                len0,
+                m,
+                term_end,
+                next_end,
+            )
+        } else {
+            level_pass::<V>(scratch, m, term_end, next_end)
+        });
     }
     if let Some(out) = out {
-        write_columns(scratch, (len0 + 1).saturating_sub(M).min(T), out);
+        write_starts(scratch, (len0 + 1).saturating_sub(M).min(T), out);
     }
 }
 
-/// Writes the tile's W_M at the lanes of each chain's first column block (the first
-/// `valid` positions of `scratch` are W_M, zero after) into `out` in the layout
-/// [chain][row][lane].
+/// Writes the tile's W_M at the first lane of every vector of every column block (the
+/// first `valid` positions of `scratch` are W_M; zero after) into `out` in the layout
+/// [block][row][vector].
 #[inline(always)]
-fn write_columns(scratch: &[f64], valid: usize, out: &mut [MaybeUninit<f64>]) {
-    for chain in 0..CHAINS {
-        for row in 0..ROWS_PER_TILE {
-            let from = row * M + chain * BLOCKS_PER_CHAIN * B;
-            let to = (chain * ROWS_PER_TILE + row) * B;
-            let dst = &mut out[to..to + B];
-            if from + B <= valid {
-                for (d, s) in dst.iter_mut().zip(&scratch[from..from + B]) {
-                    d.write(*s);
-                }
-            } else {
-                for (l, d) in dst.iter_mut().enumerate() {
-                    d.write(if from + l < valid {
-                        scratch[from + l]
-                    } else {
-                        0.0
-                    });
-                }
-            }
+fn write_starts(scratch: &[f64], valid: usize, out: &mut [MaybeUninit<f64>]) {
+    for block in 0..BLOCKS {
+        let dst = &mut out[block * ROWS_PER_TILE * GROUPS..(block + 1) * ROWS_PER_TILE * GROUPS];
+        for (i, d) in dst.iter_mut().enumerate() {
+            let from = (i / GROUPS) * M + block * B + (i % GROUPS) * LANES;
+            d.write(if from < valid { scratch[from] } else { 0.0 });
         }
     }
+}
+
+/// (a + c − 2b)², the square of one MDEV window sum, lane by lane.
+#[inline(always)]
+unsafe fn term<V: Lanes>(a: V, b: V, c: V) -> V {
+    let h = a.add(c).minus_twice(b);
+    h.mul(h)
+}
+
+/// (a + c − 2b)² for one value, as [`term`] computes each lane.
+#[inline(always)]
+fn term1(a: f64, b: f64, c: f64) -> f64 {
+    let h = (a + c) - 2.0 * b;
+    h * h
 }
 
 /// One factor m over `s` = W_m in place: returns Σ S_j² for j < `term_end` and writes
 /// s[j] = W_{2m}[j] = s[j] + s[j + m] for j < `next_end`.
 #[inline(always)]
-#[allow(clippy::needless_range_loop)] // one index walks the three streams in lock-step
-fn level_pass(s: &mut [f64], m: usize, term_end: usize, next_end: usize) -> f64 {
-    // 16 lanes: four vector accumulators, so the additions into them do not wait on
-    // each other's latency.
-    const L: usize = 16;
-    let mut acc = [0.0f64; L];
+unsafe fn level_pass<V: Lanes>(s: &mut [f64], m: usize, term_end: usize, next_end: usize) -> f64 {
+    let len = s.len();
+    let p = s.as_mut_ptr();
+    level_pass_from::<V>(p, p, len, m, term_end, next_end)
+}
+
+/// [`level_pass`] reading W_m from `src` and writing W_{2m} to `dst` (both at least
+/// `len` long; the same pointer for the pass in place): the loads of a step all come
+/// before its stores, so in place each position j + m is still W_m when it is read.
+///
+/// Safety: `src` must be readable and `dst` writable for `len` values.
+#[inline(always)]
+unsafe fn level_pass_from<V: Lanes>(
+    src: *const f64,
+    dst: *mut f64,
+    len: usize,
+    m: usize,
+    term_end: usize,
+    next_end: usize,
+) -> f64 {
+    // Two vectors per step into two accumulators, so their additions overlap.
+    const L: usize = 2 * LANES;
+    assert!(
+        (term_end == 0 || term_end + 2 * m <= len) && (next_end == 0 || next_end + m <= len),
+        "level pass out of range"
+    );
+    let mut acc = [V::zero(); 2];
     let both = term_end.min(next_end);
     let mut j = 0;
     while j + L <= both {
-        let a: [f64; L] = s[j..j + L].try_into().expect("L values");
-        let b: [f64; L] = s[j + m..j + m + L].try_into().expect("L values");
-        let c: [f64; L] = s[j + 2 * m..j + 2 * m + L].try_into().expect("L values");
-        let mut next = [0.0f64; L];
-        for i in 0..L {
-            let half = 0.5 * (a[i] + c[i]) - b[i];
-            acc[i] += half * half;
-            next[i] = a[i] + b[i];
-        }
-        // Stored after all loads: for m < L the loads above read positions of this
-        // chunk that are overwritten here, and must see W_m.
-        s[j..j + L].copy_from_slice(&next);
+        let q = src.add(j);
+        let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
+        let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
+        let (c0, c1) = (V::load(q.add(2 * m)), V::load(q.add(2 * m + LANES)));
+        acc[0] = acc[0].add(term(a0, b0, c0));
+        acc[1] = acc[1].add(term(a1, b1, c1));
+        // Stored after all loads: in place, for m < L the loads above read positions
+        // of this step that are overwritten here, and must see W_m.
+        a0.add(b0).store(dst.add(j));
+        a1.add(b1).store(dst.add(j + LANES));
         j += L;
     }
     let mut tail = 0.0;
     while j < both {
-        let half = 0.5 * (s[j] + s[j + 2 * m]) - s[j + m];
-        tail += half * half;
-        s[j] += s[j + m];
+        let (a, b) = (*src.add(j), *src.add(j + m));
+        tail += term1(a, b, *src.add(j + 2 * m));
+        *dst.add(j) = a + b;
         j += 1;
     }
     // Whichever of the two ranges is longer goes on alone.
     let mut i = j;
     while i + L <= term_end {
-        let a: [f64; L] = s[i..i + L].try_into().expect("L values");
-        let b: [f64; L] = s[i + m..i + m + L].try_into().expect("L values");
-        let c: [f64; L] = s[i + 2 * m..i + 2 * m + L].try_into().expect("L values");
-        for l in 0..L {
-            let half = 0.5 * (a[l] + c[l]) - b[l];
-            acc[l] += half * half;
-        }
+        let q = src.add(i);
+        let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
+        let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
+        let (c0, c1) = (V::load(q.add(2 * m)), V::load(q.add(2 * m + LANES)));
+        acc[0] = acc[0].add(term(a0, b0, c0));
+        acc[1] = acc[1].add(term(a1, b1, c1));
         i += L;
     }
     while i < term_end {
-        let half = 0.5 * (s[i] + s[i + 2 * m]) - s[i + m];
-        tail += half * half;
+        tail += term1(*src.add(i), *src.add(i + m), *src.add(i + 2 * m));
         i += 1;
     }
     let mut i = j;
     while i + L <= next_end {
-        let a: [f64; L] = s[i..i + L].try_into().expect("L values");
-        let b: [f64; L] = s[i + m..i + m + L].try_into().expect("L values");
-        let mut next = [0.0f64; L];
-        for l in 0..L {
-            next[l] = a[l] + b[l];
-        }
-        s[i..i + L].copy_from_slice(&next);
+        let q = src.add(i);
+        let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
+        let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
+        a0.add(b0).store(dst.add(i));
+        a1.add(b1).store(dst.add(i + LANES));
         i += L;
     }
     while i < next_end {
-        s[i] += s[i + m];
+        *dst.add(i) = *src.add(i) + *src.add(i + m);
         i += 1;
     }
-    4.0 * (acc.iter().sum::<f64>() + tail)
+    lane_total(acc[0]) + lane_total(acc[1]) + tail
 }
 
-/// One chain of column blocks through the large factors m = M·2^s, s < `big`: Σ S² per
+/// Sum of the lanes in lane order.
+#[inline(always)]
+unsafe fn lane_total<V: Lanes>(v: V) -> f64 {
+    v.to_array().iter().fold(0.0, |s, x| s + x)
+}
+
+/// Column blocks `blocks` through the large factors m = M·2^s, s < `big`: Σ S² per
 /// factor.
-struct ChainJob<'a> {
+struct BlockJob<'a> {
     /// The phase.
     x: &'a [f64],
-    /// W_M at each chain's first column block: [tile][chain][row of the tile][lane].
-    columns: &'a [f64],
+    /// W_M at the first lane of each vector: [tile][block][row of the tile][vector].
+    starts: &'a [f64],
     tiles: usize,
-    chain: usize,
+    blocks: std::ops::Range<usize>,
     big: usize,
 }
 
-impl Kernel for ChainJob<'_> {
+impl Job for BlockJob<'_> {
     type Output = Vec<CompensatedSum>;
     #[inline(always)]
-    #[allow(clippy::needless_range_loop)] // one index walks the lanes of a row
-    fn run(self) -> Vec<CompensatedSum> {
-        let ChainJob {
-            x,
-            columns,
-            tiles,
-            chain,
-            big,
-        } = self;
-        // V[q][l] = W_M[q·M + block·B + l] for the current block, starting exact.
-        let mut column: Vec<Row> = Vec::with_capacity(tiles * ROWS_PER_TILE);
-        for tile in 0..tiles {
-            let at = (tile * CHAINS + chain) * ROWS_PER_TILE * B;
-            let chunk = &columns[at..at + ROWS_PER_TILE * B];
-            column.extend(chunk.as_chunks::<B>().0.iter().map(|r| Row(*r)));
-        }
-        let mut sums = vec![CompensatedSum::new(); big];
-        let mut rows: Vec<Row> = Vec::with_capacity(column.len());
-        for step in 0..BLOCKS_PER_CHAIN {
-            let block = chain * BLOCKS_PER_CHAIN + step;
-            if step > 0 {
-                // W_M[j + B] = W_M[j] + W_B[j + M] − W_B[j] at j = q·M + (block − 1)·B + l:
-                // the previous block's V plus a difference of two B-point window sums
-                // of the phase (rows q + 1 and q), so no full-length W_M is stored.
-                let from = (block - 1) * B;
-                let mut here = window_sums(x, from);
-                for (q, v) in column.iter_mut().enumerate() {
-                    let next = window_sums(x, (q + 1) * M + from);
-                    for l in 0..B {
-                        v.0[l] += next[l] - here[l];
-                    }
-                    here = next;
-                }
-            }
+    unsafe fn run<V: Lanes>(self) -> Vec<CompensatedSum> {
+        let mut sums = vec![CompensatedSum::new(); self.big];
+        let total = self.tiles * ROWS_PER_TILE;
+        let mut rows: Vec<Row> = Vec::with_capacity(total);
+        for block in self.blocks.clone() {
             rows.clear();
-            rows.extend_from_slice(&column);
-            column_levels(&mut rows, block, x.len(), &mut sums);
+            let spare = &mut rows.spare_capacity_mut()[..total];
+            for (tile, out) in spare.chunks_exact_mut(ROWS_PER_TILE).enumerate() {
+                let at = (tile * BLOCKS + block) * ROWS_PER_TILE * GROUPS;
+                column_rows::<V>(
+                    self.x,
+                    &self.starts[at..at + ROWS_PER_TILE * GROUPS],
+                    tile * T + block * B,
+                    out,
+                );
+            }
+            // SAFETY: `column_rows` wrote every lane of each of the `total` rows.
+            rows.set_len(total);
+            column_levels::<V>(&mut rows, block, self.x.len(), &mut sums);
         }
         sums
     }
 }
 
-/// The B window sums W_B[p + l] = Σ_{i<B} x[p + l + i] (pairwise, l < B), 0 for windows
-/// that run past the end of `x`.
+/// Writes the rows V[q][l] = W_M[p + q·M + l] (l < B) for the rows of `starts` to `rows`
+/// (W_M[p + q·M + g·8] for each vector g of the row, zero past the end of W_M): each
+/// lane slides its vector's first one by single positions, W_M[j + l] = W_M[j] +
+/// Σ_{i<l} (x[j + M + i] − x[j + i]), the differences summed by the in-register scan
+/// [`Lanes::exclusive_scan`]. Lanes past the end of W_M are 0.
 #[inline(always)]
-#[allow(clippy::needless_range_loop)] // one index walks the lanes and their windows
-fn window_sums(x: &[f64], p: usize) -> [f64; B] {
-    let mut out = [0.0; B];
-    if p + 2 * B - 1 <= x.len() {
-        // One expression per lane over a borrowed slice: vectorised across the lanes
-        // (unaligned loads at offsets 0 … 7), the same association as the slow path.
-        let w: &[f64; 2 * B - 1] = x[p..p + 2 * B - 1].try_into().expect("2B − 1 values");
-        for l in 0..B {
-            out[l] = ((w[l] + w[l + 1]) + (w[l + 2] + w[l + 3]))
-                + ((w[l + 4] + w[l + 5]) + (w[l + 6] + w[l + 7]));
-        }
-    } else {
-        for (l, o) in out.iter_mut().enumerate() {
-            if let Some(w) = x.get(p + l..p + l + B) {
-                *o = ((w[0] + w[1]) + (w[2] + w[3])) + ((w[4] + w[5]) + (w[6] + w[7]));
+unsafe fn column_rows<V: Lanes>(
+    x: &[f64],
+    starts: &[f64],
+    p: usize,
+    rows: &mut [MaybeUninit<Row>],
+) {
+    let n = x.len();
+    let count = starts.len() / GROUPS;
+    assert_eq!(rows.len(), count, "one row per start");
+    let out = rows.as_mut_ptr().cast::<f64>();
+    let mut j = p;
+    let mut q = 0;
+    // Rows whose B lanes are all valid and readable: j + M + B − 1 ≤ n − 1.
+    if q < count && j + M + B - 1 < n {
+        let mut lo: [V; GROUPS] = std::array::from_fn(|g| V::load(x[j + g * LANES..].as_ptr()));
+        while q < count && j + M + B - 1 < n {
+            prefetch(x, j + PREFETCH_ROWS * M);
+            let hi: [V; GROUPS] = std::array::from_fn(|g| V::load(x[j + M + g * LANES..].as_ptr()));
+            for g in 0..GROUPS {
+                let e = hi[g].sub(lo[g]).exclusive_scan();
+                V::splat(starts[q * GROUPS + g])
+                    .add(e)
+                    .store(out.add(q * B + g * LANES));
             }
+            lo = hi;
+            q += 1;
+            j += M;
         }
     }
-    out
+    // The rest: the same expressions lane by lane, 0 where the window runs past the end.
+    while q < count {
+        let at = |i: usize| x.get(i).copied().unwrap_or(0.0);
+        let mut row = [0.0; B];
+        for g in 0..GROUPS {
+            let k = j + g * LANES;
+            let d: [f64; LANES] = std::array::from_fn(|i| at(k + M + i) - at(k + i));
+            let e = Portable(d).exclusive_scan().0;
+            let w = starts[q * GROUPS + g];
+            for (l, (v, e)) in row[g * LANES..(g + 1) * LANES]
+                .iter_mut()
+                .zip(e)
+                .enumerate()
+            {
+                if k + l + M <= n {
+                    *v = w + e;
+                }
+            }
+        }
+        rows[q].write(Row(row));
+        q += 1;
+        j += M;
+    }
+}
+
+/// Hints that the cache lines of x[i..i + B] will be read soon (nothing past the end).
+#[inline(always)]
+fn prefetch(x: &[f64], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v) = x.get(i..i + B) {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        // One hint per 64-byte line the B values touch (the last one may start a line).
+        for k in (0..B).step_by(LANES).chain([B - 1]) {
+            // SAFETY: SSE is part of the x86-64 baseline; a prefetch never faults, and
+            // the address lies inside `x`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(v[k..].as_ptr().cast()) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (x, i);
 }
 
 /// The large factors m = M·2^s over one column block's rows (`rows[q]` = W_M at
 /// q·M + block·B + lane, destroyed): Σ S² added to `sums[s]`.
 #[inline(always)]
-#[allow(clippy::needless_range_loop)] // one index walks the lanes of three rows
-fn column_levels(rows: &mut [Row], block: usize, n: usize, sums: &mut [CompensatedSum]) {
+unsafe fn column_levels<V: Lanes>(
+    rows: &mut [Row],
+    block: usize,
+    n: usize,
+    sums: &mut [CompensatedSum],
+) {
     let big = sums.len();
     let total_rows = rows.len();
     let r0 = block * B;
@@ -436,57 +575,315 @@ fn column_levels(rows: &mut [Row], block: usize, n: usize, sums: &mut [Compensat
         } else {
             0
         };
+        assert!(
+            (full == 0 || full + 2 * d <= total_rows)
+                && (next_rows == 0 || next_rows + d <= total_rows),
+            "column level out of range"
+        );
         let both = full.min(next_rows);
-        // Two rows per step into two accumulators, so their additions overlap.
-        let mut acc = [[0.0f64; B]; 2];
-        let mut q = 0;
-        while q + 2 <= both {
-            for u in 0..2 {
-                let a = rows[q + u].0;
-                let b = rows[q + u + d].0;
-                let c = rows[q + u + 2 * d].0;
-                let mut next = [0.0; B];
-                for l in 0..B {
-                    let half = 0.5 * (a[l] + c[l]) - b[l];
-                    acc[u][l] += half * half;
-                    next[l] = a[l] + b[l];
-                }
-                rows[q + u].0 = next;
-            }
-            q += 2;
-        }
-        while q < both {
-            let (a, b, c) = (rows[q].0, rows[q + d].0, rows[q + 2 * d].0);
-            for l in 0..B {
-                let half = 0.5 * (a[l] + c[l]) - b[l];
-                acc[0][l] += half * half;
-                rows[q].0[l] = a[l] + b[l];
-            }
-            q += 1;
-        }
-        for q in both..full {
-            let (a, b, c) = (rows[q].0, rows[q + d].0, rows[q + 2 * d].0);
-            for l in 0..B {
-                let half = 0.5 * (a[l] + c[l]) - b[l];
-                acc[1][l] += half * half;
-            }
-        }
-        // The row where the terms end part-way through the lanes.
+        // The row where the terms end part-way through the lanes (read before any row
+        // is overwritten).
         let mut tail = 0.0;
         for l in 0..B {
             if full * M + r0 + l < count {
-                let half = 0.5 * (rows[full].0[l] + rows[full + 2 * d].0[l]) - rows[full + d].0[l];
-                tail += half * half;
+                tail += term1(
+                    rows[full].0[l],
+                    rows[full + d].0[l],
+                    rows[full + 2 * d].0[l],
+                );
+            }
+        }
+        let p = rows.as_mut_ptr().cast::<f64>();
+        let load = |q: usize| -> [V; GROUPS] {
+            std::array::from_fn(|g| V::load(p.add(q * B + g * LANES)))
+        };
+        let store = |q: usize, v: [V; GROUPS]| {
+            for (g, v) in v.into_iter().enumerate() {
+                v.store(p.add(q * B + g * LANES));
+            }
+        };
+        // One accumulator per vector of the row: independent additions.
+        let mut acc = [V::zero(); GROUPS];
+        for q in 0..both {
+            let (a, b, c) = (load(q), load(q + d), load(q + 2 * d));
+            for g in 0..GROUPS {
+                acc[g] = acc[g].add(term(a[g], b[g], c[g]));
+            }
+            store(q, std::array::from_fn(|g| a[g].add(b[g])));
+        }
+        for q in both..full {
+            let (a, b, c) = (load(q), load(q + d), load(q + 2 * d));
+            for g in 0..GROUPS {
+                acc[g] = acc[g].add(term(a[g], b[g], c[g]));
             }
         }
         for q in both..next_rows {
-            let b = rows[q + d].0;
-            for l in 0..B {
-                rows[q].0[l] += b[l];
-            }
+            let (a, b) = (load(q), load(q + d));
+            store(q, std::array::from_fn(|g| a[g].add(b[g])));
         }
-        let lanes: f64 = acc[0].iter().sum::<f64>() + acc[1].iter().sum::<f64>();
-        sum.add(4.0 * (lanes + tail));
+        let mut lanes = 0.0;
+        for v in acc {
+            lanes += lane_total(v);
+        }
+        sum.add(lanes + tail);
+    }
+}
+
+/// Eight f64 lanes. Every method is `unsafe` because the SIMD implementations need their
+/// CPU features; each operation is the correctly rounded IEEE one per lane (and the
+/// shuffles of [`Lanes::exclusive_scan`] only move values), so all implementations give
+/// the same bits.
+trait Lanes: Copy {
+    unsafe fn zero() -> Self;
+    unsafe fn splat(v: f64) -> Self;
+    /// Loads eight values from `p` (unaligned).
+    unsafe fn load(p: *const f64) -> Self;
+    /// Stores the eight values at `p` (unaligned).
+    unsafe fn store(self, p: *mut f64);
+    unsafe fn add(self, other: Self) -> Self;
+    unsafe fn sub(self, other: Self) -> Self;
+    unsafe fn mul(self, other: Self) -> Self;
+    /// self − 2·b, rounded once (2b is exact, so this is also the rounding of the
+    /// subtraction: one fused multiply-add on the SIMD paths).
+    unsafe fn minus_twice(self, b: Self) -> Self;
+    /// e[l] = Σ_{i<l} d[i] (the last lane of d unused): the lanes shifted up by one, then
+    /// three steps s[l] += s[l − k] for k = 1, 2, 4 (a zero added where l < k).
+    unsafe fn exclusive_scan(self) -> Self;
+    unsafe fn to_array(self) -> [f64; LANES];
+}
+
+/// Portable lanes (the compiler vectorises them for the baseline target).
+#[derive(Clone, Copy)]
+struct Portable([f64; LANES]);
+
+impl Portable {
+    /// The lanes shifted up by `k`, zeros below.
+    #[inline(always)]
+    fn shifted(self, k: usize) -> [f64; LANES] {
+        std::array::from_fn(|l| if l >= k { self.0[l - k] } else { 0.0 })
+    }
+}
+
+impl Lanes for Portable {
+    #[inline(always)]
+    unsafe fn zero() -> Self {
+        Portable([0.0; LANES])
+    }
+    #[inline(always)]
+    unsafe fn splat(v: f64) -> Self {
+        Portable([v; LANES])
+    }
+    #[inline(always)]
+    unsafe fn load(p: *const f64) -> Self {
+        Portable(p.cast::<[f64; LANES]>().read_unaligned())
+    }
+    #[inline(always)]
+    unsafe fn store(self, p: *mut f64) {
+        p.cast::<[f64; LANES]>().write_unaligned(self.0)
+    }
+    #[inline(always)]
+    unsafe fn add(self, o: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] + o.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn sub(self, o: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] - o.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn mul(self, o: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] * o.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn minus_twice(self, b: Self) -> Self {
+        Portable(std::array::from_fn(|l| self.0[l] - 2.0 * b.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn exclusive_scan(self) -> Self {
+        let mut s = Portable(self.shifted(1));
+        for k in [1, 2, 4] {
+            s = s.add(Portable(s.shifted(k)));
+        }
+        s
+    }
+    #[inline(always)]
+    unsafe fn to_array(self) -> [f64; LANES] {
+        self.0
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    //! AVX2 and AVX-512 lanes. The methods carry their target features, so they inline
+    //! into the `#[target_feature]` functions that run the jobs with them.
+    use super::{Lanes, LANES};
+    use std::arch::x86_64::*;
+
+    /// Two 256-bit halves.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx2(__m256d, __m256d);
+
+    impl Avx2 {
+        /// Both halves shifted up by one lane across the pair, a zero in lane 0.
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        fn shifted1(self) -> Self {
+            let zero = _mm256_setzero_pd();
+            // [0, lo0, lo1, lo2]
+            let lo =
+                _mm256_blend_pd::<0b0001>(_mm256_permute4x64_pd::<0b10_01_00_00>(self.0), zero);
+            // [lo2, lo3, hi0, hi1] → [lo3, hi0, hi1, hi2]
+            let mid = _mm256_permute2f128_pd::<0x21>(self.0, self.1);
+            Avx2(lo, _mm256_shuffle_pd::<0b0101>(mid, self.1))
+        }
+        /// Shifted up by two lanes, zeros below.
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        fn shifted2(self) -> Self {
+            Avx2(
+                _mm256_permute2f128_pd::<0x08>(self.0, self.0),
+                _mm256_permute2f128_pd::<0x21>(self.0, self.1),
+            )
+        }
+    }
+
+    impl Lanes for Avx2 {
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn zero() -> Self {
+            Avx2(_mm256_setzero_pd(), _mm256_setzero_pd())
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn splat(v: f64) -> Self {
+            Avx2(_mm256_set1_pd(v), _mm256_set1_pd(v))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn load(p: *const f64) -> Self {
+            Avx2(_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4)))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn store(self, p: *mut f64) {
+            _mm256_storeu_pd(p, self.0);
+            _mm256_storeu_pd(p.add(4), self.1);
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn add(self, o: Self) -> Self {
+            Avx2(_mm256_add_pd(self.0, o.0), _mm256_add_pd(self.1, o.1))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn sub(self, o: Self) -> Self {
+            Avx2(_mm256_sub_pd(self.0, o.0), _mm256_sub_pd(self.1, o.1))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn mul(self, o: Self) -> Self {
+            Avx2(_mm256_mul_pd(self.0, o.0), _mm256_mul_pd(self.1, o.1))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn minus_twice(self, b: Self) -> Self {
+            let two = _mm256_set1_pd(2.0);
+            Avx2(
+                _mm256_fnmadd_pd(two, b.0, self.0),
+                _mm256_fnmadd_pd(two, b.1, self.1),
+            )
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn exclusive_scan(self) -> Self {
+            let s = self.shifted1();
+            let s = s.add(s.shifted1());
+            let s = s.add(s.shifted2());
+            // Shifted by four: zeros below, the low half above.
+            s.add(Avx2(_mm256_setzero_pd(), s.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn to_array(self) -> [f64; LANES] {
+            let mut out = [0.0; LANES];
+            _mm256_storeu_pd(out.as_mut_ptr(), self.0);
+            _mm256_storeu_pd(out.as_mut_ptr().add(4), self.1);
+            out
+        }
+    }
+
+    /// One 512-bit register.
+    #[derive(Clone, Copy)]
+    pub(super) struct Avx512(__m512d);
+
+    impl Avx512 {
+        /// Shifted up by `K` lanes, zeros below (`S` = 8 − K).
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        fn shifted<const S: i32>(self) -> Self {
+            let zero = _mm512_setzero_si512();
+            Avx512(_mm512_castsi512_pd(_mm512_alignr_epi64::<S>(
+                _mm512_castpd_si512(self.0),
+                zero,
+            )))
+        }
+    }
+
+    impl Lanes for Avx512 {
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn zero() -> Self {
+            Avx512(_mm512_setzero_pd())
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn splat(v: f64) -> Self {
+            Avx512(_mm512_set1_pd(v))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn load(p: *const f64) -> Self {
+            Avx512(_mm512_loadu_pd(p))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn store(self, p: *mut f64) {
+            _mm512_storeu_pd(p, self.0)
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn add(self, o: Self) -> Self {
+            Avx512(_mm512_add_pd(self.0, o.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn sub(self, o: Self) -> Self {
+            Avx512(_mm512_sub_pd(self.0, o.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn mul(self, o: Self) -> Self {
+            Avx512(_mm512_mul_pd(self.0, o.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn minus_twice(self, b: Self) -> Self {
+            Avx512(_mm512_fnmadd_pd(_mm512_set1_pd(2.0), b.0, self.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn exclusive_scan(self) -> Self {
+            let s = self.shifted::<7>();
+            let s = s.add(s.shifted::<7>());
+            let s = s.add(s.shifted::<6>());
+            s.add(s.shifted::<4>())
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn to_array(self) -> [f64; LANES] {
+            let mut out = [0.0; LANES];
+            _mm512_storeu_pd(out.as_mut_ptr(), self.0);
+            out
+        }
     }
 }
 
@@ -534,20 +931,22 @@ mod tests {
 
     #[test]
     fn octave_sums_equal_the_definition() {
-        // Lengths around the tile (T + H), column-block and row boundaries, and tiny ones.
+        // Lengths around the first column factor (3M terms), a full row of a block, the
+        // tile (T + H) and the rows a tile contributes, and tiny ones.
         for n in [
             3,
             4,
             5,
             8,
             100,
-            767,
-            768,
-            769,
-            1_000,
-            3_001,
+            3 * M - 1,
+            3 * M,
+            3 * M + 1,
+            3 * M + B + 7,
+            4 * M + 13,
             T + H - 1,
             T + H + 1,
+            T + 2 * M + B - 1,
         ] {
             let p = phase(n, n as u64);
             let x = &p.points;
@@ -571,6 +970,7 @@ mod tests {
         let p = phase(3 * TILES_PER_JOB * T + 12_345, 9);
         let x = &p.points;
         let levels = levels_for(x.len());
+        assert!(levels > SMALL + 3, "the column phase runs several factors");
         let sums = octave_window_sums(x, levels, Simd::detected());
         for (k, &sum) in sums.iter().enumerate() {
             let m = 1 << k;
@@ -587,16 +987,53 @@ mod tests {
         let p = phase(2 * TILES_PER_JOB * T + 777, 3);
         let x = &p.points;
         let levels = levels_for(x.len());
-        let reference = octave_window_sums(x, levels, Simd::Portable);
+        let reference = octave_window_sums_on(x, levels, SweepPath::Portable);
         for threads in [1, 3] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .expect("pool");
-            for simd in Simd::available() {
-                let sums = pool.install(|| octave_window_sums(x, levels, simd));
-                assert_eq!(sums, reference, "{simd:?}, {threads} threads");
+            for path in SweepPath::available() {
+                let sums = pool.install(|| octave_window_sums_on(x, levels, path));
+                assert_eq!(sums, reference, "{path:?}, {threads} threads");
             }
         }
+    }
+
+    /// Runs `f` on the lanes of every path this CPU has (portable first).
+    fn on_every_path(f: impl Fn(SweepPath, [f64; LANES]) -> [f64; LANES], d: [f64; LANES]) {
+        let want = f(SweepPath::Portable, d);
+        for path in SweepPath::available() {
+            assert_eq!(f(path, d), want, "{path:?}");
+        }
+    }
+
+    /// The exclusive scan of `d` on `path`.
+    fn scan_on(path: SweepPath, d: [f64; LANES]) -> [f64; LANES] {
+        struct Scan([f64; LANES]);
+        impl Job for Scan {
+            type Output = [f64; LANES];
+            unsafe fn run<V: Lanes>(self) -> [f64; LANES] {
+                V::load(self.0.as_ptr()).exclusive_scan().to_array()
+            }
+        }
+        run_on(path, Scan(d))
+    }
+
+    #[test]
+    fn exclusive_scan_is_the_sum_of_the_lanes_below_on_every_path() {
+        // Powers of two: every partial sum is exact, so any misplaced lane shows.
+        let d: [f64; LANES] = std::array::from_fn(|i| f64::from(1u32 << i));
+        for path in SweepPath::available() {
+            let e = scan_on(path, d);
+            for (l, &e) in e.iter().enumerate() {
+                assert_eq!(e, d[..l].iter().sum::<f64>(), "{path:?} lane {l}");
+            }
+        }
+        // Rounding included, the same bits everywhere.
+        on_every_path(
+            scan_on,
+            std::array::from_fn(|i| 0.1 * (i as f64 + 1.0) - 0.37),
+        );
     }
 }
