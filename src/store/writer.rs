@@ -396,7 +396,8 @@ impl ChunkFile {
                             d.name.clone(),
                             Table::create(&g, chunk, deflate, &d.axis_frame)?,
                         );
-                        if manifest.truth_nav_rate_hz.is_some() {
+                        // The true values come at the truth rate, not the device's.
+                        if let Some(truth_rate) = manifest.truth_nav_rate_hz {
                             let g = device_group(
                                 &file,
                                 &layout::truth_imu_path(&d.name),
@@ -405,7 +406,7 @@ impl ChunkFile {
                             )?;
                             truth_imu.insert(
                                 d.name.clone(),
-                                Table::create(&g, chunk, deflate, &d.axis_frame)?,
+                                Table::create(&g, rows_for(truth_rate), deflate, &d.axis_frame)?,
                             );
                         }
                     }

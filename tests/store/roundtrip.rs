@@ -253,6 +253,16 @@ fn raw_journal_and_truth_read_back_through_the_session() {
         }
     }
     w.close().unwrap();
+    // Truth tables are chunked at the truth rate (10 Hz × 10 s), not at the IMU's 100 Hz.
+    let f = hdf5::File::open(dir.join("chunk-000000.h5")).unwrap();
+    for (path, chunk) in [
+        ("truth/imu/imu_a/accel_true", vec![100, 3]),
+        ("truth/nav/lat_deg", vec![100]),
+        ("imu/imu_a/gyro", vec![1000, 3]),
+    ] {
+        assert_eq!(f.dataset(path).unwrap().chunk(), Some(chunk), "{path}");
+    }
+    drop(f);
     let s = Session::open(&dir).unwrap();
     assert!(s.files().len() >= 3);
     let mut i = 0;
