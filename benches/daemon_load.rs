@@ -21,7 +21,7 @@
 //! readers (blocking threads, one epoll thread, a tokio current-thread runtime) that only read
 //! and timestamp: the CPU any reader needs here, to compare `imulogd` with.
 //! `cargo bench --bench daemon_load -- floor [--secs S] [--speed F] [--runs N]
-//! [--readers threads,epoll,tokio,tokio-io] [--nice N] [--in-process]`
+//! [--readers threads,epoll,tokio,tokio-io,tokio-grid] [--nice N] [--in-process]`
 //!
 //! **memory mode** (the default; rounds 1-2): the daemon loop in-process, fed from
 //! in-memory streams by a generator thread with pre-encoded frames in 1 ms bursts; prints,

@@ -18,10 +18,13 @@
 //! - `tokio`: a current-thread tokio runtime (`enable_all`, as `imulogd` builds it) on one
 //!   thread, one task per pty reading through the drivers' `SerialStream` (the daemon's
 //!   transport), the same clock pair; `tokio-io`: the same with the I/O driver only
-//!   (`enable_io`: no timer wheel, no signal driver).
+//!   (`enable_io`: no timer wheel, no signal driver); `tokio-grid`: `tokio` plus the daemon's
+//!   hand-over timer (each task's first read of a 250 ms grid period arms a timer for the
+//!   next grid point, waited for beside the read), so a timer is pending at nearly every
+//!   wait, as in `imulogd`.
 //!
 //! `cargo bench --bench daemon_load -- floor [--secs S] [--speed F] [--runs N]
-//! [--readers threads,epoll,tokio,tokio-io] [--nice N] [--in-process]`
+//! [--readers threads,epoll,tokio,tokio-io,tokio-grid] [--nice N] [--in-process]`
 
 use std::os::fd::{AsRawFd, OwnedFd};
 use std::os::unix::thread::JoinHandleExt;
@@ -52,6 +55,8 @@ enum Kind {
     Tokio,
     /// The same without tokio's time and signal drivers (`enable_io` only).
     TokioIo,
+    /// `Tokio` with the daemon's hand-over timer pending beside each read.
+    TokioGrid,
 }
 
 impl Kind {
@@ -61,8 +66,9 @@ impl Kind {
             "epoll" => Ok(Kind::Epoll),
             "tokio" => Ok(Kind::Tokio),
             "tokio-io" => Ok(Kind::TokioIo),
+            "tokio-grid" => Ok(Kind::TokioGrid),
             other => Err(format!(
-                "--readers: unknown reader {other:?} (threads, epoll, tokio, tokio-io)"
+                "--readers: unknown reader {other:?} (threads, epoll, tokio, tokio-io, tokio-grid)"
             )),
         }
     }
@@ -73,6 +79,7 @@ impl Kind {
             Kind::Epoll => "epoll",
             Kind::Tokio => "tokio",
             Kind::TokioIo => "tokio-io",
+            Kind::TokioGrid => "tokio-grid",
         }
     }
 }
@@ -253,10 +260,57 @@ fn start_epoll(paths: &[PathBuf], counts: &Arc<Counts>) -> Vec<JoinHandle<()>> {
     vec![thread]
 }
 
+/// The daemon's hand-over period (its default flush interval's grid).
+const GRID_PERIOD: Duration = Duration::from_millis(250);
+
+/// Reads `port` until it vanishes; with `grid`, a timer for the next [`GRID_PERIOD`] point
+/// after `epoch` is armed by the first read of each period and waited for beside the reads,
+/// as the daemon's device tasks do.
+async fn read_pty(
+    mut port: imulab_drivers::transport::serial::SerialTransport,
+    counts: Arc<Counts>,
+    grid: bool,
+    epoch: tokio::time::Instant,
+) {
+    let mut buf = vec![0u8; READ_BUFFER_BYTES];
+    let timer = tokio::time::sleep_until(epoch);
+    tokio::pin!(timer);
+    let mut armed = false;
+    loop {
+        let read = if grid {
+            tokio::select! {
+                biased;
+                _ = &mut timer, if armed => {
+                    armed = false;
+                    continue;
+                }
+                r = port.read(&mut buf) => r,
+            }
+        } else {
+            port.read(&mut buf).await
+        };
+        // Ends when the simulator closes the pty (a vanish).
+        let Ok(n) = read else { break };
+        counts.add(n, stamp());
+        if grid && !armed {
+            let since = tokio::time::Instant::now().saturating_duration_since(epoch);
+            let k = since.as_nanos() / GRID_PERIOD.as_nanos() + 1;
+            let k = u32::try_from(k).unwrap_or(u32::MAX);
+            timer.as_mut().reset(epoch + GRID_PERIOD * k);
+            armed = true;
+        }
+    }
+}
+
 /// One thread with a current-thread tokio runtime, one task per pty through `SerialStream`.
 /// With `all_drivers` the runtime is built as `imulogd` builds it (`enable_all`), else with
-/// the I/O driver only.
-fn start_tokio(paths: &[PathBuf], counts: &Arc<Counts>, all_drivers: bool) -> Vec<JoinHandle<()>> {
+/// the I/O driver only; with `grid`, [`read_pty`]'s hand-over timer too.
+fn start_tokio(
+    paths: &[PathBuf],
+    counts: &Arc<Counts>,
+    all_drivers: bool,
+    grid: bool,
+) -> Vec<JoinHandle<()>> {
     let (opened_tx, opened_rx) = mpsc::channel();
     let paths = paths.to_vec();
     let counts = counts.clone();
@@ -270,17 +324,11 @@ fn start_tokio(paths: &[PathBuf], counts: &Arc<Counts>, all_drivers: bool) -> Ve
         let runtime = builder.build().expect("floor: runtime");
         runtime.block_on(async move {
             let mut tasks = Vec::new();
+            let epoch = tokio::time::Instant::now();
             for path in &paths {
-                let mut port = open_serial(&SerialConfig::new(path.display().to_string(), 921600))
+                let port = open_serial(&SerialConfig::new(path.display().to_string(), 921600))
                     .unwrap_or_else(|e| panic!("floor: {e}"));
-                let counts = counts.clone();
-                tasks.push(tokio::spawn(async move {
-                    let mut buf = vec![0u8; READ_BUFFER_BYTES];
-                    // Ends when the simulator closes the pty (a vanish).
-                    while let Ok(n) = port.read(&mut buf).await {
-                        counts.add(n, stamp());
-                    }
-                }));
+                tasks.push(tokio::spawn(read_pty(port, counts.clone(), grid, epoch)));
             }
             let _ = opened_tx.send(());
             for t in tasks {
@@ -326,8 +374,9 @@ fn start(kind: Kind, paths: &[PathBuf]) -> (Vec<JoinHandle<()>>, Arc<Counts>) {
     let threads = match kind {
         Kind::Threads => start_threads(paths, &counts),
         Kind::Epoll => start_epoll(paths, &counts),
-        Kind::Tokio => start_tokio(paths, &counts, true),
-        Kind::TokioIo => start_tokio(paths, &counts, false),
+        Kind::Tokio => start_tokio(paths, &counts, true, false),
+        Kind::TokioIo => start_tokio(paths, &counts, false, false),
+        Kind::TokioGrid => start_tokio(paths, &counts, true, true),
     };
     (threads, counts)
 }

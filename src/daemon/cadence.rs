@@ -9,8 +9,19 @@
 //! window, and the device thread one timer expiry. Every frame still carries the arrival time
 //! of its own read: the grid only decides when rows are handed over, never when bytes are
 //! read.
+//!
+//! [`HandoverTimer`] is what a device task waits on for its next grid point.
 
+use std::io;
+use std::os::fd::{AsFd, AsRawFd, RawFd};
+use std::task::{ready, Context, Poll};
 use std::time::{Duration, Instant};
+
+use nix::errno::Errno;
+use nix::sys::time::TimeSpec;
+use nix::sys::timerfd::{ClockId, Expiration, TimerFd, TimerFlags, TimerSetTimeFlags};
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
 
 /// Longest wait of the writer after a grid point for the device tasks' hand-overs there
 /// ([`flush_lag`]).
@@ -55,6 +66,73 @@ impl Cadence {
     }
 }
 
+/// A timerfd as tokio's [`AsyncFd`] wants it.
+struct Timer(TimerFd);
+
+impl AsRawFd for Timer {
+    fn as_raw_fd(&self) -> RawFd {
+        self.0.as_fd().as_raw_fd()
+    }
+}
+
+/// A device task's hand-over timer: a timerfd on CLOCK_MONOTONIC (the clock of the grid and
+/// of the arrival times), armed at an absolute grid point and waited for through the
+/// runtime's epoll set.
+///
+/// Not a tokio timer, because of what one costs while it is pending, which at the nominal
+/// rate is nearly always (a device's first read of a period arms it): every park of the
+/// device thread then carries a timeout, so the time driver reads the clock for it and the
+/// kernel arms and cancels a high-resolution timer in each `epoll_wait`, i.e. at every
+/// frame's wake-up. The timerfd's kernel timer is set once per period (one
+/// `timerfd_settime`), and the device thread's `epoll_wait` blocks without a timeout
+/// (docs/bench/daemon.md, "Session 6, wake-up cost").
+pub struct HandoverTimer {
+    fd: AsyncFd<Timer>,
+}
+
+impl HandoverTimer {
+    /// An unarmed timer. Must be called inside a tokio runtime with I/O enabled.
+    pub fn new() -> io::Result<Self> {
+        let timer = TimerFd::new(
+            ClockId::CLOCK_MONOTONIC,
+            TimerFlags::TFD_NONBLOCK | TimerFlags::TFD_CLOEXEC,
+        )?;
+        // SAFETY: the timerfd is owned by the `Timer` that the AsyncFd owns, stays open until
+        // it is dropped, and `as_raw_fd` always returns it.
+        let fd = unsafe { AsyncFd::register_with_interest(Timer(timer), Interest::READABLE) }
+            .map_err(|e| e.into_parts().1)?;
+        Ok(HandoverTimer { fd })
+    }
+
+    /// Fires at `at_mono_ns` (CLOCK_MONOTONIC, ns), replacing an earlier setting; a point
+    /// already passed fires at once.
+    pub fn arm(&self, at_mono_ns: i64) -> io::Result<()> {
+        // (A zero time would disarm the timer instead.)
+        let at = at_mono_ns.max(1);
+        let at = TimeSpec::new(at.div_euclid(1_000_000_000), at.rem_euclid(1_000_000_000));
+        self.fd.get_ref().0.set(
+            Expiration::OneShot(at),
+            TimerSetTimeFlags::TFD_TIMER_ABSTIME,
+        )?;
+        Ok(())
+    }
+
+    /// `Ready` once the armed point has passed (taking the expiry, so the next poll waits for
+    /// the next arming); `Pending` registers `cx`'s waker.
+    pub fn poll_fired(&self, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        loop {
+            let mut guard = ready!(self.fd.poll_read_ready(cx))?;
+            // Reads the expiry count without blocking (the fd is non-blocking).
+            match guard.get_inner().0.wait() {
+                Ok(()) => return Poll::Ready(Ok(())),
+                // Readiness left from an expiry taken before a re-arming.
+                Err(Errno::EAGAIN) => guard.clear_ready(),
+                Err(e) => return Poll::Ready(Err(e.into())),
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -87,5 +165,40 @@ mod tests {
         let grid = Cadence::new(epoch, Duration::ZERO);
         assert_eq!(grid.period(), Duration::from_millis(1));
         assert_eq!(grid.next_after(epoch), epoch + Duration::from_millis(1));
+    }
+
+    #[tokio::test]
+    async fn handover_timer_fires_at_the_armed_point_and_once() {
+        let timer = HandoverTimer::new().unwrap();
+        let now = crate::daemon::clock::mono_ns();
+        timer.arm(now + 30_000_000).unwrap();
+        std::future::poll_fn(|cx| timer.poll_fired(cx))
+            .await
+            .unwrap();
+        let fired = crate::daemon::clock::mono_ns();
+        assert!(
+            fired >= now + 30_000_000,
+            "fired {} ns early",
+            now + 30_000_000 - fired
+        );
+        // The expiry was taken: the next wait lasts until the next arming.
+        let again = tokio::time::timeout(
+            Duration::from_millis(50),
+            std::future::poll_fn(|cx| timer.poll_fired(cx)),
+        )
+        .await;
+        assert!(again.is_err(), "fired again without being armed");
+        // Re-armed (a point already passed fires at once), and replaced by a later arming.
+        timer.arm(fired).unwrap();
+        std::future::poll_fn(|cx| timer.poll_fired(cx))
+            .await
+            .unwrap();
+        timer.arm(fired).unwrap();
+        let later = crate::daemon::clock::mono_ns() + 40_000_000;
+        timer.arm(later).unwrap();
+        std::future::poll_fn(|cx| timer.poll_fired(cx))
+            .await
+            .unwrap();
+        assert!(crate::daemon::clock::mono_ns() >= later);
     }
 }

@@ -12,18 +12,21 @@
 //! time the bounded queue can bridge, independent of the rate (one batch per read held
 //! ~0.35 s at 100×, see docs/bench/daemon.md).
 
+use std::future::Future;
 use std::sync::Arc;
+use std::task::Poll;
 use std::time::Duration;
 
 use imulab_drivers::codec::candump::{CandumpEncoder, CandumpRecord, IfName};
 use imulab_drivers::codec::Encoder;
+use imulab_drivers::transport::TransportError;
 use imulab_drivers::types::DecoderStats;
 use tokio::sync::{mpsc, watch};
 
 use crate::store::{EventKind, EventRecord};
 
 use super::backoff::Backoff;
-use super::cadence::Cadence;
+use super::cadence::{Cadence, HandoverTimer};
 use super::clock::{self, Arrival};
 use super::config::DeviceSpec;
 use super::gap::{Gap, GapDetector};
@@ -31,7 +34,7 @@ use super::mapping::{gnss_record, ImuMapping};
 use super::source::{Connector, DecoderFactory, Frame, FrameDecoder, Input, Link, Received};
 use super::status::{DeviceShared, DeviceState};
 use super::timerel::{gps_time_ns, TimeRelationTracker};
-use super::writer::{Batch, QueueSender};
+use super::writer::{Batch, QueueSender, WriterGone};
 
 /// Size of one read; at 15 kHz × ~40 bytes a read rarely holds more than a few ms of data.
 const READ_BUFFER_BYTES: usize = 16 * 1024;
@@ -93,6 +96,49 @@ async fn stopped(rx: &mut watch::Receiver<bool>) {
     }
 }
 
+/// What woke the read loop.
+enum Wake {
+    Stop,
+    /// The hand-over timer fired (or failed).
+    Handover(std::io::Result<()>),
+    Read(Result<Received, TransportError>),
+}
+
+/// Counters a device task updates at every read, published to its shared status cell at each
+/// hand-over (about once per grid period), so the read path takes no lock. The status file is
+/// written by the writer right after the hand-overs at a grid point, so it sees them fresh.
+#[derive(Debug, Default)]
+struct Tally {
+    /// Since the last publication.
+    bytes: u64,
+    gaps: u64,
+    ignored_frames: u64,
+    imu_rows: u64,
+    gnss_rows: u64,
+    /// The decoder's totals at the latest read, and the latest sample's arrival.
+    decoder: Option<DecoderStats>,
+    last_sample_mono_ns: Option<i64>,
+}
+
+impl Tally {
+    fn publish(&mut self, shared: &DeviceShared) {
+        let mut c = shared.counters();
+        c.bytes += std::mem::take(&mut self.bytes);
+        c.gaps += std::mem::take(&mut self.gaps);
+        c.ignored_frames += std::mem::take(&mut self.ignored_frames);
+        c.imu_rows += std::mem::take(&mut self.imu_rows);
+        c.gnss_rows += std::mem::take(&mut self.gnss_rows);
+        if let Some(total) = self.decoder.take() {
+            c.frames_ok = total.frames_ok;
+            c.frames_bad = total.checksum_errors + total.frames_malformed + total.frames_too_long;
+            c.resyncs = total.resyncs;
+        }
+        if let Some(t) = self.last_sample_mono_ns.take() {
+            c.last_sample_mono_ns = Some(t);
+        }
+    }
+}
+
 /// Per-connection decoding state.
 struct Decoding {
     decoder: Box<dyn FrameDecoder>,
@@ -124,11 +170,6 @@ impl DeviceTask {
         }
     }
 
-    /// The grid point after `now` at which the batch being collected goes to the writer.
-    fn next_handover(&self, now: tokio::time::Instant) -> tokio::time::Instant {
-        tokio::time::Instant::from_std(self.handover.next_after(now.into_std()))
-    }
-
     /// Sends one event on its own.
     fn send_event(&self, kind: EventKind, detail: String) -> bool {
         let mut batch = Batch::new(self.index);
@@ -157,6 +198,7 @@ impl DeviceTask {
             link: DecoderStats::default(),
             reported: DecoderStats::default(),
         };
+        let mut tally = Tally::default();
         let mut ever_connected = false;
         let mut failed_attempts: u32 = 0;
         let mut down_since_mono_ns: Option<i64> = None;
@@ -211,6 +253,7 @@ impl DeviceTask {
                             &mapping,
                             &mut gaps,
                             &mut time_relation,
+                            &mut tally,
                             &mut shutdown,
                         )
                         .await;
@@ -224,9 +267,10 @@ impl DeviceTask {
                         &mapping,
                         &mut gaps,
                         &mut time_relation,
+                        &mut tally,
                         true,
                     );
-                    let _ = self.queue.send(held);
+                    let _ = self.hand_over(&mut held, &mut tally);
                     match end {
                         ConnectionEnd::Stop | ConnectionEnd::WriterGone => break,
                         ConnectionEnd::Vanished(why) => {
@@ -276,6 +320,15 @@ impl DeviceTask {
         self.shared.counters().state = DeviceState::Stopped;
     }
 
+    /// Hands `batch` to the writer (replacing it by an empty one sized like it) and
+    /// publishes the counters collected since the last hand-over.
+    fn hand_over(&self, batch: &mut Batch, tally: &mut Tally) -> Result<(), WriterGone> {
+        tally.publish(&self.shared);
+        let next = batch.sized_like();
+        self.queue.send(std::mem::replace(batch, next))
+    }
+
+    #[allow(clippy::too_many_arguments)]
     async fn read_connection(
         &self,
         mut link: Box<dyn Link>,
@@ -283,6 +336,7 @@ impl DeviceTask {
         mapping: &ImuMapping,
         gaps: &mut GapDetector,
         time_relation: &mut TimeRelationTracker,
+        tally: &mut Tally,
         shutdown: &mut watch::Receiver<bool>,
     ) -> ConnectionEnd {
         let mut buffer = vec![0u8; READ_BUFFER_BYTES];
@@ -292,29 +346,70 @@ impl DeviceTask {
         // (The point in CLOCK_MONOTONIC ns, the clock of the arrival times; `timer` holds it as
         // a deadline.)
         let mut due: Option<i64> = None;
-        let timer = tokio::time::sleep_until(tokio::time::Instant::now());
-        tokio::pin!(timer);
+        let timer = match HandoverTimer::new() {
+            Ok(timer) => timer,
+            Err(e) => {
+                return ConnectionEnd::Vanished(format!("cannot make the hand-over timer: {e}"))
+            }
+        };
         // Made once per connection: a fresh one per read registered and removed a waiter on
-        // the shutdown channel at every frame.
+        // the shutdown channel at every frame. Polled once to register this task's waker,
+        // then only when `probe` (an atomic version read) sees the channel changed: polling
+        // it at every wake-up locked the channel's waiter list each time. (A task's waker
+        // does not change between polls, so the registered one stays valid.)
+        let probe = shutdown.clone();
         let stop = stopped(shutdown);
         tokio::pin!(stop);
+        let mut stop_polled = false;
+        // Whether this wake-up has delivered a read yet, and whether the timer has this
+        // task's waker since it was last armed or fired (the same argument as for `stop`).
+        let mut read_in_wake = false;
+        let mut timer_polled = false;
         let end = loop {
-            // In a fixed order (no random start per frame): shutdown, the hand-over, then
-            // the device. A busy device cannot starve the other two: a read that finds the
-            // grid point passed hands over itself, and tokio's budget makes a read yield.
-            let received = tokio::select! {
-                biased;
-                _ = &mut stop => break ConnectionEnd::Stop,
+            // One future for the three events, polled in a fixed order: shutdown, the device,
+            // then the hand-over timer. The timer is looked at only when a wake-up brought no
+            // data (or to register the waker after arming): a read that finds the grid point
+            // passed hands over itself, so the timer matters only for a quiet device. A busy
+            // device cannot starve the other tasks: tokio's budget makes its reads return
+            // `Pending` now and then.
+            let wake = std::future::poll_fn(|cx| {
+                if !stop_polled || probe.has_changed().unwrap_or(true) {
+                    stop_polled = true;
+                    if stop.as_mut().poll(cx).is_ready() {
+                        return Poll::Ready(Wake::Stop);
+                    }
+                }
+                if let Poll::Ready(received) = link.poll_receive(cx, &mut buffer) {
+                    read_in_wake = true;
+                    return Poll::Ready(Wake::Read(received));
+                }
+                // Nothing more to read: this wake-up ends here, unless the timer fired.
+                let look = due.is_some() && (!read_in_wake || !timer_polled);
+                read_in_wake = false;
+                if look {
+                    timer_polled = true;
+                    if let Poll::Ready(fired) = timer.poll_fired(cx) {
+                        timer_polled = false;
+                        return Poll::Ready(Wake::Handover(fired));
+                    }
+                }
+                Poll::Pending
+            })
+            .await;
+            let received = match wake {
+                Wake::Stop => break ConnectionEnd::Stop,
                 // A quiet device: what was collected goes out at its grid point.
-                _ = &mut timer, if due.is_some() => {
+                Wake::Handover(Err(e)) => {
+                    break ConnectionEnd::Vanished(format!("the hand-over timer failed: {e}"))
+                }
+                Wake::Handover(Ok(())) => {
                     due = None;
-                    let ready = std::mem::replace(&mut batch, Batch::new(self.index));
-                    if self.queue.send(ready).is_err() {
+                    if self.hand_over(&mut batch, tally).is_err() {
                         break ConnectionEnd::WriterGone;
                     }
                     continue;
                 }
-                r = link.receive(&mut buffer) => r,
+                Wake::Read(received) => received,
             };
             let at = clock::now();
             decoding.link = link.stats();
@@ -334,6 +429,7 @@ impl DeviceTask {
                 mapping,
                 gaps,
                 time_relation,
+                tally,
                 false,
             );
             if batch.is_empty() {
@@ -345,24 +441,27 @@ impl DeviceTask {
             // (judged on the read's own arrival time: no further clock read per frame).
             if full || due.is_some_and(|d_mono_ns| at.mono_ns >= d_mono_ns) {
                 due = None;
-                let ready = std::mem::replace(&mut batch, Batch::new(self.index));
-                if self.queue.send(ready).is_err() {
+                if self.hand_over(&mut batch, tally).is_err() {
                     break ConnectionEnd::WriterGone;
                 }
             } else if due.is_none() {
-                let now = tokio::time::Instant::now();
-                let d = self.next_handover(now);
-                timer.as_mut().reset(d);
-                // The same point on the clock the arrival times are read from (both are
+                // The grid point on the clock the arrival times are read from (both are
                 // CLOCK_MONOTONIC; `at` was read just before `now`).
-                let ahead =
-                    i64::try_from(d.saturating_duration_since(now).as_nanos()).unwrap_or(i64::MAX);
-                due = Some(at.mono_ns.saturating_add(ahead));
+                let now = std::time::Instant::now();
+                let ahead = self.handover.next_after(now).saturating_duration_since(now);
+                let d_mono_ns = at
+                    .mono_ns
+                    .saturating_add(i64::try_from(ahead.as_nanos()).unwrap_or(i64::MAX));
+                if let Err(e) = timer.arm(d_mono_ns) {
+                    break ConnectionEnd::Vanished(format!("cannot arm the hand-over timer: {e}"));
+                }
+                timer_polled = false;
+                due = Some(d_mono_ns);
             }
         };
         // What was collected is not lost with the connection (nor at shutdown).
         if !matches!(end, ConnectionEnd::WriterGone) {
-            let _ = self.queue.send(batch);
+            let _ = self.hand_over(&mut batch, tally);
         }
         end
     }
@@ -407,6 +506,7 @@ impl DeviceTask {
         mapping: &ImuMapping,
         gaps: &mut GapDetector,
         time_relation: &mut TimeRelationTracker,
+        tally: &mut Tally,
         finish: bool,
     ) {
         if self.raw_journal {
@@ -501,19 +601,16 @@ impl DeviceTask {
             ));
         }
         decoding.reported = total;
-        let mut c = self.shared.counters();
-        c.bytes += input_len as u64;
-        c.frames_ok = total.frames_ok;
-        c.frames_bad = total.checksum_errors + total.frames_malformed + total.frames_too_long;
-        c.resyncs = total.resyncs;
-        c.gaps += new_gaps.len() as u64;
-        c.ignored_frames += ignored;
+        tally.bytes += input_len as u64;
+        tally.decoder = Some(total);
+        tally.gaps += new_gaps.len() as u64;
+        tally.ignored_frames += ignored;
         let new_imu = batch.imu.len() - imu_before;
         let new_gnss = batch.gnss.len() - gnss_before;
-        c.imu_rows += new_imu as u64;
-        c.gnss_rows += new_gnss as u64;
+        tally.imu_rows += new_imu as u64;
+        tally.gnss_rows += new_gnss as u64;
         if new_imu + new_gnss > 0 {
-            c.last_sample_mono_ns = Some(at.mono_ns);
+            tally.last_sample_mono_ns = Some(at.mono_ns);
         }
     }
 }

@@ -14,6 +14,7 @@ use std::future::Future;
 use std::path::Path;
 use std::pin::Pin;
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use imulab_drivers::codec::can::CanFrame;
@@ -27,7 +28,7 @@ use imulab_drivers::transport::serial::{open_serial, SerialConfig as DriverSeria
 use imulab_drivers::transport::slcan::SlcanTransport;
 use imulab_drivers::transport::socketcan::SocketCanTransport;
 use imulab_drivers::transport::tcp::connect_tcp;
-use imulab_drivers::transport::{ByteSource, StreamTransport, TransportError};
+use imulab_drivers::transport::{StreamTransport, TransportError};
 use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
 use tokio::io::{AsyncRead, AsyncWrite};
 
@@ -194,26 +195,84 @@ pub enum Received {
 
 /// An open device.
 pub trait Link: Send {
-    /// Waits for the next data. Must be cancel-safe (the daemon races it against shutdown):
-    /// nothing is consumed unless it is returned. A device that went away is
+    /// Polls for the next data; `Pending` registers `cx`'s waker. Nothing is consumed unless
+    /// it is returned, so the daemon can wait for it beside other events in one future of
+    /// its own, without a future per read. A device that went away is
     /// [`TransportError::Vanished`].
-    fn receive<'a>(
-        &'a mut self,
-        buffer: &'a mut [u8],
-    ) -> BoxFuture<'a, Result<Received, TransportError>>;
+    fn poll_receive(
+        &mut self,
+        cx: &mut Context<'_>,
+        buffer: &mut [u8],
+    ) -> Poll<Result<Received, TransportError>>;
     /// Counters of decoding done inside the link (an slcan adapter's line decoder).
     fn stats(&self) -> DecoderStats {
         DecoderStats::default()
     }
 }
 
-/// A byte stream (serial port, pty, TCP, or an in-memory stream in tests).
+/// A byte stream (serial port, pty, TCP, or an in-memory stream in tests): polled directly,
+/// the read path of the nominal benchmark.
 impl<S: AsyncRead + AsyncWrite + Unpin + Send> Link for StreamTransport<S> {
-    fn receive<'a>(
-        &'a mut self,
-        buffer: &'a mut [u8],
-    ) -> BoxFuture<'a, Result<Received, TransportError>> {
-        Box::pin(async move { ByteSource::read(self, buffer).await.map(Received::Bytes) })
+    fn poll_receive(
+        &mut self,
+        cx: &mut Context<'_>,
+        buffer: &mut [u8],
+    ) -> Poll<Result<Received, TransportError>> {
+        self.poll_read(cx, buffer).map_ok(Received::Bytes)
+    }
+}
+
+/// A CAN transport, whose receive is an `async fn` of its own: [`CanLink`] runs it.
+trait CanReceive: Send + Sized + 'static {
+    /// Receives one frame; the future owns the transport and hands it back.
+    fn receive_owned(self) -> BoxFuture<'static, (Self, Result<CanFrame, TransportError>)>;
+    fn stats(&self) -> DecoderStats;
+}
+
+/// The [`Link`] of a CAN transport. Its receive future owns the transport while it runs and
+/// hands it back with the frame, so a receive that is still waiting when the daemon polls
+/// something else is kept, not restarted (one boxed future per frame; CAN devices only).
+enum CanLink<T> {
+    Idle(T),
+    Receiving(BoxFuture<'static, (T, Result<CanFrame, TransportError>)>),
+    /// Only if a receive future panicked.
+    Lost,
+}
+
+impl<T: CanReceive> Link for CanLink<T> {
+    fn poll_receive(
+        &mut self,
+        cx: &mut Context<'_>,
+        _: &mut [u8],
+    ) -> Poll<Result<Received, TransportError>> {
+        let mut receiving = match std::mem::replace(self, CanLink::Lost) {
+            CanLink::Idle(transport) => transport.receive_owned(),
+            CanLink::Receiving(future) => future,
+            CanLink::Lost => {
+                return Poll::Ready(Err(TransportError::Config(
+                    "the CAN link was lost by a failed receive".to_string(),
+                )))
+            }
+        };
+        match receiving.as_mut().poll(cx) {
+            Poll::Ready((transport, result)) => {
+                *self = CanLink::Idle(transport);
+                Poll::Ready(result.map(Received::Can))
+            }
+            Poll::Pending => {
+                *self = CanLink::Receiving(receiving);
+                Poll::Pending
+            }
+        }
+    }
+
+    fn stats(&self) -> DecoderStats {
+        match self {
+            CanLink::Idle(transport) => transport.stats(),
+            // The daemon reads the counters after a receive returned, when the transport is
+            // back; during one they are inside its future.
+            CanLink::Receiving(_) | CanLink::Lost => DecoderStats::default(),
+        }
     }
 }
 
@@ -224,20 +283,17 @@ struct SocketCanLink {
     stats: DecoderStats,
 }
 
-impl Link for SocketCanLink {
-    fn receive<'a>(
-        &'a mut self,
-        _: &'a mut [u8],
-    ) -> BoxFuture<'a, Result<Received, TransportError>> {
+impl CanReceive for SocketCanLink {
+    fn receive_owned(mut self) -> BoxFuture<'static, (Self, Result<CanFrame, TransportError>)> {
         Box::pin(async move {
             loop {
                 match self.transport.recv().await {
-                    Ok(frame) => return Ok(Received::Can(frame)),
+                    Ok(frame) => return (self, Ok(frame)),
                     Err(TransportError::Protocol { device, reason }) => {
                         self.stats.frames_malformed += 1;
                         tracing::debug!("{device}: skipped a frame: {reason}");
                     }
-                    Err(e) => return Err(e),
+                    Err(e) => return (self, Err(e)),
                 }
             }
         })
@@ -248,14 +304,14 @@ impl Link for SocketCanLink {
     }
 }
 
-impl Link for SlcanTransport {
-    fn receive<'a>(
-        &'a mut self,
-        _: &'a mut [u8],
-    ) -> BoxFuture<'a, Result<Received, TransportError>> {
+impl CanReceive for SlcanTransport {
+    fn receive_owned(mut self) -> BoxFuture<'static, (Self, Result<CanFrame, TransportError>)> {
         // The adapter's own timestamp (if enabled) is coarse (ms, wrapping each minute); the
         // host arrival time is what the rows carry.
-        Box::pin(async move { self.recv().await.map(|(frame, _)| Received::Can(frame)) })
+        Box::pin(async move {
+            let result = self.recv().await.map(|(frame, _)| frame);
+            (self, result)
+        })
     }
 
     fn stats(&self) -> DecoderStats {
@@ -289,13 +345,13 @@ impl Connector for TransportConnector {
                 Transport::Tcp(t) => {
                     Box::new(connect_tcp(&t.address, TCP_CONNECT_TIMEOUT, None).await?)
                 }
-                Transport::Slcan(s) => Box::new(
+                Transport::Slcan(s) => Box::new(CanLink::Idle(
                     SlcanTransport::open(&serial_config(&s.port, s.baud), s.bitrate, false).await?,
-                ),
-                Transport::Can(c) => Box::new(SocketCanLink {
+                )),
+                Transport::Can(c) => Box::new(CanLink::Idle(SocketCanLink {
                     transport: SocketCanTransport::open(&c.interface, None)?,
                     stats: DecoderStats::default(),
-                }),
+                })),
             })
         })
     }

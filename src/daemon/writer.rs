@@ -47,6 +47,19 @@ impl Batch {
         self.imu.is_empty() && self.gnss.is_empty() && self.events.is_empty() && self.raw.is_empty()
     }
 
+    /// An empty batch for the same device with room for as much as this one holds: the next
+    /// period's batch of a steady device grows no more.
+    pub fn sized_like(&self) -> Batch {
+        Batch {
+            device: self.device,
+            imu: Vec::with_capacity(self.imu.len()),
+            gnss: Vec::with_capacity(self.gnss.len()),
+            events: Vec::new(),
+            raw: Vec::with_capacity(self.raw.len()),
+            raw_bytes: Vec::with_capacity(self.raw_bytes.len()),
+        }
+    }
+
     /// Adds one read's undecoded bytes to the raw journal part.
     pub fn push_raw(&mut self, t_mono_ns: i64, bytes: &[u8]) {
         let start = self.raw_bytes.len();

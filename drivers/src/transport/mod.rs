@@ -10,9 +10,11 @@
 
 use std::future::Future;
 use std::io;
+use std::pin::Pin;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 
 pub mod replay;
 pub mod serial;
@@ -123,6 +125,10 @@ pub struct StreamTransport<S> {
     stream: S,
     device: String,
     idle_timeout: Option<Duration>,
+    /// The idle timer of [`StreamTransport::poll_read`] (made at its first wait, only with an
+    /// idle timeout), and whether bytes were read since it was last armed.
+    idle: Option<Pin<Box<tokio::time::Sleep>>>,
+    read_since_armed: bool,
 }
 
 impl<S: AsyncRead + AsyncWrite + Unpin + Send> StreamTransport<S> {
@@ -132,6 +138,8 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> StreamTransport<S> {
             stream,
             device: device.into(),
             idle_timeout,
+            idle: None,
+            read_since_armed: false,
         }
     }
 
@@ -167,6 +175,63 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> StreamTransport<S> {
     }
 }
 
+impl<S: AsyncRead + Unpin> StreamTransport<S> {
+    /// The poll form of [`ByteSource::read`], for a caller that waits for a read together
+    /// with other events in one future of its own (the daemon's device loop): no future is
+    /// made per read. Reads at least one byte into `buf`; the end of the stream is
+    /// [`TransportError::Vanished`]. `Pending` consumes nothing and wakes `cx` when bytes
+    /// come.
+    ///
+    /// With an idle timeout, silence is timed by one timer kept in the transport and re-armed
+    /// at the first wait after bytes were read (not at every read), so a poll that is still
+    /// waiting after the timeout since the last bytes is [`TransportError::Timeout`]; the timer
+    /// is then re-armed, so a caller that goes on polling gets a timeout per period of silence.
+    pub fn poll_read(
+        &mut self,
+        cx: &mut Context<'_>,
+        buf: &mut [u8],
+    ) -> Poll<Result<usize, TransportError>> {
+        if buf.is_empty() {
+            return Poll::Ready(Ok(0));
+        }
+        let mut read = ReadBuf::new(buf);
+        match Pin::new(&mut self.stream).poll_read(cx, &mut read) {
+            Poll::Ready(Ok(())) => {
+                let n = read.filled().len();
+                if n == 0 {
+                    return Poll::Ready(Err(TransportError::Vanished {
+                        device: self.device.clone(),
+                        reason: "end of stream".into(),
+                    }));
+                }
+                self.read_since_armed = true;
+                Poll::Ready(Ok(n))
+            }
+            Poll::Ready(Err(e)) => Poll::Ready(Err(TransportError::from_io(&self.device, e))),
+            Poll::Pending => {
+                let Some(after) = self.idle_timeout else {
+                    return Poll::Pending;
+                };
+                let rearm = std::mem::take(&mut self.read_since_armed);
+                let timer = self
+                    .idle
+                    .get_or_insert_with(|| Box::pin(tokio::time::sleep(after)));
+                if rearm {
+                    timer.as_mut().reset(tokio::time::Instant::now() + after);
+                }
+                if timer.as_mut().poll(cx).is_pending() {
+                    return Poll::Pending;
+                }
+                timer.as_mut().reset(tokio::time::Instant::now() + after);
+                Poll::Ready(Err(TransportError::Timeout {
+                    device: self.device.clone(),
+                    after,
+                }))
+            }
+        }
+    }
+}
+
 impl<S: AsyncRead + AsyncWrite + Unpin + Send> ByteSource for StreamTransport<S> {
     async fn read(&mut self, buf: &mut [u8]) -> Result<usize, TransportError> {
         if buf.is_empty() {
@@ -193,5 +258,65 @@ impl<S: AsyncRead + AsyncWrite + Unpin + Send> ByteSource for StreamTransport<S>
             Ok(n) => Ok(n),
             Err(e) => Err(TransportError::from_io(&self.device, e)),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::future::poll_fn;
+    use tokio::io::{duplex, AsyncWriteExt};
+    use tokio::time::Instant;
+
+    #[tokio::test]
+    async fn poll_read_delivers_bytes_then_the_end_as_a_vanish() {
+        let (mut far, near) = duplex(64);
+        let mut link = StreamTransport::new(near, "mem", None);
+        let mut buf = [0u8; 16];
+        far.write_all(b"abc").await.unwrap();
+        let n = poll_fn(|cx| link.poll_read(cx, &mut buf)).await.unwrap();
+        assert_eq!(&buf[..n], b"abc");
+        drop(far);
+        let end = poll_fn(|cx| link.poll_read(cx, &mut buf)).await;
+        assert!(
+            matches!(end, Err(TransportError::Vanished { .. })),
+            "{end:?}"
+        );
+    }
+
+    #[tokio::test]
+    async fn poll_read_times_silence_from_the_last_bytes() {
+        let after = Duration::from_millis(60);
+        let (mut far, near) = duplex(64);
+        let mut link = StreamTransport::new(near, "mem", Some(after));
+        let mut buf = [0u8; 16];
+        // Bytes every 30 ms for 240 ms: four timeouts' worth of time, none of silence.
+        let writer = tokio::spawn(async move {
+            for _ in 0..8 {
+                tokio::time::sleep(Duration::from_millis(30)).await;
+                far.write_all(b"x").await.unwrap();
+            }
+            far
+        });
+        for _ in 0..8 {
+            let n = poll_fn(|cx| link.poll_read(cx, &mut buf)).await.unwrap();
+            assert_eq!(n, 1);
+        }
+        let _far = writer.await.unwrap();
+        // Then silence: a timeout about `after` after the last byte, and another one later.
+        let t = Instant::now();
+        let silent = poll_fn(|cx| link.poll_read(cx, &mut buf)).await;
+        assert!(
+            matches!(silent, Err(TransportError::Timeout { .. })),
+            "{silent:?}"
+        );
+        assert!(
+            t.elapsed() >= after - Duration::from_millis(5),
+            "{:?}",
+            t.elapsed()
+        );
+        let again = poll_fn(|cx| link.poll_read(cx, &mut buf)).await;
+        assert!(matches!(again, Err(TransportError::Timeout { .. })));
+        assert!(t.elapsed() >= 2 * after - Duration::from_millis(5));
     }
 }
