@@ -8,6 +8,9 @@
 //! than the system zlib's on these chunks. The bytes on disk are exactly what the declared
 //! filter pipeline (shuffle by element size, then a zlib stream) produces in form, so h5py,
 //! MATLAB and our reader decode them through the ordinary pipeline; the tests check that.
+//! Each shuffled byte plane that deflate cannot shrink (the noisy low mantissa bytes) is kept
+//! in stored deflate blocks within that zlib stream: smaller than deflate's literals, and
+//! inflated by copying (see [`ChunkEncoder`]).
 //!
 //! Small chunks (under [`SMALL_CHUNK_BYTES`], e.g. a 10 Hz GNSS column: 80 bytes a second)
 //! are deflated by [`zlib_fixed_rle`] instead: every deflate library (zlib, zlib-rs,
@@ -70,12 +73,20 @@ where
 
 /// Turns rows into the bytes of one stored chunk: shuffle + zlib when `level > 0`, the plain
 /// bytes otherwise. Keeps its buffers and its deflate stream between chunks.
+///
+/// The zlib stream of a chunk is built one shuffled byte plane at a time (see
+/// [`ChunkEncoder::deflate_planes`]): a plane that deflate cannot shrink (the noisy low
+/// mantissa bytes of sensor data, 6 of the 8 planes of an f64 gyro column) goes into stored
+/// deflate blocks, which every inflater copies instead of decoding symbol by symbol; the
+/// others are deflated at `level`. The result is one ordinary zlib stream.
 pub(crate) struct ChunkEncoder {
     level: u8,
     deflate: Option<zlib_rs::Deflate>,
     plain: Vec<u8>,
     shuffled: Vec<u8>,
     out: Vec<u8>,
+    /// One plane's deflated bytes, before the choice between them and a stored block.
+    segment: Vec<u8>,
 }
 
 impl ChunkEncoder {
@@ -84,10 +95,13 @@ impl ChunkEncoder {
         let level = level.min(9);
         ChunkEncoder {
             level,
-            deflate: (level > 0).then(|| zlib_rs::Deflate::new(i32::from(level), true, 15)),
+            // A raw deflate stream: the zlib header and trailer are written here, since a
+            // plane may be replaced by a stored block (see `deflate_planes`).
+            deflate: (level > 0).then(|| zlib_rs::Deflate::new(i32::from(level), false, 15)),
             plain: Vec::new(),
             shuffled: Vec::new(),
             out: Vec::new(),
+            segment: Vec::new(),
         }
     }
 
@@ -97,32 +111,117 @@ impl ChunkEncoder {
         for v in values {
             v.put_le(&mut self.plain);
         }
-        let Some(deflate) = self.deflate.as_mut() else {
+        if self.deflate.is_none() {
             return Ok(&self.plain);
-        };
+        }
         shuffle(&self.plain, T::ELEM, &mut self.shuffled);
         if self.shuffled.len() < SMALL_CHUNK_BYTES {
             zlib_fixed_rle(&self.shuffled, &mut self.out);
             return Ok(&self.out);
         }
+        self.deflate_planes(T::ELEM)?;
+        Ok(&self.out)
+    }
+
+    /// `self.shuffled` as a zlib stream in `self.out`: one raw deflate stream fed plane by
+    /// plane, with a sync flush after each plane so that its output ends on a byte boundary
+    /// (the last plane finishes the stream). When a plane's output is not smaller than the
+    /// plane stored as it is, it is replaced by stored blocks of the plane's bytes. That
+    /// keeps the stream valid: later planes' matches refer to the inflated bytes, which are
+    /// the same whichever way a plane was coded, and stored blocks are byte-aligned. Deflate
+    /// itself (here zlib-rs' level 1, fixed Huffman codes) spends 8-9 bits on every byte of a
+    /// random plane, and inflating it costs a Huffman decode per byte (measured: 33 % of
+    /// `imulab allan` on a session; docs/bench/allan.md, session 6).
+    fn deflate_planes(&mut self, elem: usize) -> hdf5::Result<()> {
+        let Some(deflate) = self.deflate.as_mut() else {
+            return Err(hdf5::Error::from("deflate_planes without a deflate stream"));
+        };
+        let data = &self.shuffled;
+        let n = data.len() / elem.max(1);
+        // The planes; trailing bytes that fill no element (never for whole rows) join the last.
+        let mut bounds: Vec<usize> = (0..elem.max(1)).map(|b| b * n).collect();
+        bounds.retain(|&b| b < data.len());
+        bounds.dedup();
+        bounds.push(data.len());
         self.out.clear();
-        self.out
-            .resize(zlib_rs::compress_bound(self.shuffled.len()), 0);
+        self.out.extend_from_slice(&zlib_header(self.level));
         deflate.reset();
-        let status = deflate
-            .compress(&self.shuffled, &mut self.out, zlib_rs::DeflateFlush::Finish)
-            .map_err(|e| hdf5::Error::from(format!("deflate (level {}): {e:?}", self.level)))?;
-        if status != zlib_rs::Status::StreamEnd {
-            return Err(hdf5::Error::from(format!(
-                "deflate (level {}) did not finish a {} byte chunk",
-                self.level,
-                self.shuffled.len()
-            )));
+        let planes = bounds.len() - 1;
+        for p in 0..planes {
+            let plane = &data[bounds[p]..bounds[p + 1]];
+            let last = p + 1 == planes;
+            let flush = if last {
+                zlib_rs::DeflateFlush::Finish
+            } else {
+                zlib_rs::DeflateFlush::SyncFlush
+            };
+            // Room for the worst case: the bound of a whole stream of this plane, plus the
+            // empty stored block a sync flush appends.
+            self.segment.clear();
+            self.segment
+                .resize(zlib_rs::compress_bound(plane.len()) + 64, 0);
+            let (in_before, out_before) = (deflate.total_in(), deflate.total_out());
+            let status = deflate
+                .compress(plane, &mut self.segment, flush)
+                .map_err(|e| hdf5::Error::from(format!("deflate (level {}): {e:?}", self.level)))?;
+            let used_in = deflate.total_in() - in_before;
+            let used_out = usize::try_from(deflate.total_out() - out_before).unwrap_or(usize::MAX);
+            let done = if last {
+                status == zlib_rs::Status::StreamEnd
+            } else {
+                used_out < self.segment.len()
+            };
+            if !done || used_in != plane.len() as u64 {
+                return Err(hdf5::Error::from(format!(
+                    "deflate (level {}) did not finish byte plane {p} ({} bytes) of a {} byte chunk",
+                    self.level,
+                    plane.len(),
+                    data.len()
+                )));
+            }
+            if used_out < stored_size(plane.len()) {
+                self.out.extend_from_slice(&self.segment[..used_out]);
+            } else {
+                put_stored(plane, last, &mut self.out);
+            }
         }
-        let n = usize::try_from(deflate.total_out()).unwrap_or(usize::MAX);
         self.out
-            .get(..n)
-            .ok_or_else(|| hdf5::Error::from("deflate reported more output than it had room for"))
+            .extend_from_slice(&zlib_rs::adler32::adler32(1, data).to_be_bytes());
+        Ok(())
+    }
+}
+
+/// The two bytes of a zlib header (RFC 1950) for a 32 KiB window, with the compression level
+/// field zlib writes for `level`.
+fn zlib_header(level: u8) -> [u8; 2] {
+    match level {
+        0 | 1 => [0x78, 0x01],
+        2..=5 => [0x78, 0x5e],
+        6 => [0x78, 0x9c],
+        _ => [0x78, 0xda],
+    }
+}
+
+/// Largest data of one stored deflate block.
+const STORED_BLOCK_MAX: usize = 65_535;
+
+/// Bytes that `len` bytes take as stored deflate blocks (5 header bytes per block).
+fn stored_size(len: usize) -> usize {
+    len + 5 * len.div_ceil(STORED_BLOCK_MAX).max(1)
+}
+
+/// `data` as stored deflate blocks (RFC 1951 3.2.4), starting on a byte boundary; the last
+/// block is marked final when `last`.
+fn put_stored(data: &[u8], last: bool, out: &mut Vec<u8>) {
+    let blocks = data.len().div_ceil(STORED_BLOCK_MAX).max(1);
+    for b in 0..blocks {
+        let part = &data
+            [(b * STORED_BLOCK_MAX).min(data.len())..((b + 1) * STORED_BLOCK_MAX).min(data.len())];
+        let len = part.len() as u16; // at most STORED_BLOCK_MAX
+        out.push(u8::from(last && b + 1 == blocks)); // BFINAL, BTYPE 00, padding
+        out.extend_from_slice(&len.to_le_bytes());
+        out.extend_from_slice(&(!len).to_le_bytes());
+        out.extend_from_slice(part);
     }
 }
 
@@ -998,6 +1097,73 @@ mod tests {
                 .expect("read");
             assert!(gr.read_f64(0..1, &mut [&mut x]).is_err(), "wrong width");
         }
+    }
+
+    /// A chunk of noisy f64 keeps its random byte planes in stored blocks (so inflating it
+    /// is mostly copying) and still inflates back exactly, with zlib-rs and libdeflate; runs
+    /// and patterns still shrink; stored data longer than one block is split.
+    #[test]
+    fn random_planes_are_stored_and_inflate_back() {
+        let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let noise: Vec<[f64; 3]> = (0..1500)
+            .map(|_| std::array::from_fn(|_| (rnd() as f64 / u64::MAX as f64 - 0.5) * 0.05))
+            .collect();
+        let times: Vec<i64> = (0..1500i64)
+            .map(|i| 1_000_000_000 + i * 6_666_667)
+            .collect();
+        let mut enc = ChunkEncoder::new(1);
+        let mut back = vec![0u8; 1 << 17];
+        let mut libdeflate = libdeflater::Decompressor::new();
+        let mut check = |bytes: &[u8], plain: &[u8], elem: usize| {
+            let mut shuffled = Vec::new();
+            shuffle(plain, elem, &mut shuffled);
+            let (got, rc) =
+                zlib_rs::decompress_slice(&mut back, bytes, zlib_rs::InflateConfig::default());
+            assert_eq!(rc, zlib_rs::ReturnCode::Ok);
+            assert_eq!(got, &shuffled[..]);
+            let mut out = vec![0u8; shuffled.len()];
+            let n = libdeflate
+                .zlib_decompress(bytes, &mut out)
+                .expect("libdeflate");
+            assert_eq!(&out[..n], &shuffled[..]);
+        };
+        let mut plain = Vec::new();
+        noise.iter().for_each(|v| v.put_le(&mut plain));
+        let bytes = enc.encode(&noise).expect("encode").to_vec();
+        check(&bytes, &plain, 8);
+        // The six low planes of 4500 bytes each are there verbatim as stored blocks.
+        let mut shuffled = Vec::new();
+        shuffle(&plain, 8, &mut shuffled);
+        let n = noise.len() * 3;
+        for b in 0..6 {
+            let plane = &shuffled[b * n..(b + 1) * n];
+            let mut block = vec![0u8];
+            block.extend_from_slice(&(n as u16).to_le_bytes());
+            block.extend_from_slice(&(!(n as u16)).to_le_bytes());
+            block.extend_from_slice(plane);
+            assert!(
+                bytes.windows(block.len()).any(|w| w == block),
+                "plane {b} is not stored"
+            );
+        }
+        assert!(bytes.len() < plain.len(), "{} bytes", bytes.len());
+        // Steady time stamps compress well.
+        let mut plain_t = Vec::new();
+        times.iter().for_each(|v| v.put_le(&mut plain_t));
+        let bytes = enc.encode(&times).expect("encode").to_vec();
+        check(&bytes, &plain_t, 8);
+        assert!(bytes.len() < plain_t.len() / 3, "{} bytes", bytes.len());
+        // One plane over the size of a stored block (bytes: elem 1, one plane).
+        let big: Vec<u8> = (0..70_000).map(|_| rnd() as u8).collect();
+        let bytes = enc.encode(&big).expect("encode").to_vec();
+        check(&bytes, &big, 1);
+        assert_eq!(bytes.len(), 2 + stored_size(big.len()) + 4);
     }
 
     #[test]
