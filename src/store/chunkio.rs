@@ -578,19 +578,36 @@ impl ColumnReader {
 
     /// Appends rows `r` as f64: component `k` of each row to `out[k]` (`out.len()` must be
     /// the dataset's width).
+    #[cfg(test)]
     pub fn read_f64(&mut self, r: Range<usize>, out: &mut [&mut Vec<f64>]) -> hdf5::Result<()> {
-        self.read_with(r, out, f64::from_bits)
+        let mut room = grow(out, r.len());
+        self.read_with(r, &mut room, f64::from_bits)
     }
 
     /// Appends rows `r` of a 1-D i64 column to `out`.
+    #[cfg(test)]
     pub fn read_i64(&mut self, r: Range<usize>, out: &mut Vec<i64>) -> hdf5::Result<()> {
+        let mut out = [out];
+        let mut room = grow(&mut out, r.len());
+        self.read_with(r, &mut room, |w| w as i64)
+    }
+
+    /// Rows `r` as f64 into `out`, component `k` of each row to `out[k]`, each exactly
+    /// `r.len()` long: a caller that keeps its columns at the block length from block to block
+    /// has nothing cleared or zeroed before they are overwritten.
+    pub fn read_f64_into(&mut self, r: Range<usize>, out: &mut [&mut [f64]]) -> hdf5::Result<()> {
+        self.read_with(r, out, f64::from_bits)
+    }
+
+    /// Rows `r` of a 1-D i64 column into `out`, exactly `r.len()` long.
+    pub fn read_i64_into(&mut self, r: Range<usize>, out: &mut [i64]) -> hdf5::Result<()> {
         self.read_with(r, &mut [out], |w| w as i64)
     }
 
-    fn read_with<T: Copy + Default + Send>(
+    fn read_with<T: Copy + Send>(
         &mut self,
         r: Range<usize>,
-        out: &mut [&mut Vec<T>],
+        out: &mut [&mut [T]],
         convert: impl Fn(u64) -> T + Copy + Sync,
     ) -> hdf5::Result<()> {
         if out.len() != self.width {
@@ -609,15 +626,18 @@ impl ColumnReader {
             )
             .into());
         }
-        // Room for the rows first, then each chunk's rows are a disjoint part of it.
-        let mut rest: Vec<&mut [T]> = out
-            .iter_mut()
-            .map(|o| {
-                let base = o.len();
-                o.resize(base + r.len(), T::default());
-                &mut o[base..]
-            })
-            .collect();
+        if let Some(o) = out.iter().find(|o| o.len() != r.len()) {
+            return Err(format!(
+                "{}: an output column of {} rows for rows {}..{}",
+                self.name,
+                o.len(),
+                r.start,
+                r.end
+            )
+            .into());
+        }
+        // Each chunk's rows are a disjoint part of the output.
+        let mut rest: Vec<&mut [T]> = out.iter_mut().map(|o| &mut o[..]).collect();
         let c = self.chunk_rows;
         let mut tasks: Vec<Task<'_, T>> = Vec::new();
         let mut row = r.start;
@@ -657,9 +677,14 @@ impl ColumnReader {
                 };
                 tasks.par_iter_mut().try_for_each(|task| {
                     THREAD_SCRATCH.with_borrow_mut(|scratch| {
-                        let words = decode_chunk(shape, task.first_row, &task.raw, scratch)?;
-                        scatter(words, std::mem::take(&mut task.out), convert);
-                        Ok::<(), hdf5::Error>(())
+                        decode_chunk_into(
+                            shape,
+                            task.first_row,
+                            &task.raw,
+                            scratch,
+                            std::mem::take(&mut task.out),
+                            convert,
+                        )
                     })
                 })
             }
@@ -756,6 +781,71 @@ impl ColumnReader {
     }
 }
 
+/// `len` more default values at the end of each vector, and those new parts.
+#[cfg(test)]
+fn grow<'a, T: Copy + Default>(out: &'a mut [&mut Vec<T>], len: usize) -> Vec<&'a mut [T]> {
+    out.iter_mut()
+        .map(|o| {
+            let base = o.len();
+            o.resize(base + len, T::default());
+            &mut o[base..]
+        })
+        .collect()
+}
+
+/// Decodes the stored bytes of the whole chunk at row `first` straight into its rows of the
+/// output columns (`out[k]`: component `k`, one value per row of the chunk); a shuffled chunk
+/// is unshuffled into them directly (no row-major copy in between).
+fn decode_chunk_into<T: Copy>(
+    shape: ChunkShape<'_>,
+    first: usize,
+    raw: &[u8],
+    scratch: &mut Scratch,
+    out: Vec<&mut [T]>,
+    convert: impl Fn(u64) -> T + Copy,
+) -> hdf5::Result<()> {
+    match shape.stored {
+        StoredAs::Plain => {
+            let words = decode_chunk(shape, first, raw, scratch)?;
+            scatter(words, out, convert);
+        }
+        StoredAs::ShuffleDeflate => {
+            inflate_chunk(shape, first, raw, scratch)?;
+            unshuffle_into(&scratch.inflated, out, convert);
+        }
+    }
+    Ok(())
+}
+
+/// Inflates the stored bytes of the whole (shuffled) chunk at row `first` into
+/// `scratch.inflated`, checking that they give exactly the chunk's size.
+fn inflate_chunk(
+    shape: ChunkShape<'_>,
+    first: usize,
+    raw: &[u8],
+    scratch: &mut Scratch,
+) -> hdf5::Result<()> {
+    let chunk_bytes = shape.values * 8;
+    scratch.inflated.resize(chunk_bytes, 0);
+    let n = scratch
+        .inflater
+        .zlib_decompress(raw, &mut scratch.inflated)
+        .map_err(|e| {
+            hdf5::Error::from(format!(
+                "{}: chunk at row {first}: inflate: {e}",
+                shape.name
+            ))
+        })?;
+    if n != chunk_bytes {
+        return Err(format!(
+            "{}: chunk at row {first}: inflated to {n} bytes, expected {chunk_bytes}",
+            shape.name
+        )
+        .into());
+    }
+    Ok(())
+}
+
 /// Decodes the stored bytes of the whole chunk at row `first` into `scratch.words` (one u64
 /// per value, row-major) and returns them.
 fn decode_chunk<'s>(
@@ -768,23 +858,7 @@ fn decode_chunk<'s>(
     let plain: &[u8] = match shape.stored {
         StoredAs::Plain => raw,
         StoredAs::ShuffleDeflate => {
-            scratch.inflated.resize(chunk_bytes, 0);
-            let n = scratch
-                .inflater
-                .zlib_decompress(raw, &mut scratch.inflated)
-                .map_err(|e| {
-                    hdf5::Error::from(format!(
-                        "{}: chunk at row {first}: inflate: {e}",
-                        shape.name
-                    ))
-                })?;
-            if n != chunk_bytes {
-                return Err(format!(
-                    "{}: chunk at row {first}: inflated to {n} bytes, expected {chunk_bytes}",
-                    shape.name
-                )
-                .into());
-            }
+            inflate_chunk(shape, first, raw, scratch)?;
             &scratch.inflated
         }
     };
@@ -867,6 +941,59 @@ fn unshuffle_words(shuffled: &[u8], out: &mut Vec<u64>) {
             .enumerate()
             .fold(0u64, |w, (b, plane)| w | u64::from(plane[i]) << (8 * b))
     }));
+}
+
+/// [`unshuffle_words`] straight into output columns: element `e` of the chunk (row-major,
+/// `out.len()` values a row) goes to `out[e % width][e / width]`. One row (1-D) and three
+/// (N×3) take eight transposed words, resp. three times eight (eight rows), at a time.
+fn unshuffle_into<T: Copy>(shuffled: &[u8], mut out: Vec<&mut [T]>, convert: impl Fn(u64) -> T) {
+    let width = out.len().max(1);
+    let n = (shuffled.len() / 8).min(out.iter().map(|o| o.len()).min().unwrap_or(0) * width);
+    let planes: [&[u8]; 8] = std::array::from_fn(|b| &shuffled[b * (shuffled.len() / 8)..][..n]);
+    let word = |i: usize| -> [u64; 8] {
+        let mut a: [u64; 8] = std::array::from_fn(|b| {
+            u64::from_le_bytes(planes[b][i..i + 8].try_into().unwrap_or([0; 8]))
+        });
+        transpose_8x8_bytes(&mut a);
+        a
+    };
+    let done = match out.as_mut_slice() {
+        [o] => {
+            let whole = n / 8 * 8;
+            for i in (0..whole).step_by(8) {
+                for (d, &w) in o[i..i + 8].iter_mut().zip(&word(i)) {
+                    *d = convert(w);
+                }
+            }
+            whole
+        }
+        [x, y, z] => {
+            let whole = n / 24 * 24;
+            for i in (0..whole).step_by(24) {
+                let (a, b, c) = (word(i), word(i + 8), word(i + 16));
+                let w: [u64; 24] = std::array::from_fn(|k| match k {
+                    0..=7 => a[k],
+                    8..=15 => b[k - 8],
+                    _ => c[k - 16],
+                });
+                let row = i / 3;
+                for k in 0..8 {
+                    x[row + k] = convert(w[3 * k]);
+                    y[row + k] = convert(w[3 * k + 1]);
+                    z[row + k] = convert(w[3 * k + 2]);
+                }
+            }
+            whole
+        }
+        _ => 0,
+    };
+    for e in done..n {
+        let w = planes
+            .iter()
+            .enumerate()
+            .fold(0u64, |w, (b, plane)| w | u64::from(plane[e]) << (8 * b));
+        out[e % width][e / width] = convert(w);
+    }
 }
 
 /// Transposes the 8 × 8 byte matrix whose row `r` is the little-endian bytes of `a[r]`:
@@ -1164,6 +1291,33 @@ mod tests {
         let bytes = enc.encode(&big).expect("encode").to_vec();
         check(&bytes, &big, 1);
         assert_eq!(bytes.len(), 2 + stored_size(big.len()) + 4);
+    }
+
+    /// Unshuffling straight into columns gives what unshuffling into words and scattering
+    /// gives: 1, 2 and 3 columns, lengths around the groups of 8 and 24 elements.
+    #[test]
+    fn unshuffle_into_columns_matches_words() {
+        for width in 1..=3usize {
+            for rows in 0..40usize {
+                let values: Vec<u64> = (0..(rows * width) as u64)
+                    .map(|i| (i + 7).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                    .collect();
+                let mut plain = Vec::new();
+                values.iter().for_each(|v| v.put_le(&mut plain));
+                let mut shuffled = Vec::new();
+                shuffle(&plain, 8, &mut shuffled);
+                let mut cols = vec![vec![0u64; rows]; width];
+                unshuffle_into(
+                    &shuffled,
+                    cols.iter_mut().map(|c| &mut c[..]).collect(),
+                    |w| w,
+                );
+                for (k, col) in cols.iter().enumerate() {
+                    let want: Vec<u64> = values.iter().skip(k).step_by(width).copied().collect();
+                    assert_eq!(*col, want, "{width} columns, {rows} rows, column {k}");
+                }
+            }
+        }
     }
 
     #[test]
