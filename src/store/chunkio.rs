@@ -23,9 +23,9 @@
 //! device, the last rows before close) and string columns still go through HDF5's pipeline.
 
 use std::ops::Range;
+use std::sync::Mutex;
 
 use hdf5::{Dataset, H5Type};
-use rayon::prelude::*;
 
 /// A value stored as its little-endian bytes; `ELEM` is the HDF5 element size the shuffle
 /// filter works on (8 for an `[f64; 3]` row of an N×3 f64 dataset).
@@ -516,13 +516,6 @@ struct ChunkShape<'a> {
     values: usize,
 }
 
-/// A whole chunk fetched for parallel decoding, and where its rows go.
-struct Task<'o, T> {
-    first_row: usize,
-    raw: Vec<u8>,
-    out: Vec<&'o mut [T]>,
-}
-
 impl ColumnReader {
     /// `rows`: how many rows of the dataset are valid (the caller's table length). `direct`:
     /// whether chunks may be read directly; only for a file no writer changes any more (a
@@ -608,7 +601,7 @@ impl ColumnReader {
         &mut self,
         r: Range<usize>,
         out: &mut [&mut [T]],
-        convert: impl Fn(u64) -> T + Copy + Sync,
+        convert: impl Fn(u64) -> T + Copy + Send + Sync,
     ) -> hdf5::Result<()> {
         if out.len() != self.width {
             return Err(format!(
@@ -636,62 +629,81 @@ impl ColumnReader {
             )
             .into());
         }
-        // Each chunk's rows are a disjoint part of the output.
+        // Each chunk's rows are a disjoint part of the output. The whole chunks are fetched
+        // here, one after the other (HDF5 is not thread-safe), and each is decoded on the
+        // rayon pool as soon as it is fetched, so that decoding overlaps the next fetches.
         let mut rest: Vec<&mut [T]> = out.iter_mut().map(|o| &mut o[..]).collect();
         let c = self.chunk_rows;
-        let mut tasks: Vec<Task<'_, T>> = Vec::new();
-        let mut row = r.start;
-        while row < r.end {
-            let k = row / c;
-            let first = k * c;
-            let (lo, hi) = (row - first, (r.end - first).min(c));
-            let here: Vec<&mut [T]> = rest
-                .iter_mut()
-                .map(|s| {
-                    let (head, tail) = std::mem::take(s).split_at_mut(hi - lo);
-                    *s = tail;
-                    head
-                })
-                .collect();
-            row = first + hi;
-            // A whole chunk of valid rows goes to the parallel decoding when it can.
-            if lo == 0 && hi == c && first + c <= self.rows && self.cached != Some(k) {
-                if let Some(raw) = self.fetch(first)? {
-                    tasks.push(Task {
-                        first_row: first,
-                        raw,
-                        out: here,
-                    });
-                    continue;
-                }
+        let name = self.name.clone();
+        let stored = self.stored;
+        let values = c * self.width;
+        // The error of the lowest row, whichever thread met it.
+        let failed: Mutex<Option<(usize, hdf5::Error)>> = Mutex::new(None);
+        let fail = |row: usize, e: hdf5::Error| {
+            let mut slot = failed.lock().unwrap_or_else(|p| p.into_inner());
+            if slot.as_ref().is_none_or(|(r, _)| row < *r) {
+                *slot = Some((row, e));
             }
-            self.load(k)?;
-            scatter(&self.words[lo * self.width..hi * self.width], here, convert);
-        }
-        let result = match self.stored {
-            Some(stored) if !tasks.is_empty() => {
-                let shape = ChunkShape {
-                    name: &self.name,
-                    stored,
-                    values: c * self.width,
-                };
-                tasks.par_iter_mut().try_for_each(|task| {
-                    THREAD_SCRATCH.with_borrow_mut(|scratch| {
-                        decode_chunk_into(
-                            shape,
-                            task.first_row,
-                            &task.raw,
-                            scratch,
-                            std::mem::take(&mut task.out),
-                            convert,
-                        )
-                    })
-                })
-            }
-            _ => Ok(()),
         };
-        self.raw_pool.extend(tasks.into_iter().map(|t| t.raw));
-        result
+        let used: Mutex<Vec<Vec<u8>>> = Mutex::new(Vec::new());
+        rayon::in_place_scope(|scope| {
+            let mut row = r.start;
+            while row < r.end {
+                let k = row / c;
+                let first = k * c;
+                let (lo, hi) = (row - first, (r.end - first).min(c));
+                let here: Vec<&mut [T]> = rest
+                    .iter_mut()
+                    .map(|s| {
+                        let (head, tail) = std::mem::take(s).split_at_mut(hi - lo);
+                        *s = tail;
+                        head
+                    })
+                    .collect();
+                row = first + hi;
+                // A whole chunk of valid rows goes to the parallel decoding when it can.
+                if let Some(stored) = stored.filter(|_| {
+                    lo == 0 && hi == c && first + c <= self.rows && self.cached != Some(k)
+                }) {
+                    match self.fetch(first) {
+                        Ok(Some(raw)) => {
+                            let (name, fail, used) = (&name, &fail, &used);
+                            scope.spawn(move |_| {
+                                let shape = ChunkShape {
+                                    name,
+                                    stored,
+                                    values,
+                                };
+                                let decoded = THREAD_SCRATCH.with_borrow_mut(|scratch| {
+                                    decode_chunk_into(shape, first, &raw, scratch, here, convert)
+                                });
+                                if let Err(e) = decoded {
+                                    fail(first, e);
+                                }
+                                used.lock().unwrap_or_else(|p| p.into_inner()).push(raw);
+                            });
+                            continue;
+                        }
+                        Ok(None) => {}
+                        Err(e) => {
+                            fail(first, e);
+                            break;
+                        }
+                    }
+                }
+                if let Err(e) = self.load(k) {
+                    fail(first, e);
+                    break;
+                }
+                scatter(&self.words[lo * self.width..hi * self.width], here, convert);
+            }
+        });
+        self.raw_pool
+            .extend(used.into_inner().unwrap_or_else(|p| p.into_inner()));
+        match failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            Some((_, e)) => Err(e),
+            None => Ok(()),
+        }
     }
 
     /// The stored bytes of the whole chunk starting at row `first`, or `None` when it must go
