@@ -686,6 +686,19 @@ impl ImuColumns {
         self.accel.iter_mut().for_each(Vec::clear);
         self.temp.clear();
     }
+
+    /// The chosen columns `rows` long, the others empty. What they held is kept (the reader
+    /// overwrites every value), so a block as long as the one before costs no zeroing.
+    fn fit(&mut self, set: ImuColumnSet, rows: usize) {
+        fn fit<T: Copy + Default>(v: &mut Vec<T>, on: bool, rows: usize) {
+            v.resize(if on { rows } else { 0 }, T::default());
+        }
+        fit(&mut self.t_mono_ns, true, rows);
+        fit(&mut self.t_sensor, set.t_sensor, rows);
+        self.gyro.iter_mut().for_each(|v| fit(v, set.gyro, rows));
+        self.accel.iter_mut().for_each(|v| fit(v, set.accel, rows));
+        fit(&mut self.temp, set.temp, rows);
+    }
 }
 
 /// Positions of the IMU columns in `IMU_COLUMNS`.
@@ -725,16 +738,10 @@ impl ImuColumnReader {
         loop {
             if let Some(c) = &mut self.cursor {
                 if c.next < c.end {
-                    // Blocks end on a chunk boundary where they can, so that no chunk is
-                    // split between two blocks (a split one is decoded apart, not in parallel).
-                    let mut end = (c.next + self.block_rows).min(c.end);
-                    let chunk = c.t_mono.chunk_rows();
-                    if end < c.end && end / chunk * chunk > c.next {
-                        end = end / chunk * chunk;
-                    }
-                    let r = c.next..end;
+                    let r =
+                        c.next..block_end(c.next, c.end, self.block_rows, c.t_mono.chunk_rows());
                     c.next = r.end;
-                    out.clear();
+                    out.fit(self.set, r.len());
                     let result = read_columns(c, r.clone(), out).map_err(|e| {
                         rows_error(&self.files[c.file_index].info, &self.group, &r, &e)
                     });
@@ -803,22 +810,47 @@ impl ImuColumnReader {
     }
 }
 
-/// Rows `r` of the cursor's chosen columns, appended to `out`.
+/// Where the block of at most `block_rows` rows starting at row `next` of a file's `end`
+/// ends. The rows left are split into blocks of even length, so that no block of a file is
+/// longer than the one before and the caller's columns are never grown again (see
+/// [`ImuColumns::fit`]; the old rule, full blocks and a short rest, grew them at every file);
+/// each block ends on a chunk boundary where it can, so that no chunk is
+/// split between two blocks (a split one is decoded apart, not in parallel).
+fn block_end(next: usize, end: usize, block_rows: usize, chunk: usize) -> usize {
+    let (left, chunk) = (end - next, chunk.max(1));
+    let blocks = left.div_ceil(block_rows.max(1));
+    let mut rows = left.div_ceil(blocks.max(1)).div_ceil(chunk) * chunk;
+    if rows > block_rows {
+        rows = block_rows / chunk * chunk;
+    }
+    if rows == 0 {
+        rows = block_rows.max(1);
+    }
+    // Chunk boundaries are counted from row 0 of the file, not from `next`.
+    let mut stop = (next + rows).min(end);
+    if stop < end && stop / chunk * chunk > next {
+        stop = stop / chunk * chunk;
+    }
+    stop
+}
+
+/// Rows `r` of the cursor's chosen columns into `out`, whose chosen columns are `r.len()`
+/// long (every value is overwritten).
 fn read_columns(c: &mut ColumnCursor, r: Range<usize>, out: &mut ImuColumns) -> hdf5::Result<()> {
-    c.t_mono.read_i64(r.clone(), &mut out.t_mono_ns)?;
+    c.t_mono.read_i64_into(r.clone(), &mut out.t_mono_ns)?;
     if let Some(t) = &mut c.t_sensor {
-        t.read_f64(r.clone(), &mut [&mut out.t_sensor])?;
+        t.read_f64_into(r.clone(), &mut [&mut out.t_sensor])?;
     }
     if let Some(g) = &mut c.gyro {
         let [x, y, z] = &mut out.gyro;
-        g.read_f64(r.clone(), &mut [x, y, z])?;
+        g.read_f64_into(r.clone(), &mut [x, y, z])?;
     }
     if let Some(a) = &mut c.accel {
         let [x, y, z] = &mut out.accel;
-        a.read_f64(r.clone(), &mut [x, y, z])?;
+        a.read_f64_into(r.clone(), &mut [x, y, z])?;
     }
     if let Some(t) = &mut c.temp {
-        t.read_f64(r, &mut [&mut out.temp])?;
+        t.read_f64_into(r, &mut [&mut out.temp])?;
     }
     Ok(())
 }
@@ -872,5 +904,51 @@ impl Iterator for RawIter {
                 short_h5_error(&e)
             ))),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::block_end;
+
+    /// Blocks cover the rows once, in order, never longer than asked nor than the block
+    /// before, and end on chunk boundaries except at the end of the rows.
+    #[test]
+    fn blocks_are_even_and_end_on_chunks() {
+        for (start, end, block, chunk) in [
+            (0, 90_000, 65_536, 1500),
+            (0, 3_240_000, 65_536, 1500),
+            (700, 90_000, 65_536, 1500),
+            (0, 1037, 73, 100),
+            (0, 10, 65_536, 1500),
+            (5, 999, 250, 1),
+            (0, 500, 100, 300),
+        ] {
+            let mut next = start;
+            let mut lengths = Vec::new();
+            while next < end {
+                let stop = block_end(next, end, block, chunk);
+                assert!(
+                    stop > next && stop <= end,
+                    "{start}..{end}: {next} -> {stop}"
+                );
+                assert!(
+                    stop - next <= block.max(chunk),
+                    "{start}..{end}: {next} -> {stop}"
+                );
+                if stop < end && chunk <= block {
+                    assert_eq!(stop % chunk, 0, "{start}..{end}: {next} -> {stop}");
+                }
+                lengths.push(stop - next);
+                next = stop;
+            }
+            // No block longer than the one before (the columns are never grown again).
+            if start == 0 && chunk <= block {
+                assert!(
+                    lengths.windows(2).all(|w| w[1] <= w[0]),
+                    "{start}..{end}: {lengths:?}"
+                );
+            }
+        }
     }
 }
