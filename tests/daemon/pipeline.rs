@@ -203,13 +203,19 @@ async fn frames_arrive_once_with_values_and_garbage_becomes_events() {
     let failed: u64 = checksums
         .iter()
         .map(|e| {
-            let count = e.split_whitespace().nth(1).and_then(|n| n.parse().ok());
+            let count = e
+                .split_whitespace()
+                .nth(1)
+                .and_then(|n| n.parse::<u64>().ok());
             count.unwrap_or_else(|| panic!("no count in {e:?}"))
         })
         .sum();
     assert_eq!(failed, 3, "{checksums:?}");
     assert!((1..=3).contains(&checksums.len()), "{checksums:?}");
-    assert!(checksums.last().unwrap().ends_with("(3 in total)"), "{checksums:?}");
+    assert!(
+        checksums.last().unwrap().ends_with("(3 in total)"),
+        "{checksums:?}"
+    );
     assert!(
         events(&store, EventKind::Gap).is_empty(),
         "{:?}",
