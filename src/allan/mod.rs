@@ -14,6 +14,7 @@ pub mod edf;
 pub mod export;
 pub mod fit;
 pub mod input;
+mod lanes;
 mod modified;
 pub mod noise_id;
 pub mod numerics;

@@ -27,8 +27,10 @@
 //! unpredictably (13 to 130 ms for the same octave sweep depending on the group size, in
 //! a scratch comparison), and `std::arch` gives AVX-512 with runtime detection without a
 //! new dependency. No crate offering portable SIMD on stable Rust (e.g. `wide`) does the
-//! runtime dispatch to AVX-512, and the few operations needed fit in one small trait.
+//! runtime dispatch to AVX-512, and the few operations needed fit in one small trait
+//! ([`super::lanes`], shared with the MDEV/TDEV window sums).
 
+use super::lanes::{run_on, LaneJob, Lanes, LANES};
 use super::numerics::{sum_in_jobs, CompensatedSum, Simd};
 
 /// Terms per tile (32 KiB per stream). Measured flat between 1024 and 32 768 terms on
@@ -41,9 +43,6 @@ pub const TILES_PER_JOB: usize = 32;
 /// Most factors one register-blocked group holds: 4 eight-lane accumulators are 8 ymm
 /// registers on the AVX2 path, leaving room for the loaded streams.
 pub const GROUP: usize = 4;
-
-/// Lanes of every accumulation.
-const LANES: usize = 8;
 
 /// Instruction-set path of the sweep. All give identical bits (tested).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -125,7 +124,7 @@ pub fn second_difference_sums(
                 start,
                 end,
             };
-            run_job(path, &job)
+            run_on(path, &job)
         },
     )
 }
@@ -139,34 +138,12 @@ struct Job<'a> {
     end: usize,
 }
 
-fn run_job(path: SweepPath, job: &Job) -> Vec<CompensatedSum> {
-    #[cfg(target_arch = "x86_64")]
-    {
-        let best = SweepPath::detected();
-        if path == SweepPath::Avx512 && best == SweepPath::Avx512 {
-            // SAFETY: the CPU has AVX-512F, AVX2 and FMA (detected just above).
-            return unsafe { job_avx512(job) };
-        }
-        if path == SweepPath::Avx2 && best != SweepPath::Portable {
-            // SAFETY: the CPU has AVX2 and FMA (detected just above).
-            return unsafe { job_avx2(job) };
-        }
+impl LaneJob for &Job<'_> {
+    type Output = Vec<CompensatedSum>;
+    #[inline(always)]
+    unsafe fn run<V: Lanes>(self) -> Vec<CompensatedSum> {
+        job_lanes::<V>(self)
     }
-    let _ = path;
-    // SAFETY: the portable lanes need no CPU feature.
-    unsafe { job_lanes::<Portable>(job) }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn job_avx2(job: &Job) -> Vec<CompensatedSum> {
-    job_lanes::<x86::Avx2>(job)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,fma")]
-unsafe fn job_avx512(job: &Job) -> Vec<CompensatedSum> {
-    job_lanes::<x86::Avx512>(job)
 }
 
 /// How a group's factors share their loads.
@@ -384,142 +361,6 @@ unsafe fn shared<V: Lanes, const G: usize>(
         }
     }
     acc.map(|v| v.to_array())
-}
-
-/// Eight f64 lanes. Every method is `unsafe` because the SIMD implementations need their
-/// CPU features; each operation is the correctly rounded IEEE one per lane, so all
-/// implementations give the same bits.
-trait Lanes: Copy {
-    unsafe fn zero() -> Self;
-    /// Loads eight values from `p` (unaligned).
-    unsafe fn load(p: *const f64) -> Self;
-    unsafe fn add(self, other: Self) -> Self;
-    unsafe fn mul(self, other: Self) -> Self;
-    /// self − 2·b, rounded once.
-    unsafe fn minus_twice(self, b: Self) -> Self;
-    unsafe fn to_array(self) -> [f64; LANES];
-}
-
-/// Portable lanes (the compiler vectorises them for the baseline target).
-#[derive(Clone, Copy)]
-struct Portable([f64; LANES]);
-
-impl Lanes for Portable {
-    #[inline(always)]
-    unsafe fn zero() -> Self {
-        Portable([0.0; LANES])
-    }
-    #[inline(always)]
-    unsafe fn load(p: *const f64) -> Self {
-        Portable(p.cast::<[f64; LANES]>().read_unaligned())
-    }
-    #[inline(always)]
-    unsafe fn add(self, other: Self) -> Self {
-        Portable(std::array::from_fn(|l| self.0[l] + other.0[l]))
-    }
-    #[inline(always)]
-    unsafe fn mul(self, other: Self) -> Self {
-        Portable(std::array::from_fn(|l| self.0[l] * other.0[l]))
-    }
-    #[inline(always)]
-    unsafe fn minus_twice(self, b: Self) -> Self {
-        Portable(std::array::from_fn(|l| self.0[l] - 2.0 * b.0[l]))
-    }
-    #[inline(always)]
-    unsafe fn to_array(self) -> [f64; LANES] {
-        self.0
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-mod x86 {
-    //! AVX2 and AVX-512 lanes. The methods carry their target features, so they inline
-    //! into the `#[target_feature]` job functions that instantiate the sweep with them.
-    use super::{Lanes, LANES};
-    use std::arch::x86_64::*;
-
-    /// Two 256-bit halves.
-    #[derive(Clone, Copy)]
-    pub(super) struct Avx2(__m256d, __m256d);
-
-    impl Lanes for Avx2 {
-        #[inline]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn zero() -> Self {
-            Avx2(_mm256_setzero_pd(), _mm256_setzero_pd())
-        }
-        #[inline]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn load(p: *const f64) -> Self {
-            Avx2(_mm256_loadu_pd(p), _mm256_loadu_pd(p.add(4)))
-        }
-        #[inline]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn add(self, o: Self) -> Self {
-            Avx2(_mm256_add_pd(self.0, o.0), _mm256_add_pd(self.1, o.1))
-        }
-        #[inline]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn mul(self, o: Self) -> Self {
-            Avx2(_mm256_mul_pd(self.0, o.0), _mm256_mul_pd(self.1, o.1))
-        }
-        #[inline]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn minus_twice(self, b: Self) -> Self {
-            let two = _mm256_set1_pd(2.0);
-            Avx2(
-                _mm256_fnmadd_pd(two, b.0, self.0),
-                _mm256_fnmadd_pd(two, b.1, self.1),
-            )
-        }
-        #[inline]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn to_array(self) -> [f64; LANES] {
-            let mut out = [0.0; LANES];
-            _mm256_storeu_pd(out.as_mut_ptr(), self.0);
-            _mm256_storeu_pd(out.as_mut_ptr().add(4), self.1);
-            out
-        }
-    }
-
-    /// One 512-bit register.
-    #[derive(Clone, Copy)]
-    pub(super) struct Avx512(__m512d);
-
-    impl Lanes for Avx512 {
-        #[inline]
-        #[target_feature(enable = "avx512f")]
-        unsafe fn zero() -> Self {
-            Avx512(_mm512_setzero_pd())
-        }
-        #[inline]
-        #[target_feature(enable = "avx512f")]
-        unsafe fn load(p: *const f64) -> Self {
-            Avx512(_mm512_loadu_pd(p))
-        }
-        #[inline]
-        #[target_feature(enable = "avx512f")]
-        unsafe fn add(self, o: Self) -> Self {
-            Avx512(_mm512_add_pd(self.0, o.0))
-        }
-        #[inline]
-        #[target_feature(enable = "avx512f")]
-        unsafe fn mul(self, o: Self) -> Self {
-            Avx512(_mm512_mul_pd(self.0, o.0))
-        }
-        #[inline]
-        #[target_feature(enable = "avx512f")]
-        unsafe fn minus_twice(self, b: Self) -> Self {
-            Avx512(_mm512_fnmadd_pd(_mm512_set1_pd(2.0), b.0, self.0))
-        }
-        #[inline]
-        #[target_feature(enable = "avx512f")]
-        unsafe fn to_array(self) -> [f64; LANES] {
-            let mut out = [0.0; LANES];
-            _mm512_storeu_pd(out.as_mut_ptr(), self.0);
-            out
-        }
-    }
 }
 
 #[cfg(test)]
