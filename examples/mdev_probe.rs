@@ -8,7 +8,7 @@
 //! `cargo run --release --example mdev_probe -- [mdev|tdev] [RUNS] [THREADS] [octave|dense:N]`
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions};
 use imulab::allan::deviation::variances_with;
-use imulab::allan::input::{AxisSeries, Health};
+use imulab::allan::input::AxisSeries;
 use imulab::allan::numerics::Simd;
 use imulab::allan::units::RateUnit;
 use imulab::allan::{DeviationKind, Phase, TauGrid};
@@ -98,17 +98,7 @@ fn main() {
         unit: RateUnit::RadPerSecond,
         sensor: RateUnit::RadPerSecond.sensor(),
     };
-    let series = |rate: Vec<f64>| AxisSeries {
-        name: "0".into(),
-        tau0: 1.0 / RATE_HZ,
-        health: Health {
-            samples: rate.len() as u64,
-            segments: 1,
-            ..Health::default()
-        },
-        segments: vec![rate],
-        temperature: None,
-    };
+    let series = |rate: Vec<f64>| AxisSeries::one_segment("0", 1.0 / RATE_HZ, rate);
     let (axis_time, _) = time(
         runs,
         || series(y.clone()),
