@@ -230,3 +230,110 @@ fn orphan_journal_beside_a_completed_file_is_removed() {
     assert!(!dir.join("chunk-000000.h5.journal1").exists());
     assert_eq!(contents(&dir), before);
 }
+
+const STALL_TIMER_ENV: &str = "IMULAB_STORE_TEST_STALL_TIMER_DIR";
+const STALL_APPENDS_ENV: &str = "IMULAB_STORE_TEST_STALL_APPENDS_DIR";
+const SLOW_TIMER_ENV: &str = "IMULAB_STORE_TEST_SLOW_TIMER_DIR";
+/// GNSS fixes the stalling receiver sends (3 s at 5 Hz) before it falls silent: fewer than
+/// its 50-row chunk, which therefore never fills.
+const STALLED_FIXES: usize = 15;
+
+/// Fix `k` of a receiver sending at half its nominal 5 Hz (one every 0.4 s from t = 1 s).
+fn slow_fix(k: usize) -> GnssRecord {
+    GnssRecord {
+        t_mono_ns: imu_row(0, 40 * k).t_mono_ns,
+        ..gnss_row(k)
+    }
+}
+
+/// The IMUs stream on; the GNSS sends [`STALLED_FIXES`] and stalls, or (`slow`) sends
+/// [`slow_fix`]es throughout. With `timer` the child calls `maybe_flush_and_rotate` every
+/// second of data time, as imulogd does.
+fn run_gnss_child(env: &str, timer: bool, slow: bool) {
+    let opts = WriterOptions {
+        fsync_on_flush: false,
+        ..WriterOptions::default()
+    };
+    run_writer_child(env, opts, |w, i| {
+        if slow && i % 40 == 0 {
+            w.append_gnss("gps", &[slow_fix(i / 40)]).unwrap();
+        } else if !slow && i % 20 == 0 && i / 20 < STALLED_FIXES {
+            w.append_gnss("gps", &[gnss_row(i / 20)]).unwrap();
+        }
+        if timer && (i + 10) % 100 == 0 {
+            w.maybe_flush_and_rotate(imu_row(0, i + 9).t_mono_ns)
+                .unwrap();
+        }
+    });
+}
+
+#[test]
+fn stall_child_writer_with_timer() {
+    run_gnss_child(STALL_TIMER_ENV, true, false);
+}
+
+#[test]
+fn stall_child_writer_appends_only() {
+    run_gnss_child(STALL_APPENDS_ENV, false, false);
+}
+
+#[test]
+fn slow_child_writer_with_timer() {
+    run_gnss_child(SLOW_TIMER_ENV, true, true);
+}
+
+/// A stalled device's incomplete chunk reaches the HDF5 file (not only the journal) once
+/// its oldest row is a chunk interval old and no row came for a flush interval, on the live
+/// writer's timer. Appends alone write whole chunks only (a table fed in blocks, table
+/// after table, is not stalled), and a device still sending, at half its rate, fills its
+/// chunk by itself (it would be written early only at two chunk intervals): a chunk
+/// written half and later whole would be stored twice. Whichever way, `recover` brings back
+/// every fix exactly once. The children are killed 14.5 s after the first fix.
+#[test]
+fn stalled_device_reaches_the_file_on_the_timer_only() {
+    if [STALL_TIMER_ENV, STALL_APPENDS_ENV, SLOW_TIMER_ENV]
+        .iter()
+        .any(|e| std::env::var(e).is_ok())
+    {
+        return;
+    }
+    let _serial = child_process_guard();
+    let tmp = tempfile::tempdir().unwrap();
+    for (test, env, in_file) in [
+        (
+            "journal::stall_child_writer_with_timer",
+            STALL_TIMER_ENV,
+            true,
+        ),
+        (
+            "journal::stall_child_writer_appends_only",
+            STALL_APPENDS_ENV,
+            false,
+        ),
+        (
+            "journal::slow_child_writer_with_timer",
+            SLOW_TIMER_ENV,
+            false,
+        ),
+    ] {
+        let dir = tmp.path().join(env);
+        let mut child = WriterChild::spawn(test, env, &dir);
+        child.wait_for(imu_row(0, 1450).t_mono_ns);
+        let last_t = child.kill();
+        let report = recover(&dir).unwrap();
+        let gnss = contents(&dir).gnss;
+        if env == SLOW_TIMER_ENV {
+            assert_eq!(gnss, (0..gnss.len()).map(slow_fix).collect::<Vec<_>>());
+            let due = (0..).take_while(|&k| slow_fix(k).t_mono_ns <= last_t - SECOND);
+            assert!(gnss.len() >= due.count(), "{test}: {} fixes", gnss.len());
+        } else {
+            assert_eq!(gnss, (0..STALLED_FIXES).map(gnss_row).collect::<Vec<_>>());
+        }
+        let from_journal = if in_file { 0 } else { gnss.len() as u64 };
+        assert_eq!(
+            rows_from_journal(&report, "gnss/gps"),
+            from_journal,
+            "{test}: {report:?}"
+        );
+    }
+}
