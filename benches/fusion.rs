@@ -7,9 +7,9 @@
 #[path = "../tests/fusion/support.rs"]
 mod fusion_support;
 
-use fusion_support::{mems_errors, nav_from, simulate, SimData};
+use fusion_support::{mems_errors, simulate, SimData};
 use imulab::fusion::config::FusionConfig;
-use imulab::fusion::mechanisation::{ImuInput, IntegrationOrder};
+use imulab::fusion::mechanisation::{ImuInput, IntegrationOrder, NavState};
 use imulab::fusion::metrics::{errors, summarise};
 use imulab::fusion::navigator::{replay, ReplayOptions};
 use imulab::sim::motion::{MotionSpec, Segment};
@@ -136,7 +136,7 @@ fn run(
     outages: &[(f64, f64)],
 ) -> Row {
     let opts = ReplayOptions {
-        initial: Some(nav_from(&d.truth[0])),
+        initial: Some(NavState::from(&d.truth[0])),
         outages: outages.to_vec(),
         smooth,
         ..Default::default()
@@ -280,7 +280,7 @@ fn main() {
     );
     let hours = d.truth.last().map_or(0.0, |t| t.t_s) / 3600.0;
     let opts = ReplayOptions {
-        initial: Some(nav_from(&d.truth[0])),
+        initial: Some(NavState::from(&d.truth[0])),
         ..Default::default()
     };
     let mut best = f64::INFINITY;

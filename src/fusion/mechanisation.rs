@@ -27,6 +27,21 @@ pub struct NavState {
     pub quat_nb: UnitQuaternion<f64>,
 }
 
+impl From<&crate::sim::motion::TruthSample> for NavState {
+    /// The simulator's true state as a navigation state (same time, position, velocity and
+    /// attitude): a mechanisation started from it follows the truth.
+    fn from(t: &crate::sim::motion::TruthSample) -> Self {
+        NavState {
+            t_s: t.t_s,
+            lat_rad: t.lat_rad,
+            lon_rad: t.lon_rad,
+            height_m: t.height_m,
+            vel_ned: t.vel_ned,
+            quat_nb: t.quat_nb,
+        }
+    }
+}
+
 impl NavState {
     /// Roll, pitch, yaw in radians (ZYX Euler angles of body → NED).
     pub fn euler_rad(&self) -> (f64, f64, f64) {

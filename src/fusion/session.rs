@@ -6,13 +6,22 @@
 use crate::fusion::config::FusionConfig;
 use crate::fusion::mechanisation::{ImuInput, NavState};
 use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions, ReplayResult};
-use crate::store::{DeviceKind, GnssRecord, Session, TimeRange};
+use crate::store::{DeviceKind, GnssRecord, Session, StoreError, TimeRange};
 use anyhow::{bail, Context};
 use imulab_drivers::types::FixType;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 /// Rows per block read from the store.
 const BLOCK_ROWS: usize = 65_536;
+
+/// The blocks of a stream that read; each one that does not is noted in `problems` (its
+/// error names the chunk file) and skipped, so one bad file does not stop a replay.
+fn readable<'a, B: 'a>(
+    blocks: impl Iterator<Item = Result<B, StoreError>> + 'a,
+    problems: &'a mut Vec<String>,
+) -> impl Iterator<Item = B> + 'a {
+    blocks.filter_map(move |b| b.map_err(|e| problems.push(e.to_string())).ok())
+}
 
 /// What a session replay produced besides the trajectory.
 #[derive(Debug, Clone, Default)]
@@ -137,14 +146,8 @@ pub fn replay_session(
     out.t0_mono_ns = t0;
 
     let mut fixes = Vec::new();
-    for block in session.gnss_blocks(&out.gnss_device, TimeRange::all(), BLOCK_ROWS)? {
-        let block = match block {
-            Ok(b) => b,
-            Err(e) => {
-                out.problems.push(e.to_string());
-                continue;
-            }
-        };
+    let blocks = session.gnss_blocks(&out.gnss_device, TimeRange::all(), BLOCK_ROWS)?;
+    for block in readable(blocks, &mut out.problems) {
         for i in 0..block.len() {
             let r = block.record(i);
             match observation(&r, t0) {
@@ -160,14 +163,8 @@ pub fn replay_session(
     }
 
     if session.manifest().truth_nav_rate_hz.is_some() {
-        for block in session.truth_nav_blocks(TimeRange::all(), BLOCK_ROWS)? {
-            let block = match block {
-                Ok(b) => b,
-                Err(e) => {
-                    out.problems.push(e.to_string());
-                    continue;
-                }
-            };
+        let blocks = session.truth_nav_blocks(TimeRange::all(), BLOCK_ROWS)?;
+        for block in readable(blocks, &mut out.problems) {
             for i in 0..block.len() {
                 let q = block.quat_nb[i];
                 out.truth.push(NavState {
@@ -218,14 +215,10 @@ fn stream<const N: usize>(
 ) -> anyhow::Result<ReplayResult> {
     let mut nav = Navigator::<N>::new(config, options);
     let mut next_fix = fixes.iter().peekable();
-    for block in session.imu_blocks(imu, TimeRange::all(), BLOCK_ROWS)? {
-        let block = match block {
-            Ok(b) => b,
-            Err(e) => {
-                problems.push(e.to_string());
-                continue;
-            }
-        };
+    for block in readable(
+        session.imu_blocks(imu, TimeRange::all(), BLOCK_ROWS)?,
+        problems,
+    ) {
         for i in 0..block.len() {
             let t = seconds(block.t_mono_ns[i], t0);
             while let Some(f) = next_fix.next_if(|f| f.t_s < t) {

@@ -289,11 +289,8 @@ impl StudyDrive {
                 let q = t.quat_nb.quaternion();
                 NavState {
                     t_s: session_seconds(START_MONO_NS + sample_ns(k, scene.rate_hz)),
-                    lat_rad: t.lat_rad,
-                    lon_rad: t.lon_rad,
-                    height_m: t.height_m,
-                    vel_ned: t.vel_ned,
                     quat_nb: UnitQuaternion::from_quaternion(Quaternion::new(q.w, q.i, q.j, q.k)),
+                    ..NavState::from(t)
                 }
             })
             .collect();

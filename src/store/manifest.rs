@@ -107,6 +107,38 @@ impl Manifest {
         self.devices.iter().find(|d| d.name == name)
     }
 
+    /// The device `name`, which must be of `kind` when one is given; else an error naming
+    /// it and, when it is not in the manifest, the devices that are (for the writer's appends
+    /// and the reader's streams alike).
+    pub fn device_of_kind(
+        &self,
+        name: &str,
+        kind: Option<DeviceKind>,
+    ) -> Result<&DeviceInfo, StoreError> {
+        match self.device(name) {
+            Some(d) if kind.is_none_or(|k| k == d.kind) => Ok(d),
+            Some(d) => Err(StoreError::UnknownDevice {
+                device: name.into(),
+                msg: format!(
+                    "is a {} device, not {}",
+                    d.kind.as_str(),
+                    kind.map_or("", DeviceKind::as_str)
+                ),
+            }),
+            None => Err(StoreError::UnknownDevice {
+                device: name.into(),
+                msg: format!(
+                    "not in the session manifest (devices: {})",
+                    self.devices
+                        .iter()
+                        .map(|d| d.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            }),
+        }
+    }
+
     /// Checks what the store relies on: known schema, usable and unique device names,
     /// finite positive rates. `path` is only used in the error.
     pub fn validate(&self, path: &Path) -> Result<(), StoreError> {

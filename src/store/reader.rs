@@ -293,28 +293,6 @@ impl Session {
             .collect()
     }
 
-    fn device_of_kind(&self, device: &str, kind: DeviceKind) -> Result<(), StoreError> {
-        match self.manifest.device(device) {
-            Some(d) if d.kind == kind => Ok(()),
-            Some(d) => Err(StoreError::UnknownDevice {
-                device: device.into(),
-                msg: format!("is a {} device, not {}", d.kind.as_str(), kind.as_str()),
-            }),
-            None => Err(StoreError::UnknownDevice {
-                device: device.into(),
-                msg: format!(
-                    "not in this session (devices: {})",
-                    self.manifest
-                        .devices
-                        .iter()
-                        .map(|d| d.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            }),
-        }
-    }
-
     fn blocks<B: Block>(&self, group: String, range: TimeRange, block_rows: usize) -> BlockIter<B> {
         BlockIter {
             files: self.files.clone(),
@@ -336,7 +314,8 @@ impl Session {
         range: TimeRange,
         block_rows: usize,
     ) -> Result<impl Iterator<Item = Result<ImuBlock, StoreError>> + use<>, StoreError> {
-        self.device_of_kind(device, DeviceKind::Imu)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Imu))?;
         Ok(self.blocks::<ImuBlock>(layout::imu_path(device), range, block_rows))
     }
 
@@ -351,7 +330,8 @@ impl Session {
         block_rows: usize,
         set: ImuColumnSet,
     ) -> Result<ImuColumnReader, StoreError> {
-        self.device_of_kind(device, DeviceKind::Imu)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Imu))?;
         Ok(ImuColumnReader {
             files: self.files.clone(),
             group: layout::imu_path(device),
@@ -370,7 +350,8 @@ impl Session {
         range: TimeRange,
         block_rows: usize,
     ) -> Result<impl Iterator<Item = Result<GnssBlock, StoreError>> + use<>, StoreError> {
-        self.device_of_kind(device, DeviceKind::Gnss)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Gnss))?;
         Ok(self.blocks::<GnssBlock>(layout::gnss_path(device), range, block_rows))
     }
 
@@ -382,13 +363,7 @@ impl Session {
         range: TimeRange,
         block_rows: usize,
     ) -> Result<impl Iterator<Item = Result<Vec<i64>, StoreError>> + use<>, StoreError> {
-        let d = self
-            .manifest
-            .device(device)
-            .ok_or_else(|| StoreError::UnknownDevice {
-                device: device.into(),
-                msg: "not in this session".into(),
-            })?;
+        let d = self.manifest.device_of_kind(device, None)?;
         let group = match d.kind {
             DeviceKind::Imu => layout::imu_path(device),
             DeviceKind::Gnss => layout::gnss_path(device),
@@ -420,7 +395,8 @@ impl Session {
         range: TimeRange,
         block_rows: usize,
     ) -> Result<impl Iterator<Item = Result<TruthImuBlock, StoreError>> + use<>, StoreError> {
-        self.device_of_kind(device, DeviceKind::Imu)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Imu))?;
         if self.manifest.truth_nav_rate_hz.is_none() {
             return Err(StoreError::Invalid(format!(
                 "{}: not a simulated session (no truth)",
@@ -460,12 +436,7 @@ impl Session {
         range: TimeRange,
         block_rows: usize,
     ) -> Result<impl Iterator<Item = Result<RawBlock, StoreError>> + use<>, StoreError> {
-        if self.manifest.device(device).is_none() {
-            return Err(StoreError::UnknownDevice {
-                device: device.into(),
-                msg: "not in this session".into(),
-            });
-        }
+        self.manifest.device_of_kind(device, None)?;
         let mut inner = self.blocks::<RawIndexBlock>(layout::raw_path(device), range, block_rows);
         inner.optional = true;
         Ok(RawIter { inner })

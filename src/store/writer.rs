@@ -872,20 +872,6 @@ impl SessionWriter {
         i64::try_from(self.opts.flush_interval.as_nanos()).unwrap_or(i64::MAX)
     }
 
-    fn check_device(&self, device: &str, kind: DeviceKind) -> Result<(), StoreError> {
-        match self.manifest.device(device) {
-            Some(d) if d.kind == kind => Ok(()),
-            Some(d) => Err(StoreError::UnknownDevice {
-                device: device.into(),
-                msg: format!("is a {} device, not {}", d.kind.as_str(), kind.as_str()),
-            }),
-            None => Err(StoreError::UnknownDevice {
-                device: device.into(),
-                msg: "not in the session manifest".into(),
-            }),
-        }
-    }
-
     /// Checks that `times` are usable and do not go back in time for `stream`.
     fn check_times(
         &mut self,
@@ -940,7 +926,8 @@ impl SessionWriter {
 
     /// Appends IMU rows for `device` (rows must be in time order).
     pub fn append_imu(&mut self, device: &str, rows: &[ImuRecord]) -> Result<(), StoreError> {
-        self.check_device(device, DeviceKind::Imu)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Imu))?;
         self.check_times(&layout::imu_path(device), rows.iter().map(|r| r.t_mono_ns))?;
         let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
             return Ok(());
@@ -955,7 +942,8 @@ impl SessionWriter {
 
     /// Appends GNSS rows for `device` (rows must be in time order).
     pub fn append_gnss(&mut self, device: &str, rows: &[GnssRecord]) -> Result<(), StoreError> {
-        self.check_device(device, DeviceKind::Gnss)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Gnss))?;
         self.check_times(&layout::gnss_path(device), rows.iter().map(|r| r.t_mono_ns))?;
         let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
             return Ok(());
@@ -984,12 +972,7 @@ impl SessionWriter {
         t_mono_ns: i64,
         bytes: &[u8],
     ) -> Result<(), StoreError> {
-        if self.manifest.device(device).is_none() {
-            return Err(StoreError::UnknownDevice {
-                device: device.into(),
-                msg: "not in the session manifest".into(),
-            });
-        }
+        self.manifest.device_of_kind(device, None)?;
         if !self.opts.raw_journal {
             return Err(StoreError::Invalid(format!(
                 "raw bytes for {device:?} but the writer was created without raw_journal"
@@ -1046,7 +1029,8 @@ impl SessionWriter {
         device: &str,
         rows: &[TruthImuRecord],
     ) -> Result<(), StoreError> {
-        self.check_device(device, DeviceKind::Imu)?;
+        self.manifest
+            .device_of_kind(device, Some(DeviceKind::Imu))?;
         if self.manifest.truth_nav_rate_hz.is_none() {
             return Err(StoreError::Invalid(
                 "truth rows for a session whose manifest has no truth_nav_rate_hz".into(),

@@ -285,6 +285,33 @@ fn imulogd_until(mut cmd: Command, dir: &Path, port: &Path, needle: &str) -> Str
     seen
 }
 
+/// `imulab decode` and then `imulogd` open `pty` as an unprivileged user: `imulab` must fail
+/// and imulogd log (until `needle` shows) with every one of `decode_parts` / `daemon_parts`
+/// in the message. Skipped, with the reason, when no unprivileged user can run them.
+fn both_binaries_explain(
+    test: &str,
+    pty: &Pty,
+    needle: &str,
+    decode_parts: &[&str],
+    daemon_parts: &[&str],
+) {
+    let port = pty.path.to_str().unwrap();
+    let mut cmd = match unprivileged(IMULAB) {
+        Ok(c) => c,
+        Err(why) => return skip(test, &why),
+    };
+    let out = cmd
+        .args(["decode", port, "--duration", "1"])
+        .output()
+        .unwrap();
+    assert_has(&failure(&out), decode_parts);
+
+    let dir = tempfile::tempdir().unwrap();
+    let cmd = unprivileged(IMULOGD).unwrap();
+    let log = imulogd_until(cmd, dir.path(), &pty.path, needle);
+    assert_has(&log, daemon_parts);
+}
+
 #[test]
 fn port_in_use_by_another_process() {
     let pty = open_pty(0o666);
@@ -292,27 +319,13 @@ fn port_in_use_by_another_process() {
     let rc = unsafe { libc::ioctl(pty.slave.as_raw_fd(), libc::TIOCEXCL) };
     assert_eq!(rc, 0, "TIOCEXCL: {}", std::io::Error::last_os_error());
     let port = pty.path.to_str().unwrap();
-
-    let mut cmd = match unprivileged(IMULAB) {
-        Ok(c) => c,
-        Err(why) => return skip("port_in_use_by_another_process", &why),
-    };
-    let out = cmd
-        .args(["decode", port, "--duration", "1"])
-        .output()
-        .unwrap();
-    let m = failure(&out);
-    assert_has(
-        &m,
-        &[port, "in use by another process", &format!("fuser {port}")],
-    );
-
-    let dir = tempfile::tempdir().unwrap();
-    let cmd = unprivileged(IMULOGD).unwrap();
-    let log = imulogd_until(cmd, dir.path(), &pty.path, "in use by another process");
-    assert_has(
-        &log,
-        &[port, "in use by another process", &format!("fuser {port}")],
+    let parts = [port, "in use by another process", &format!("fuser {port}")];
+    both_binaries_explain(
+        "port_in_use_by_another_process",
+        &pty,
+        "in use by another process",
+        &parts,
+        &parts,
     );
 }
 
@@ -328,30 +341,16 @@ fn serial_port_without_permission() {
     }
     let pty = open_pty(0o600);
     let port = pty.path.to_str().unwrap();
-    let mut cmd = match unprivileged(IMULAB) {
-        Ok(c) => c,
-        Err(why) => return skip("serial_port_without_permission", &why),
-    };
-    let out = cmd
-        .args(["decode", port, "--duration", "1"])
-        .output()
-        .unwrap();
-    let m = failure(&out);
-    assert_has(
-        &m,
+    both_binaries_explain(
+        "serial_port_without_permission",
+        &pty,
+        "dialout",
         &[
             port,
             "permission denied",
             "sudo usermod -aG dialout $USER",
             "log in again",
         ],
-    );
-
-    let dir = tempfile::tempdir().unwrap();
-    let cmd = unprivileged(IMULOGD).unwrap();
-    let log = imulogd_until(cmd, dir.path(), &pty.path, "dialout");
-    assert_has(
-        &log,
         &[port, "permission denied", "sudo usermod -aG dialout $USER"],
     );
 }

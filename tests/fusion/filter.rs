@@ -1,8 +1,9 @@
 //! The error-state filter on simulated drives: NEES consistency, bias (and scale) convergence,
 //! outage drift inside the predicted 3σ, the RTS smoother's gain, alignment from GNSS track.
 
-use crate::support::{city_drive, mems_errors, nav_from, simulate, SimData};
+use crate::support::{city_drive, mems_errors, simulate, SimData};
 use imulab::fusion::config::FusionConfig;
+use imulab::fusion::mechanisation::NavState;
 use imulab::fusion::metrics::{errors, summarise, ErrorSummary};
 use imulab::fusion::navigator::{replay, ReplayOptions, ReplayResult};
 use nalgebra::Vector3;
@@ -46,7 +47,7 @@ fn run(
     smooth: bool,
 ) -> (ReplayResult, ErrorSummary) {
     let opts = ReplayOptions {
-        initial: Some(nav_from(&d.truth[0])),
+        initial: Some(NavState::from(&d.truth[0])),
         outages: outages.clone(),
         smooth,
         ..Default::default()

@@ -7,17 +7,6 @@ use imulab::fusion::mechanisation::{
 use imulab::sim::motion::{static_truth, MotionGenerator, MotionSpec, Segment, TruthSample};
 use nalgebra::{UnitQuaternion, Vector3};
 
-fn nav_from(t: &TruthSample) -> NavState {
-    NavState {
-        t_s: t.t_s,
-        lat_rad: t.lat_rad,
-        lon_rad: t.lon_rad,
-        height_m: t.height_m,
-        vel_ned: t.vel_ned,
-        quat_nb: t.quat_nb,
-    }
-}
-
 fn errors(nav: &NavState, t: &TruthSample) -> (f64, f64, f64) {
     let dp = nav.ned_offset_from(t.lat_rad, t.lon_rad, t.height_m).norm();
     let dv = (nav.vel_ned - t.vel_ned).norm();
@@ -33,7 +22,7 @@ fn stationary_noise_free_imu_stays_put_for_ten_minutes() {
     ] {
         let q = UnitQuaternion::from_euler_angles(0.02, -0.03, 1.1);
         let truth = static_truth(f64::to_radians(lat_deg), 0.3, 120.0, q);
-        let mut nav = nav_from(&truth);
+        let mut nav = NavState::from(&truth);
         let mut mech = Mechaniser::new(MechanisationOptions {
             order,
             coning_sculling: true,
@@ -91,7 +80,7 @@ fn constant_rate_turns_return_to_truth_with_rates_and_increments() {
     let truth: Vec<TruthSample> = MotionGenerator::new(&drive(), 2.0 * rate)
         .expect("plan")
         .collect();
-    let mut by_rates = nav_from(&truth[0]);
+    let mut by_rates = NavState::from(&truth[0]);
     let mut by_incs = by_rates;
     let mut mech_r = Mechaniser::new(MechanisationOptions::default());
     let mut mech_i = Mechaniser::new(MechanisationOptions::default());

@@ -37,18 +37,7 @@ impl SimData {
         if k < 0.0 || (k / self.imu_rate - t).abs() > 1e-6 {
             return None;
         }
-        self.truth.get(k as usize).map(nav_from)
-    }
-}
-
-pub fn nav_from(t: &TruthSample) -> NavState {
-    NavState {
-        t_s: t.t_s,
-        lat_rad: t.lat_rad,
-        lon_rad: t.lon_rad,
-        height_m: t.height_m,
-        vel_ned: t.vel_ned,
-        quat_nb: t.quat_nb,
+        self.truth.get(k as usize).map(NavState::from)
     }
 }
 
@@ -111,7 +100,7 @@ pub fn simulate(
     }
     let mut gnss = Vec::new();
     for t in truth.iter().step_by(gnss_every.max(1)) {
-        let mut nav = nav_from(t);
+        let mut nav = NavState::from(t);
         let lever_n = t.quat_nb * lever_b;
         let omega_b = t.gyro_b;
         let noise_p = normal3(&mut rng);

@@ -47,6 +47,16 @@ pub struct RawReplay {
     sent: u64,
 }
 
+/// Opens a recorded log for replay; a failure names the file.
+async fn open_log(path: &Path) -> Result<tokio::fs::File, TransportError> {
+    tokio::fs::File::open(path)
+        .await
+        .map_err(|e| TransportError::Open {
+            device: path.display().to_string(),
+            source: e,
+        })
+}
+
 impl RawReplay {
     /// Opens `path`. With `bytes_per_second` the bytes come no faster than that (a serial
     /// link at B baud, 8N1, carries B/10 bytes per second); `None` is as fast as possible.
@@ -58,12 +68,7 @@ impl RawReplay {
                 )));
             }
         }
-        let file = tokio::fs::File::open(path)
-            .await
-            .map_err(|e| TransportError::Open {
-                device: path.display().to_string(),
-                source: e,
-            })?;
+        let file = open_log(path).await?;
         Ok(RawReplay {
             file,
             path: path.to_path_buf(),
@@ -115,12 +120,7 @@ pub struct CandumpReplay {
 impl CandumpReplay {
     pub async fn open(path: &Path, speed: ReplaySpeed) -> Result<Self, TransportError> {
         let speed = speed.check()?;
-        let file = tokio::fs::File::open(path)
-            .await
-            .map_err(|e| TransportError::Open {
-                device: path.display().to_string(),
-                source: e,
-            })?;
+        let file = open_log(path).await?;
         Ok(CandumpReplay {
             file,
             path: path.to_path_buf(),
