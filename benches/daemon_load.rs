@@ -13,15 +13,22 @@
 //! side, the daemon exited 0 after SIGTERM.
 //!
 //! `cargo bench --bench daemon_load -- pty [--secs S] [--speed F[,F...]] [--runs N]
-//! [--sample-s S] [--imulogd PATH] [--curve FILE.csv] [--raw-journal] [--nice N]`
+//! [--sample-s S] [--imulogd PATH] [--curve FILE.csv] [--raw-journal] [--nice N]
+//! [--keep-awake]`
 //! (`--nice` sets the nice value of the simulator and the daemon, e.g. -10 to stand in for
-//! a bench PC that runs nothing else; `--imulogd` compares another build.)
+//! a bench PC that runs nothing else; `--imulogd` compares another build; `--keep-awake`
+//! keeps every CPU busy with `SCHED_IDLE` threads in a process of their own, so no vCPU
+//! halts between frames: `daemon_load/awake.rs`.) Per daemon thread the schedstat line
+//! gives CPU %, wake-ups a second and µs on a CPU per wake-up.
 //!
 //! **`floor` mode** (`daemon_load/floor.rs`): the same simulator and ptys read by minimal
 //! readers (blocking threads, one epoll thread, a tokio current-thread runtime) that only read
 //! and timestamp: the CPU any reader needs here, to compare `imulogd` with.
 //! `cargo bench --bench daemon_load -- floor [--secs S] [--speed F] [--runs N]
-//! [--readers threads,epoll,tokio,tokio-io,tokio-grid] [--nice N] [--in-process]`
+//! [--readers threads,epoll,tokio,tokio-io,tokio-grid,tokio-fd,tokio-tickMS] [--nice N] [--in-process]
+//! [--keep-awake]`
+//!
+//! Both modes print through one table printer (`daemon_load/report.rs`).
 //!
 //! **memory mode** (the default; rounds 1-2): the daemon loop in-process, fed from
 //! in-memory streams by a generator thread with pre-encoded frames in 1 ms bursts; prints,
@@ -54,6 +61,12 @@ mod pty;
 
 #[path = "daemon_load/floor.rs"]
 mod floor;
+
+#[path = "daemon_load/report.rs"]
+mod report;
+
+#[path = "daemon_load/awake.rs"]
+mod awake;
 
 /// The value of option `name` as a positive finite number (the modes' option parsers).
 fn positive_number(name: &str, v: &str) -> Result<f64, String> {
@@ -258,6 +271,7 @@ fn main() {
         Some("pty") => return pty::main(std::env::args().skip(2).collect()),
         Some("floor") => return floor::main(std::env::args().skip(2).collect()),
         Some("floor-reader") => return floor::reader_main(std::env::args().skip(2).collect()),
+        Some("keep-awake") => return awake::awake_main(),
         _ => {}
     }
     let mut secs = 10.0;

@@ -1,5 +1,6 @@
 //! systemd notification: READY=1 only once every device has opened or failed its first
 //! attempt, WATCHDOG=1 fed while the writer thread turns over (and not while it is wedged),
+//! also when every device is silent (the device thread answers the writer's nudge),
 //! STOPPING=1 at shutdown. The test binds the notification socket itself and points
 //! NOTIFY_SOCKET/WATCHDOG_USEC at it (own test binary: the environment is process-wide).
 
@@ -72,7 +73,7 @@ fn parts(
 }
 
 #[test]
-fn ready_after_every_device_settled_watchdog_fed_only_while_the_writer_turns() {
+fn ready_after_every_device_settled_watchdog_fed_only_while_both_threads_turn() {
     let dir = tempfile::tempdir().unwrap();
     let socket_path = dir.path().join("notify.sock");
     let socket = UnixDatagram::bind(&socket_path).unwrap();
@@ -164,5 +165,37 @@ fn ready_after_every_device_settled_watchdog_fed_only_while_the_writer_turns() {
             .iter()
             .any(|(t, m)| m == "WATCHDOG=1" && *t < Duration::from_millis(300)),
         "fed before the writer wedged: {wedged:?}"
+    );
+
+    // Phase 3: every device silent (one open, one absent): no hand-overs show the device
+    // thread alive, so the writer nudges it and its answer feeds the watchdog, every 200 ms.
+    let quiet = QueueConnector::default();
+    let _port = quiet.plug();
+    let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon_config = config.clone();
+    let daemon_parts = parts(
+        &config,
+        MemorySink::new(),
+        vec![quiet, QueueConnector::default()],
+    );
+    let t2 = Instant::now();
+    let daemon = runtime.spawn(async move { run(&daemon_config, daemon_parts, stop_rx).await });
+    std::thread::sleep(Duration::from_millis(1000));
+    let _ = stop.send(true);
+    assert_eq!(runtime.block_on(daemon).unwrap().exit_code(), 0);
+    let silent = since(&log, t2);
+    let fed: Vec<Duration> = silent
+        .iter()
+        .filter(|(_, m)| m == "WATCHDOG=1")
+        .map(|(t, _)| *t)
+        .collect();
+    assert!(
+        fed.len() >= 3,
+        "fed while every device is silent: {silent:?}"
+    );
+    assert!(
+        fed.windows(2)
+            .all(|w| w[1] - w[0] < Duration::from_millis(300)),
+        "fed about every 200 ms: {silent:?}"
     );
 }

@@ -21,10 +21,21 @@
 //!   (`enable_io`: no timer wheel, no signal driver); `tokio-grid`: `tokio` plus the daemon's
 //!   hand-over timer (each task's first read of a 250 ms grid period arms a timer for the
 //!   next grid point, waited for beside the read), so a timer is pending at nearly every
-//!   wait, as in `imulogd`.
+//!   wait, as in `imulogd`; `tokio-tickMS` (e.g. `tokio-tick10`): not one wake-up per
+//!   frame but a tokio interval of MS ms, each tick reading what every pty holds (a data
+//!   point only: `imulogd` reads per frame so that each frame has its own arrival time);
+//!   `tokio-fd`: `tokio` without the drivers' transport: raw descriptors in tokio's
+//!   `AsyncFd`, a read short of the buffer clearing the readiness as the drivers'
+//!   `SerialStream` does (without its busy-port clock read), no `StreamTransport` or
+//!   `ByteSource::read` future: what the transport layer adds to a wake-up.
+//!
+//! In a child process each reader thread's schedstat (on-CPU time, times scheduled in) is
+//! printed too: µs per wake-up. `--keep-awake` keeps the CPUs out of halt meanwhile
+//! ([`super::awake`]).
 //!
 //! `cargo bench --bench daemon_load -- floor [--secs S] [--speed F] [--runs N]
-//! [--readers threads,epoll,tokio,tokio-io,tokio-grid] [--nice N] [--in-process]`
+//! [--readers threads,epoll,tokio,tokio-io,tokio-grid,tokio-fd,tokio-tickMS] [--nice N] [--in-process]
+//! [--keep-awake]`
 
 use std::os::fd::{AsRawFd, OwnedFd};
 use std::os::unix::thread::JoinHandleExt;
@@ -41,7 +52,9 @@ use nix::fcntl::{open, OFlag};
 use nix::sys::stat::Mode;
 use nix::sys::termios::{cfmakeraw, tcgetattr, tcsetattr, SetArg};
 
-use super::pty::{loadavg, scene, thread_times};
+use super::awake::KeepAwake;
+use super::pty::scene;
+use super::report::{loadavg, set_nice, thread_shares, thread_times, Load, Table, ThreadTimes};
 use super::{parsed, positive_number};
 use std::io::{BufRead, Write};
 
@@ -57,29 +70,44 @@ enum Kind {
     TokioIo,
     /// `Tokio` with the daemon's hand-over timer pending beside each read.
     TokioGrid,
+    /// `Tokio` without the drivers' transport: raw pty descriptors in tokio's `AsyncFd`, a
+    /// read short of the buffer taken as draining the pty (readiness cleared at once).
+    TokioFd,
+    /// A tokio interval of this many ms; each tick reads whatever every pty holds (a data
+    /// point for the docs: what batching reads by time would save, at the price of arrival
+    /// times blurred by up to a period).
+    TokioTick(u64),
 }
 
 impl Kind {
     fn parse(s: &str) -> Result<Kind, String> {
-        match s {
-            "threads" => Ok(Kind::Threads),
-            "epoll" => Ok(Kind::Epoll),
-            "tokio" => Ok(Kind::Tokio),
-            "tokio-io" => Ok(Kind::TokioIo),
-            "tokio-grid" => Ok(Kind::TokioGrid),
-            other => Err(format!(
-                "--readers: unknown reader {other:?} (threads, epoll, tokio, tokio-io, tokio-grid)"
+        let tick = s
+            .strip_prefix("tokio-tick")
+            .and_then(|ms| ms.parse::<u64>().ok())
+            .filter(|&ms| ms > 0);
+        match (s, tick) {
+            (_, Some(ms)) => Ok(Kind::TokioTick(ms)),
+            ("threads", _) => Ok(Kind::Threads),
+            ("epoll", _) => Ok(Kind::Epoll),
+            ("tokio", _) => Ok(Kind::Tokio),
+            ("tokio-io", _) => Ok(Kind::TokioIo),
+            ("tokio-grid", _) => Ok(Kind::TokioGrid),
+            ("tokio-fd", _) => Ok(Kind::TokioFd),
+            (other, _) => Err(format!(
+                "--readers: unknown reader {other:?} (threads, epoll, tokio, tokio-io, tokio-grid, tokio-fd, tokio-tickMS e.g. tokio-tick10)"
             )),
         }
     }
 
-    fn name(self) -> &'static str {
+    fn name(self) -> String {
         match self {
-            Kind::Threads => "threads",
-            Kind::Epoll => "epoll",
-            Kind::Tokio => "tokio",
-            Kind::TokioIo => "tokio-io",
-            Kind::TokioGrid => "tokio-grid",
+            Kind::Threads => "threads".into(),
+            Kind::Epoll => "epoll".into(),
+            Kind::Tokio => "tokio".into(),
+            Kind::TokioIo => "tokio-io".into(),
+            Kind::TokioGrid => "tokio-grid".into(),
+            Kind::TokioFd => "tokio-fd".into(),
+            Kind::TokioTick(ms) => format!("tokio-tick{ms}"),
         }
     }
 }
@@ -92,6 +120,8 @@ struct Options {
     nice: Option<i32>,
     /// `--in-process`: reader threads in this (the simulator's) process.
     in_process: bool,
+    /// `--keep-awake`: busy `SCHED_IDLE` threads keep the CPUs out of halt during the runs.
+    keep_awake: bool,
 }
 
 fn parse_options(args: Vec<String>) -> Result<Options, String> {
@@ -102,6 +132,7 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
         kinds: vec![Kind::Threads, Kind::Epoll, Kind::Tokio, Kind::TokioIo],
         nice: None,
         in_process: false,
+        keep_awake: false,
     };
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
@@ -118,6 +149,7 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
             }
             "--nice" => o.nice = Some(parsed("--nice", &value("--nice")?)?),
             "--in-process" => o.in_process = true,
+            "--keep-awake" => o.keep_awake = true,
             "--bench" => {}
             other => return Err(format!("floor: unknown argument {other:?}")),
         }
@@ -132,7 +164,7 @@ struct Counts {
     reads: AtomicU64,
     bytes: AtomicU64,
     stamp_sum: AtomicU64,
-    /// `epoll_wait` returns (the `epoll` reader only).
+    /// `epoll_wait` returns (the `epoll` reader), ticks (`tokio-tick`).
     waits: AtomicU64,
 }
 
@@ -340,6 +372,119 @@ fn start_tokio(
     vec![thread]
 }
 
+/// One thread with a current-thread tokio runtime (`enable_all`), one task per pty reading a
+/// raw non-blocking descriptor through `AsyncFd`; a read short of the buffer clears the
+/// readiness (the pty held no more), so a wake-up makes one `read`.
+fn start_tokio_fd(paths: &[PathBuf], counts: &Arc<Counts>) -> Vec<JoinHandle<()>> {
+    let (opened_tx, opened_rx) = mpsc::channel();
+    let paths = paths.to_vec();
+    let counts = counts.clone();
+    let thread = std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("floor: runtime");
+        runtime.block_on(async move {
+            let mut tasks = Vec::new();
+            for path in &paths {
+                // SAFETY: the descriptor is owned by the AsyncFd, open until it is dropped.
+                let fd = unsafe {
+                    tokio::io::unix::AsyncFd::register_with_interest(
+                        open_raw(path, true),
+                        tokio::io::Interest::READABLE,
+                    )
+                }
+                .map_err(|e| e.into_parts().1)
+                .expect("floor: AsyncFd");
+                let counts = counts.clone();
+                tasks.push(tokio::spawn(async move {
+                    let mut buf = vec![0u8; READ_BUFFER_BYTES];
+                    loop {
+                        let Ok(mut guard) = fd.readable().await else {
+                            break;
+                        };
+                        let got = read_fd(guard.get_inner(), &mut buf);
+                        if got > 0 {
+                            counts.add(got as usize, stamp());
+                            if (got as usize) < buf.len() {
+                                guard.clear_ready();
+                            }
+                        } else if got < 0
+                            && std::io::Error::last_os_error().kind()
+                                == std::io::ErrorKind::WouldBlock
+                        {
+                            guard.clear_ready();
+                        } else {
+                            // Closed by the simulator.
+                            break;
+                        }
+                    }
+                }));
+            }
+            let _ = opened_tx.send(());
+            for t in tasks {
+                let _ = t.await;
+            }
+        });
+    });
+    opened_rx.recv().expect("floor: the tokio-fd reader died");
+    vec![thread]
+}
+
+/// One thread with a current-thread tokio runtime (`enable_all`) and an interval of `period`
+/// (missed ticks delayed, not bunched): at each tick, one non-blocking read of every pty
+/// (again while a read fills the buffer), each read that returned data stamped.
+fn start_tokio_tick(
+    paths: &[PathBuf],
+    counts: &Arc<Counts>,
+    period: Duration,
+) -> Vec<JoinHandle<()>> {
+    let (opened_tx, opened_rx) = mpsc::channel();
+    let paths = paths.to_vec();
+    let counts = counts.clone();
+    let thread = std::thread::spawn(move || {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("floor: runtime");
+        runtime.block_on(async move {
+            let mut fds: Vec<Option<OwnedFd>> =
+                paths.iter().map(|p| Some(open_raw(p, true))).collect();
+            let _ = opened_tx.send(());
+            let mut buf = vec![0u8; READ_BUFFER_BYTES];
+            let mut interval = tokio::time::interval(period);
+            interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            while fds.iter().any(Option::is_some) {
+                interval.tick().await;
+                counts.waits.fetch_add(1, Ordering::Relaxed);
+                for slot in &mut fds {
+                    let Some(fd) = slot else { continue };
+                    loop {
+                        let got = read_fd(fd, &mut buf);
+                        if got > 0 {
+                            counts.add(got as usize, stamp());
+                            if (got as usize) < buf.len() {
+                                break;
+                            }
+                        } else {
+                            if got == 0
+                                || std::io::Error::last_os_error().kind()
+                                    != std::io::ErrorKind::WouldBlock
+                            {
+                                // Closed by the simulator.
+                                *slot = None;
+                            }
+                            break;
+                        }
+                    }
+                }
+            }
+        });
+    });
+    opened_rx.recv().expect("floor: the tokio-tick reader died");
+    vec![thread]
+}
+
 /// CPU time of a running thread, s (its CPU-time clock).
 fn thread_cpu_s(handle: &JoinHandle<()>) -> f64 {
     let mut clock: libc::clockid_t = 0;
@@ -363,8 +508,9 @@ struct RunResult {
     reads: u64,
     waits: u64,
     overflowed: u64,
-    load_before: String,
-    load_after: String,
+    load: Load,
+    /// Per reader thread over the serve (child process only): CPU %, wake-ups, µs per wake-up.
+    threads: Option<String>,
 }
 
 /// Starts the readers of `kind` on `paths` in this process; returns their threads and
@@ -377,6 +523,8 @@ fn start(kind: Kind, paths: &[PathBuf]) -> (Vec<JoinHandle<()>>, Arc<Counts>) {
         Kind::Tokio => start_tokio(paths, &counts, true, false),
         Kind::TokioIo => start_tokio(paths, &counts, false, false),
         Kind::TokioGrid => start_tokio(paths, &counts, true, true),
+        Kind::TokioTick(ms) => start_tokio_tick(paths, &counts, Duration::from_millis(ms)),
+        Kind::TokioFd => start_tokio_fd(paths, &counts),
     };
     (threads, counts)
 }
@@ -423,8 +571,16 @@ impl Readers {
             Readers::InProcess(threads, _) => threads.iter().map(thread_cpu_s).sum(),
             Readers::Child(child, _) => thread_times(child.id())
                 .iter()
-                .map(|t| t.2 as f64 * 1e-9)
+                .map(|t| t.on_cpu_ns as f64 * 1e-9)
                 .sum(),
+        }
+    }
+
+    /// The readers' threads' schedstat counters (a child process only).
+    fn thread_times(&self) -> Option<Vec<ThreadTimes>> {
+        match self {
+            Readers::InProcess(..) => None,
+            Readers::Child(child, _) => Some(thread_times(child.id())),
         }
     }
 
@@ -512,6 +668,7 @@ fn one_run(o: &Options, kind: Kind) -> RunResult {
     let readers = Readers::start(kind, &paths, o.in_process);
     let load_before = loadavg();
     let cpu0 = readers.cpu_s();
+    let threads0 = readers.thread_times();
     let t0 = Instant::now();
     server.begin();
     while !server.is_finished() {
@@ -519,6 +676,9 @@ fn one_run(o: &Options, kind: Kind) -> RunResult {
     }
     let cpu_s = readers.cpu_s() - cpu0;
     let wall_s = t0.elapsed().as_secs_f64();
+    let threads = threads0
+        .zip(readers.thread_times())
+        .map(|(before, after)| thread_shares(&before, &after, wall_s));
     let load_after = loadavg();
     let report = server.finish().unwrap_or_else(|e| panic!("serve: {e:#}"));
     // Closing the ptys ends every reader.
@@ -533,8 +693,11 @@ fn one_run(o: &Options, kind: Kind) -> RunResult {
         reads,
         waits,
         overflowed: report.streams.iter().map(|s| s.frames_overflowed).sum(),
-        load_before,
-        load_after,
+        load: Load {
+            before: load_before,
+            after: load_after,
+        },
+        threads,
     }
 }
 
@@ -546,48 +709,60 @@ pub fn main(args: Vec<String>) {
             std::process::exit(2);
         }
     };
-    if let Some(nice) = o.nice {
-        // SAFETY: setpriority has no memory preconditions.
-        if unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, nice) } != 0 {
-            eprintln!(
-                "daemon_load floor: cannot set nice {nice}: {}",
-                std::io::Error::last_os_error()
-            );
-            std::process::exit(2);
-        }
-    }
+    set_nice("floor", o.nice);
     println!(
-        "reader floor: the pty mode's simulator (wit + xbus at 150 Hz, mixed GNSS at 10 Hz) × {}, {} s per run; readers only read and timestamp, {}",
+        "reader floor: the pty mode's simulator (wit + xbus at 150 Hz, mixed GNSS at 10 Hz) × {}, {} s per run; readers only read and timestamp, {}; keep-awake {}",
         o.speed,
         o.secs,
         if o.in_process {
             "in the simulator's process"
         } else {
             "in a process of their own"
-        }
+        },
+        if o.keep_awake { "on" } else { "off" }
     );
-    println!(
-        "{:>8} {:>4} {:>7} {:>9} {:>9} {:>9} {:>8} {:>8} {:>9} {:>6}  load 1/5/15 min before → after",
-        "reader", "run", "wall s", "frames", "reads", "waits", "CPU%", "µs/read", "reads/s", "srv-ov"
-    );
+    let _awake = o.keep_awake.then(|| {
+        KeepAwake::start().unwrap_or_else(|e| {
+            eprintln!("daemon_load floor: {e}");
+            std::process::exit(2);
+        })
+    });
+    let table = Table {
+        columns: &[
+            ("reader", 12),
+            ("run", 4),
+            ("wall s", 7),
+            ("frames", 9),
+            ("reads", 9),
+            ("waits", 9),
+            ("CPU%", 8),
+            ("µs/read", 8),
+            ("reads/s", 9),
+            ("srv-ov", 6),
+        ],
+    };
+    table.header();
     for run in 1..=o.runs {
         for &kind in &o.kinds {
             let r = one_run(&o, kind);
-            println!(
-                "{:>8} {:>4} {:>7.1} {:>9} {:>9} {:>9} {:>8.3} {:>8.1} {:>9.1} {:>6}  {} → {}",
-                kind.name(),
-                run,
-                r.wall_s,
-                r.frames,
-                r.reads,
-                r.waits,
-                100.0 * r.cpu_s / r.wall_s,
-                1e6 * r.cpu_s / r.reads.max(1) as f64,
-                r.reads as f64 / r.wall_s,
-                r.overflowed,
-                r.load_before,
-                r.load_after
+            table.row(
+                &[
+                    kind.name(),
+                    run.to_string(),
+                    format!("{:.1}", r.wall_s),
+                    r.frames.to_string(),
+                    r.reads.to_string(),
+                    r.waits.to_string(),
+                    format!("{:.3}", 100.0 * r.cpu_s / r.wall_s),
+                    format!("{:.1}", 1e6 * r.cpu_s / r.reads.max(1) as f64),
+                    format!("{:.1}", r.reads as f64 / r.wall_s),
+                    r.overflowed.to_string(),
+                ],
+                &r.load,
             );
+            if let Some(threads) = &r.threads {
+                table.detail("reader threads (schedstat):", threads);
+            }
         }
     }
 }

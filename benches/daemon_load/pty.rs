@@ -12,7 +12,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use super::awake::KeepAwake;
 use super::common::daemon::connected_report;
+use super::report::{
+    loadavg, proc_cpu_s, proc_status_mib, self_cpu_s, set_nice, thread_shares, thread_times, Load,
+    Table,
+};
 use super::{parsed, positive_number};
 use imulab::daemon::status::read_status_file;
 use imulab::sim::scene::Scene;
@@ -37,6 +42,8 @@ struct Options {
     nice: Option<i32>,
     /// `--rotate-min`: rotate every this many simulated minutes (None: the daemon default).
     rotate_sim_min: Option<f64>,
+    /// `--keep-awake`: busy `SCHED_IDLE` threads keep the CPUs out of halt during the runs.
+    keep_awake: bool,
 }
 
 fn parse_options(args: Vec<String>) -> Result<Options, String> {
@@ -50,6 +57,7 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
         raw_journal: false,
         nice: None,
         rotate_sim_min: None,
+        keep_awake: false,
     };
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
@@ -71,6 +79,7 @@ fn parse_options(args: Vec<String>) -> Result<Options, String> {
                 o.rotate_sim_min = Some(positive_number("--rotate-min", &value("--rotate-min")?)?)
             }
             "--nice" => o.nice = Some(parsed("--nice", &value("--nice")?)?),
+            "--keep-awake" => o.keep_awake = true,
             "--bench" => {}
             other => return Err(format!("unknown argument {other:?}")),
         }
@@ -90,92 +99,6 @@ pub(super) fn scene(scene_s: f64) -> Scene {
          [[gnss]]\nname = \"rx\"\npreset = \"standalone\"\nrate_hz = {GNSS_HZ}\nprotocol = \"gnss\"\n"
     );
     Scene::parse(&text, Path::new(".")).unwrap_or_else(|e| panic!("bench scene: {e:#}"))
-}
-
-/// utime + stime of a process, s; None once it is gone.
-fn proc_cpu_s(pid: u32) -> Option<f64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // Fields after the command name (which may hold spaces) start after the last ')'.
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of stat(5), i.e. 11 and 12 after the state.
-    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-    // SAFETY: sysconf has no preconditions.
-    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
-    Some(ticks / hz)
-}
-
-/// A kB line of `/proc/PID/status` (`key` with its colon, e.g. `VmRSS:`), in MiB.
-fn proc_status_mib(pid: u32, key: &str) -> Option<f64> {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = status.lines().find(|l| l.starts_with(key))?;
-    Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? / 1024.0)
-}
-
-fn self_cpu_s() -> f64 {
-    // SAFETY: getrusage writes into the zeroed struct we own.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
-        return f64::NAN;
-    }
-    let t = |tv: libc::timeval| tv.tv_sec as f64 + tv.tv_usec as f64 * 1e-6;
-    t(usage.ru_utime) + t(usage.ru_stime)
-}
-
-pub(super) fn loadavg() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "?".into())
-}
-
-/// Per thread of process `pid`: (tid, name, on-CPU ns, times scheduled in), from
-/// `/proc/PID/task/TID/schedstat` (its first and third fields).
-pub(super) fn thread_times(pid: u32) -> Vec<(u32, String, u64, u64)> {
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
-        return Vec::new();
-    };
-    let mut out = Vec::new();
-    for task in tasks.flatten() {
-        let Some(tid) = task.file_name().to_str().and_then(|t| t.parse().ok()) else {
-            continue;
-        };
-        let name = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
-        let Ok(stat) = std::fs::read_to_string(task.path().join("schedstat")) else {
-            continue;
-        };
-        let f: Vec<u64> = stat
-            .split_whitespace()
-            .filter_map(|v| v.parse().ok())
-            .collect();
-        if let (Some(&ns), Some(&runs)) = (f.first(), f.get(2)) {
-            out.push((tid, name.trim().to_string(), ns, runs));
-        }
-    }
-    out.sort();
-    out
-}
-
-/// Each thread's share over a window: "name CPU % of one core, wake-ups a second".
-fn thread_shares(
-    before: &[(u32, String, u64, u64)],
-    after: &[(u32, String, u64, u64)],
-    wall_s: f64,
-) -> String {
-    after
-        .iter()
-        .map(|(tid, name, ns, runs)| {
-            let (ns0, runs0) = before
-                .iter()
-                .find(|b| b.0 == *tid)
-                .map_or((0, 0), |b| (b.2, b.3));
-            format!(
-                "{name}[{tid}] {:.3} % {:.0}/s",
-                100.0 * ns.saturating_sub(ns0) as f64 * 1e-9 / wall_s,
-                runs.saturating_sub(runs0) as f64 / wall_s
-            )
-        })
-        .collect::<Vec<_>>()
-        .join("; ")
 }
 
 /// One sample of the daemon from outside.
@@ -226,8 +149,7 @@ struct RunResult {
     exit: Option<i32>,
     stop_s: f64,
     session_mib: f64,
-    load_before: String,
-    load_after: String,
+    load: Load,
     /// Per daemon thread over the serve: CPU % of one core and wake-ups a second.
     threads: String,
 }
@@ -433,8 +355,10 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
         exit,
         stop_s,
         session_mib: dir_size(&session_dir) as f64 / (1 << 20) as f64,
-        load_before,
-        load_after,
+        load: Load {
+            before: load_before,
+            after: load_after,
+        },
         threads,
     }
 }
@@ -447,30 +371,44 @@ pub fn main(args: Vec<String>) {
             std::process::exit(2);
         }
     };
-    if let Some(nice) = o.nice {
-        // Before any thread or child exists: the simulator's threads and the daemon inherit
-        // it (on Linux the nice value is per thread).
-        // SAFETY: setpriority has no memory preconditions.
-        if unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, nice) } != 0 {
-            eprintln!(
-                "daemon_load pty: cannot set nice {nice}: {}",
-                std::io::Error::last_os_error()
-            );
-            std::process::exit(2);
-        }
-    }
+    // Before any thread or child exists: the simulator's threads and the daemon inherit it
+    // (on Linux the nice value is per thread).
+    set_nice("pty", o.nice);
     println!(
-        "imulogd over ptys: simulator bench (wit + xbus at {IMU_HZ} Hz, mixed GNSS at {GNSS_HZ} Hz) × speed, {} s wall per run, raw journal {}, nice {}; daemon {}",
+        "imulogd over ptys: simulator bench (wit + xbus at {IMU_HZ} Hz, mixed GNSS at {GNSS_HZ} Hz) × speed, {} s wall per run, raw journal {}, nice {}, keep-awake {}; daemon {}",
         o.secs,
         if o.raw_journal { "on" } else { "off" },
         o.nice.unwrap_or(0),
+        if o.keep_awake { "on" } else { "off" },
         o.imulogd.display()
     );
-    println!(
-        "{:>6} {:>4} {:>9} {:>7} {:>11} {:>11} {:>8} {:>5} {:>6} {:>5} {:>5} {:>7} {:>8} {:>8} {:>6} {:>7}  load 1/5/15 min before → after",
-        "speed", "run", "scene s", "wall s", "expected", "written", "dropped", "ovfl", "srv-ov", "bad", "gaps",
-        "held", "d-CPU%", "CPU s/h", "sim%", "RSS MiB"
-    );
+    let _awake = o.keep_awake.then(|| {
+        KeepAwake::start().unwrap_or_else(|e| {
+            eprintln!("daemon_load pty: {e}");
+            std::process::exit(2);
+        })
+    });
+    let table = Table {
+        columns: &[
+            ("speed", 6),
+            ("run", 4),
+            ("scene s", 9),
+            ("wall s", 7),
+            ("expected", 11),
+            ("written", 11),
+            ("dropped", 8),
+            ("ovfl", 5),
+            ("srv-ov", 6),
+            ("bad", 5),
+            ("gaps", 5),
+            ("held", 7),
+            ("d-CPU%", 8),
+            ("CPU s/h", 8),
+            ("sim%", 6),
+            ("RSS MiB", 7),
+        ],
+    };
+    table.header();
     let mut curve = o
         .curve
         .as_ref()
@@ -485,37 +423,39 @@ pub fn main(args: Vec<String>) {
     for &speed in &o.speeds {
         for run in 1..=o.runs {
             let r = one_run(&o, speed);
-            let rss: Vec<f64> = r.samples.iter().map(|s| s.rss_mib).collect();
-            let rss_max = rss.iter().copied().fold(f64::NAN, f64::max);
-            println!(
-                "{:>6} {:>4} {:>9.0} {:>7.1} {:>11} {:>11} {:>8} {:>5} {:>6} {:>5} {:>5} {:>7} {:>8.3} {:>8.3} {:>6.1} {:>7.1}  {} → {}",
-                r.speed,
-                run,
-                r.scene_s,
-                r.serve_wall_s,
-                r.expected,
-                r.written,
-                r.dropped,
-                r.overflow_events,
-                r.server_overflowed,
-                r.frames_bad,
-                r.gaps,
-                if r.held() { "yes" } else { "NO" },
-                100.0 * r.daemon_cpu_s / r.serve_wall_s,
-                r.daemon_cpu_s / (r.scene_s / 3600.0),
-                100.0 * r.server_cpu_s / r.serve_wall_s,
-                rss_max,
-                r.load_before,
-                r.load_after
+            let rss_max = r.samples.iter().map(|s| s.rss_mib).fold(f64::NAN, f64::max);
+            table.row(
+                &[
+                    r.speed.to_string(),
+                    run.to_string(),
+                    format!("{:.0}", r.scene_s),
+                    format!("{:.1}", r.serve_wall_s),
+                    r.expected.to_string(),
+                    r.written.to_string(),
+                    r.dropped.to_string(),
+                    r.overflow_events.to_string(),
+                    r.server_overflowed.to_string(),
+                    r.frames_bad.to_string(),
+                    r.gaps.to_string(),
+                    (if r.held() { "yes" } else { "NO" }).to_string(),
+                    format!("{:.3}", 100.0 * r.daemon_cpu_s / r.serve_wall_s),
+                    format!("{:.3}", r.daemon_cpu_s / (r.scene_s / 3600.0)),
+                    format!("{:.1}", 100.0 * r.server_cpu_s / r.serve_wall_s),
+                    format!("{rss_max:.1}"),
+                ],
+                &r.load,
             );
-            println!(
-                "       session {:.1} MiB, SIGTERM to exit {:.2} s (exit {:?}), pace: {:.0} s of scene in {:.1} s (×{:.1})",
-                r.session_mib,
-                r.stop_s,
-                r.exit,
-                r.scene_s,
-                r.serve_wall_s,
-                r.scene_s / r.serve_wall_s
+            table.detail(
+                "session",
+                &format!(
+                    "{:.1} MiB, SIGTERM to exit {:.2} s (exit {:?}), pace: {:.0} s of scene in {:.1} s (×{:.1})",
+                    r.session_mib,
+                    r.stop_s,
+                    r.exit,
+                    r.scene_s,
+                    r.serve_wall_s,
+                    r.scene_s / r.serve_wall_s
+                ),
             );
             let step = (r.samples.len() / 12).max(1);
             let shown: Vec<String> = r
@@ -524,8 +464,8 @@ pub fn main(args: Vec<String>) {
                 .step_by(step)
                 .map(|s| format!("{:.0}s:{:.1}", s.wall_s, s.rss_mib))
                 .collect();
-            println!("       RSS MiB (wall s:MiB) {}", shown.join(" "));
-            println!("       daemon threads (schedstat): {}", r.threads);
+            table.detail("RSS MiB (wall s:MiB)", &shown.join(" "));
+            table.detail("daemon threads (schedstat):", &r.threads);
             if let Some(f) = curve.as_mut() {
                 for s in &r.samples {
                     writeln!(

@@ -34,6 +34,7 @@ use super::mapping::{gnss_record, ImuMapping};
 use super::source::{Connector, DecoderFactory, Frame, FrameDecoder, Input, Link, Received};
 use super::status::{DeviceShared, DeviceState};
 use super::timerel::{gps_time_ns, TimeRelationTracker};
+use super::watchdog::Watchdog;
 use super::writer::{Batch, QueueSender, WriterGone};
 
 /// Size of one read; at 15 kHz × ~40 bytes a read rarely holds more than a few ms of data.
@@ -72,6 +73,8 @@ pub struct DeviceTask {
     pub handover: Cadence,
     /// Told this device's index once: after the first open, or the first failed attempt.
     pub settled: Option<mpsc::UnboundedSender<usize>>,
+    /// The systemd watchdog, if any: each hand-over tells it the device thread is alive.
+    pub watchdog: Option<Arc<Watchdog>>,
 }
 
 /// How a connection ended.
@@ -324,6 +327,9 @@ impl DeviceTask {
     /// publishes the counters collected since the last hand-over.
     fn hand_over(&self, batch: &mut Batch, tally: &mut Tally) -> Result<(), WriterGone> {
         tally.publish(&self.shared);
+        if let Some(watchdog) = &self.watchdog {
+            watchdog.device_alive(clock::mono_ns());
+        }
         let next = batch.sized_like();
         self.queue.send(std::mem::replace(batch, next))
     }

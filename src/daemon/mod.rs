@@ -28,6 +28,7 @@ pub mod sink;
 pub mod source;
 pub mod status;
 pub mod timerel;
+pub mod watchdog;
 pub mod writer;
 
 pub use config::{CheckedConfig, ConfigError};

@@ -1,7 +1,8 @@
-//! The daemon's top level: starts the writer thread (which also writes the status file),
-//! one task per device and, under a systemd watchdog, the task that feeds it; handles SIGTERM/SIGINT (flush, close, exit 0 within 2 s) and SIGHUP (rotate); tells
-//! systemd READY once every device has opened or failed its first attempt, and feeds the
-//! watchdog while the writer thread is alive.
+//! The daemon's top level: starts the writer thread (which also writes the status file) and
+//! one task per device; handles SIGTERM/SIGINT (flush, close, exit 0 within 2 s) and SIGHUP
+//! (rotate); tells systemd READY once every device has opened or failed its first attempt.
+//! Under a systemd watchdog the writer feeds it at its grid turns while the device thread
+//! shows life ([`super::watchdog`]): no timer of its own.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -17,6 +18,7 @@ use super::device::{self, DeviceTask};
 use super::sink::RecordSink;
 use super::source::{Connector, DecoderFactory};
 use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
+use super::watchdog::Watchdog;
 use super::writer::{
     self, FreeSpaceFn, QueueSender, StatusFile, WriterControl, WriterExit, WriterSettings,
 };
@@ -132,6 +134,7 @@ pub async fn run(
     // one (e.g. it timed out), finishes before the final report below is written.
     let status_lock = Arc::new(std::sync::Mutex::new(()));
     let (tx, rx) = writer::queue(config.session.queue_capacity);
+    let watchdog = Watchdog::from_env().map(Arc::new);
     // One grid for every device task and the writer.
     let handover = Cadence::new(
         std::time::Instant::now(),
@@ -142,6 +145,7 @@ pub async fn run(
         reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
         disk_check_interval: DISK_CHECK_INTERVAL,
         drain_budget: WRITER_DRAIN_BUDGET,
+        watchdog: watchdog.clone(),
         status: StatusFile {
             path: status_path.clone(),
             interval: STATUS_INTERVAL,
@@ -208,6 +212,7 @@ pub async fn run(
             raw_journal: config.session.raw_journal,
             handover,
             settled: Some(settled_tx.clone()),
+            watchdog: watchdog.clone(),
         };
         device_tasks.push(tokio::spawn(task.run(shutdown_rx.clone())));
     }
@@ -228,27 +233,9 @@ pub async fn run(
         ]);
     });
 
-    // Only under a systemd watchdog: a task that feeds it while the writer turns over. The
-    // status file is written by the writer thread (no wake-up of the device thread for it).
-    let watchdog_task = sd_notify::watchdog_enabled().map(|watchdog| {
-        let writer_shared = writer_shared.clone();
-        tokio::spawn(async move {
-            let mut interval = tokio::time::interval((watchdog / 2).min(Duration::from_secs(1)));
-            loop {
-                interval.tick().await;
-                let now = clock::mono_ns();
-                let heartbeat = writer_shared.counters().heartbeat_mono_ns;
-                if (now - heartbeat) < watchdog.as_nanos() as i64 / 2 {
-                    notify(&[sd_notify::NotifyState::Watchdog]);
-                } else {
-                    tracing::warn!(
-                        "writer thread has not turned over for {} ms: not feeding the watchdog",
-                        (now - heartbeat) / 1_000_000
-                    );
-                }
-            }
-        })
-    });
+    // Only under a systemd watchdog: the device thread's answer when the writer nudges it
+    // (the writer feeds the watchdog itself while hand-overs show the device thread alive).
+    let watchdog_task = watchdog.map(|w| tokio::spawn(async move { w.answer_nudges().await }));
 
     // Wait for a reason to stop.
     let early_exit: Option<WriterExit> = loop {

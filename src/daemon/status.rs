@@ -85,8 +85,6 @@ pub struct WriterCounters {
     pub rotations: u64,
     pub free_bytes: Option<u64>,
     pub reserve_bytes: u64,
-    /// CLOCK_MONOTONIC of the writer loop's last turn (the watchdog is fed only while fresh).
-    pub heartbeat_mono_ns: i64,
     pub stopping: bool,
 }
 

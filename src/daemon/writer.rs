@@ -18,6 +18,7 @@ use super::cadence::{self, Cadence};
 use super::clock;
 use super::sink::RecordSink;
 use super::status::{write_status_file, DeviceShared, StatusTracker, WriterShared};
+use super::watchdog::Watchdog;
 
 /// What one device produced over a few reads (a device task collects reads for a short
 /// window before it hands them over, so the writer wakes per batch, not per frame).
@@ -139,7 +140,7 @@ impl WriterControl {
 pub type FreeSpaceFn = Box<dyn FnMut() -> io::Result<u64> + Send>;
 
 /// The longest the writer works through a backlog before it looks at stop and rotation
-/// requests, the disk and its heartbeat again.
+/// requests, the disk and the watchdog again.
 const TURN: Duration = Duration::from_millis(50);
 
 /// Writer timing and limits.
@@ -158,6 +159,8 @@ pub struct WriterSettings {
     pub drain_budget: Duration,
     /// The status file, written by the writer about once a second at one of its turns.
     pub status: StatusFile,
+    /// The systemd watchdog, if there is one: looked at every turn, fed when due.
+    pub watchdog: Option<Arc<Watchdog>>,
 }
 
 /// Where and how often the status file is written.
@@ -210,7 +213,6 @@ pub fn run_writer(
         let mut w = state.shared.counters();
         w.current_file = sink.current_file();
         w.reserve_bytes = settings.reserve_bytes;
-        w.heartbeat_mono_ns = clock::mono_ns();
     }
     let started = sink.append_event(&session_event(
         EventKind::SessionStart,
@@ -286,12 +288,16 @@ impl WriterState {
         // first).
         let mut flush_point = settings.handover.next_after(Instant::now());
         let mut last_disk_check: Option<Instant> = None;
+        let early = settings.handover.period() / 2;
+        let early_ns = i64::try_from(early.as_nanos()).unwrap_or(i64::MAX);
         loop {
-            self.shared.counters().heartbeat_mono_ns = clock::mono_ns();
+            // This turn is the writer's sign of life (a wedged writer never gets here).
+            if let Some(watchdog) = &settings.watchdog {
+                watchdog.writer_turn(clock::mono_ns(), early_ns);
+            }
             if control.stop.load(Ordering::SeqCst) {
                 return Ok(WriterExit::Clean);
             }
-            let early = settings.handover.period() / 2;
             if last_disk_check.is_none_or(|t| t.elapsed() + early >= settings.disk_check_interval) {
                 last_disk_check = Some(Instant::now());
                 match free_space() {
@@ -344,7 +350,7 @@ impl WriterState {
                     self.write(sink, batch)?;
                     caught_up = false;
                     // More of a backlog, for up to one turn before stop, rotation, disk and
-                    // heartbeat are looked at again.
+                    // watchdog are looked at again.
                     let turn = Instant::now();
                     while turn.elapsed() < TURN && !control.stop.load(Ordering::SeqCst) {
                         match rx.try_recv() {
