@@ -73,9 +73,11 @@ fn check_config(path: &Path) -> ExitCode {
         }
     };
     let s = &config.session;
-    println!("{}: configuration is valid", path.display());
-    println!(
-        "session: {} in {} (flush {} ms, rotate {} min / {} MB, deflate {}, raw journal {}, reserve {} MB)",
+    // Collected and written at once, so a closed pipe (`imulogd --check-config F | head`)
+    // ends the listing quietly instead of panicking in `println!`.
+    let mut text = format!("{}: configuration is valid\n", path.display());
+    text += &format!(
+        "session: {} in {} (flush {} ms, rotate {} min / {} MB, deflate {}, raw journal {}, reserve {} MB)\n",
         s.name,
         s.output_dir.display(),
         s.flush_interval_ms,
@@ -85,15 +87,21 @@ fn check_config(path: &Path) -> ExitCode {
         if s.raw_journal { "on" } else { "off" },
         s.disk_reserve_mb
     );
-    println!("status file: {}", config.status_path().display());
+    text += &format!("status file: {}\n", config.status_path().display());
     for d in &config.devices {
-        println!(
-            "device {}: {} over {}, {} Hz",
+        text += &format!(
+            "device {}: {} over {}, {} Hz\n",
             d.name,
             d.protocol.name(),
             d.transport.describe(),
             d.rate_hz
         );
+    }
+    if let Err(e) = std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes()) {
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            eprintln!("imulogd: cannot write to stdout: {e}");
+            return ExitCode::FAILURE;
+        }
     }
     match unsupported(&config) {
         Ok(()) => ExitCode::SUCCESS,

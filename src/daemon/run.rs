@@ -95,6 +95,9 @@ pub async fn run(
     parts: DaemonParts,
     mut stop: watch::Receiver<bool>,
 ) -> Outcome {
+    // The final status (written after the writer stopped) reports uptime and mean rates
+    // over the whole run from here.
+    let started_mono_ns = clock::mono_ns();
     let DaemonParts {
         sink,
         session_dir,
@@ -279,7 +282,7 @@ pub async fn run(
     if let Some(task) = watchdog_task {
         task.abort();
     }
-    let mut tracker = StatusTracker::new(shared, writer_shared, clock::mono_ns());
+    let mut tracker = StatusTracker::new(shared, writer_shared, started_mono_ns);
     let mut report = tracker.report(clock::mono_ns(), chrono::Utc::now());
     report.state = "stopped".to_string();
     let written = {

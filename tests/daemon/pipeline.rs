@@ -229,6 +229,14 @@ async fn frames_arrive_once_with_values_and_garbage_becomes_events() {
     assert_eq!(imu_status.resyncs, 3);
     assert_eq!(status.devices[1].frames_ok, 6);
     assert_eq!(status.rows_written, 126);
+    // The final status covers the whole run: its uptime spans the frames, and its rate is
+    // the run's mean (below the burst rate, never the count over a few nanoseconds).
+    assert!(status.uptime_s >= span_s, "uptime {} s", status.uptime_s);
+    assert!(
+        imu_status.rate_hz > 0.0 && imu_status.rate_hz <= 165.0,
+        "final rate {} Hz",
+        imu_status.rate_hz
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
