@@ -319,6 +319,11 @@ impl Pyramid {
         }
         let (mut at, mut sums) = match held.take() {
             Some((at, sums)) if at >= self.stored_level && at <= j => (at, sums),
+            // Above the stored level the first halving reads it in place (no copy of it).
+            _ if j > self.stored_level => (
+                self.stored_level + 1,
+                self.stored.chunks_exact(2).map(|p| p[0] + p[1]).collect(),
+            ),
             _ => (self.stored_level, self.stored.clone()),
         };
         while at < j {
