@@ -19,6 +19,15 @@
 //! the last full super-block go through the same accumulators one value at a time
 //! ([`LevelSums::push`], the sequential definition the passes equal).
 //!
+//! Two cores: the super-blocks are cut into a fixed number of contiguous jobs
+//! ([`job_count`], from the length alone) that run on the rayon pool, each summing its
+//! levels up to S from zero into its own part of the level-S and stored block sums. The
+//! jobs are joined in order ([`LevelSums::append`]): the terms whose blocks lie on both
+//! sides of a seam are added from the last two values before it and the first two after
+//! it, and the later job's order-0 moments are shifted by the phase and count before the
+//! seam, as lanes are joined inside a super-block. The levels above S and the tail run
+//! after the join, so the result is the same on any number of threads.
+//!
 //! A constant c (the mean of the first samples) is subtracted from every sample instead
 //! of the exact mean, which is only known after the pass. The difference terms do not
 //! depend on c, the lag-1 autocorrelation of the block sums neither (it removes their
@@ -42,6 +51,7 @@ use super::deviation::{normalise, DeviationKind};
 use super::edf::Alpha;
 use super::noise_id::{decide_alpha, lag1_pair, Lag1};
 use super::numerics::{dispatch, sum_streams, CompensatedSum, Kernel, Simd};
+use rayon::prelude::*;
 
 /// Lanes of the vertical passes (two AVX2 vectors).
 pub const LANES: usize = 8;
@@ -56,6 +66,13 @@ const OFFSET_SAMPLES: usize = 4096;
 /// Level whose block sums (m = 16) are kept for the difference orders 2 and 3, which
 /// the noise identification needs wherever the block sums look correlated.
 const STORED_LEVEL: usize = 4;
+
+/// Jobs the super-block passes are cut into (see [`pyramid_in_jobs`]): a fixed count,
+/// independent of the thread count.
+const JOBS: usize = 2;
+
+/// Fewest super-blocks per job (shorter series are not cut).
+const MIN_JOB_BLOCKS: usize = 8;
 
 /// Safety margin of the order-0 bound against the rounding of its two sides.
 const BOUND_MARGIN: f64 = 1e-6;
@@ -81,8 +98,9 @@ pub struct LevelSums {
     phase_sum: CompensatedSum,
     phase_squares: CompensatedSum,
     phase_moment: CompensatedSum,
-    /// First block sum s'_0, last two (s'_{K−1}, s'_{K−2}).
-    first: f64,
+    /// First two block sums (s'_0, s'_1), last two (s'_{K−1}, s'_{K−2}); 0 where the
+    /// level has fewer values.
+    first: [f64; 2],
     last: [f64; 2],
 }
 
@@ -103,9 +121,10 @@ impl LevelSums {
     fn push<const HADAMARD: bool>(&mut self, s: f64) {
         let k = self.count;
         let [p1, p2] = self.last;
-        if k == 0 {
-            self.first = s;
-        } else {
+        if k < 2 {
+            self.first[k] = s;
+        }
+        if k > 0 {
             let d1 = s - p1;
             if !HADAMARD {
                 self.deviation.add(d1 * d1);
@@ -125,6 +144,67 @@ impl LevelSums {
         self.count += 1;
     }
 
+    /// Appends the level of the block sums that follow this level's (`later`, summed
+    /// from its own start: its running phase begins at 0): the same sums as pushing
+    /// `later`'s values one by one after this level's. Adds the terms that straddle the
+    /// seam from this level's last two values and `later`'s first two, and shifts
+    /// `later`'s order-0 moments by the phase Z and the count k₀ before the seam:
+    /// Σ(Z + z) = Σz + K·Z, Σ(Z + z)² = Σz² + 2Z·Σz + K·Z², and
+    /// Σ(k₀ + k)(Z + z_k) = Σk·z_k + k₀·Σz + Z·(k₀·K + K(K + 1)/2) for k = 1…K.
+    fn append<const HADAMARD: bool>(&mut self, later: &LevelSums) {
+        if later.count == 0 {
+            return;
+        }
+        if self.count == 0 {
+            *self = *later;
+            return;
+        }
+        let k0 = self.count;
+        let [p1, p2] = self.last;
+        let [f0, f1] = later.first;
+        let d1 = f0 - p1;
+        let mut seam = 0.0;
+        if !HADAMARD {
+            seam += d1 * d1;
+        } else {
+            if k0 >= 2 {
+                let d2 = d1 - (p1 - p2);
+                seam += d2 * d2;
+            }
+            if later.count >= 2 {
+                let d2 = (f1 - f0) - d1;
+                seam += d2 * d2;
+            }
+        }
+        self.deviation.add(seam);
+        self.deviation.merge(later.deviation);
+        self.lag1.add(p1 * f0);
+        self.lag1.merge(later.lag1);
+        self.squares.merge(later.squares);
+        let z = self.phase.value();
+        let (before, count) = (k0 as f64, later.count as f64);
+        let sum = later.phase_sum.value();
+        self.phase_sum.merge(later.phase_sum);
+        self.phase_sum.add(count * z);
+        self.phase_squares.merge(later.phase_squares);
+        self.phase_squares.add(2.0 * z * sum);
+        self.phase_squares.add(count * z * z);
+        self.phase_moment.merge(later.phase_moment);
+        self.phase_moment.add(before * sum);
+        self.phase_moment
+            .add(z * (before * count + count * (count + 1.0) / 2.0));
+        self.phase.merge(later.phase);
+        if k0 == 1 {
+            self.first[1] = f0;
+        }
+        self.last = if later.count >= 2 {
+            later.last
+        } else {
+            [f0, p1]
+        };
+        self.count += later.count;
+    }
+
     /// Lag-1 autocorrelation of the block sums (difference order 1); `None` for zero
     /// variance or fewer than two values. Invariant to the constant in s'.
     fn lag1_of_sums(&self) -> Option<f64> {
@@ -135,7 +215,7 @@ impl LevelSums {
         let total = self.phase.value();
         let mean = total / k;
         let d = self.squares.value() - k * mean * mean;
-        let numerator = self.lag1.value() - mean * (2.0 * total - self.first - self.last[0])
+        let numerator = self.lag1.value() - mean * (2.0 * total - self.first[0] - self.last[0])
             + (k - 1.0) * mean * mean;
         (d > 0.0).then(|| numerator / d)
     }
@@ -239,6 +319,11 @@ impl Pyramid {
         }
         let (mut at, mut sums) = match held.take() {
             Some((at, sums)) if at >= self.stored_level && at <= j => (at, sums),
+            // Above the stored level the first halving reads it in place (no copy of it).
+            _ if j > self.stored_level => (
+                self.stored_level + 1,
+                self.stored.chunks_exact(2).map(|p| p[0] + p[1]).collect(),
+            ),
             _ => (self.stored_level, self.stored.clone()),
         };
         while at < j {
@@ -373,6 +458,7 @@ fn identify(
 /// The octave pyramid of `rate` for ADEV (`hadamard` false) or HDEV, levels up to factor
 /// `max_factor` (and at least up to 2S), with the order-0 moments of the levels in the
 /// super-block passes if `phase_moments`; `lane_len` (a power of two) samples per lane.
+/// The super-blocks are cut into [`job_count`] jobs (see [`pyramid_in_jobs`]).
 pub fn pyramid_with_lane(
     rate: &[f64],
     max_factor: usize,
@@ -380,6 +466,39 @@ pub fn pyramid_with_lane(
     phase_moments: bool,
     simd: Simd,
     lane_len: usize,
+) -> Pyramid {
+    let jobs = job_count(rate.len() / (LANES * lane_len.max(1)));
+    pyramid_in_jobs(
+        rate,
+        max_factor,
+        hadamard,
+        phase_moments,
+        simd,
+        lane_len,
+        jobs,
+    )
+}
+
+/// Jobs the super-block passes of `blocks` super-blocks are cut into: [`JOBS`], fewer when
+/// a job would get less than [`MIN_JOB_BLOCKS`]. It depends on the length only, never on
+/// the size of the thread pool, so the sums are the same on any number of threads.
+pub fn job_count(blocks: usize) -> usize {
+    (blocks / MIN_JOB_BLOCKS).clamp(1, JOBS)
+}
+
+/// [`pyramid_with_lane`] with the super-blocks cut into `jobs` contiguous runs (at most
+/// one per super-block) that run on the rayon pool, each with its own level sums from
+/// zero; they are joined in order by [`LevelSums::append`], which adds the terms that
+/// straddle each seam. The levels above S and the samples after the last super-block
+/// go through [`LevelSums::push`] after the join, so they have no seams.
+pub fn pyramid_in_jobs(
+    rate: &[f64],
+    max_factor: usize,
+    hadamard: bool,
+    phase_moments: bool,
+    simd: Simd,
+    lane_len: usize,
+    jobs: usize,
 ) -> Pyramid {
     assert!(
         lane_len.is_power_of_two(),
@@ -399,28 +518,63 @@ pub fn pyramid_with_lane(
         .max(inner);
     let mut levels: Vec<LevelSums> = (0..count).map(|j| LevelSums::new(1 << j)).collect();
     let mut total = CompensatedSum::new();
-    let mut top: Vec<f64> = Vec::with_capacity(n / lane_len + 1);
     let stored_level = STORED_LEVEL.min(inner - 1);
-    let mut stored: Vec<f64> = Vec::with_capacity(n >> stored_level);
     let width = LANES * lane_len;
     let blocks = n / width;
+    // Exactly as long as their levels (level S: n/S sums; the stored level: n >> j),
+    // zeroed by the allocator so that the jobs fault their pages in, in parallel.
+    let mut top: Vec<f64> = vec![0.0; n / lane_len];
+    let mut stored: Vec<f64> = vec![0.0; n >> stored_level];
     if blocks > 0 {
-        let pass = SuperBlocks {
-            rate: &rate[..blocks * width],
-            avx: simd == Simd::Avx2 && Simd::detected() == Simd::Avx2,
-            offset,
-            lane_len,
-            levels: &mut levels[..inner],
-            top: &mut top,
-            stored: &mut stored,
-            stored_level,
-            total: &mut total,
-        };
-        match (hadamard, phase_moments) {
-            (true, true) => dispatch(simd, Passes::<true, true>(pass)),
-            (true, false) => dispatch(simd, Passes::<true, false>(pass)),
-            (false, true) => dispatch(simd, Passes::<false, true>(pass)),
-            (false, false) => dispatch(simd, Passes::<false, false>(pass)),
+        let jobs = jobs.clamp(1, blocks);
+        let stored_width = width >> stored_level;
+        let mut tasks = Vec::with_capacity(jobs);
+        let (mut top_rest, mut stored_rest) = (&mut top[..], &mut stored[..]);
+        for i in 0..jobs {
+            let (first, last) = (i * blocks / jobs, (i + 1) * blocks / jobs);
+            let (top_part, rest) = top_rest.split_at_mut((last - first) * LANES);
+            top_rest = rest;
+            let (stored_part, rest) = stored_rest.split_at_mut((last - first) * stored_width);
+            stored_rest = rest;
+            tasks.push((&rate[first * width..last * width], top_part, stored_part));
+        }
+        let avx = simd == Simd::Avx2 && Simd::detected() == Simd::Avx2;
+        let parts: Vec<(Vec<LevelSums>, CompensatedSum)> = tasks
+            .into_par_iter()
+            .map(|(rate, top, stored)| {
+                let mut levels: Vec<LevelSums> =
+                    (0..inner).map(|j| LevelSums::new(1 << j)).collect();
+                let mut total = CompensatedSum::new();
+                let pass = SuperBlocks {
+                    rate,
+                    avx,
+                    offset,
+                    lane_len,
+                    levels: &mut levels,
+                    top,
+                    stored,
+                    stored_level,
+                    total: &mut total,
+                };
+                match (hadamard, phase_moments) {
+                    (true, true) => dispatch(simd, Passes::<true, true>(pass)),
+                    (true, false) => dispatch(simd, Passes::<true, false>(pass)),
+                    (false, true) => dispatch(simd, Passes::<false, true>(pass)),
+                    (false, false) => dispatch(simd, Passes::<false, false>(pass)),
+                }
+                (levels, total)
+            })
+            .collect();
+        // Joined in job order: the same sums on any number of threads.
+        for (part, sum) in &parts {
+            for (level, later) in levels.iter_mut().zip(part) {
+                if hadamard {
+                    level.append::<true>(later);
+                } else {
+                    level.append::<false>(later);
+                }
+            }
+            total.merge(*sum);
         }
     }
     // The rest, one value at a time: levels up to S from the samples after the last
@@ -444,10 +598,10 @@ pub fn pyramid_with_lane(
             }
         }
         if j + 1 == inner {
-            top.extend_from_slice(&values);
+            top[blocks * LANES..].copy_from_slice(&values);
         }
         if j == stored_level {
-            stored.extend_from_slice(&values);
+            stored[(blocks * width) >> stored_level..].copy_from_slice(&values);
         }
     }
     Pyramid {
@@ -473,9 +627,10 @@ struct SuperBlocks<'a> {
     offset: f64,
     lane_len: usize,
     levels: &'a mut [LevelSums],
-    top: &'a mut Vec<f64>,
+    /// Receives the lane totals (level S) in sequence order, LANES per super-block.
+    top: &'a mut [f64],
     /// Receives the block sums of level `stored_level` in sequence order.
-    stored: &'a mut Vec<f64>,
+    stored: &'a mut [f64],
     stored_level: usize,
     total: &'a mut CompensatedSum,
 }
@@ -615,14 +770,21 @@ fn super_blocks<const HADAMARD: bool, const PHASE: bool>(pass: SuperBlocks<'_>) 
     let mut current: Vec<V> = vec![[0.0; LANES]; lane_len];
     let mut next: Vec<V> = vec![[0.0; LANES]; lane_len];
     let mut sums: Vec<LaneSums> = Vec::with_capacity(levels.len());
-    for block in rate.chunks_exact(LANES * lane_len) {
+    let width = LANES * lane_len;
+    for ((block, top), stored) in rate
+        .chunks_exact(width)
+        .zip(top.chunks_exact_mut(LANES))
+        .zip(stored.chunks_exact_mut(width >> stored_level))
+    {
         transpose(block, lane_len, offset, &mut current, avx);
         sums.clear();
         let mut steps = lane_len;
         while steps > 0 {
             if sums.len() == stored_level {
-                for l in 0..LANES {
-                    stored.extend(current[..steps].iter().map(|row| row[l]));
+                for (l, lane) in stored.chunks_exact_mut(steps).enumerate() {
+                    for (out, row) in lane.iter_mut().zip(&current[..steps]) {
+                        *out = row[l];
+                    }
                 }
             }
             sums.push(lane_pass::<HADAMARD, PHASE>(
@@ -635,7 +797,7 @@ fn super_blocks<const HADAMARD: bool, const PHASE: bool>(pass: SuperBlocks<'_>) 
         // The last level has one value per lane: the lane totals.
         let totals = sums[sums.len() - 1].first[0];
         total.add(totals.iter().sum());
-        top.extend_from_slice(&totals);
+        top.copy_from_slice(&totals);
         let mut steps = lane_len;
         for (level, sums) in levels.iter_mut().zip(&sums) {
             merge_lanes::<HADAMARD, PHASE>(level, sums, steps, &totals);
@@ -668,8 +830,11 @@ fn merge_lanes<const HADAMARD: bool, const PHASE: bool>(
         let [p1, p2] = level.last;
         let f0 = sums.first[0][l];
         if k0 == 0 {
-            level.first = f0;
+            level.first = [f0, sums.first[1][l]];
         } else {
+            if k0 == 1 {
+                level.first[1] = f0;
+            }
             lag1 += p1 * f0;
             let d1 = f0 - p1;
             if !HADAMARD {
@@ -972,6 +1137,170 @@ mod tests {
         assert!(!fast.order0_correlated(0));
         let factors: Vec<usize> = (0..10).map(|j| 1 << j).collect();
         assert!(identify(&fast, &pm, &factors, 3, Simd::detected()).is_none());
+    }
+
+    /// The sequential definition: every level's block sums (pairwise sums of the level
+    /// below, from the samples minus `offset`) pushed one by one.
+    fn pushed_levels(rate: &[f64], offset: f64, hadamard: bool, count: usize) -> Vec<LevelSums> {
+        let mut values: Vec<f64> = rate.iter().map(|v| v - offset).collect();
+        (0..count)
+            .map(|j| {
+                if j > 0 {
+                    values = values.chunks_exact(2).map(|p| p[0] + p[1]).collect();
+                }
+                let mut level = LevelSums::new(1 << j);
+                for &v in &values {
+                    if hadamard {
+                        level.push::<true>(v);
+                    } else {
+                        level.push::<false>(v);
+                    }
+                }
+                level
+            })
+            .collect()
+    }
+
+    /// `got` equals `want` (the pushed definition): counts and end values exactly (the
+    /// same additions), every sum to 1e-12 of a bound on the sum of its terms' magnitudes,
+    /// far below one term of any level here (a dropped or doubled seam term shows).
+    fn assert_level_matches(label: &str, got: &LevelSums, want: &LevelSums, phase: bool) {
+        assert_eq!(
+            (got.m, got.count, got.first, got.last),
+            (want.m, want.count, want.first, want.last),
+            "{label}"
+        );
+        let close = |name: &str, g: &CompensatedSum, w: &CompensatedSum, scale: f64| {
+            let (g, w) = (g.value(), w.value());
+            assert!(
+                (g - w).abs() <= 1e-12 * scale,
+                "{label}: {name} {g} vs {w} (scale {scale})"
+            );
+        };
+        let squares = want.squares.value();
+        // |Δs|² ≤ 2(s² + s'²), |Δ²s|² ≤ 6(s² + s'² + s''²), |s·s'| ≤ (s² + s'²)/2.
+        close("deviation", &got.deviation, &want.deviation, 20.0 * squares);
+        close("squares", &got.squares, &want.squares, squares);
+        close("lag1", &got.lag1, &want.lag1, squares);
+        let k = want.count as f64;
+        close("phase", &got.phase, &want.phase, (k * squares).sqrt());
+        if phase {
+            let phase_squares = want.phase_squares.value();
+            let spread = (k * phase_squares).sqrt();
+            close("phase_sum", &got.phase_sum, &want.phase_sum, spread);
+            close(
+                "phase_squares",
+                &got.phase_squares,
+                &want.phase_squares,
+                phase_squares,
+            );
+            close(
+                "phase_moment",
+                &got.phase_moment,
+                &want.phase_moment,
+                (k + 1.0) * spread,
+            );
+        }
+    }
+
+    /// Jobs joined at seams against the pushed definition, with seams at every level
+    /// boundary up to S (a seam falls between super-blocks, where every level up to S
+    /// has a block boundary): one to seven jobs, jobs of a single super-block, one-sample
+    /// lanes (level S has one value per lane, so the seam meets a count of 1), tails of
+    /// 0, 1, S + 3 and a whole super-block minus one samples, and every level up to m = N
+    /// (m = N/4 has four block sums).
+    #[test]
+    fn jobs_join_to_the_sequential_definition() {
+        for lane_len in [1, 2, 4, 16] {
+            let width = LANES * lane_len;
+            for blocks in [1, 2, 3, 7, 12] {
+                for tail in [0, 1, lane_len + 3, width - 1] {
+                    let n = blocks * width + tail;
+                    let y = noisy_rate(n, 9.806_65, 0.01, (n * 31 + lane_len) as u64);
+                    for hadamard in [false, true] {
+                        for phase in [false, true] {
+                            for jobs in [1, 2, 3, 5, 7] {
+                                for simd in Simd::available() {
+                                    let p = pyramid_in_jobs(
+                                        &y, n, hadamard, phase, simd, lane_len, jobs,
+                                    );
+                                    let want =
+                                        pushed_levels(&y, p.offset, hadamard, p.levels.len());
+                                    for (j, (got, want)) in p.levels.iter().zip(&want).enumerate() {
+                                        let label = format!(
+                                            "lane={lane_len} blocks={blocks} tail={tail} \
+                                             hadamard={hadamard} phase={phase} jobs={jobs} \
+                                             {simd:?} m={}",
+                                            1 << j
+                                        );
+                                        assert_level_matches(&label, got, want, p.exact_phase(j));
+                                    }
+                                    let stored: Vec<f64> =
+                                        pushed_values(&y, p.offset, p.stored_level);
+                                    assert_eq!(p.stored, stored);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The block sums of level `j` by pairwise sums from the samples minus `offset`.
+    fn pushed_values(rate: &[f64], offset: f64, j: usize) -> Vec<f64> {
+        let mut values: Vec<f64> = rate.iter().map(|v| v - offset).collect();
+        for _ in 0..j {
+            values = values.chunks_exact(2).map(|p| p[0] + p[1]).collect();
+        }
+        values
+    }
+
+    /// The job count depends on the length only: one and two threads give the same bits,
+    /// and the two-job sums stay within 1e-13 of the one-job (sequential) ones.
+    #[test]
+    fn one_and_two_threads_give_identical_bits() {
+        let lane_len = 64;
+        // Two jobs for the analysis's own lane length too.
+        let n = JOBS * MIN_JOB_BLOCKS * LANES * LANE_LEN + 777;
+        assert_eq!(job_count(n / (LANES * LANE_LEN)), JOBS);
+        let y = noisy_rate(n, 9.806_65, 0.001, 21);
+        let factors: Vec<usize> = (0..16).map(|j| 1 << j).collect();
+        let pool = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+        };
+        let (one, two) = (pool(1), pool(2));
+        for hadamard in [false, true] {
+            for phase in [false, true] {
+                let run = |pool: &rayon::ThreadPool| {
+                    pool.install(|| {
+                        pyramid_with_lane(&y, n, hadamard, phase, Simd::detected(), lane_len)
+                    })
+                };
+                let (a, b) = (run(&one), run(&two));
+                assert_eq!(a.levels, b.levels, "hadamard={hadamard} phase={phase}");
+                assert_eq!((a.stored, a.mean), (b.stored, b.mean));
+                let single = pyramid_in_jobs(&y, n, hadamard, phase, Simd::detected(), lane_len, 1);
+                for (p, q) in b.levels.iter().zip(&single.levels) {
+                    let (m, p, q) = (p.m, p.deviation_sum(), q.deviation_sum());
+                    assert!((p - q).abs() <= 1e-13 * q, "m={m}: {p} vs {q}");
+                }
+            }
+            let kind = if hadamard {
+                DeviationKind::Hdev
+            } else {
+                DeviationKind::Adev
+            };
+            let analyse = |pool: &rayon::ThreadPool| {
+                pool.install(|| {
+                    non_overlapping_from_rate(&y, kind, &factors, Simd::detected()).unwrap()
+                })
+            };
+            assert_eq!(analyse(&one), analyse(&two));
+        }
     }
 
     #[test]
