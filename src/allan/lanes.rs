@@ -56,6 +56,11 @@ unsafe fn with_avx512<J: LaneJob>(job: J) -> J::Output {
 /// shuffles of [`Lanes::exclusive_scan`] only move values), so all implementations give
 /// the same bits.
 pub(super) trait Lanes: Copy {
+    /// Vectors a kernel may keep per row of a register-carried walk: as many as leave
+    /// the three rows, their accumulators and temporaries in registers (AVX-512: 32
+    /// registers of one vector each; AVX2: 16 of half a vector; portable SSE2: 16 of a
+    /// quarter).
+    const WALK: usize;
     unsafe fn zero() -> Self;
     unsafe fn splat(v: f64) -> Self;
     /// Loads eight values from `p` (unaligned).
@@ -65,6 +70,9 @@ pub(super) trait Lanes: Copy {
     unsafe fn add(self, other: Self) -> Self;
     unsafe fn sub(self, other: Self) -> Self;
     unsafe fn mul(self, other: Self) -> Self;
+    /// acc + self², rounded once (one fused multiply-add; `f64::mul_add` per lane on the
+    /// portable path, so every path gives the same bits).
+    unsafe fn square_add(self, acc: Self) -> Self;
     /// self − 2·b, rounded once (2b is exact, so this is also the rounding of the
     /// subtraction: one fused multiply-add on the SIMD paths).
     unsafe fn minus_twice(self, b: Self) -> Self;
@@ -87,6 +95,7 @@ impl Portable {
 }
 
 impl Lanes for Portable {
+    const WALK: usize = 1;
     #[inline(always)]
     unsafe fn zero() -> Self {
         Portable([0.0; LANES])
@@ -114,6 +123,12 @@ impl Lanes for Portable {
     #[inline(always)]
     unsafe fn mul(self, o: Self) -> Self {
         Portable(std::array::from_fn(|l| self.0[l] * o.0[l]))
+    }
+    #[inline(always)]
+    unsafe fn square_add(self, acc: Self) -> Self {
+        Portable(std::array::from_fn(|l| {
+            self.0[l].mul_add(self.0[l], acc.0[l])
+        }))
     }
     #[inline(always)]
     unsafe fn minus_twice(self, b: Self) -> Self {
@@ -169,6 +184,7 @@ mod x86 {
     }
 
     impl Lanes for Avx2 {
+        const WALK: usize = 2;
         #[inline]
         #[target_feature(enable = "avx2,fma")]
         unsafe fn zero() -> Self {
@@ -204,6 +220,14 @@ mod x86 {
         #[target_feature(enable = "avx2,fma")]
         unsafe fn mul(self, o: Self) -> Self {
             Avx2(_mm256_mul_pd(self.0, o.0), _mm256_mul_pd(self.1, o.1))
+        }
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn square_add(self, acc: Self) -> Self {
+            Avx2(
+                _mm256_fmadd_pd(self.0, self.0, acc.0),
+                _mm256_fmadd_pd(self.1, self.1, acc.1),
+            )
         }
         #[inline]
         #[target_feature(enable = "avx2,fma")]
@@ -251,6 +275,7 @@ mod x86 {
     }
 
     impl Lanes for Avx512 {
+        const WALK: usize = 4;
         #[inline]
         #[target_feature(enable = "avx512f")]
         unsafe fn zero() -> Self {
@@ -285,6 +310,11 @@ mod x86 {
         #[target_feature(enable = "avx512f")]
         unsafe fn mul(self, o: Self) -> Self {
             Avx512(_mm512_mul_pd(self.0, o.0))
+        }
+        #[inline]
+        #[target_feature(enable = "avx512f")]
+        unsafe fn square_add(self, acc: Self) -> Self {
+            Avx512(_mm512_fmadd_pd(self.0, self.0, acc.0))
         }
         #[inline]
         #[target_feature(enable = "avx512f")]

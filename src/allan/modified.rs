@@ -4,8 +4,8 @@
 //! S_j(m) = W_m[j] − 2·W_m[j+m] + W_m[j+2m] (an OADEV-like stencil on W_m), and the next
 //! octave's window sums are W_{2m}[j] = W_m[j] + W_m[j+m]. One pass over W_m therefore
 //! sums S_j(m)² and overwrites W_m[j] with W_{2m}[j] in ascending j (position j + m is
-//! read before it is overwritten): three loads, one store and five floating-point
-//! operations per term (a + c, then − 2b as one FMA, the square, its accumulation,
+//! read before it is overwritten): three loads, one store and four floating-point
+//! operations per term (a + c, then − 2b as one FMA, the square added as one FMA,
 //! W_2m), every W a pairwise sum of phase points (no running sum, so no drift). Σ S² for
 //! all octave factors m = 1, 2, 4, … costs one such pass per factor.
 //!
@@ -31,7 +31,9 @@
 //!
 //! Each term is (a + c − 2b)²; on the SIMD paths c − 2b is one fused multiply-add, which
 //! gives the same bits as the portable subtraction (2b is exact, so the single rounding
-//! is that of the subtraction). The loops are written once over a small eight-lane
+//! is that of the subtraction), and the square is added to its accumulator by a second
+//! one (acc + h², rounded once; `f64::mul_add` on the portable path): two additions and
+//! two multiply-adds per term, one pipe pair of each kind on Zen 4. The loops are written once over a small eight-lane
 //! vector trait ([`Lanes`]) with portable, AVX2 + FMA and AVX-512F implementations,
 //! chosen at run time as for the OADEV sweep ([`SweepPath`]): explicit `std::arch`
 //! intrinsics because the auto-vectorised version of these loops spilled its
@@ -289,18 +291,18 @@ fn write_starts(scratch: &[f64], valid: usize, out: &mut [MaybeUninit<f64>]) {
     }
 }
 
-/// (a + c − 2b)², the square of one MDEV window sum, lane by lane.
+/// acc + (a + c − 2b)², the square of one MDEV window sum added by one fused
+/// multiply-add, lane by lane.
 #[inline(always)]
-unsafe fn term<V: Lanes>(a: V, b: V, c: V) -> V {
-    let h = a.add(c).minus_twice(b);
-    h.mul(h)
+unsafe fn term<V: Lanes>(acc: V, a: V, b: V, c: V) -> V {
+    a.add(c).minus_twice(b).square_add(acc)
 }
 
-/// (a + c − 2b)² for one value, as [`term`] computes each lane.
+/// acc + (a + c − 2b)² for one value, as [`term`] computes each lane.
 #[inline(always)]
-fn term1(a: f64, b: f64, c: f64) -> f64 {
+fn term1(acc: f64, a: f64, b: f64, c: f64) -> f64 {
     let h = (a + c) - 2.0 * b;
-    h * h
+    h.mul_add(h, acc)
 }
 
 /// One factor m over `s` = W_m in place: returns Σ S_j² for j < `term_end` and writes
@@ -340,8 +342,8 @@ unsafe fn level_pass_from<V: Lanes>(
         let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
         let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
         let (c0, c1) = (V::load(q.add(2 * m)), V::load(q.add(2 * m + LANES)));
-        acc[0] = acc[0].add(term(a0, b0, c0));
-        acc[1] = acc[1].add(term(a1, b1, c1));
+        acc[0] = term(acc[0], a0, b0, c0);
+        acc[1] = term(acc[1], a1, b1, c1);
         // Stored after all loads: in place, for m < L the loads above read positions
         // of this step that are overwritten here, and must see W_m.
         a0.add(b0).store(dst.add(j));
@@ -351,7 +353,7 @@ unsafe fn level_pass_from<V: Lanes>(
     let mut tail = 0.0;
     while j < both {
         let (a, b) = (*src.add(j), *src.add(j + m));
-        tail += term1(a, b, *src.add(j + 2 * m));
+        tail = term1(tail, a, b, *src.add(j + 2 * m));
         *dst.add(j) = a + b;
         j += 1;
     }
@@ -362,12 +364,12 @@ unsafe fn level_pass_from<V: Lanes>(
         let (a0, a1) = (V::load(q), V::load(q.add(LANES)));
         let (b0, b1) = (V::load(q.add(m)), V::load(q.add(m + LANES)));
         let (c0, c1) = (V::load(q.add(2 * m)), V::load(q.add(2 * m + LANES)));
-        acc[0] = acc[0].add(term(a0, b0, c0));
-        acc[1] = acc[1].add(term(a1, b1, c1));
+        acc[0] = term(acc[0], a0, b0, c0);
+        acc[1] = term(acc[1], a1, b1, c1);
         i += L;
     }
     while i < term_end {
-        tail += term1(*src.add(i), *src.add(i + m), *src.add(i + 2 * m));
+        tail = term1(tail, *src.add(i), *src.add(i + m), *src.add(i + 2 * m));
         i += 1;
     }
     let mut i = j;
@@ -547,7 +549,8 @@ unsafe fn column_levels<V: Lanes>(
         let mut tail = 0.0;
         for l in 0..B {
             if full * M + r0 + l < count {
-                tail += term1(
+                tail = term1(
+                    tail,
                     rows[full].0[l],
                     rows[full + d].0[l],
                     rows[full + 2 * d].0[l],
@@ -568,14 +571,14 @@ unsafe fn column_levels<V: Lanes>(
         for q in 0..both {
             let (a, b, c) = (load(q), load(q + d), load(q + 2 * d));
             for g in 0..GROUPS {
-                acc[g] = acc[g].add(term(a[g], b[g], c[g]));
+                acc[g] = term(acc[g], a[g], b[g], c[g]);
             }
             store(q, std::array::from_fn(|g| a[g].add(b[g])));
         }
         for q in both..full {
             let (a, b, c) = (load(q), load(q + d), load(q + 2 * d));
             for g in 0..GROUPS {
-                acc[g] = acc[g].add(term(a[g], b[g], c[g]));
+                acc[g] = term(acc[g], a[g], b[g], c[g]);
             }
         }
         for q in both..next_rows {

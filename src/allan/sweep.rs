@@ -2,25 +2,37 @@
 //! S_j = Σ_{i < count_j} (x[i + 2m_j] − 2x[i + m_j] + x[i])² for every factor m_j of a
 //! grid, in one pass over the phase x.
 //!
-//! How (figures in docs/bench/allan.md, "Round 5"):
-//! - The term range is cut into tiles of [`TILE`] terms. Within a tile the factors are
-//!   processed in **register-blocked groups** of up to [`GROUP`] factors whose eight-lane
+//! How (figures in docs/bench/allan.md, "Round 5" and "Session 7, sweep and window
+//! sums"):
+//! - The term range is cut into jobs of [`TILES_PER_JOB`] tiles of [`TILE`] terms (512 KB
+//!   of phase per job, which stays in L2). Within a tile the factors are processed in
+//!   **register-blocked groups** of up to [`GROUP`] factors whose eight-lane
 //!   accumulators stay in registers over the whole tile:
 //!   - a *chain* m, 2m, 4m, … (every octave grid; a few runs inside dense grids): the
 //!     outer point x[i + 2m] of one factor is the middle point of the next, so G terms
 //!     take G + 2 loads instead of 3G;
 //!   - other factors share the load of x[i]: 2G + 1 loads for G terms.
-//! - Lane l of a tile accumulates the terms i ≡ l (mod 8) (tiles start at multiples of
-//!   8); a tile's eight lanes are added in lane order and the tile sums are compensated
-//!   ([`CompensatedSum`]); jobs of [`TILES_PER_JOB`] tiles run on the rayon pool and are
-//!   merged in a fixed order. So each S_j has the same bits whatever the grouping (chain,
-//!   shared or alone), the number of threads and the instruction-set path.
+//! - Factors outside chains from [`LANES`] to [`WALK_MAX`] (most of a dense grid below
+//!   4096) instead **walk the job's rows** of m terms ([`walk`]): x[i + m] and x[i + 2m]
+//!   of term i are x[i′] and x[i′ + m] of term i′ = i + m, so a strip of vectors walking
+//!   down the rows loads one vector per eight terms (the two rows before stay in
+//!   registers) where a shared group loads more than two, from L2.
+//! - Each term is (c − 2b + a)² added to its lane by one fused multiply-add (acc + d²,
+//!   rounded once); c − 2b is one fused negative multiply-add, or (c − (b + b)) on the
+//!   adders for every third member of a group, which is the same rounding (2b is exact).
+//!   So a group of four takes 6 additions and 7 multiply-adds on Zen 4's two pipes of
+//!   each kind, instead of 8 and 8.
+//! - Lanes of a tile (of a strip) accumulate plain sums; a tile's (a strip's) lanes are
+//!   added in lane order and these partial sums are compensated ([`CompensatedSum`]);
+//!   jobs run on the rayon pool and are merged in a fixed order. So each S_j has the
+//!   same bits whatever the number of threads and the instruction-set path, and whether
+//!   a factor is swept shared or alone; a factor of the walk range that a grid chains
+//!   and another does not is summed in another order there (a few ulps apart).
 //! - Three paths ([`SweepPath`]): portable (plain arrays, vectorised by the compiler with
-//!   SSE2), AVX2 + FMA and AVX-512F (explicit `std::arch` intrinsics, chosen at run time).
-//!   c − 2b is one fused negative multiply-add on the SIMD paths: 2b is exact, so the
-//!   single rounding of the FMA is the rounding of the subtraction, the same bits as the
-//!   portable c − 2.0·b, and each term costs two floating-point additions instead of
-//!   three (the adder pipes are what limits the loop on Zen 4).
+//!   SSE2, `f64::mul_add` for the fused operations), AVX2 + FMA and AVX-512F (explicit
+//!   `std::arch` intrinsics, chosen at run time). The large factors' far streams
+//!   (x[i + m], x[i + 2m] for m beyond a tile: about one pass over the phase from L3 or
+//!   memory per factor) bound dense grids; see the benchmark notes.
 //!
 //! Written with intrinsics rather than left to the auto-vectoriser (as the other kernels
 //! in this module tree are): register-blocked loops over several factors were vectorised
@@ -37,8 +49,13 @@ use super::numerics::{sum_in_jobs, CompensatedSum, Simd};
 /// the 6 h bench data; 4096 keeps a shared group's 2G + 1 streams within L2.
 pub const TILE: usize = 4096;
 
-/// Tiles per parallel job (and per entry of the fixed-order merge).
-pub const TILES_PER_JOB: usize = 32;
+/// Tiles per parallel job (and per entry of the fixed-order merge): 512 KB of phase, so
+/// that the job's span stays in L2 while the factors of [`walk`] pass over it.
+pub const TILES_PER_JOB: usize = 16;
+
+/// Largest factor that walks rows ([`walk`]): a sixteenth of a job, so that a strip's
+/// two rows of start-up cost little.
+pub const WALK_MAX: usize = TILE * TILES_PER_JOB / 16;
 
 /// Most factors one register-blocked group holds: 4 eight-lane accumulators are 8 ymm
 /// registers on the AVX2 path, leaving room for the loaded streams.
@@ -164,9 +181,14 @@ struct Group {
 }
 
 /// Groups for the factors `live` (indices into `factors`): greedy chains m, 2m, 4m, … of
-/// at least two factors from the smallest factor up, then the rest in shared groups.
-/// O(F log F) for F factors (the `all` grid has one per m).
-fn plan(factors: &[usize], live: &[usize]) -> Vec<Group> {
+/// at least two factors from the smallest factor up; of the rest, those in `walks` go
+/// to the row walk (second list: a chain shares more loads than a walk saves), the
+/// others into shared groups. O(F log F) for F factors (the `all` grid has one per m).
+fn plan(
+    factors: &[usize],
+    live: &[usize],
+    walks: std::ops::RangeInclusive<usize>,
+) -> (Vec<Group>, Vec<usize>) {
     let mut order: Vec<usize> = live.to_vec();
     order.sort_by_key(|&j| factors[j]);
     let sorted: Vec<usize> = order.iter().map(|&j| factors[j]).collect();
@@ -208,6 +230,9 @@ fn plan(factors: &[usize], live: &[usize]) -> Vec<Group> {
             singles.push(members[0]);
         }
     }
+    let (walkers, singles): (Vec<usize>, Vec<usize>) = singles
+        .into_iter()
+        .partition(|&j| walks.contains(&factors[j]));
     for chunk in singles.chunks(GROUP) {
         let mut members = [0usize; GROUP];
         members[..chunk.len()].copy_from_slice(chunk);
@@ -217,11 +242,13 @@ fn plan(factors: &[usize], live: &[usize]) -> Vec<Group> {
             len: chunk.len(),
         });
     }
-    groups
+    (groups, walkers)
 }
 
-/// The job's tiles on lanes `V`. Factors whose terms cover the whole job are swept in the
-/// groups of [`plan`]; a factor whose terms end inside the job runs alone, up to its end.
+/// The job's terms on lanes `V`. Factors whose terms cover the whole job are swept tile by
+/// tile in the groups of [`plan`], or walk the job's rows ([`walk`]) when [`plan`] says
+/// so; a factor whose terms end inside the job walks up to its end if it is between
+/// [`LANES`] and [`WALK_MAX`], else is swept alone tile by tile.
 ///
 /// Safety: `V`'s instructions must be available.
 #[inline(always)]
@@ -233,12 +260,21 @@ unsafe fn job_lanes<V: Lanes>(job: &Job) -> Vec<CompensatedSum> {
         start,
         end,
     } = *job;
+    let walks = LANES..=WALK_MAX;
     let full: Vec<usize> = (0..factors.len()).filter(|&j| counts[j] >= end).collect();
-    let ending: Vec<usize> = (0..factors.len())
-        .filter(|&j| counts[j] > start && counts[j] < end)
-        .collect();
-    let groups = plan(factors, &full);
+    let (groups, mut walkers) = plan(factors, &full, walks.clone());
+    let mut ending = Vec::new();
+    for j in (0..factors.len()).filter(|&j| counts[j] > start && counts[j] < end) {
+        if walks.contains(&factors[j]) {
+            walkers.push(j);
+        } else {
+            ending.push(j);
+        }
+    }
     let mut sums = vec![CompensatedSum::new(); factors.len()];
+    for &j in &walkers {
+        sums[j].add(walk::<V>(x, factors[j], start, end.min(counts[j])));
+    }
     let mut t0 = start;
     while t0 < end {
         let t1 = (t0 + TILE).min(end);
@@ -262,6 +298,109 @@ unsafe fn job_lanes<V: Lanes>(job: &Job) -> Vec<CompensatedSum> {
         t0 = t1;
     }
     sums
+}
+
+/// Σ (x[i + 2m] − 2x[i + m] + x[i])² over the terms `start..end` of one factor m ≥
+/// [`LANES`], by rows of m terms: term i + m reads x[i + m] and x[i + 2m] again, so a
+/// strip of vectors walking down the rows loads one new row per step and keeps the two
+/// before it in registers (one load per eight terms instead of three). The job's span
+/// of the phase stays in L2 while its factors walk it. Strips of `V::WALK` vectors, then
+/// of one, the last one masked to the lanes the others left; the terms after the last
+/// whole row are swept straight.
+#[inline(always)]
+unsafe fn walk<V: Lanes>(x: &[f64], m: usize, start: usize, end: usize) -> f64 {
+    let rows = (end - start) / m;
+    assert!(
+        m >= LANES && start + (rows + 2) * m <= x.len() && end + 2 * m <= x.len(),
+        "sweep walk out of range"
+    );
+    let base = x.as_ptr().add(start);
+    let mut total = 0.0;
+    if rows > 0 {
+        let mut r = 0;
+        if V::WALK >= 4 {
+            while r + 4 * LANES <= m {
+                for v in strip::<V, 4, false>(base.add(r), m, rows, 0) {
+                    total += v;
+                }
+                r += 4 * LANES;
+            }
+        }
+        if V::WALK >= 2 {
+            while r + 2 * LANES <= m {
+                for v in strip::<V, 2, false>(base.add(r), m, rows, 0) {
+                    total += v;
+                }
+                r += 2 * LANES;
+            }
+        }
+        while r + LANES <= m {
+            total += strip::<V, 1, false>(base.add(r), m, rows, 0)[0];
+            r += LANES;
+        }
+        if r < m {
+            // The last m − r columns: a strip ending at column m, its first lanes (done
+            // by the strip before) masked out.
+            total += strip::<V, 1, true>(base.add(m - LANES), m, rows, LANES - (m - r))[0];
+        }
+    }
+    let t0 = start + rows * m;
+    let steps = (end - t0) / LANES;
+    let mut lanes = shared::<V, 1>(x, t0, steps, [m])[0];
+    for (l, i) in (t0 + steps * LANES..end).enumerate() {
+        let d = x[i + 2 * m] - 2.0 * x[i + m] + x[i];
+        lanes[l] = d.mul_add(d, lanes[l]);
+    }
+    total + lane_total(&lanes)
+}
+
+/// The terms of `rows` rows of m (row q at `p + q·m`) in a strip of `K` vectors, lanes
+/// below `skip` left out when `MASKED` (then K = 1): one sum per vector. Two sets of accumulators take
+/// alternate rows, so that the additions of neighbouring rows overlap.
+///
+/// Safety: `p` must be readable for rows + 2 rows of the strip.
+#[inline(always)]
+unsafe fn strip<V: Lanes, const K: usize, const MASKED: bool>(
+    p: *const f64,
+    m: usize,
+    rows: usize,
+    skip: usize,
+) -> [f64; K] {
+    let row = |q: usize| -> [V; K] { std::array::from_fn(|k| V::load(p.add(q * m + k * LANES))) };
+    let mask = if MASKED {
+        let keep: [f64; LANES] = std::array::from_fn(|l| if l < skip { 0.0 } else { 1.0 });
+        V::load(keep.as_ptr())
+    } else {
+        V::zero()
+    };
+    let square = |acc: V, a: V, b: V, c: V| {
+        let d = c.minus_twice(b).add(a);
+        // × 1 or × 0: exact (d is finite).
+        let d = if MASKED { d.mul(mask) } else { d };
+        d.square_add(acc)
+    };
+    let mut acc = [[V::zero(); K]; 2];
+    let mut a = row(0);
+    let mut b = row(1);
+    let mut q = 0;
+    while q + 2 <= rows {
+        let c = row(q + 2);
+        let d = row(q + 3);
+        for k in 0..K {
+            acc[0][k] = square(acc[0][k], a[k], b[k], c[k]);
+            acc[1][k] = square(acc[1][k], b[k], c[k], d[k]);
+        }
+        (a, b) = (c, d);
+        q += 2;
+    }
+    if q < rows {
+        let c = row(q + 2);
+        for k in 0..K {
+            acc[0][k] = square(acc[0][k], a[k], b[k], c[k]);
+        }
+    }
+    // Per vector of the strip, as if each had walked alone: the same bits for any K.
+    std::array::from_fn(|k| lane_total(&acc[0][k].to_array()) + lane_total(&acc[1][k].to_array()))
 }
 
 /// Sum of the eight lanes in lane order.
@@ -295,7 +434,7 @@ unsafe fn sweep_group<V: Lanes>(
         let m = m[k];
         for i in t0 + steps * LANES..t1 {
             let d = x[i + 2 * m] - 2.0 * x[i + m] + x[i];
-            lane[i % LANES] += d * d;
+            lane[i % LANES] = d.mul_add(d, lane[i % LANES]);
         }
     }
     lanes
@@ -305,6 +444,20 @@ unsafe fn sweep_group<V: Lanes>(
 #[inline(always)]
 fn widen<const G: usize>(lanes: [[f64; LANES]; G]) -> [[f64; LANES]; GROUP] {
     std::array::from_fn(|k| if k < G { lanes[k] } else { [0.0; LANES] })
+}
+
+/// c − 2b + a for member `k` of a group, computed so that a group's operations spread
+/// over both kinds of floating-point pipe: every third member as (c − (b + b)) + a on
+/// the adders (three additions), the others as (c − 2b, one fused multiply-add) + a. Both
+/// round c − 2b once (2b is exact), so they give the same bits; with the fused square-add
+/// that follows, a group of four costs 6 additions and 7 multiply-adds instead of 8 and 8.
+#[inline(always)]
+unsafe fn second_difference<V: Lanes>(a: V, b: V, c: V, k: usize) -> V {
+    if k % 3 == 2 {
+        c.sub(b.add(b)).add(a)
+    } else {
+        c.minus_twice(b).add(a)
+    }
 }
 
 /// Lanes of `steps` eight-term steps from `t0` for the chain `m` (m[k+1] = 2m[k]).
@@ -328,8 +481,7 @@ unsafe fn chain<V: Lanes, const G: usize>(
         let mut b = V::load(p.add(m[0]));
         for k in 0..G {
             let c = V::load(p.add(if k + 1 < G { m[k + 1] } else { outer }));
-            let d = c.minus_twice(b).add(a);
-            acc[k] = acc[k].add(d.mul(d));
+            acc[k] = second_difference(a, b, c, k).square_add(acc[k]);
             b = c;
         }
     }
@@ -356,8 +508,7 @@ unsafe fn shared<V: Lanes, const G: usize>(
         for k in 0..G {
             let b = V::load(p.add(m[k]));
             let c = V::load(p.add(2 * m[k]));
-            let d = c.minus_twice(b).add(a);
-            acc[k] = acc[k].add(d.mul(d));
+            acc[k] = second_difference(a, b, c, k).square_add(acc[k]);
         }
     }
     acc.map(|v| v.to_array())
@@ -419,6 +570,9 @@ mod tests {
                 1, 2, 4, 10, 20, 40, 100, 200, 400, 1_000, 2_000, 4_000, 10_000,
             ],
             vec![7, 3, 3, 96, 48, 24, 12, 1, 50_001, 77_777, 1_000_000],
+            // Row walks: whole strips of four, two and one vectors, masked last
+            // strips, rows that do not divide the job, factors ending inside jobs.
+            vec![8, 9, 17, 33, 100, 1_001, 4_095, WALK_MAX, 60_000, 70_001],
         ]
     }
 
@@ -449,7 +603,9 @@ mod tests {
 
     #[test]
     fn each_sum_is_independent_of_the_other_factors_and_of_the_threads() {
-        // Chained, shared and single runs of a factor must give the same bits.
+        // Shared and single runs of a factor must give the same bits; a factor of the
+        // walk range that a chain takes in the grid walks when alone (another order of
+        // the same sums: a few ulps at most).
         let n = TILE * TILES_PER_JOB + 2 * TILE + 3;
         let x = phase(n, 9);
         let one_thread = rayon::ThreadPoolBuilder::new()
@@ -466,7 +622,16 @@ mod tests {
                 let all = second_difference_sums(&x, &factors, &counts, path);
                 for (j, &m) in factors.iter().enumerate() {
                     let alone = second_difference_sums(&x, &[m], &[counts[j]], path);
-                    assert_eq!(alone[0].to_bits(), all[j].to_bits(), "{path:?} m={m}");
+                    if (LANES..=WALK_MAX).contains(&m) {
+                        assert!(
+                            (alone[0] - all[j]).abs() <= 1e-14 * all[j],
+                            "{path:?} m={m}: {:e} vs {:e}",
+                            alone[0],
+                            all[j]
+                        );
+                    } else {
+                        assert_eq!(alone[0].to_bits(), all[j].to_bits(), "{path:?} m={m}");
+                    }
                 }
                 let serial =
                     one_thread.install(|| second_difference_sums(&x, &factors, &counts, path));
@@ -482,7 +647,11 @@ mod tests {
     fn plans_chain_doubling_factors_and_share_the_rest() {
         let factors = [1, 2, 3, 4, 6, 8, 10, 16, 32];
         let live: Vec<usize> = (0..factors.len()).collect();
-        let groups = plan(&factors, &live);
+        let (groups, walkers) = plan(&factors, &live, 10..=10);
+        assert_eq!(
+            walkers.iter().map(|&j| factors[j]).collect::<Vec<_>>(),
+            [10]
+        );
         let described: Vec<(Sharing, Vec<usize>)> = groups
             .iter()
             .map(|g| {
@@ -498,7 +667,6 @@ mod tests {
                 (Sharing::Chain, vec![1, 2, 4, 8]),
                 (Sharing::Chain, vec![3, 6]),
                 (Sharing::Chain, vec![16, 32]),
-                (Sharing::Shared, vec![10]),
             ]
         );
     }
@@ -509,7 +677,12 @@ mod tests {
         let factors: Vec<usize> = (1..=50_000).collect();
         let live: Vec<usize> = (0..factors.len()).collect();
         let mut seen = vec![0u8; factors.len()];
-        for group in plan(&factors, &live) {
+        let (groups, walkers) = plan(&factors, &live, LANES..=WALK_MAX);
+        for &j in &walkers {
+            assert!((LANES..=WALK_MAX).contains(&factors[j]));
+            seen[j] += 1;
+        }
+        for group in groups {
             let members = &group.members[..group.len];
             if group.sharing == Sharing::Chain {
                 assert!(members
