@@ -160,23 +160,14 @@ impl LevelSums {
             return;
         }
         let k0 = self.count;
-        let [p1, p2] = self.last;
-        let [f0, f1] = later.first;
-        let d1 = f0 - p1;
-        let mut seam = 0.0;
-        if !HADAMARD {
-            seam += d1 * d1;
-        } else {
-            if k0 >= 2 {
-                let d2 = d1 - (p1 - p2);
-                seam += d2 * d2;
-            }
-            if later.count >= 2 {
-                let d2 = (f1 - f0) - d1;
-                seam += d2 * d2;
-            }
-        }
-        self.deviation.add(seam);
+        let [p1, _] = self.last;
+        let [f0, _] = later.first;
+        self.deviation.add(seam_terms::<HADAMARD>(
+            self.last,
+            k0,
+            later.first,
+            later.count,
+        ));
         self.deviation.merge(later.deviation);
         self.lag1.add(p1 * f0);
         self.lag1.merge(later.lag1);
@@ -806,6 +797,35 @@ fn super_blocks<const HADAMARD: bool, const PHASE: bool>(pass: SuperBlocks<'_>) 
     }
 }
 
+/// The difference terms that straddle a seam between two runs of block sums: the earlier
+/// run's last two values `last` = [s_{k0−1}, s_{k0−2}] (of `before` values) and the later
+/// run's first two `first` (of `after` values). ADEV: the first difference across the
+/// seam; HDEV: the two second differences that take values from both sides. Shared by the
+/// lane join inside a super-block and the job join of whole passes.
+#[inline(always)]
+fn seam_terms<const HADAMARD: bool>(
+    last: [f64; 2],
+    before: usize,
+    first: [f64; 2],
+    after: usize,
+) -> f64 {
+    let ([p1, p2], [f0, f1]) = (last, first);
+    let d1 = f0 - p1;
+    if !HADAMARD {
+        return d1 * d1;
+    }
+    let mut seam = 0.0;
+    if before >= 2 {
+        let d2 = d1 - (p1 - p2);
+        seam += d2 * d2;
+    }
+    if after >= 2 {
+        let d2 = (f1 - f0) - d1;
+        seam += d2 * d2;
+    }
+    seam
+}
+
 /// Adds one super-block's lane sums (lanes in sequence order, `steps` values each) to
 /// the level: the terms inside lanes, the terms that straddle a lane boundary (from the
 /// previous values in sequence order), and the order-0 moments of the running phase.
@@ -827,7 +847,7 @@ fn merge_lanes<const HADAMARD: bool, const PHASE: bool>(
     let mut offset = 0.0;
     for l in 0..LANES {
         let k0 = level.count;
-        let [p1, p2] = level.last;
+        let [p1, _] = level.last;
         let f0 = sums.first[0][l];
         if k0 == 0 {
             level.first = [f0, sums.first[1][l]];
@@ -836,19 +856,7 @@ fn merge_lanes<const HADAMARD: bool, const PHASE: bool>(
                 level.first[1] = f0;
             }
             lag1 += p1 * f0;
-            let d1 = f0 - p1;
-            if !HADAMARD {
-                deviation += d1 * d1;
-            } else {
-                if k0 >= 2 {
-                    let d2 = d1 - (p1 - p2);
-                    deviation += d2 * d2;
-                }
-                if steps >= 2 {
-                    let d2 = (sums.first[1][l] - f0) - d1;
-                    deviation += d2 * d2;
-                }
-            }
+            deviation += seam_terms::<HADAMARD>(level.last, k0, [f0, sums.first[1][l]], steps);
         }
         deviation += sums.deviation[l];
         lag1 += sums.lag1[l];
