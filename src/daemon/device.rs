@@ -87,6 +87,10 @@ enum ConnectionEnd {
     Vanished(String),
 }
 
+/// Reads a device task still makes after shutdown is requested, for what the device had
+/// already delivered (see `read_connection`).
+const STOP_DRAIN_READS: u32 = 64;
+
 /// Resolves when shutdown is requested (or the sender is gone).
 async fn stopped(rx: &mut watch::Receiver<bool>) {
     loop {
@@ -371,6 +375,11 @@ impl DeviceTask {
         // task's waker since it was last armed or fired (the same argument as for `stop`).
         let mut read_in_wake = false;
         let mut timer_polled = false;
+        // Once shutdown is seen, what the device already delivered (in the kernel's buffer or
+        // the link's queue) is still read, without waiting for more: up to this many reads,
+        // so a device streaming faster than it is read cannot hold the stop up.
+        let mut stopping = false;
+        let mut stop_reads_left = STOP_DRAIN_READS;
         let end = loop {
             // One future for the three events, polled in a fixed order: shutdown, the device,
             // then the hand-over timer. The timer is looked at only when a wake-up brought no
@@ -379,11 +388,19 @@ impl DeviceTask {
             // device cannot starve the other tasks: tokio's budget makes its reads return
             // `Pending` now and then.
             let wake = std::future::poll_fn(|cx| {
-                if !stop_polled || probe.has_changed().unwrap_or(true) {
+                if !stopping && (!stop_polled || probe.has_changed().unwrap_or(true)) {
                     stop_polled = true;
-                    if stop.as_mut().poll(cx).is_ready() {
+                    stopping = stop.as_mut().poll(cx).is_ready();
+                }
+                if stopping {
+                    if stop_reads_left == 0 {
                         return Poll::Ready(Wake::Stop);
                     }
+                    stop_reads_left -= 1;
+                    return match link.poll_receive(cx, &mut buffer) {
+                        Poll::Ready(received) => Poll::Ready(Wake::Read(received)),
+                        Poll::Pending => Poll::Ready(Wake::Stop),
+                    };
                 }
                 if let Poll::Ready(received) = link.poll_receive(cx, &mut buffer) {
                     read_in_wake = true;
