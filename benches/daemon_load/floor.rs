@@ -343,92 +343,70 @@ fn start_tokio(
     all_drivers: bool,
     grid: bool,
 ) -> Vec<JoinHandle<()>> {
-    let (opened_tx, opened_rx) = mpsc::channel();
     let paths = paths.to_vec();
     let counts = counts.clone();
-    let thread = std::thread::spawn(move || {
-        let mut builder = tokio::runtime::Builder::new_current_thread();
-        if all_drivers {
-            builder.enable_all();
-        } else {
-            builder.enable_io();
+    on_runtime_thread("tokio", all_drivers, move |opened_tx| async move {
+        let mut tasks = Vec::new();
+        let epoch = tokio::time::Instant::now();
+        for path in &paths {
+            let port = open_serial(&SerialConfig::new(path.display().to_string(), 921600))
+                .unwrap_or_else(|e| panic!("floor: {e}"));
+            tasks.push(tokio::spawn(read_pty(port, counts.clone(), grid, epoch)));
         }
-        let runtime = builder.build().expect("floor: runtime");
-        runtime.block_on(async move {
-            let mut tasks = Vec::new();
-            let epoch = tokio::time::Instant::now();
-            for path in &paths {
-                let port = open_serial(&SerialConfig::new(path.display().to_string(), 921600))
-                    .unwrap_or_else(|e| panic!("floor: {e}"));
-                tasks.push(tokio::spawn(read_pty(port, counts.clone(), grid, epoch)));
-            }
-            let _ = opened_tx.send(());
-            for t in tasks {
-                let _ = t.await;
-            }
-        });
-    });
-    opened_rx.recv().expect("floor: the tokio reader died");
-    vec![thread]
+        let _ = opened_tx.send(());
+        for t in tasks {
+            let _ = t.await;
+        }
+    })
 }
 
 /// One thread with a current-thread tokio runtime (`enable_all`), one task per pty reading a
 /// raw non-blocking descriptor through `AsyncFd`; a read short of the buffer clears the
 /// readiness (the pty held no more), so a wake-up makes one `read`.
 fn start_tokio_fd(paths: &[PathBuf], counts: &Arc<Counts>) -> Vec<JoinHandle<()>> {
-    let (opened_tx, opened_rx) = mpsc::channel();
     let paths = paths.to_vec();
     let counts = counts.clone();
-    let thread = std::thread::spawn(move || {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .expect("floor: runtime");
-        runtime.block_on(async move {
-            let mut tasks = Vec::new();
-            for path in &paths {
-                // SAFETY: the descriptor is owned by the AsyncFd, open until it is dropped.
-                let fd = unsafe {
-                    tokio::io::unix::AsyncFd::register_with_interest(
-                        open_raw(path, true),
-                        tokio::io::Interest::READABLE,
-                    )
-                }
-                .map_err(|e| e.into_parts().1)
-                .expect("floor: AsyncFd");
-                let counts = counts.clone();
-                tasks.push(tokio::spawn(async move {
-                    let mut buf = vec![0u8; READ_BUFFER_BYTES];
-                    loop {
-                        let Ok(mut guard) = fd.readable().await else {
-                            break;
-                        };
-                        let got = read_fd(guard.get_inner(), &mut buf);
-                        if got > 0 {
-                            counts.add(got as usize, stamp());
-                            if (got as usize) < buf.len() {
-                                guard.clear_ready();
-                            }
-                        } else if got < 0
-                            && std::io::Error::last_os_error().kind()
-                                == std::io::ErrorKind::WouldBlock
-                        {
+    on_runtime_thread("tokio-fd", true, move |opened_tx| async move {
+        let mut tasks = Vec::new();
+        for path in &paths {
+            // SAFETY: the descriptor is owned by the AsyncFd, open until it is dropped.
+            let fd = unsafe {
+                tokio::io::unix::AsyncFd::register_with_interest(
+                    open_raw(path, true),
+                    tokio::io::Interest::READABLE,
+                )
+            }
+            .map_err(|e| e.into_parts().1)
+            .expect("floor: AsyncFd");
+            let counts = counts.clone();
+            tasks.push(tokio::spawn(async move {
+                let mut buf = vec![0u8; READ_BUFFER_BYTES];
+                loop {
+                    let Ok(mut guard) = fd.readable().await else {
+                        break;
+                    };
+                    let got = read_fd(guard.get_inner(), &mut buf);
+                    if got > 0 {
+                        counts.add(got as usize, stamp());
+                        if (got as usize) < buf.len() {
                             guard.clear_ready();
-                        } else {
-                            // Closed by the simulator.
-                            break;
                         }
+                    } else if got < 0
+                        && std::io::Error::last_os_error().kind() == std::io::ErrorKind::WouldBlock
+                    {
+                        guard.clear_ready();
+                    } else {
+                        // Closed by the simulator.
+                        break;
                     }
-                }));
-            }
-            let _ = opened_tx.send(());
-            for t in tasks {
-                let _ = t.await;
-            }
-        });
-    });
-    opened_rx.recv().expect("floor: the tokio-fd reader died");
-    vec![thread]
+                }
+            }));
+        }
+        let _ = opened_tx.send(());
+        for t in tasks {
+            let _ = t.await;
+        }
+    })
 }
 
 /// One thread with a current-thread tokio runtime (`enable_all`) and an interval of `period`
@@ -439,49 +417,64 @@ fn start_tokio_tick(
     counts: &Arc<Counts>,
     period: Duration,
 ) -> Vec<JoinHandle<()>> {
-    let (opened_tx, opened_rx) = mpsc::channel();
     let paths = paths.to_vec();
     let counts = counts.clone();
-    let thread = std::thread::spawn(move || {
-        let runtime = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .expect("floor: runtime");
-        runtime.block_on(async move {
-            let mut fds: Vec<Option<OwnedFd>> =
-                paths.iter().map(|p| Some(open_raw(p, true))).collect();
-            let _ = opened_tx.send(());
-            let mut buf = vec![0u8; READ_BUFFER_BYTES];
-            let mut interval = tokio::time::interval(period);
-            interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-            while fds.iter().any(Option::is_some) {
-                interval.tick().await;
-                counts.waits.fetch_add(1, Ordering::Relaxed);
-                for slot in &mut fds {
-                    let Some(fd) = slot else { continue };
-                    loop {
-                        let got = read_fd(fd, &mut buf);
-                        if got > 0 {
-                            counts.add(got as usize, stamp());
-                            if (got as usize) < buf.len() {
-                                break;
-                            }
-                        } else {
-                            if got == 0
-                                || std::io::Error::last_os_error().kind()
-                                    != std::io::ErrorKind::WouldBlock
-                            {
-                                // Closed by the simulator.
-                                *slot = None;
-                            }
+    on_runtime_thread("tokio-tick", true, move |opened_tx| async move {
+        let mut fds: Vec<Option<OwnedFd>> = paths.iter().map(|p| Some(open_raw(p, true))).collect();
+        let _ = opened_tx.send(());
+        let mut buf = vec![0u8; READ_BUFFER_BYTES];
+        let mut interval = tokio::time::interval(period);
+        interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        while fds.iter().any(Option::is_some) {
+            interval.tick().await;
+            counts.waits.fetch_add(1, Ordering::Relaxed);
+            for slot in &mut fds {
+                let Some(fd) = slot else { continue };
+                loop {
+                    let got = read_fd(fd, &mut buf);
+                    if got > 0 {
+                        counts.add(got as usize, stamp());
+                        if (got as usize) < buf.len() {
                             break;
                         }
+                    } else {
+                        if got == 0
+                            || std::io::Error::last_os_error().kind()
+                                != std::io::ErrorKind::WouldBlock
+                        {
+                            // Closed by the simulator.
+                            *slot = None;
+                        }
+                        break;
                     }
                 }
             }
-        });
+        }
+    })
+}
+
+/// Runs `reader` on a thread of its own, in a current-thread tokio runtime (all drivers, as
+/// `imulogd` builds it, or the I/O driver only), and returns once `reader` has sent on its
+/// channel that its ptys are open: the set-up the tokio floor readers share.
+fn on_runtime_thread<R, F>(what: &'static str, all_drivers: bool, reader: R) -> Vec<JoinHandle<()>>
+where
+    R: FnOnce(mpsc::Sender<()>) -> F + Send + 'static,
+    F: std::future::Future<Output = ()>,
+{
+    let (opened_tx, opened_rx) = mpsc::channel();
+    let thread = std::thread::spawn(move || {
+        let mut builder = tokio::runtime::Builder::new_current_thread();
+        if all_drivers {
+            builder.enable_all();
+        } else {
+            builder.enable_io();
+        }
+        let runtime = builder.build().expect("floor: runtime");
+        runtime.block_on(reader(opened_tx));
     });
-    opened_rx.recv().expect("floor: the tokio-tick reader died");
+    opened_rx
+        .recv()
+        .unwrap_or_else(|_| panic!("floor: the {what} reader died"));
     vec![thread]
 }
 
