@@ -1108,16 +1108,20 @@ mod tests {
         );
     }
 
-    /// Every input, runs or noise, any length, inflates back to itself, and runs shrink.
-    #[test]
-    fn fixed_rle_streams_inflate_back() {
-        let mut state: u64 = 0x2545_f491_4f6c_dd1d;
-        let mut rnd = move || {
+    /// A xorshift64 generator from `seed`: reproducible test bytes without a dependency.
+    fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
+        move || {
             state ^= state << 13;
             state ^= state >> 7;
             state ^= state << 17;
             state
-        };
+        }
+    }
+
+    /// Every input, runs or noise, any length, inflates back to itself, and runs shrink.
+    #[test]
+    fn fixed_rle_streams_inflate_back() {
+        let mut rnd = xorshift(0x2545_f491_4f6c_dd1d);
         let mut out = Vec::new();
         let mut back = vec![0u8; 1 << 16];
         for case in 0..3000u32 {
@@ -1243,13 +1247,7 @@ mod tests {
     /// and patterns still shrink; stored data longer than one block is split.
     #[test]
     fn random_planes_are_stored_and_inflate_back() {
-        let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
-        let mut rnd = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rnd = xorshift(0x9E37_79B9_7F4A_7C15);
         let noise: Vec<[f64; 3]> = (0..1500)
             .map(|_| std::array::from_fn(|_| (rnd() as f64 / u64::MAX as f64 - 0.5) * 0.05))
             .collect();
