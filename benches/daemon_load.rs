@@ -266,8 +266,28 @@ fn one_run(rate_hz: f64, secs: f64) -> RunResult {
     }
 }
 
+/// What `--help` prints (and a bad argument, after the error).
+const USAGE: &str = "\
+usage: daemon_load pty [--secs S] [--speed F[,F...]] [--runs N] [--sample-s S] [--imulogd PATH]
+                       [--curve FILE.csv] [--raw-journal] [--nice N] [--keep-awake]
+       daemon_load floor [--secs S] [--speed F] [--runs N] [--readers LIST] [--nice N]
+                         [--in-process] [--keep-awake]
+       daemon_load [--secs S] [RATE_HZ ...]     (memory mode: the daemon loop in-process)
+(through cargo: cargo bench --bench daemon_load -- ARGS; the module doc of
+benches/daemon_load.rs says what each mode measures)";
+
+/// Prints `error` and the usage, and exits 2.
+fn usage_error(error: &str) -> ! {
+    eprintln!("daemon_load: {error}\n{USAGE}");
+    std::process::exit(2)
+}
+
 fn main() {
     match std::env::args().nth(1).as_deref() {
+        Some("-h" | "--help") => {
+            println!("{USAGE}");
+            return;
+        }
         Some("pty") => return pty::main(std::env::args().skip(2).collect()),
         Some("floor") => return floor::main(std::env::args().skip(2).collect()),
         Some("floor-reader") => return floor::reader_main(std::env::args().skip(2).collect()),
@@ -279,9 +299,18 @@ fn main() {
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
-            "--secs" => secs = args.next().and_then(|s| s.parse().ok()).expect("--secs S"),
+            "--secs" => {
+                secs = args
+                    .next()
+                    .and_then(|s| s.parse().ok())
+                    .filter(|s: &f64| *s > 0.0)
+                    .unwrap_or_else(|| usage_error("--secs takes a positive number of seconds"))
+            }
             "--bench" => {}
-            other => rates.push(other.parse::<f64>().expect("rate in Hz")),
+            other => match other.parse::<f64>() {
+                Ok(rate) if rate > 0.0 => rates.push(rate),
+                _ => usage_error(&format!("{other:?} is neither an option nor a rate in Hz")),
+            },
         }
     }
     if rates.is_empty() {
