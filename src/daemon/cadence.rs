@@ -3,11 +3,12 @@
 //!
 //! Each device task collects what it reads into a batch and hands it to the writer at the
 //! next point of the grid (`epoch + k × period`), or earlier when the batch is full; the
-//! writer wakes a little after each grid point ([`flush_lag`]), writes the hand-overs there
-//! and flushes the store. With every device on the same grid, a period costs the writer one
-//! wake-up however many devices there are, and the device thread one timer expiry. Every
-//! frame still carries the arrival time of its own read: the grid only decides when rows are
-//! handed over, never when bytes are read.
+//! writer wakes for those hand-overs and flushes the store a little after each grid point,
+//! once they are written. With every device on the same grid, a period costs the writer
+//! one or two wake-ups however many devices there are, instead of one per device per
+//! window, and the device thread one timer expiry. Every frame still carries the arrival time
+//! of its own read: the grid only decides when rows are handed over, never when bytes are
+//! read.
 //!
 //! [`HandoverTimer`] is what a device task waits on for its next grid point.
 
@@ -26,10 +27,10 @@ use tokio::io::Interest;
 /// ([`flush_lag`]).
 pub const FLUSH_LAG_MAX: Duration = Duration::from_millis(10);
 
-/// How long after a grid point the writer wakes for its turn: long enough for the device
-/// thread's timer (rounded up to its 1 ms resolution) to fire and the hand-overs there to be
-/// queued, so one writer turn per period takes them all and flushes.
-/// [`FLUSH_LAG_MAX`], or half the period when that is shorter.
+/// How long after a grid point the writer flushes if no hand-over woke it earlier: long
+/// enough for the device thread's timer (rounded up to its 1 ms resolution) to fire first,
+/// so that normally the hand-overs wake the writer and it flushes at once: one wake-up per
+/// period. [`FLUSH_LAG_MAX`], or half the period when that is shorter.
 pub fn flush_lag(period: Duration) -> Duration {
     FLUSH_LAG_MAX.min(period / 2)
 }

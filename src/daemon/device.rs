@@ -181,7 +181,7 @@ impl DeviceTask {
     fn send_event(&self, kind: EventKind, detail: String) -> bool {
         let mut batch = Batch::new(self.index);
         batch.events.push(self.event(kind, clock::now(), detail));
-        self.queue.send(batch, false).is_ok()
+        self.queue.send(batch).is_ok()
     }
 
     fn settle(&mut self) {
@@ -277,7 +277,7 @@ impl DeviceTask {
                         &mut tally,
                         true,
                     );
-                    let _ = self.hand_over(&mut held, &mut tally, false);
+                    let _ = self.hand_over(&mut held, &mut tally);
                     match end {
                         ConnectionEnd::Stop | ConnectionEnd::WriterGone => break,
                         ConnectionEnd::Vanished(why) => {
@@ -328,20 +328,14 @@ impl DeviceTask {
     }
 
     /// Hands `batch` to the writer (replacing it by an empty one sized like it) and
-    /// publishes the counters collected since the last hand-over. `early`: handed over
-    /// before its grid point because it is full, so the writer is woken for it.
-    fn hand_over(
-        &self,
-        batch: &mut Batch,
-        tally: &mut Tally,
-        early: bool,
-    ) -> Result<(), WriterGone> {
+    /// publishes the counters collected since the last hand-over.
+    fn hand_over(&self, batch: &mut Batch, tally: &mut Tally) -> Result<(), WriterGone> {
         tally.publish(&self.shared);
         if let Some(watchdog) = &self.watchdog {
             watchdog.device_alive(clock::mono_ns());
         }
         let next = batch.sized_like();
-        self.queue.send(std::mem::replace(batch, next), early)
+        self.queue.send(std::mem::replace(batch, next))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -433,7 +427,7 @@ impl DeviceTask {
                 }
                 Wake::Handover(Ok(())) => {
                     due = None;
-                    if self.hand_over(&mut batch, tally, false).is_err() {
+                    if self.hand_over(&mut batch, tally).is_err() {
                         break ConnectionEnd::WriterGone;
                     }
                     continue;
@@ -470,7 +464,7 @@ impl DeviceTask {
             // (judged on the read's own arrival time: no further clock read per frame).
             if full || due.is_some_and(|d_mono_ns| at.mono_ns >= d_mono_ns) {
                 due = None;
-                if self.hand_over(&mut batch, tally, full).is_err() {
+                if self.hand_over(&mut batch, tally).is_err() {
                     break ConnectionEnd::WriterGone;
                 }
             } else if due.is_none() {
@@ -490,7 +484,7 @@ impl DeviceTask {
         };
         // What was collected is not lost with the connection (nor at shutdown).
         if !matches!(end, ConnectionEnd::WriterGone) {
-            let _ = self.hand_over(&mut batch, tally, false);
+            let _ = self.hand_over(&mut batch, tally);
         }
         end
     }

@@ -136,7 +136,7 @@ pub async fn run(
     // Held while the status file is written: the writer's last report, if it is still writing
     // one (e.g. it timed out), finishes before the final report below is written.
     let status_lock = Arc::new(std::sync::Mutex::new(()));
-    let (queue, rx) = writer::queue(config.session.queue_capacity, control.clone());
+    let (tx, rx) = writer::queue(config.session.queue_capacity);
     let watchdog = Watchdog::from_env().map(Arc::new);
     // One grid for every device task and the writer.
     let handover = Cadence::new(
@@ -210,7 +210,7 @@ pub async fn run(
             spec: spec.clone(),
             connector,
             decoders,
-            queue: QueueSender::new(queue.clone(), shared[index].clone()),
+            queue: QueueSender::new(tx.clone(), shared[index].clone()),
             shared: shared[index].clone(),
             raw_journal: config.session.raw_journal,
             handover,
@@ -220,7 +220,7 @@ pub async fn run(
         device_tasks.push(tokio::spawn(task.run(shutdown_rx.clone())));
     }
     // Only the device tasks hold senders now: when they all end, the writer sees it.
-    drop(queue);
+    drop(tx);
     drop(settled_tx);
 
     let device_count = config.devices.len();

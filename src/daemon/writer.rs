@@ -3,16 +3,13 @@
 //! the queue has no room for is dropped, counted per device and written as a
 //! `queue_overflow` event. The writer also flushes on the hand-over grid
 //! ([`super::cadence`]), rotates on request and stops the session cleanly before the disk
-//! reserve is reached. It sleeps from one grid point to the next and writes what was queued
-//! meanwhile in one turn: one wake-up per period for all devices, not one per hand-over. A
-//! device rings it earlier only when waiting would risk the queue ([`WriterControl`]); it
-//! does not poll.
+//! reserve is reached. Between those it sleeps until the next batch, flush or disk check is
+//! due; it does not poll.
 
 use std::io;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError};
-use std::sync::{Arc, OnceLock};
-use std::thread::Thread;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord};
@@ -89,43 +86,25 @@ impl Batch {
 #[error("the writer thread has stopped")]
 pub struct WriterGone;
 
-/// The sending end of the writer's queue, before it is given to a device ([`QueueSender`]).
-#[derive(Clone)]
-pub struct WriterQueue {
-    tx: SyncSender<Batch>,
-    control: Arc<WriterControl>,
-    /// Queued batches from which a hand-over rings the writer (half the capacity).
-    ring_at: usize,
-}
-
 /// A device task's end of the queue: never blocks, counts what it had to drop.
 #[derive(Clone)]
 pub struct QueueSender {
-    queue: WriterQueue,
+    tx: SyncSender<Batch>,
     device: Arc<DeviceShared>,
 }
 
 impl QueueSender {
-    pub fn new(queue: WriterQueue, device: Arc<DeviceShared>) -> Self {
-        QueueSender { queue, device }
+    pub fn new(tx: SyncSender<Batch>, device: Arc<DeviceShared>) -> Self {
+        QueueSender { tx, device }
     }
 
-    /// Queues a batch, or drops and counts it when the queue is full. The writer takes it at
-    /// its next grid point; `early` (a batch handed over before its grid point because it is
-    /// full) wakes the writer now, and so does a queue that is half full.
-    pub fn send(&self, batch: Batch, early: bool) -> Result<(), WriterGone> {
+    /// Queues a batch, or drops and counts it when the queue is full.
+    pub fn send(&self, batch: Batch) -> Result<(), WriterGone> {
         if batch.is_empty() {
             return Ok(());
         }
-        match self.queue.tx.try_send(batch) {
-            Ok(()) => {
-                let control = &self.queue.control;
-                let queued = control.queued.fetch_add(1, Ordering::SeqCst) + 1;
-                if early || queued >= self.queue.ring_at {
-                    control.ring();
-                }
-                Ok(())
-            }
+        match self.tx.try_send(batch) {
+            Ok(()) => Ok(()),
             Err(TrySendError::Full(batch)) => {
                 let mut c = self.device.counters();
                 c.dropped_batches += 1;
@@ -138,50 +117,22 @@ impl QueueSender {
     }
 }
 
-/// Requests to the writer from the control side (signals, shutdown), and the bell that wakes
-/// it before its next grid point.
-///
-/// The writer sleeps (`park_timeout`) until a little after the next grid point, where every
-/// device hands over, and writes the whole queue in one turn. Waking it at each hand-over
-/// instead cost three or four wake-ups a period with three devices (14 a second at the
-/// nominal rate, see docs/bench/daemon.md). It is rung only when waiting would be wrong: a
-/// stop or rotation request, a batch handed over early because it is full (high rates), or a
-/// queue half full.
+/// Requests to the writer from the control side (signals, shutdown).
 #[derive(Debug, Default)]
 pub struct WriterControl {
     rotate: AtomicBool,
     stop: AtomicBool,
-    /// The writer thread, once it runs (what [`Self::ring`] unparks).
-    writer: OnceLock<Thread>,
-    /// Batches in the queue (sent and not yet taken).
-    queued: AtomicUsize,
 }
 
 impl WriterControl {
-    /// Rotate to a new chunk file now (SIGHUP).
+    /// Rotate to a new chunk file at the writer's next turn (SIGHUP).
     pub fn request_rotate(&self) {
         self.rotate.store(true, Ordering::SeqCst);
-        self.ring();
     }
 
     /// Drain the queue, write the stop event, close and return (SIGTERM/SIGINT).
     pub fn request_stop(&self) {
         self.stop.store(true, Ordering::SeqCst);
-        self.ring();
-    }
-
-    /// Wakes the writer for a turn now (a no-op before it runs: its first turn comes anyway).
-    fn ring(&self) {
-        if let Some(writer) = self.writer.get() {
-            writer.unpark();
-        }
-    }
-
-    /// The next queued batch, if any.
-    fn take(&self, rx: &Receiver<Batch>) -> Result<Batch, TryRecvError> {
-        let batch = rx.try_recv()?;
-        self.queued.fetch_sub(1, Ordering::SeqCst);
-        Ok(batch)
     }
 }
 
@@ -249,8 +200,6 @@ pub fn run_writer(
     settings: WriterSettings,
     mut free_space: FreeSpaceFn,
 ) -> WriterExit {
-    // From here on a ring wakes this thread.
-    let _ = control.writer.set(std::thread::current());
     let tracker = StatusTracker::new(devices.clone(), shared.clone(), clock::mono_ns());
     let mut state = WriterState {
         devices,
@@ -341,8 +290,6 @@ impl WriterState {
         let mut last_disk_check: Option<Instant> = None;
         let early = settings.handover.period() / 2;
         let early_ns = i64::try_from(early.as_nanos()).unwrap_or(i64::MAX);
-        // Whether the queue was empty at the end of the last turn.
-        let mut caught_up = true;
         loop {
             // This turn is the writer's sign of life (a wedged writer never gets here).
             if let Some(watchdog) = &settings.watchdog {
@@ -392,33 +339,32 @@ impl WriterState {
                 w.current_file = sink.current_file();
                 tracing::info!("rotated to {:?}", w.current_file);
             }
-            // Asleep until the flush is due, a little after the grid point where every device
-            // hands over, unless rung or still behind. The disk check and the status report wait
-            // for this turn rather than wake the writer themselves.
-            if caught_up {
-                let wake = flush_point + lag;
-                let now = Instant::now();
-                if wake > now {
-                    std::thread::park_timeout(wake - now);
-                }
-            }
-            // What was queued meanwhile, for up to one turn before stop, rotation, disk and
-            // watchdog are looked at again.
-            caught_up = false;
-            let turn = Instant::now();
-            loop {
-                match control.take(rx) {
-                    Ok(batch) => self.write(sink, batch)?,
-                    Err(TryRecvError::Empty) => {
-                        caught_up = true;
-                        break;
+            // Asleep until a batch comes or the flush is due. The disk check and the status
+            // report wait for that turn rather than wake the writer themselves (at most one
+            // period late).
+            let wake = flush_point + lag;
+            // Whether the queue was empty at the end of this turn.
+            let mut caught_up = true;
+            match rx.recv_timeout(wake.saturating_duration_since(Instant::now())) {
+                Ok(batch) => {
+                    self.write(sink, batch)?;
+                    caught_up = false;
+                    // More of a backlog, for up to one turn before stop, rotation, disk and
+                    // watchdog are looked at again.
+                    let turn = Instant::now();
+                    while turn.elapsed() < TURN && !control.stop.load(Ordering::SeqCst) {
+                        match rx.try_recv() {
+                            Ok(batch) => self.write(sink, batch)?,
+                            Err(_) => {
+                                caught_up = true;
+                                break;
+                            }
+                        }
                     }
-                    // Every device task has ended: nothing more will come.
-                    Err(TryRecvError::Disconnected) => return Ok(WriterExit::Clean),
                 }
-                if turn.elapsed() >= TURN || control.stop.load(Ordering::SeqCst) {
-                    break;
-                }
+                Err(RecvTimeoutError::Timeout) => {}
+                // Every device task has ended: nothing more will come.
+                Err(RecvTimeoutError::Disconnected) => return Ok(WriterExit::Clean),
             }
             // The periodic flush tells the store that the current time has come, so that a
             // quiet device's last rows are written. Behind a backlog, rows still queued are
@@ -563,114 +509,7 @@ impl WriterState {
     }
 }
 
-/// A queue for `capacity` batches, whose senders ring the writer through `control`.
-pub fn queue(capacity: usize, control: Arc<WriterControl>) -> (WriterQueue, Receiver<Batch>) {
-    let (tx, rx) = std::sync::mpsc::sync_channel(capacity);
-    let queue = WriterQueue {
-        tx,
-        control,
-        ring_at: (capacity / 2).max(1),
-    };
-    (queue, rx)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::daemon::sink::MemorySink;
-
-    fn one_row(t_mono_ns: i64) -> Batch {
-        let mut batch = Batch::new(0);
-        batch.imu.push(ImuRecord {
-            t_mono_ns,
-            t_wall_ns: t_mono_ns,
-            t_sensor: f64::NAN,
-            gyro: [0.0; 3],
-            accel: [0.0; 3],
-            temp: f64::NAN,
-            status: 0,
-        });
-        batch
-    }
-
-    /// Waits up to `limit` for the sink to hold `rows` IMU rows.
-    fn rows_within(sink: &MemorySink, rows: usize, limit: Duration) -> bool {
-        let started = Instant::now();
-        while started.elapsed() < limit {
-            if sink.snapshot().imu.get("imu").map_or(0, Vec::len) >= rows {
-                return true;
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        false
-    }
-
-    /// The writer sleeps until its grid point (10 s away here) whatever is handed over on
-    /// time, and wakes at once for a batch handed over early, a half-full queue and a stop.
-    #[test]
-    fn the_writer_waits_for_its_grid_point_unless_rung() {
-        let dir = tempfile::tempdir().unwrap();
-        let control = Arc::new(WriterControl::default());
-        let (queue, rx) = queue(8, control.clone());
-        let device = DeviceShared::new("imu", "wit", "pty", 150.0);
-        let sender = QueueSender::new(queue, device.clone());
-        let sink = MemorySink::new();
-        let settings = WriterSettings {
-            handover: Cadence::new(Instant::now(), Duration::from_secs(10)),
-            reserve_bytes: 0,
-            disk_check_interval: Duration::from_secs(3600),
-            start_detail: String::new(),
-            drain_budget: Duration::from_secs(1),
-            status: StatusFile {
-                path: dir.path().join("status.json"),
-                interval: Duration::from_secs(3600),
-                lock: Arc::default(),
-            },
-            watchdog: None,
-        };
-        let writer = {
-            let (sink, control) = (Box::new(sink.clone()), control.clone());
-            std::thread::spawn(move || {
-                run_writer(
-                    sink,
-                    rx,
-                    vec![device],
-                    Arc::default(),
-                    control,
-                    settings,
-                    Box::new(|| Ok(u64::MAX)),
-                )
-            })
-        };
-        // Handed over on time: it waits for the writer's turn.
-        sender.send(one_row(1), false).unwrap();
-        std::thread::sleep(Duration::from_millis(300));
-        assert_eq!(sink.snapshot().imu.get("imu").map_or(0, Vec::len), 0);
-        // Handed over early (a full batch): written now, with what waited.
-        sender.send(one_row(2), true).unwrap();
-        assert!(rows_within(&sink, 2, Duration::from_secs(2)));
-        // Three more on time leave the queue below half (3 of 8); a fourth fills half.
-        for t in 3..6 {
-            sender.send(one_row(t), false).unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(300));
-        assert_eq!(sink.snapshot().imu["imu"].len(), 2);
-        sender.send(one_row(6), false).unwrap();
-        assert!(rows_within(&sink, 6, Duration::from_secs(2)));
-        // A stop wakes it too: the session closes long before the grid point.
-        let asked = Instant::now();
-        control.request_stop();
-        let exit = writer.join().unwrap();
-        assert!(matches!(exit, WriterExit::Clean), "{exit:?}");
-        assert!(asked.elapsed() < Duration::from_secs(2));
-        assert!(sink.snapshot().closed);
-        assert_eq!(device_rows(&sink), vec![1, 2, 3, 4, 5, 6]);
-    }
-
-    fn device_rows(sink: &MemorySink) -> Vec<i64> {
-        sink.snapshot().imu["imu"]
-            .iter()
-            .map(|r| r.t_mono_ns)
-            .collect()
-    }
+/// A queue pair sized for `capacity` batches.
+pub fn queue(capacity: usize) -> (SyncSender<Batch>, Receiver<Batch>) {
+    std::sync::mpsc::sync_channel(capacity)
 }
