@@ -703,6 +703,7 @@ pub fn main(args: Vec<String>) {
         }
     };
     set_nice("floor", o.nice);
+    println!("{}", super::report::platform());
     println!(
         "reader floor: the pty mode's simulator (wit + xbus at 150 Hz, mixed GNSS at 10 Hz) × {}, {} s per run; readers only read and timestamp, {}; keep-awake {}",
         o.speed,

@@ -374,6 +374,7 @@ pub fn main(args: Vec<String>) {
     // Before any thread or child exists: the simulator's threads and the daemon inherit it
     // (on Linux the nice value is per thread).
     set_nice("pty", o.nice);
+    println!("{}", super::report::platform());
     println!(
         "imulogd over ptys: simulator bench (wit + xbus at {IMU_HZ} Hz, mixed GNSS at {GNSS_HZ} Hz) × speed, {} s wall per run, raw journal {}, nice {}, keep-awake {}; daemon {}",
         o.secs,

@@ -2,7 +2,8 @@
 //! process they measure (CPU time, RSS, per-thread schedstat, the load average), and the one
 //! printer both use for their tables: a header, one row per run with the load average before
 //! and after it, then indented detail lines (the RSS curve, the per-thread on-CPU time,
-//! wake-ups and µs per wake-up).
+//! wake-ups and µs per wake-up), plus a line on the platform, since the cost of a wake-up
+//! depends on it more than on the reader.
 
 /// utime + stime of a process, s; None once it is gone.
 pub fn proc_cpu_s(pid: u32) -> Option<f64> {
@@ -33,6 +34,67 @@ pub fn self_cpu_s() -> f64 {
     }
     let t = |tv: libc::timeval| tv.tv_sec as f64 + tv.tv_usec as f64 * 1e-6;
     t(usage.ru_utime) + t(usage.ru_stime)
+}
+
+/// One line on what a wake-up costs here depends on: the CPU and how many, whether it is a
+/// virtual machine (the `hypervisor` flag of `/proc/cpuinfo`), the kernel, the idle driver
+/// and its halt polling (a vCPU that halts at once pays the hypervisor's exit and re-entry at
+/// every wake-up), the clock source, and the CPU-bug mitigations in effect.
+pub fn platform() -> String {
+    let read = |path: &str| {
+        std::fs::read_to_string(path)
+            .map(|s| s.trim().to_string())
+            .unwrap_or_else(|_| "?".into())
+    };
+    let cpuinfo = read("/proc/cpuinfo");
+    let field = |key: &str| {
+        cpuinfo
+            .lines()
+            .find(|l| l.starts_with(key))
+            .and_then(|l| l.split_once(':'))
+            .map_or("?", |(_, v)| v.trim())
+            .to_string()
+    };
+    let virtual_machine = field("flags").split_whitespace().any(|f| f == "hypervisor");
+    let halt_poll = read("/sys/module/haltpoll/parameters/guest_halt_poll_ns");
+    let mitigations: Vec<String> = std::fs::read_dir("/sys/devices/system/cpu/vulnerabilities")
+        .map(|dir| {
+            let mut found: Vec<String> = dir
+                .flatten()
+                .filter_map(|e| {
+                    let state = std::fs::read_to_string(e.path()).ok()?;
+                    let state = state.trim();
+                    (state != "Not affected")
+                        .then(|| format!("{}: {state}", e.file_name().to_string_lossy()))
+                })
+                .collect();
+            found.sort();
+            found
+        })
+        .unwrap_or_default();
+    format!(
+        "platform: {}, {} CPUs, {}, kernel {}, cpuidle {}{}, clocksource {}; {}",
+        field("model name"),
+        std::thread::available_parallelism().map_or(0, |n| n.get()),
+        if virtual_machine {
+            "virtual machine"
+        } else {
+            "no hypervisor flag"
+        },
+        read("/proc/sys/kernel/osrelease"),
+        read("/sys/devices/system/cpu/cpuidle/current_driver"),
+        if halt_poll == "?" {
+            String::new()
+        } else {
+            format!(" (guest_halt_poll_ns {halt_poll})")
+        },
+        read("/sys/devices/system/clocksource/clocksource0/current_clocksource"),
+        if mitigations.is_empty() {
+            "no CPU-bug mitigation listed".to_string()
+        } else {
+            mitigations.join("; ")
+        }
+    )
 }
 
 /// The 1, 5 and 15 minute load averages, as `/proc/loadavg` writes them.
