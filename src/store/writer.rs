@@ -804,6 +804,10 @@ pub struct SessionWriter {
     /// Last row time per stream (`imu/name`...), to refuse rows going back in time.
     last_t: HashMap<String, i64>,
     rotate_pending: bool,
+    /// Events at or past the time the current file is due to rotate, while no data row has
+    /// come for the next file yet: they go into the next file when it starts, or into the
+    /// current one when the session closes first (see [`SessionWriter::append_event`]).
+    held_events: Vec<EventRow>,
     /// The session's writer lock, held while this writer lives.
     lock: Option<nix::fcntl::Flock<std::fs::File>>,
 }
@@ -851,6 +855,7 @@ impl SessionWriter {
             last_size_check_t: None,
             last_t: HashMap::new(),
             rotate_pending: false,
+            held_events: Vec::new(),
             lock: Some(lock),
         })
     }
@@ -903,13 +908,7 @@ impl SessionWriter {
     /// Makes sure a file is open for rows starting at data time `t`, rotating first if the
     /// current file is due (by data time or size).
     fn file_for(&mut self, t: i64) -> Result<&mut ChunkFile, StoreError> {
-        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
-        let due_by_time = self
-            .current
-            .as_ref()
-            .and_then(|c| c.first_t)
-            .is_some_and(|first| t.saturating_sub(first) >= rotate_ns);
-        if self.current.is_none() || due_by_time || self.rotate_pending {
+        if self.current.is_none() || self.due_by_time(t) || self.rotate_pending {
             self.rotate_at(Some(t))?;
         }
         let chunk = self
@@ -918,6 +917,16 @@ impl SessionWriter {
             .ok_or_else(|| StoreError::Invalid("writer has no open chunk file".into()))?;
         chunk.first_t.get_or_insert(t);
         Ok(chunk)
+    }
+
+    /// Whether a row at data time `t` is past the current file's time span (`rotate_after`
+    /// from its first row).
+    fn due_by_time(&self, t: i64) -> bool {
+        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
+        self.current
+            .as_ref()
+            .and_then(|c| c.first_t)
+            .is_some_and(|first| t.saturating_sub(first) >= rotate_ns)
     }
 
     fn note_time(&mut self, t: i64) {
@@ -957,8 +966,19 @@ impl SessionWriter {
     }
 
     /// Appends one event to `/events` (written at the next flush).
+    ///
+    /// An event never starts a file by itself: one timed at or past the current file's
+    /// rotation time is held until a data row starts the next file (or a live writer's
+    /// timer does), and goes into the current file if the session closes first. So a run
+    /// that ends exactly on a rotation time (a simulation of 20 min with 10 min files, whose
+    /// `session_stop` is timed at its end) has no last file holding only that event.
     pub fn append_event(&mut self, ev: &EventRecord) -> Result<(), StoreError> {
         let row = EventRow::from_record(ev).map_err(StoreError::Invalid)?;
+        if self.due_by_time(ev.t_mono_ns) && !self.rotate_pending {
+            self.held_events.push(row);
+            self.note_time(ev.t_mono_ns);
+            return Ok(());
+        }
         let chunk = self.file_for(ev.t_mono_ns)?;
         chunk.events.buf.push(row);
         self.note_time(ev.t_mono_ns);
@@ -1130,7 +1150,11 @@ impl SessionWriter {
         let chunk = ChunkFile::create(&self.dir, index, &self.manifest, &self.opts)?;
         self.next_index += 1;
         self.current = Some(chunk);
-        if let (Some(prev), Some(t)) = (previous, t.or(self.max_t)) {
+        // Held events (see `append_event`) are the first rows of the new file.
+        let t = t
+            .or(self.max_t)
+            .map(|t| self.held_events.first().map_or(t, |h| h.t_mono_ns.min(t)));
+        if let (Some(prev), Some(t)) = (previous, t) {
             let detail = format!(
                 "{} finished; {} started",
                 layout::chunk_file_name(prev),
@@ -1148,12 +1172,19 @@ impl SessionWriter {
                 c.events.buf.push(row);
             }
         }
+        if let Some(c) = self.current.as_mut() {
+            if let Some(first) = self.held_events.first() {
+                c.first_t.get_or_insert(first.t_mono_ns);
+            }
+            c.events.buf.append(&mut self.held_events);
+        }
         Ok(())
     }
 
     /// Writes everything, finalises the current chunk file and returns the session directory.
     pub fn close(mut self) -> Result<PathBuf, StoreError> {
-        if let Some(c) = self.current.take() {
+        if let Some(mut c) = self.current.take() {
+            c.events.buf.append(&mut self.held_events);
             c.finish(&self.dir)?;
         }
         self.release_lock();
@@ -1231,7 +1262,8 @@ fn wall_clock_ns() -> i64 {
 impl Drop for SessionWriter {
     /// A writer dropped without `close` (e.g. on an error path) still finalises its file.
     fn drop(&mut self) {
-        if let Some(c) = self.current.take() {
+        if let Some(mut c) = self.current.take() {
+            c.events.buf.append(&mut self.held_events);
             if let Err(e) = c.finish(&self.dir) {
                 tracing::error!("closing session {}: {e}", self.dir.display());
             }

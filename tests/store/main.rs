@@ -5,4 +5,5 @@ mod common;
 mod journal;
 mod python;
 mod recover;
+mod rotation;
 mod roundtrip;
