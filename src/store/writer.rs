@@ -567,7 +567,8 @@ impl ChunkFile {
         let journal_due = self
             .oldest_unjournaled()
             .is_some_and(|t| now.saturating_sub(t) >= flush_ns);
-        let incomplete_due = early.as_ref().is_some_and(|e| self.incomplete_due(e));
+        let incomplete_due = early.as_ref().is_some_and(|e| self.incomplete_due(e))
+            || self.events_due(now, chunk_ns.max(flush_ns));
         if !journal_due && !incomplete_due {
             return Ok(false);
         }
@@ -626,13 +627,23 @@ impl ChunkFile {
         tables.flatten().min()
     }
 
-    /// Whether any data table's incomplete chunk is due (events and raw reads have no chunk
-    /// to fill: see [`ChunkFile::write_due`]).
+    /// Whether any data table's incomplete chunk is due (events and raw reads come at no
+    /// fixed rate: see [`ChunkFile::write_due`]).
     fn incomplete_due(&self, e: &Early) -> bool {
         self.imu.values().any(|t| t.incomplete_due(e))
             || self.gnss.values().any(|t| t.incomplete_due(e))
             || self.truth_imu.values().any(|t| t.incomplete_due(e))
             || self.truth_nav.iter().any(|t| t.incomplete_due(e))
+    }
+
+    /// Whether the incomplete `/events` chunk is due at data time `now`: its oldest event
+    /// has waited `max_age_ns` (see [`ChunkFile::write_due`]).
+    fn events_due(&self, now: i64, max_age_ns: i64) -> bool {
+        let events = &self.events;
+        events
+            .buf
+            .get(events.complete_rows())
+            .is_some_and(|row| now.saturating_sub(row.t_mono_ns) >= max_age_ns)
     }
 
     /// Records every buffered row not yet in the journal into `self.records` (or, when
@@ -680,9 +691,17 @@ impl ChunkFile {
     }
 
     /// Writes to the HDF5 file what is due: complete chunks, incomplete ones that are due by
-    /// `early` (see [`Early`]), everything when `force`. Events and raw reads come at no fixed
-    /// rate, so there is no chunk to fill: they are written with the chunks, or once the
-    /// oldest is `max_age_ns` older than `now`. Returns whether it wrote anything.
+    /// `early` (see [`Early`]), everything when `force`. `/events` is written in whole chunks
+    /// (`layout::EVENT_CHUNK_ROWS` events) as they fill, and its incomplete chunk once the
+    /// oldest event in it is `max_age_ns` (a chunk interval; without the journal a flush
+    /// interval) older than `now`, so the file is as far behind in events as in rows.
+    /// Written with every data chunk, as before, a trickle of events had its incomplete chunk
+    /// stored again at nearly every flush that wrote a data chunk (up to once per table and
+    /// chunk interval), each earlier copy left as dead space: 5.4 % of a 5-minute
+    /// daemon-like file with one event a second (docs/bench/store.md). Until then the
+    /// journal holds the events, as it holds rows. Raw reads come at no fixed rate either:
+    /// they are written with the chunks, or once the oldest is `max_age_ns` older than
+    /// `now`. Returns whether it wrote anything.
     fn write_due(
         &mut self,
         now: i64,
@@ -692,6 +711,7 @@ impl ChunkFile {
     ) -> Result<bool, StoreError> {
         let path = self.partial_path.clone();
         let mut wrote = false;
+        let events_due = self.events_due(now, max_age_ns);
         let mut go = || -> hdf5::Result<()> {
             fn table<R: Row>(
                 t: &mut Table<R>,
@@ -720,9 +740,8 @@ impl ChunkFile {
                     wrote |= r.write_all()?.is_some();
                 }
             }
-            if force || wrote || stale(self.events.buf.first().map(|row| row.t_mono_ns)) {
-                wrote |= self.events.write_aligned(true)?.is_some();
-            }
+            let incomplete = force || events_due;
+            wrote |= self.events.write_aligned(incomplete)?.is_some();
             Ok(())
         };
         go().map_err(|e| StoreError::h5(&path, "writing rows", e))?;

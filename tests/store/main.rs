@@ -2,6 +2,7 @@
 
 mod cli;
 mod common;
+mod events;
 mod journal;
 mod python;
 mod recover;
