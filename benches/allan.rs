@@ -30,24 +30,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::time::Instant;
 
-const RATE_HZ: f64 = 150.0;
-const SAMPLES: usize = 6 * 3600 * 150;
-const N_TRUE: f64 = 2e-3;
-const K_TRUE: f64 = 5e-5;
-
-fn simulate(seed: u64) -> Vec<f64> {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let tau0 = 1.0 / RATE_HZ;
-    let mut walk = 0.0;
-    (0..SAMPLES)
-        .map(|_| {
-            let w: f64 = StandardNormal.sample(&mut rng);
-            let s: f64 = StandardNormal.sample(&mut rng);
-            walk += K_TRUE * tau0.sqrt() * s;
-            N_TRUE / tau0.sqrt() * w + walk
-        })
-        .collect()
-}
+/// The synthetic data, shared with `examples/allan_probe.rs`.
+#[path = "allan/noise.rs"]
+mod noise;
+use noise::{simulate, simulate_batches, K_TRUE, N_TRUE, RATE_HZ, SAMPLES};
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let (time, out) = best_of_prepared(runs, || (), |()| f());
@@ -528,31 +514,6 @@ fn naive_f64_oadev(y: &[f64], reference: &imulab::allan::Curve) -> f64 {
         worst = worst.max((dev - p.deviation).abs() / p.deviation);
     }
     worst
-}
-
-/// Simulated gyro samples (white noise N plus rate random walk K) for three axes, in
-/// batches of `batch` rows, handed to `sink` without holding the whole series.
-fn simulate_batches(rows: usize, batch: usize, mut sink: impl FnMut(&[[f64; 3]])) {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
-    let tau0 = 1.0 / RATE_HZ;
-    let mut walk = [0.0f64; 3];
-    let mut buffer = Vec::with_capacity(batch);
-    let mut row = 0;
-    while row < rows {
-        buffer.clear();
-        for _ in 0..batch.min(rows - row) {
-            let mut gyro = [0.0; 3];
-            for (g, w) in gyro.iter_mut().zip(walk.iter_mut()) {
-                let white: f64 = StandardNormal.sample(&mut rng);
-                let step: f64 = StandardNormal.sample(&mut rng);
-                *w += K_TRUE * tau0.sqrt() * step;
-                *g = N_TRUE / tau0.sqrt() * white + *w;
-            }
-            buffer.push(gyro);
-        }
-        row += buffer.len();
-        sink(&buffer);
-    }
 }
 
 /// The bench's IMU device description.

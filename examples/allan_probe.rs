@@ -20,27 +20,12 @@ use imulab::allan::input::AxisSeries;
 use imulab::allan::numerics::Simd;
 use imulab::allan::units::RateUnit;
 use imulab::allan::{compute_curve, Curve, DeviationKind, Phase, TauGrid};
-use rand::SeedableRng;
-use rand_distr::{Distribution, StandardNormal};
 use std::time::Instant;
 
-const RATE_HZ: f64 = 150.0;
-const SAMPLES: usize = 6 * 3600 * 150;
-
-/// The bench's simulation (white rate noise plus rate random walk).
-fn simulate(seed: u64) -> Vec<f64> {
-    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
-    let tau0 = 1.0 / RATE_HZ;
-    let mut walk = 0.0;
-    (0..SAMPLES)
-        .map(|_| {
-            let w: f64 = StandardNormal.sample(&mut rng);
-            let s: f64 = StandardNormal.sample(&mut rng);
-            walk += 5e-5 * tau0.sqrt() * s;
-            2e-3 / tau0.sqrt() * w + walk
-        })
-        .collect()
-}
+/// The bench's synthetic data (one generator for both).
+#[path = "../benches/allan/noise.rs"]
+mod noise;
+use noise::{simulate, RATE_HZ, SAMPLES};
 
 fn cpu_ms() -> f64 {
     nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID)

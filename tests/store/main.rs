@@ -2,7 +2,9 @@
 
 mod cli;
 mod common;
+mod events;
 mod journal;
 mod python;
 mod recover;
+mod rotation;
 mod roundtrip;

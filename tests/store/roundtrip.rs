@@ -383,10 +383,18 @@ fn damaged_chunks_give_errors_from_the_column_reader() {
     let dir = tmp.path().join("dmg");
     write_session(&dir, 12, 100, fast_opts());
     let path = dir.join("chunk-000000.h5");
+    // Damage the middle of imu_a's first gyro chunk (the middle of the file, used before,
+    // moves with the layout: it hit the events chunk once that was written later).
+    let chunk = hdf5::File::open(&path)
+        .unwrap()
+        .dataset("imu/imu_a/gyro")
+        .unwrap()
+        .chunk_info(0)
+        .unwrap();
     let mut bytes = std::fs::read(&path).unwrap();
-    // Damage the middle of the file (chunk data, written before the metadata at the end).
-    let at = bytes.len() / 2;
-    for b in &mut bytes[at..at + 256] {
+    let len = chunk.size.min(256) as usize;
+    let at = (chunk.addr + chunk.size / 2) as usize - len / 2;
+    for b in &mut bytes[at..at + len] {
         *b ^= 0x5a;
     }
     std::fs::write(&path, &bytes).unwrap();
