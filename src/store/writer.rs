@@ -3,9 +3,7 @@
 //! finalises each file (flush, fsync, rename from `*.partial`, fsync the directory).
 //!
 //! Flushing and rotation happen inside the `append_*` calls, driven by the rows' `t_mono_ns`
-//! (so a simulator writing 6 h of data in seconds rotates every 10 min of *data*). Appends
-//! are split at rotation times, so each file holds exactly `rotate_after` of data time
-//! whatever the size of the appends (see `SessionWriter::place`). A live
+//! (so a simulator writing 6 h of data in seconds rotates every 10 min of *data*). A live
 //! writer whose devices go quiet should also call [`SessionWriter::maybe_flush_and_rotate`]
 //! from a timer with the current monotonic time, so buffered rows still reach the disk and a
 //! stalled device's incomplete chunk reaches the HDF5 file (appends write whole chunks only).
@@ -71,13 +69,6 @@ impl Default for WriterOptions {
         }
     }
 }
-
-/// Most chunk files a writer keeps open at once: the current one and those before it whose
-/// spans some table has not handed over in full yet (see `SessionWriter::place`). The
-/// simulator hands over 4096 samples of a table at a time (41 s at 100 Hz): with 10-minute
-/// files two are open around each rotation; 8 still place every row exactly with blocks
-/// of up to 7 files' spans (e.g. a test rotating every 10 s of 100 Hz data).
-const MAX_OPEN_FILES: usize = 8;
 
 /// Chunks a table's datasets are grown by beyond the rows written, whenever a write would
 /// pass their extent. Growing a dataset (`H5Dset_extent`) rewrites its object header at the
@@ -395,14 +386,8 @@ struct ChunkFile {
     truth_nav: Option<Table<TruthNavRecord>>,
     events: Table<EventRow>,
     raw: HashMap<String, RawTable>,
-    /// Data time where this file's span starts: it holds rows from there to `rotate_after`
-    /// later (see [`SessionWriter::place`]); the first row's time unless a rotation by data
-    /// time set it.
+    /// Data time of the first row in this file (rotation by time counts from it).
     first_t: Option<i64>,
-    /// Once a row past this file's span started the next file: the table (`imu/<name>`...)
-    /// that handed it over, and whether that table has appended again since (see
-    /// [`SessionWriter::place`]).
-    passed_by: Option<(String, bool)>,
     /// The write-ahead journal beside the file, and buffers for its records.
     journal: Journal,
     records: Vec<u8>,
@@ -522,7 +507,6 @@ impl ChunkFile {
                 events,
                 raw,
                 first_t: None,
-                passed_by: None,
                 journal: Journal::new(journal::journal_paths(dir, index)),
                 records: Vec::new(),
                 scratch: Vec::new(),
@@ -531,11 +515,6 @@ impl ChunkFile {
         let chunk = build().map_err(h5("laying out groups and datasets"))?;
         fsync_dir(dir)?;
         Ok(chunk)
-    }
-
-    /// End of this file's span: `rotate_ns` after its start, if known.
-    fn span_end(&self, rotate_ns: i64) -> Option<i64> {
-        self.first_t.map(|first| first.saturating_add(rotate_ns))
     }
 
     /// Called after every append, and by a live writer's timer (`timer`), with the newest
@@ -836,9 +815,6 @@ pub struct SessionWriter {
     manifest: Manifest,
     opts: WriterOptions,
     current: Option<ChunkFile>,
-    /// Files before `current`, oldest first, while tables still hand over rows of their
-    /// spans (see [`SessionWriter::place`]); at most `MAX_OPEN_FILES - 1`.
-    ending: Vec<ChunkFile>,
     next_index: u32,
     /// Newest data time seen, ns.
     max_t: Option<i64>,
@@ -893,7 +869,6 @@ impl SessionWriter {
             manifest,
             opts,
             current: Some(first),
-            ending: Vec::new(),
             next_index: 1,
             max_t: None,
             last_size_check_t: None,
@@ -949,208 +924,67 @@ impl SessionWriter {
         Ok(())
     }
 
-    /// Data time of the end of file `c`'s span (`rotate_after` after its start), if known.
-    fn span_end(&self, c: &ChunkFile) -> Option<i64> {
-        c.span_end(self.rotate_ns())
+    /// Makes sure a file is open for rows starting at data time `t`, rotating first if the
+    /// current file is due (by data time or size).
+    fn file_for(&mut self, t: i64) -> Result<&mut ChunkFile, StoreError> {
+        if self.current.is_none() || self.due_by_time(t) || self.rotate_pending {
+            self.rotate_at(Some(t))?;
+        }
+        let chunk = self
+            .current
+            .as_mut()
+            .ok_or_else(|| StoreError::Invalid("writer has no open chunk file".into()))?;
+        chunk.first_t.get_or_insert(t);
+        Ok(chunk)
     }
 
-    fn rotate_ns(&self) -> i64 {
-        i64::try_from(self.opts.rotate_after.as_nanos())
-            .unwrap_or(i64::MAX)
-            .max(1)
+    /// Whether a row at data time `t` is past the current file's time span (`rotate_after`
+    /// from its first row).
+    fn due_by_time(&self, t: i64) -> bool {
+        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
+        self.current
+            .as_ref()
+            .and_then(|c| c.first_t)
+            .is_some_and(|first| t.saturating_sub(first) >= rotate_ns)
     }
 
     fn note_time(&mut self, t: i64) {
         self.max_t = Some(self.max_t.map_or(t, |m| m.max(t)));
     }
 
-    /// Puts the time-ordered rows `rows` of table `id` into the files whose spans hold them
-    /// (`push` adds rows to a file's table), splitting them at rotation times, so a file
-    /// holds `rotate_after` of data time whatever the size of the appends: a row at or past
-    /// the current file's end starts the next file, whose span is the one on the grid
-    /// `first_t + k * rotate_after` that holds the row (a gap longer than `rotate_after` makes
-    /// no empty file). The files before stay open (`ending`) for the rows of their spans that
-    /// other tables have not handed over yet: the simulator hands 4096 samples of one table,
-    /// then of the next, so the first table to pass a rotation time is up to a block ahead
-    /// of the others, which may not even have appended yet (the first block). Such a file
-    /// is finished once the table that passed its end first has appended again (the others
-    /// have had their turn) and every table of the session has passed its end; or by the
-    /// timer (all rows up to its time are in), a rotation or the close. At most
-    /// [`MAX_OPEN_FILES`] are open: past that the oldest is finished, and later rows of its
-    /// span go into the next.
-    fn place<R>(
-        &mut self,
-        id: &str,
-        rows: &[R],
-        t_of: impl Fn(&R) -> i64,
-        mut push: impl FnMut(&mut ChunkFile, &[R]) -> Result<(), StoreError>,
-    ) -> Result<(), StoreError> {
-        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
-            return Ok(());
-        };
-        let last_t = t_of(last);
-        if self.current.is_none() || self.rotate_pending {
-            self.rotate_at(Some(t_of(first)), None)?;
-        }
-        let rotate_ns = self.rotate_ns();
-        let mut rest = rows;
-        for file in &mut self.ending {
-            if let Some((by, again)) = file.passed_by.as_mut() {
-                *again |= by == id;
-            }
-            let Some(end) = file.span_end(rotate_ns) else {
-                continue;
-            };
-            let n = rest.partition_point(|r| t_of(r) < end);
-            if n > 0 {
-                push(file, &rest[..n])?;
-            }
-            rest = &rest[n..];
-        }
-        while let Some(head) = rest.first() {
-            let cur = self
-                .current
-                .as_mut()
-                .ok_or_else(|| StoreError::Invalid("writer has no open chunk file".into()))?;
-            let start = *cur.first_t.get_or_insert(t_of(head));
-            let end = start.saturating_add(rotate_ns);
-            let n = rest.partition_point(|r| t_of(r) < end);
-            if n > 0 {
-                push(cur, &rest[..n])?;
-            }
-            rest = &rest[n..];
-            if let Some(next) = rest.first() {
-                cur.passed_by = Some((id.to_string(), false));
-                let spans = t_of(next).saturating_sub(start) / rotate_ns;
-                self.start_next(start.saturating_add(spans.saturating_mul(rotate_ns)))?;
-            }
-        }
-        if !self.ending.is_empty() {
-            // The table furthest behind, of all that have appended in this session.
-            let slowest = self.last_t.values().copied().min();
-            self.finish_ending(|c| {
-                let (Some((_, again)), Some(end)) = (&c.passed_by, c.span_end(rotate_ns)) else {
-                    return false;
-                };
-                *again && slowest.is_some_and(|t| t >= end)
-            })?;
-        }
-        self.note_time(last_t);
-        self.maybe_flush(false)
-    }
-
-    /// Starts the file whose span begins at `start` (a rotation by data time): the current
-    /// file stays open (see [`SessionWriter::place`]), and the new one begins with a
-    /// `rotation` event at `start` and the held events.
-    fn start_next(&mut self, start: i64) -> Result<(), StoreError> {
-        if self.ending.len() + 1 >= MAX_OPEN_FILES {
-            let oldest = self.ending.remove(0);
-            oldest.finish(&self.dir)?;
-        }
-        let previous = self.current.take();
-        let index = previous.as_ref().map(|c| c.index);
-        self.ending.extend(previous);
-        self.open_next(start, index, Some(start))
-    }
-
-    /// Finishes the files kept open for late rows of their spans for which `done` holds.
-    fn finish_ending(&mut self, done: impl Fn(&ChunkFile) -> bool) -> Result<(), StoreError> {
-        if !self.ending.iter().any(&done) {
-            return Ok(());
-        }
-        let (finished, open): (Vec<_>, Vec<_>) = std::mem::take(&mut self.ending)
-            .into_iter()
-            .partition(&done);
-        self.ending = open;
-        let mut result = Ok(());
-        for c in finished {
-            let r = c.finish(&self.dir);
-            if result.is_ok() {
-                result = r.map(|_| ());
-            }
-        }
-        release_freed_memory();
-        result
-    }
-
-    /// Opens the next chunk file as the current one, with a `rotation` event at `t` naming
-    /// file `previous` (when there was one) and then the held events; `first_t` is the
-    /// start of its span when known (else its first row sets it).
-    fn open_next(
-        &mut self,
-        t: i64,
-        previous: Option<u32>,
-        first_t: Option<i64>,
-    ) -> Result<(), StoreError> {
-        self.rotate_pending = false;
-        let index = self.next_index;
-        let mut chunk = ChunkFile::create(&self.dir, index, &self.manifest, &self.opts)?;
-        self.next_index += 1;
-        // Held events (see `append_event`) are the first rows of the new file.
-        let t = self.held_events.first().map_or(t, |h| h.t_mono_ns.min(t));
-        chunk.first_t = first_t;
-        if let Some(prev) = previous {
-            let detail = format!(
-                "{} finished; {} started",
-                layout::chunk_file_name(prev),
-                layout::chunk_file_name(index)
-            );
-            let ev = EventRecord {
-                t_mono_ns: t,
-                t_wall_ns: wall_clock_ns(),
-                device: String::new(),
-                kind: EventKind::Rotation,
-                detail,
-            };
-            chunk
-                .events
-                .buf
-                .push(EventRow::from_record(&ev).map_err(StoreError::Invalid)?);
-        }
-        if let Some(first) = self.held_events.first() {
-            chunk.first_t.get_or_insert(first.t_mono_ns);
-        }
-        chunk.events.buf.append(&mut self.held_events);
-        self.current = Some(chunk);
-        Ok(())
-    }
-
     /// Appends IMU rows for `device` (rows must be in time order).
     pub fn append_imu(&mut self, device: &str, rows: &[ImuRecord]) -> Result<(), StoreError> {
         self.manifest
             .device_of_kind(device, Some(DeviceKind::Imu))?;
-        let id = layout::imu_path(device);
-        self.check_times(&id, rows.iter().map(|r| r.t_mono_ns))?;
-        self.place(
-            &id,
-            rows,
-            |r| r.t_mono_ns,
-            |c, rows| {
-                table_of(&mut c.imu, device)?.buf.extend_from_slice(rows);
-                Ok(())
-            },
-        )
+        self.check_times(&layout::imu_path(device), rows.iter().map(|r| r.t_mono_ns))?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        table_of(&mut chunk.imu, device)?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush(false)
     }
 
     /// Appends GNSS rows for `device` (rows must be in time order).
     pub fn append_gnss(&mut self, device: &str, rows: &[GnssRecord]) -> Result<(), StoreError> {
         self.manifest
             .device_of_kind(device, Some(DeviceKind::Gnss))?;
-        let id = layout::gnss_path(device);
-        self.check_times(&id, rows.iter().map(|r| r.t_mono_ns))?;
-        self.place(
-            &id,
-            rows,
-            |r| r.t_mono_ns,
-            |c, rows| {
-                table_of(&mut c.gnss, device)?.buf.extend_from_slice(rows);
-                Ok(())
-            },
-        )
+        self.check_times(&layout::gnss_path(device), rows.iter().map(|r| r.t_mono_ns))?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        table_of(&mut chunk.gnss, device)?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush(false)
     }
 
-    /// Appends one event to `/events` (written at the next flush), to the open file whose
-    /// span holds its time.
+    /// Appends one event to `/events` (written at the next flush).
     ///
     /// An event never starts a file by itself: one timed at or past the current file's
     /// rotation time is held until a data row starts the next file (or a live writer's
@@ -1159,33 +993,14 @@ impl SessionWriter {
     /// `session_stop` is timed at its end) has no last file holding only that event.
     pub fn append_event(&mut self, ev: &EventRecord) -> Result<(), StoreError> {
         let row = EventRow::from_record(ev).map_err(StoreError::Invalid)?;
-        let t = ev.t_mono_ns;
-        if self.current.is_none() || self.rotate_pending {
-            self.rotate_at(Some(t), None)?;
-        }
-        let rotate_ns = self.rotate_ns();
-        let current_end = self.current.as_ref().and_then(|c| self.span_end(c));
-        let ending = self
-            .ending
-            .iter_mut()
-            .find(|c| c.span_end(rotate_ns).is_some_and(|end| t < end));
-        if let Some(file) = ending {
-            file.events.buf.push(row);
-            self.note_time(t);
-            return self.maybe_flush(false);
-        }
-        if current_end.is_some_and(|end| t >= end) {
+        if self.due_by_time(ev.t_mono_ns) && !self.rotate_pending {
             self.held_events.push(row);
-            self.note_time(t);
+            self.note_time(ev.t_mono_ns);
             return Ok(());
         }
-        let chunk = self
-            .current
-            .as_mut()
-            .ok_or_else(|| StoreError::Invalid("writer has no open chunk file".into()))?;
-        chunk.first_t.get_or_insert(t);
+        let chunk = self.file_for(ev.t_mono_ns)?;
         chunk.events.buf.push(row);
-        self.note_time(t);
+        self.note_time(ev.t_mono_ns);
         self.maybe_flush(false)
     }
 
@@ -1205,30 +1020,24 @@ impl SessionWriter {
         let len = u32::try_from(bytes.len()).map_err(|_| {
             StoreError::Invalid(format!("raw read of {} bytes is too long", bytes.len()))
         })?;
-        let id = layout::raw_path(device);
-        self.check_times(&id, std::iter::once(t_mono_ns))?;
-        self.place(
-            &id,
-            &[t_mono_ns],
-            |t| *t,
-            |c, _| {
-                let raw = c
-                    .raw
-                    .get_mut(device)
-                    .ok_or_else(|| StoreError::UnknownDevice {
-                        device: device.into(),
-                        msg: "no raw journal group".into(),
-                    })?;
-                let offset = (raw.bytes_written + raw.bytes_buf.len()) as u64;
-                raw.index.buf.push(RawIndexRow {
-                    t_mono_ns,
-                    offset,
-                    len,
-                });
-                raw.bytes_buf.extend_from_slice(bytes);
-                Ok(())
-            },
-        )
+        self.check_times(&layout::raw_path(device), std::iter::once(t_mono_ns))?;
+        let chunk = self.file_for(t_mono_ns)?;
+        let raw = chunk
+            .raw
+            .get_mut(device)
+            .ok_or_else(|| StoreError::UnknownDevice {
+                device: device.into(),
+                msg: "no raw journal group".into(),
+            })?;
+        let offset = (raw.bytes_written + raw.bytes_buf.len()) as u64;
+        raw.index.buf.push(RawIndexRow {
+            t_mono_ns,
+            offset,
+            len,
+        });
+        raw.bytes_buf.extend_from_slice(bytes);
+        self.note_time(t_mono_ns);
+        self.maybe_flush(false)
     }
 
     /// Appends true trajectory epochs (simulated sessions: manifest `truth_nav_rate_hz`).
@@ -1239,19 +1048,18 @@ impl SessionWriter {
             ));
         }
         self.check_times(layout::TRUTH_NAV_GROUP, rows.iter().map(|r| r.t_mono_ns))?;
-        self.place(
-            layout::TRUTH_NAV_GROUP,
-            rows,
-            |r| r.t_mono_ns,
-            |c, rows| {
-                c.truth_nav
-                    .as_mut()
-                    .ok_or_else(|| StoreError::Invalid("no /truth/nav in this file".into()))?
-                    .buf
-                    .extend_from_slice(rows);
-                Ok(())
-            },
-        )
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        chunk
+            .truth_nav
+            .as_mut()
+            .ok_or_else(|| StoreError::Invalid("no /truth/nav in this file".into()))?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush(false)
     }
 
     /// Appends true IMU error states for IMU `device` (simulated sessions).
@@ -1267,33 +1075,29 @@ impl SessionWriter {
                 "truth rows for a session whose manifest has no truth_nav_rate_hz".into(),
             ));
         }
-        let id = layout::truth_imu_path(device);
-        self.check_times(&id, rows.iter().map(|r| r.t_mono_ns))?;
-        self.place(
-            &id,
-            rows,
-            |r| r.t_mono_ns,
-            |c, rows| {
-                table_of(&mut c.truth_imu, device)?
-                    .buf
-                    .extend_from_slice(rows);
-                Ok(())
-            },
-        )
+        self.check_times(
+            &layout::truth_imu_path(device),
+            rows.iter().map(|r| r.t_mono_ns),
+        )?;
+        let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+            return Ok(());
+        };
+        let chunk = self.file_for(first.t_mono_ns)?;
+        table_of(&mut chunk.truth_imu, device)?
+            .buf
+            .extend_from_slice(rows);
+        self.note_time(last.t_mono_ns);
+        self.maybe_flush(false)
     }
 
-    /// Writes what is due after every append (and, with `timer`, from the idle timer), in
-    /// every open file: completed chunks at once, and any table's rows once the oldest has
-    /// waited a flush interval (so at most one interval of data is ever only in memory; see
-    /// [`ChunkFile::tick`]). Checks the current file's size for rotation once per flush
-    /// interval.
+    /// Writes what is due after every append (and, with `timer`, from the idle timer):
+    /// completed chunks at once, and any table's rows once the oldest has waited a flush
+    /// interval (so at most one interval of data is ever only in memory; see
+    /// [`ChunkFile::tick`]). Checks the file size for rotation once per flush interval.
     fn maybe_flush(&mut self, timer: bool) -> Result<(), StoreError> {
         let Some(now) = self.max_t else { return Ok(()) };
         let (flush_ns, fsync) = (self.flush_ns(), self.opts.fsync_on_flush);
         let chunk_ns = i64::try_from(self.opts.chunk_interval.as_nanos()).unwrap_or(i64::MAX);
-        for ending in &mut self.ending {
-            ending.tick(now, flush_ns, chunk_ns, fsync, timer)?;
-        }
         let Some(chunk) = self.current.as_mut() else {
             return Ok(());
         };
@@ -1318,36 +1122,26 @@ impl SessionWriter {
     /// file due for rotation by time is finalised even when no new rows arrive. The caller
     /// says that every device's rows are in up to `now_mono_ns`: only here is a stalled or
     /// slow device's incomplete chunk written to the HDF5 file early (see `Early`; appends
-    /// alone write whole chunks), and a file kept open for late rows of its span finished.
+    /// alone write whole chunks).
     pub fn maybe_flush_and_rotate(&mut self, now_mono_ns: i64) -> Result<(), StoreError> {
         self.note_time(now_mono_ns);
         self.maybe_flush(true)?;
-        let rotate_ns = self.rotate_ns();
-        self.finish_ending(|c| c.span_end(rotate_ns).is_none_or(|end| now_mono_ns >= end))?;
-        let current = self
+        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
+        let due = self
             .current
             .as_ref()
-            .and_then(|c| Some((c.first_t?, self.span_end(c)?)));
-        match current {
-            Some((start, end)) if now_mono_ns >= end => {
-                // Every row of the span is in: finish it, and start the span holding `now`.
-                let rotate_ns = end.saturating_sub(start).max(1);
-                let spans = now_mono_ns.saturating_sub(start) / rotate_ns;
-                let next = start.saturating_add(spans.saturating_mul(rotate_ns));
-                self.rotate_at(Some(next), Some(next))
-            }
-            _ if self.rotate_pending => self.rotate_at(None, None),
-            _ => Ok(()),
+            .and_then(|c| c.first_t)
+            .is_some_and(|first| now_mono_ns.saturating_sub(first) >= rotate_ns);
+        if due || self.rotate_pending {
+            self.rotate_at(None)?;
         }
+        Ok(())
     }
 
-    /// Writes every buffered row to the open HDF5 files and flushes (and fsyncs) them now,
-    /// so they are readable there (not only in the journal).
+    /// Writes every buffered row to the current HDF5 file and flushes (and fsyncs) it now,
+    /// so it is readable there (not only in the journal).
     pub fn flush(&mut self) -> Result<(), StoreError> {
         let fsync = self.opts.fsync_on_flush;
-        for chunk in &mut self.ending {
-            chunk.write_all(fsync, true)?;
-        }
         if let Some(chunk) = self.current.as_mut() {
             chunk.write_all(fsync, true)?;
         }
@@ -1357,13 +1151,10 @@ impl SessionWriter {
 
     /// Finalises the current chunk file and starts the next one now.
     pub fn rotate(&mut self) -> Result<(), StoreError> {
-        self.rotate_at(None, None)
+        self.rotate_at(None)
     }
 
-    /// Finishes every open file and opens the next one, with a `rotation` event at `t` (or
-    /// the newest data time) and its span starting at `first_t` (else at its first row).
-    fn rotate_at(&mut self, t: Option<i64>, first_t: Option<i64>) -> Result<(), StoreError> {
-        self.finish_ending(|_| true)?;
+    fn rotate_at(&mut self, t: Option<i64>) -> Result<(), StoreError> {
         let previous = match self.current.take() {
             Some(c) => {
                 let idx = c.index;
@@ -1373,29 +1164,50 @@ impl SessionWriter {
             }
             None => None,
         };
-        let t = t.or(self.max_t);
-        match t {
-            Some(t) => self.open_next(t, previous, first_t),
-            // No row yet: nothing to time the rotation event by.
-            None => self.open_next(0, None, first_t),
+        self.rotate_pending = false;
+        let index = self.next_index;
+        let chunk = ChunkFile::create(&self.dir, index, &self.manifest, &self.opts)?;
+        self.next_index += 1;
+        self.current = Some(chunk);
+        // Held events (see `append_event`) are the first rows of the new file.
+        let t = t
+            .or(self.max_t)
+            .map(|t| self.held_events.first().map_or(t, |h| h.t_mono_ns.min(t)));
+        if let (Some(prev), Some(t)) = (previous, t) {
+            let detail = format!(
+                "{} finished; {} started",
+                layout::chunk_file_name(prev),
+                layout::chunk_file_name(index)
+            );
+            let ev = EventRecord {
+                t_mono_ns: t,
+                t_wall_ns: wall_clock_ns(),
+                device: String::new(),
+                kind: EventKind::Rotation,
+                detail,
+            };
+            let row = EventRow::from_record(&ev).map_err(StoreError::Invalid)?;
+            if let Some(c) = self.current.as_mut() {
+                c.events.buf.push(row);
+            }
         }
+        if let Some(c) = self.current.as_mut() {
+            if let Some(first) = self.held_events.first() {
+                c.first_t.get_or_insert(first.t_mono_ns);
+            }
+            c.events.buf.append(&mut self.held_events);
+        }
+        Ok(())
     }
 
-    /// Writes everything, finalises the open chunk files and returns the session directory.
+    /// Writes everything, finalises the current chunk file and returns the session directory.
     pub fn close(mut self) -> Result<PathBuf, StoreError> {
-        self.finish_all()?;
-        self.release_lock();
-        Ok(std::mem::take(&mut self.dir))
-    }
-
-    /// Finishes the open files; held events go into the last one (see `append_event`).
-    fn finish_all(&mut self) -> Result<(), StoreError> {
-        let ending = self.finish_ending(|_| true);
         if let Some(mut c) = self.current.take() {
             c.events.buf.append(&mut self.held_events);
             c.finish(&self.dir)?;
         }
-        ending
+        self.release_lock();
+        Ok(std::mem::take(&mut self.dir))
     }
 
     fn release_lock(&mut self) {
@@ -1469,8 +1281,11 @@ fn wall_clock_ns() -> i64 {
 impl Drop for SessionWriter {
     /// A writer dropped without `close` (e.g. on an error path) still finalises its file.
     fn drop(&mut self) {
-        if let Err(e) = self.finish_all() {
-            tracing::error!("closing session {}: {e}", self.dir.display());
+        if let Some(mut c) = self.current.take() {
+            c.events.buf.append(&mut self.held_events);
+            if let Err(e) = c.finish(&self.dir) {
+                tracing::error!("closing session {}: {e}", self.dir.display());
+            }
         }
         self.release_lock();
     }
