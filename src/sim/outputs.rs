@@ -15,13 +15,20 @@ use crate::store::{
 };
 
 /// Receives simulated records block by block, in a deterministic order: per block, first
-/// truth/nav, then each IMU (records, then its truth) in scene order, then each GNSS.
+/// truth/nav, then each IMU (records, then its truth) in scene order, then each GNSS. A
+/// block that holds a rotation time ([`SimSink::rotation_period`]) comes in that order twice:
+/// the rows before it, then the rows from it on.
 pub trait SimSink {
     fn imu(&mut self, device: &str, records: &[ImuRecord]) -> Result<()>;
     fn gnss(&mut self, device: &str, records: &[GnssRecord]) -> Result<()>;
     fn truth_nav(&mut self, records: &[TruthNavRecord]) -> Result<()>;
     fn truth_imu(&mut self, device: &str, records: &[TruthImuRecord]) -> Result<()>;
     fn event(&mut self, event: &EventRecord) -> Result<()>;
+    /// The data time after which the sink starts a new file, counted from the scene's start
+    /// (a session's `rotate_after`); `None` when it keeps everything together.
+    fn rotation_period(&self) -> Option<std::time::Duration> {
+        None
+    }
 }
 
 /// Keeps everything in memory (for tests, studies and short runs).
@@ -226,6 +233,9 @@ impl SimSink for SessionSink {
     fn imu(&mut self, device: &str, records: &[ImuRecord]) -> Result<()> {
         Ok(self.writer.append_imu(device, records)?)
     }
+    fn rotation_period(&self) -> Option<std::time::Duration> {
+        Some(self.writer.rotate_after())
+    }
     fn gnss(&mut self, device: &str, records: &[GnssRecord]) -> Result<()> {
         Ok(self.writer.append_gnss(device, records)?)
     }
@@ -263,5 +273,9 @@ impl SimSink for Tee<'_> {
     fn event(&mut self, event: &EventRecord) -> Result<()> {
         self.0.event(event)?;
         self.1.event(event)
+    }
+    /// The first sink's, else the second's (a tee feeds at most one session).
+    fn rotation_period(&self) -> Option<std::time::Duration> {
+        self.0.rotation_period().or(self.1.rotation_period())
     }
 }

@@ -16,7 +16,7 @@ use super::motion::{static_truth, MotionGenerator, TruthSample};
 use super::outputs::SimSink;
 use super::scene::{Motion, Scene, START_MONO_NS};
 use super::truth_file::TruthFileReader;
-use crate::store::{EventKind, EventRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
+use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 
 /// Samples per block handed to the sink.
 const BLOCK: usize = 4096;
@@ -149,7 +149,10 @@ pub fn run(scene: &Scene, sink: &mut dyn SimSink) -> Result<RunStats> {
     let mut truth = Vec::with_capacity(BLOCK);
     let mut temps = Vec::with_capacity(BLOCK);
     let mut nav = Vec::new();
-    let mut fixes = Vec::new();
+    let mut fixes: Vec<Vec<GnssRecord>> = vec![Vec::new(); receivers.len()];
+    let rotation_ns = sink
+        .rotation_period()
+        .map(|p| i64::try_from(p.as_nanos()).unwrap_or(i64::MAX).max(1));
     let mut first = 0u64;
     while first < samples {
         let len = (samples - first).min(BLOCK as u64) as usize;
@@ -207,16 +210,8 @@ pub fn run(scene: &Scene, sink: &mut dyn SimSink) -> Result<RunStats> {
                     quat_nb: [q.w, q.i, q.j, q.k],
                 });
             }
-            sink.truth_nav(&nav)?;
         }
-        for imu in &imus {
-            stats.imu_records += imu.records.len() as u64;
-            sink.imu(&imu.name, &imu.records)?;
-            if outputs.truth_imu {
-                sink.truth_imu(&imu.name, &imu.truth)?;
-            }
-        }
-        for (name, sim, every) in &mut receivers {
+        for ((_, sim, every), fixes) in receivers.iter_mut().zip(&mut fixes) {
             fixes.clear();
             for i in 0..len {
                 let k = first + i as u64;
@@ -229,7 +224,30 @@ pub fn run(scene: &Scene, sink: &mut dyn SimSink) -> Result<RunStats> {
                 }
             }
             stats.gnss_records += fixes.len() as u64;
-            sink.gnss(name, &fixes)?;
+        }
+        for imu in &imus {
+            stats.imu_records += imu.records.len() as u64;
+        }
+        // The rows before each rotation time in this block, then the rest (see `SimSink`):
+        // every table's rows of one file's span reach the sink before any row of the next,
+        // so the 4096-sample blocks do not decide where files end.
+        let mut from = i64::MIN;
+        for to in rotation_times(rotation_ns, block_span(&nav, &imus, &fixes))
+            .chain(std::iter::once(i64::MAX))
+        {
+            if outputs.truth_nav {
+                sink.truth_nav(between(&nav, |r| r.t_mono_ns, from, to))?;
+            }
+            for imu in &imus {
+                sink.imu(&imu.name, between(&imu.records, |r| r.t_mono_ns, from, to))?;
+                if outputs.truth_imu {
+                    sink.truth_imu(&imu.name, between(&imu.truth, |r| r.t_mono_ns, from, to))?;
+                }
+            }
+            for ((name, _, _), fixes) in receivers.iter().zip(&fixes) {
+                sink.gnss(name, between(fixes, |r| r.t_mono_ns, from, to))?;
+            }
+            from = to;
         }
         first += len as u64;
     }
@@ -245,6 +263,59 @@ pub fn run(scene: &Scene, sink: &mut dyn SimSink) -> Result<RunStats> {
         ),
     })?;
     Ok(stats)
+}
+
+/// The rows of the time-ordered `rows` with `from <= t < to`.
+fn between<R>(rows: &[R], t: impl Fn(&R) -> i64, from: i64, to: i64) -> &[R] {
+    let start = rows.partition_point(|r| t(r) < from);
+    let end = rows.partition_point(|r| t(r) < to).max(start);
+    &rows[start..end]
+}
+
+/// Earliest and latest row time of a block, over every table.
+fn block_span(
+    nav: &[TruthNavRecord],
+    imus: &[ImuRun],
+    fixes: &[Vec<GnssRecord>],
+) -> Option<(i64, i64)> {
+    let ends = |first: Option<i64>, last: Option<i64>| first.zip(last);
+    let spans = std::iter::once(ends(
+        nav.first().map(|r| r.t_mono_ns),
+        nav.last().map(|r| r.t_mono_ns),
+    ))
+    .chain(imus.iter().flat_map(|imu| {
+        [
+            ends(
+                imu.records.first().map(|r| r.t_mono_ns),
+                imu.records.last().map(|r| r.t_mono_ns),
+            ),
+            ends(
+                imu.truth.first().map(|r| r.t_mono_ns),
+                imu.truth.last().map(|r| r.t_mono_ns),
+            ),
+        ]
+    }))
+    .chain(fixes.iter().map(|f| {
+        ends(
+            f.first().map(|r| r.t_mono_ns),
+            f.last().map(|r| r.t_mono_ns),
+        )
+    }))
+    .flatten();
+    spans.reduce(|(lo, hi), (a, b)| (lo.min(a), hi.max(b)))
+}
+
+/// The rotation times `START_MONO_NS + k × period` (k ≥ 1) in `(lo, hi]` of `span`.
+fn rotation_times(period_ns: Option<i64>, span: Option<(i64, i64)>) -> impl Iterator<Item = i64> {
+    let (first_k, last_k, period) = match (period_ns, span) {
+        (Some(p), Some((lo, hi))) => (
+            (lo.saturating_sub(START_MONO_NS)).div_euclid(p).max(0) + 1,
+            (hi.saturating_sub(START_MONO_NS)).div_euclid(p),
+            p,
+        ),
+        _ => (1, 0, 1),
+    };
+    (first_k..=last_k).map(move |k| START_MONO_NS.saturating_add(k.saturating_mul(period)))
 }
 
 fn sample_ns(k: u64, rate_hz: f64) -> i64 {

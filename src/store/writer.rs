@@ -927,25 +927,47 @@ impl SessionWriter {
     /// Makes sure a file is open for rows starting at data time `t`, rotating first if the
     /// current file is due (by data time or size).
     fn file_for(&mut self, t: i64) -> Result<&mut ChunkFile, StoreError> {
-        if self.current.is_none() || self.due_by_time(t) || self.rotate_pending {
+        let span_start = self.next_span_start(t);
+        if self.current.is_none() || span_start.is_some() || self.rotate_pending {
             self.rotate_at(Some(t))?;
         }
         let chunk = self
             .current
             .as_mut()
             .ok_or_else(|| StoreError::Invalid("writer has no open chunk file".into()))?;
-        chunk.first_t.get_or_insert(t);
+        match span_start {
+            Some(start) => chunk.first_t = Some(start),
+            None => {
+                chunk.first_t.get_or_insert(t);
+            }
+        }
         Ok(chunk)
     }
 
     /// Whether a row at data time `t` is past the current file's time span (`rotate_after`
-    /// from its first row).
+    /// from its start).
     fn due_by_time(&self, t: i64) -> bool {
-        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
-        self.current
-            .as_ref()
-            .and_then(|c| c.first_t)
-            .is_some_and(|first| t.saturating_sub(first) >= rotate_ns)
+        self.next_span_start(t).is_some()
+    }
+
+    /// When data time `t` is past the current file's span: the start of the span that holds
+    /// `t` on the grid the first file started (its start + k × `rotate_after`). Rotations by
+    /// data time keep to that grid, so the spans follow each other whatever the times of the
+    /// rows that happen to start the files (arrival jitter, latency) and the sizes of the
+    /// appends; a writer that hands rows over in pieces ending at those times (the
+    /// simulator: [`SessionWriter::rotate_after`]) gets files of exactly `rotate_after`.
+    fn next_span_start(&self, t: i64) -> Option<i64> {
+        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos())
+            .unwrap_or(i64::MAX)
+            .max(1);
+        let first = self.current.as_ref()?.first_t?;
+        let since = t.saturating_sub(first);
+        (since >= rotate_ns).then(|| first.saturating_add(since / rotate_ns * rotate_ns))
+    }
+
+    /// The data time after which a new chunk file starts (see [`WriterOptions::rotate_after`]).
+    pub fn rotate_after(&self) -> Duration {
+        self.opts.rotate_after
     }
 
     fn note_time(&mut self, t: i64) {
@@ -1126,14 +1148,12 @@ impl SessionWriter {
     pub fn maybe_flush_and_rotate(&mut self, now_mono_ns: i64) -> Result<(), StoreError> {
         self.note_time(now_mono_ns);
         self.maybe_flush(true)?;
-        let rotate_ns = i64::try_from(self.opts.rotate_after.as_nanos()).unwrap_or(i64::MAX);
-        let due = self
-            .current
-            .as_ref()
-            .and_then(|c| c.first_t)
-            .is_some_and(|first| now_mono_ns.saturating_sub(first) >= rotate_ns);
-        if due || self.rotate_pending {
+        let span_start = self.next_span_start(now_mono_ns);
+        if span_start.is_some() || self.rotate_pending {
             self.rotate_at(None)?;
+        }
+        if let (Some(start), Some(c)) = (span_start, self.current.as_mut()) {
+            c.first_t = Some(start);
         }
         Ok(())
     }

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use imulab::sim::outputs::{MemorySink, SessionSink, Tee};
 use imulab::sim::runner::run;
-use imulab::sim::scene::Scene;
+use imulab::sim::scene::{Scene, START_MONO_NS};
 use imulab::store::{Session, TimeRange};
 
 #[test]
@@ -106,7 +106,44 @@ fn simulated_session_stores_every_chunk_once() {
     run(&scene, &mut session).unwrap();
     session.close().unwrap();
     let s = Session::open(&out).unwrap();
+    // 30 min of 100 Hz rotated every 10 min of data: three files of 10 min of samples each
+    // (the simulator's blocks of 4096 samples, 40.96 s, are split at the rotation times;
+    // they once made files of whole blocks), the stop event (timed at the end, where a
+    // fourth file would start) in the last.
     assert_eq!(s.files().len(), 3, "{:?}", s.files());
+    for (k, f) in s.files().iter().enumerate() {
+        let h5 = hdf5::File::open(&f.path).unwrap();
+        let t = h5
+            .dataset("imu/imu/t_mono_ns")
+            .unwrap()
+            .read_raw::<i64>()
+            .unwrap();
+        let start = START_MONO_NS + k as i64 * 600_000_000_000;
+        let span = start..start + 600_000_000_000;
+        // 60 000 samples, give or take one whose arrival jitter crosses a rotation time.
+        assert!(
+            t.len().abs_diff(60_000) <= 1,
+            "{}: {}",
+            f.path.display(),
+            t.len()
+        );
+        assert!(
+            span.contains(&t[0]) && span.contains(&t[t.len() - 1]),
+            "{}: rows from {} to {} ns, span {span:?}",
+            f.path.display(),
+            t[0],
+            t[t.len() - 1]
+        );
+        let kinds = h5.dataset("events/kind").unwrap();
+        let kinds = kinds.read_raw::<hdf5::types::FixedAscii<32>>().unwrap();
+        let kinds: Vec<&str> = kinds.iter().map(|k| k.as_str()).collect();
+        let want: &[&str] = match k {
+            0 => &["session_start"],
+            1 => &["rotation"],
+            _ => &["rotation", "session_stop"],
+        };
+        assert_eq!(kinds, want, "{}", f.path.display());
+    }
     for f in s.files() {
         let (size, outside) = bytes_outside_chunks(&f.path);
         let share = outside as f64 / size as f64;
