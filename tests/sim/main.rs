@@ -4,4 +4,6 @@ mod allan;
 mod scenes;
 mod serve;
 mod session;
+#[path = "../store/space.rs"]
+mod space;
 mod support;

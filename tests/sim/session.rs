@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use crate::space::bytes_outside_chunks;
 use imulab::sim::outputs::{MemorySink, SessionSink, Tee};
 use imulab::sim::runner::run;
 use imulab::sim::scene::{Scene, START_MONO_NS};
@@ -74,18 +75,6 @@ fn existing_session_directory_is_refused() {
         .err()
         .expect("refused");
     assert!(format!("{e:#}").contains("not empty"), "{e:#}");
-}
-
-/// Bytes of a chunk file that hold no dataset's chunks: HDF5 metadata, plus space no live
-/// object uses (what `h5stat -S` calls unaccounted).
-fn bytes_outside_chunks(file: &Path) -> (u64, u64) {
-    fn raw(g: &hdf5::Group) -> u64 {
-        let own: u64 = g.datasets().unwrap().iter().map(|d| d.storage_size()).sum();
-        own + g.groups().unwrap().iter().map(raw).sum::<u64>()
-    }
-    let size = std::fs::metadata(file).unwrap().len();
-    let f = hdf5::File::open(file).unwrap();
-    (size, size - raw(&f))
 }
 
 /// The simulator hands its rows over a block (4096 samples) at a time, one table after the

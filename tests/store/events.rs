@@ -5,19 +5,8 @@
 use std::path::Path;
 
 use crate::common::*;
+use crate::space::bytes_outside_chunks;
 use imulab::store::{EventKind, EventRecord, Session, SessionWriter, WriterOptions};
-
-/// Bytes of a chunk file outside every dataset's chunks: HDF5 metadata plus space no live
-/// object uses (dead copies of rewritten chunks: `h5stat -S` "unaccounted").
-fn bytes_outside_chunks(file: &Path) -> (u64, u64) {
-    fn raw(g: &hdf5::Group) -> u64 {
-        let own: u64 = g.datasets().unwrap().iter().map(|d| d.storage_size()).sum();
-        own + g.groups().unwrap().iter().map(raw).sum::<u64>()
-    }
-    let size = std::fs::metadata(file).unwrap().len();
-    let f = hdf5::File::open(file).unwrap();
-    (size, size - raw(&f))
-}
 
 /// Writes `seconds` of data the way imulogd hands it over: every 0.1 s a batch per device
 /// and `maybe_flush_and_rotate` at its time; `imu_b` and `gps` start 3.3 s and 6.6 s after

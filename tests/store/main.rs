@@ -8,3 +8,4 @@ mod python;
 mod recover;
 mod rotation;
 mod roundtrip;
+mod space;
