@@ -1222,12 +1222,21 @@ impl SessionWriter {
 
     /// Writes everything, finalises the current chunk file and returns the session directory.
     pub fn close(mut self) -> Result<PathBuf, StoreError> {
-        if let Some(mut c) = self.current.take() {
-            c.events.buf.append(&mut self.held_events);
-            c.finish(&self.dir)?;
-        }
+        self.finish_current()?;
         self.release_lock();
         Ok(std::mem::take(&mut self.dir))
+    }
+
+    /// Finalises the current chunk file, with the events held for a next file that never
+    /// came (see [`SessionWriter::append_event`]).
+    fn finish_current(&mut self) -> Result<(), StoreError> {
+        match self.current.take() {
+            Some(mut c) => {
+                c.events.buf.append(&mut self.held_events);
+                c.finish(&self.dir).map(|_| ())
+            }
+            None => Ok(()),
+        }
     }
 
     fn release_lock(&mut self) {
@@ -1301,11 +1310,8 @@ fn wall_clock_ns() -> i64 {
 impl Drop for SessionWriter {
     /// A writer dropped without `close` (e.g. on an error path) still finalises its file.
     fn drop(&mut self) {
-        if let Some(mut c) = self.current.take() {
-            c.events.buf.append(&mut self.held_events);
-            if let Err(e) = c.finish(&self.dir) {
-                tracing::error!("closing session {}: {e}", self.dir.display());
-            }
+        if let Err(e) = self.finish_current() {
+            tracing::error!("closing session {}: {e}", self.dir.display());
         }
         self.release_lock();
     }
