@@ -278,31 +278,20 @@ fn block_span(
     imus: &[ImuRun],
     fixes: &[Vec<GnssRecord>],
 ) -> Option<(i64, i64)> {
-    let ends = |first: Option<i64>, last: Option<i64>| first.zip(last);
-    let spans = std::iter::once(ends(
-        nav.first().map(|r| r.t_mono_ns),
-        nav.last().map(|r| r.t_mono_ns),
-    ))
-    .chain(imus.iter().flat_map(|imu| {
-        [
-            ends(
-                imu.records.first().map(|r| r.t_mono_ns),
-                imu.records.last().map(|r| r.t_mono_ns),
-            ),
-            ends(
-                imu.truth.first().map(|r| r.t_mono_ns),
-                imu.truth.last().map(|r| r.t_mono_ns),
-            ),
-        ]
-    }))
-    .chain(fixes.iter().map(|f| {
-        ends(
-            f.first().map(|r| r.t_mono_ns),
-            f.last().map(|r| r.t_mono_ns),
-        )
-    }))
-    .flatten();
-    spans.reduce(|(lo, hi), (a, b)| (lo.min(a), hi.max(b)))
+    /// First and last time of time-ordered rows.
+    fn ends<R>(rows: &[R], t: impl Fn(&R) -> i64) -> Option<(i64, i64)> {
+        Some((t(rows.first()?), t(rows.last()?)))
+    }
+    std::iter::once(ends(nav, |r| r.t_mono_ns))
+        .chain(imus.iter().flat_map(|imu| {
+            [
+                ends(&imu.records, |r| r.t_mono_ns),
+                ends(&imu.truth, |r| r.t_mono_ns),
+            ]
+        }))
+        .chain(fixes.iter().map(|f| ends(f, |r| r.t_mono_ns)))
+        .flatten()
+        .reduce(|(lo, hi), (a, b)| (lo.min(a), hi.max(b)))
 }
 
 /// The rotation times `START_MONO_NS + k × period` (k ≥ 1) in `(lo, hi]` of `span`.
