@@ -25,6 +25,17 @@ pub struct KeepAwake {
 }
 
 impl KeepAwake {
+    /// [`KeepAwake::start`] for a mode's `--keep-awake`, when `on`: a failure ends the
+    /// benchmark with the reason (exit 2), under `mode`'s name.
+    pub fn start_if(on: bool, mode: &str) -> Option<KeepAwake> {
+        on.then(|| {
+            KeepAwake::start().unwrap_or_else(|e| {
+                eprintln!("daemon_load {mode}: {e}");
+                std::process::exit(2);
+            })
+        })
+    }
+
     /// Starts the busy threads and returns once all of them run.
     pub fn start() -> Result<KeepAwake, String> {
         let exe =

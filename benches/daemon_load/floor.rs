@@ -715,12 +715,7 @@ pub fn main(args: Vec<String>) {
         },
         if o.keep_awake { "on" } else { "off" }
     );
-    let _awake = o.keep_awake.then(|| {
-        KeepAwake::start().unwrap_or_else(|e| {
-            eprintln!("daemon_load floor: {e}");
-            std::process::exit(2);
-        })
-    });
+    let _awake = KeepAwake::start_if(o.keep_awake, "floor");
     let table = Table {
         columns: &[
             ("reader", 12),

@@ -383,12 +383,7 @@ pub fn main(args: Vec<String>) {
         if o.keep_awake { "on" } else { "off" },
         o.imulogd.display()
     );
-    let _awake = o.keep_awake.then(|| {
-        KeepAwake::start().unwrap_or_else(|e| {
-            eprintln!("daemon_load pty: {e}");
-            std::process::exit(2);
-        })
-    });
+    let _awake = KeepAwake::start_if(o.keep_awake, "pty");
     let table = Table {
         columns: &[
             ("speed", 6),
