@@ -5,10 +5,11 @@
 //! (the unconsumed tail of the last push plus at most one partial frame), resynchronise after
 //! garbage and count what they skip in [`DecoderStats`].
 //!
-//! [`PROTOCOLS`] is the protocol table used by `imulab decode` and the daemon: one line per
-//! protocol with its name, a detector for `auto` and a constructor of a type-erased
-//! [`JsonDecoder`]. Adding a protocol means adding a module, a [`Protocol`] variant and one
-//! table line.
+//! [`PROTOCOLS`] is the protocol table used by `imulab decode`: one line per protocol with its
+//! name, a detector for `auto` and a constructor of a type-erased [`JsonDecoder`]. The daemon
+//! (`src/daemon/source.rs`) and the simulator (`src/sim/wire.rs`) construct the typed decoders
+//! and encoders from the same [`Protocol`] enum; `docs/protocols.md` lists what adding a
+//! protocol touches.
 
 pub mod can;
 pub mod candump;
