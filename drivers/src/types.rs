@@ -90,6 +90,9 @@ pub struct GnssFix {
     pub speed_mps: Option<f64>,
     /// Course over ground, degrees from true north.
     pub track_deg: Option<f64>,
+    /// Heading of the vehicle (where it points, not where it moves), degrees from true
+    /// north: NMEA HDT, a dual-antenna NAV-RELPOSNED, or a dead-reckoning receiver's headVeh.
+    pub heading_deg: Option<f64>,
     /// Horizontal, vertical and speed accuracy (1σ), m and m/s.
     pub h_acc_m: Option<f64>,
     pub v_acc_m: Option<f64>,

@@ -23,6 +23,15 @@ fn payload() -> impl Strategy<Value = (u8, u8, Vec<u8>)> {
         fixed(0x01, 0x12, 36),
         fixed(0x01, 0x21, 20),
         fixed(0x01, 0x36, 64),
+        fixed(0x01, 0x04, 18),
+        fixed(0x01, 0x06, 52),
+        fixed(0x01, 0x01, 20),
+        fixed(0x01, 0x11, 20),
+        fixed(0x01, 0x20, 16),
+        fixed(0x01, 0x14, 36),
+        fixed(0x01, 0x3C, 40),
+        fixed(0x01, 0x3C, 64),
+        fixed(0x28, 0x00, 72),
         fixed(0x0A, 0x09, 60),
         fixed(0x05, 0x01, 2),
         fixed(0x05, 0x00, 2),
@@ -189,4 +198,72 @@ fn nav_pvt_encodes_si_values_to_exact_raw_integers() {
     let mut bytes = Vec::new();
     UbxEncoder.encode(&msg, &mut bytes).expect("encodes");
     assert_eq!(&bytes[6..bytes.len() - 2], &payload[..]);
+}
+
+/// Every message type of the codec's list decodes as itself, not as a raw message.
+#[test]
+fn navigation_messages_of_every_layout_are_decoded() {
+    for (class, id, len, name) in [
+        (0x01, 0x04, 18, "NAV-DOP"),
+        (0x01, 0x06, 52, "NAV-SOL"),
+        (0x01, 0x01, 20, "NAV-POSECEF"),
+        (0x01, 0x11, 20, "NAV-VELECEF"),
+        (0x01, 0x20, 16, "NAV-TIMEGPS"),
+        (0x01, 0x14, 36, "NAV-HPPOSLLH"),
+        (0x01, 0x3C, 40, "NAV-RELPOSNED"),
+        (0x01, 0x3C, 64, "NAV-RELPOSNED"),
+        (0x28, 0x00, 72, "HNR-PVT"),
+    ] {
+        let msg = parse_message(class, id, &vec![0u8; len]);
+        let json = serde_json::to_string(&msg).unwrap_or_default();
+        assert!(
+            json.contains(&format!("\"msg\":\"{name}\"")),
+            "{len} bytes: {json}"
+        );
+    }
+}
+
+#[test]
+fn high_precision_and_relative_position_scale_to_si_and_back_to_the_same_bytes() {
+    // NAV-HPPOSLLH: lat 44.0688095 deg + 37e-9, height 1110.687 m + 0.4 mm.
+    let mut p = vec![0u8; 36];
+    p[4..8].copy_from_slice(&1000u32.to_le_bytes());
+    p[12..16].copy_from_slice(&440_688_095i32.to_le_bytes());
+    p[16..20].copy_from_slice(&1_110_687i32.to_le_bytes());
+    p[25] = 37;
+    p[26] = 4;
+    p[28..32].copy_from_slice(&141u32.to_le_bytes()); // hAcc 14.1 mm
+    let msg = parse_message(0x01, 0x14, &p);
+    let UbxMessage::NavHpposllh(m) = &msg else {
+        panic!("not NAV-HPPOSLLH: {msg:?}")
+    };
+    assert!((m.lat_deg - 44.068_809_537).abs() < 1e-12, "{}", m.lat_deg);
+    assert!((m.height_m - 1110.6874).abs() < 1e-9, "{}", m.height_m);
+    assert!((m.h_acc_m - 0.0141).abs() < 1e-12);
+    let mut bytes = Vec::new();
+    UbxEncoder.encode(&msg, &mut bytes).expect("encodes");
+    assert_eq!(&bytes[6..bytes.len() - 2], &p[..]);
+
+    // NAV-RELPOSNED version 1: baseline 1.2345 m + 0.6 mm at heading 271.5 deg, valid.
+    let mut p = vec![0u8; 64];
+    p[0] = 1;
+    p[20..24].copy_from_slice(&123i32.to_le_bytes());
+    p[24..28].copy_from_slice(&27_150_000i32.to_le_bytes());
+    p[35] = 6;
+    p[60..64].copy_from_slice(&0x0000_0137u32.to_le_bytes());
+    let msg = parse_message(0x01, 0x3C, &p);
+    let UbxMessage::NavRelposned(m) = &msg else {
+        panic!("not NAV-RELPOSNED: {msg:?}")
+    };
+    assert_eq!(m.valid_heading_deg(), Some(271.5));
+    assert!((m.rel_pos_length_m.unwrap_or(0.0) - 1.2306).abs() < 1e-12);
+    let mut bytes = Vec::new();
+    UbxEncoder.encode(&msg, &mut bytes).expect("encodes");
+    assert_eq!(&bytes[6..bytes.len() - 2], &p[..]);
+    // Heading not marked valid: none.
+    p[61] = 0;
+    let UbxMessage::NavRelposned(m) = parse_message(0x01, 0x3C, &p) else {
+        panic!("not NAV-RELPOSNED")
+    };
+    assert_eq!(m.valid_heading_deg(), None);
 }

@@ -208,10 +208,10 @@ impl NmeaEpoch {
                     *date = Some(Date { year, month, day });
                 }
             }
-            NmeaSentence::Gsv(_)
-            | NmeaSentence::Hdt(_)
-            | NmeaSentence::Proprietary(_)
-            | NmeaSentence::Other(_) => {}
+            NmeaSentence::Hdt(s) => {
+                f.heading_deg = s.heading_deg.map(|h| h.to_f64()).or(f.heading_deg);
+            }
+            NmeaSentence::Gsv(_) | NmeaSentence::Proprietary(_) | NmeaSentence::Other(_) => {}
         }
     }
 
@@ -281,6 +281,23 @@ fn sentence_time(sentence: &NmeaSentence) -> Option<TimeOfDay> {
     }
 }
 
+/// How good a UBX message's position or velocity is, lowest first: within an epoch a message
+/// never overwrites the value of a better one, whichever order they come in, and the latest
+/// of equal rank wins (as in gpsd).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Rank {
+    /// NAV-POSECEF / NAV-VELECEF.
+    Ecef,
+    /// NAV-SOL (ECEF position and velocity, with fix type, satellites and PDOP).
+    Sol,
+    /// NAV-POSLLH / NAV-VELNED (cm/s velocity).
+    Llh,
+    /// NAV-PVT (mm/s velocity).
+    Pvt,
+    /// NAV-HPPOSLLH (0.1 mm position).
+    HighPrecision,
+}
+
 /// Accumulates UBX messages of one epoch (same iTOW).
 #[derive(Debug, Default, Clone)]
 struct UbxEpoch {
@@ -289,10 +306,16 @@ struct UbxEpoch {
     has_data: bool,
     date: Option<Date>,
     time_of_day_ms: Option<i64>,
-    /// NAV-PVT or NAV-STATUS gave the fix type.
+    /// GPS week from NAV-SOL or NAV-TIMEGPS of this epoch.
+    week: Option<u16>,
+    /// NAV-PVT, NAV-SOL or NAV-STATUS gave the fix type.
     fix_known: bool,
-    /// A NAV-PVT is in the epoch: NAV-POSLLH and NAV-VELNED (coarser: cm/s velocity) do not
-    /// overwrite its values, whichever order they come in (gpsd's speed is NAV-PVT's too).
+    /// Rank of the message the position / the velocity came from.
+    position_rank: Option<Rank>,
+    velocity_rank: Option<Rank>,
+    /// ECEF velocity (NAV-SOL, NAV-VELECEF), turned into NED once the position is known.
+    ecef_velocity: Option<[f64; 3]>,
+    /// The fix type, satellites and PDOP came from NAV-PVT (NAV-SOL does not overwrite them).
     has_pvt: bool,
 }
 
@@ -306,23 +329,73 @@ impl UbxEpoch {
             .and_then(|ns| ns.checked_add(i64::from(nano_ns).rem_euclid(1_000_000)));
     }
 
+    /// Whether a position of `rank` may replace the epoch's (and takes its place if so).
+    fn take_position(&mut self, rank: Rank) -> bool {
+        let better = self.position_rank.is_none_or(|r| rank >= r);
+        if better {
+            self.position_rank = Some(rank);
+        }
+        better
+    }
+
+    fn take_velocity(&mut self, rank: Rank) -> bool {
+        let better = self.velocity_rank.is_none_or(|r| rank >= r);
+        if better {
+            self.velocity_rank = Some(rank);
+        }
+        better
+    }
+
+    fn set_ecef_position(&mut self, rank: Rank, ecef_m: [f64; 3]) {
+        if self.take_position(rank) {
+            if let Some((lat, lon, height)) = ecef_to_geodetic(ecef_m) {
+                let f = &mut self.fix;
+                f.lat_deg = Some(lat);
+                f.lon_deg = Some(lon);
+                f.height_m = Some(height);
+                f.height_msl_m = None;
+                f.h_acc_m = None;
+                f.v_acc_m = None;
+            }
+        }
+    }
+
+    fn set_ecef_velocity(&mut self, rank: Rank, ecef_vel_mps: [f64; 3], s_acc_mps: f64) {
+        if self.take_velocity(rank) {
+            self.ecef_velocity = Some(ecef_vel_mps);
+            self.fix.vel_ned = None;
+            self.fix.s_acc_mps = Some(s_acc_mps);
+        }
+    }
+
     fn apply(&mut self, msg: &UbxMessage) {
-        let f = &mut self.fix;
         match msg {
             UbxMessage::NavPvt(m) => {
-                f.lat_deg = Some(m.lat_deg);
-                f.lon_deg = Some(m.lon_deg);
-                f.height_m = Some(m.height_m);
-                f.height_msl_m = Some(m.height_msl_m);
-                f.h_acc_m = Some(m.h_acc_m);
-                f.v_acc_m = Some(m.v_acc_m);
-                f.vel_ned = Some([m.vel_n_mps, m.vel_e_mps, m.vel_d_mps]);
-                f.speed_mps = Some(m.ground_speed_mps);
-                f.track_deg = Some(m.head_mot_deg);
-                f.s_acc_mps = Some(m.s_acc_mps);
+                if self.take_position(Rank::Pvt) {
+                    let f = &mut self.fix;
+                    f.lat_deg = Some(m.lat_deg);
+                    f.lon_deg = Some(m.lon_deg);
+                    f.height_m = Some(m.height_m);
+                    f.height_msl_m = Some(m.height_msl_m);
+                    f.h_acc_m = Some(m.h_acc_m);
+                    f.v_acc_m = Some(m.v_acc_m);
+                }
+                if self.take_velocity(Rank::Pvt) {
+                    let f = &mut self.fix;
+                    f.vel_ned = Some([m.vel_n_mps, m.vel_e_mps, m.vel_d_mps]);
+                    f.speed_mps = Some(m.ground_speed_mps);
+                    f.track_deg = Some(m.head_mot_deg);
+                    f.s_acc_mps = Some(m.s_acc_mps);
+                    self.ecef_velocity = None;
+                }
+                let f = &mut self.fix;
                 f.num_sats = Some(m.num_sv);
                 f.pdop = Some(m.pdop);
                 f.fix = pvt_fix_type(m.fix_type, m.flags);
+                // flags bit 5: headVehValid (heading of the vehicle, dead-reckoning receivers).
+                if m.flags & 0x20 != 0 {
+                    f.heading_deg = m.head_veh_deg.or(f.heading_deg);
+                }
                 self.fix_known = true;
                 self.has_pvt = true;
                 // valid bits 0 and 1: UTC date and time of day are valid.
@@ -335,24 +408,81 @@ impl UbxEpoch {
                     self.set_utc(date, m.hour, m.min, m.sec, m.nano_ns);
                 }
             }
-            UbxMessage::NavPosllh(_) | UbxMessage::NavVelned(_) if self.has_pvt => {}
+            UbxMessage::NavHpposllh(m) => {
+                // flags bit 0: invalidLlh.
+                if m.flags & 0x01 == 0 && self.take_position(Rank::HighPrecision) {
+                    let f = &mut self.fix;
+                    f.lat_deg = Some(m.lat_deg);
+                    f.lon_deg = Some(m.lon_deg);
+                    f.height_m = Some(m.height_m);
+                    f.height_msl_m = Some(m.height_msl_m);
+                    f.h_acc_m = Some(m.h_acc_m);
+                    f.v_acc_m = Some(m.v_acc_m);
+                }
+            }
             UbxMessage::NavPosllh(m) => {
-                f.lat_deg = Some(m.lat_deg);
-                f.lon_deg = Some(m.lon_deg);
-                f.height_m = Some(m.height_m);
-                f.height_msl_m = Some(m.height_msl_m);
-                f.h_acc_m = Some(m.h_acc_m);
-                f.v_acc_m = Some(m.v_acc_m);
+                if self.take_position(Rank::Llh) {
+                    let f = &mut self.fix;
+                    f.lat_deg = Some(m.lat_deg);
+                    f.lon_deg = Some(m.lon_deg);
+                    f.height_m = Some(m.height_m);
+                    f.height_msl_m = Some(m.height_msl_m);
+                    f.h_acc_m = Some(m.h_acc_m);
+                    f.v_acc_m = Some(m.v_acc_m);
+                }
             }
             UbxMessage::NavVelned(m) => {
-                f.vel_ned = Some([m.vel_n_mps, m.vel_e_mps, m.vel_d_mps]);
-                f.speed_mps = Some(m.ground_speed_mps);
-                f.track_deg = Some(m.heading_deg);
-                f.s_acc_mps = Some(m.s_acc_mps);
+                if self.take_velocity(Rank::Llh) {
+                    let f = &mut self.fix;
+                    f.vel_ned = Some([m.vel_n_mps, m.vel_e_mps, m.vel_d_mps]);
+                    f.speed_mps = Some(m.ground_speed_mps);
+                    f.track_deg = Some(m.heading_deg);
+                    f.s_acc_mps = Some(m.s_acc_mps);
+                    self.ecef_velocity = None;
+                }
+            }
+            UbxMessage::NavSol(m) => {
+                self.set_ecef_position(Rank::Sol, m.ecef_m);
+                self.set_ecef_velocity(Rank::Sol, m.ecef_vel_mps, m.s_acc_mps);
+                if !self.has_pvt {
+                    let f = &mut self.fix;
+                    f.fix = pvt_fix_type(m.gps_fix, m.flags & 0x02);
+                    f.num_sats = Some(m.num_sv);
+                    f.pdop = Some(m.pdop);
+                    self.fix_known = true;
+                }
+                // flags bit 2: week number valid.
+                if m.flags & 0x04 != 0 {
+                    self.week = u16::try_from(m.week).ok();
+                }
+            }
+            UbxMessage::NavPosecef(m) => self.set_ecef_position(Rank::Ecef, m.ecef_m),
+            UbxMessage::NavVelecef(m) => {
+                self.set_ecef_velocity(Rank::Ecef, m.ecef_vel_mps, m.s_acc_mps)
+            }
+            UbxMessage::NavTimegps(m) => {
+                // valid bits: 0 time of week, 1 week, 2 leap seconds.
+                if m.valid & 0x02 != 0 {
+                    self.week = u16::try_from(m.week).ok();
+                }
+                if m.valid & 0x07 == 0x07 && self.time_of_day_ms.is_none() {
+                    if let Some((date, ms, sub_ms_ns)) = gps_to_utc(m) {
+                        self.date = Some(date);
+                        self.time_of_day_ms = Some(ms.rem_euclid(DAY_MS));
+                        self.fix.utc_ns = ms
+                            .checked_mul(1_000_000)
+                            .and_then(|ns| ns.checked_add(sub_ms_ns));
+                    }
+                }
+            }
+            UbxMessage::NavRelposned(m) => {
+                if let Some(heading) = m.valid_heading_deg() {
+                    self.fix.heading_deg = Some(heading);
+                }
             }
             UbxMessage::NavStatus(m) => {
-                if f.fix == FixType::NoFix {
-                    f.fix = pvt_fix_type(m.gps_fix, m.flags & 0x02);
+                if self.fix.fix == FixType::NoFix {
+                    self.fix.fix = pvt_fix_type(m.gps_fix, m.flags & 0x02);
                 }
                 self.fix_known = true;
             }
@@ -369,7 +499,13 @@ impl UbxEpoch {
             }
             UbxMessage::NavSat(m) => {
                 let used = m.svs.iter().filter(|sv| sv.flags & 0x08 != 0).count();
-                f.num_sats = Some(u8::try_from(used).unwrap_or(u8::MAX));
+                self.fix.num_sats = Some(u8::try_from(used).unwrap_or(u8::MAX));
+            }
+            UbxMessage::NavDop(m) => {
+                let f = &mut self.fix;
+                f.pdop = f.pdop.or(Some(m.pdop));
+                f.hdop = Some(m.hdop);
+                f.vdop = Some(m.vdop);
             }
             _ => return,
         }
@@ -378,24 +514,140 @@ impl UbxEpoch {
 
     /// The epoch's fix, and whether a message of it gave the fix type.
     fn take(&mut self, week: Option<u16>) -> Option<(EpochFix, bool)> {
-        if !self.has_data {
-            *self = UbxEpoch::default();
-            return None;
-        }
-        let fix_known = self.fix_known;
+        let epoch = std::mem::take(self);
+        let fix_known = epoch.fix_known;
+        epoch.has_data.then(|| (epoch.into_fix(week), fix_known))
+    }
+
+    fn into_fix(self, week: Option<u16>) -> EpochFix {
         let mut fix = self.fix;
-        fix.week = week;
+        if let (Some(v), Some(lat), Some(lon)) = (self.ecef_velocity, fix.lat_deg, fix.lon_deg) {
+            let [n, e, d] = ecef_to_ned(v, lat, lon);
+            fix.vel_ned = Some([n, e, d]);
+            fix.speed_mps = Some(n.hypot(e));
+            fix.track_deg = Some(e.atan2(n).to_degrees().rem_euclid(360.0));
+        }
+        fix.week = self.week.or(week);
         fix.tow_s = self.itow_ms.map(|ms| f64::from(ms) / 1000.0);
-        let epoch = EpochFix {
+        EpochFix {
             source: FixSource::Ubx,
             time_of_day_ms: self.time_of_day_ms,
             itow_ms: self.itow_ms,
             date: self.date,
             fix,
-        };
-        *self = UbxEpoch::default();
-        Some((epoch, fix_known))
+        }
     }
+}
+
+/// The fix of one HNR-PVT: the high-rate solution is complete in itself and stands apart
+/// from the NAV epochs (its own times, up to 30 Hz), so it is a fix of its own.
+fn hnr_fix(m: &ubx::HnrPvt, week: Option<u16>) -> EpochFix {
+    let mut epoch = UbxEpoch {
+        itow_ms: Some(m.itow_ms),
+        ..UbxEpoch::default()
+    };
+    if m.valid & 0x03 == 0x03 {
+        let date = Date {
+            year: m.year,
+            month: m.month,
+            day: m.day,
+        };
+        epoch.set_utc(date, m.hour, m.min, m.sec, m.nano_ns);
+    }
+    let f = &mut epoch.fix;
+    f.fix = pvt_fix_type(m.gps_fix, m.flags & 0x02);
+    f.lat_deg = Some(m.lat_deg);
+    f.lon_deg = Some(m.lon_deg);
+    f.height_m = Some(m.height_m);
+    f.height_msl_m = Some(m.height_msl_m);
+    f.h_acc_m = Some(m.h_acc_m);
+    f.v_acc_m = Some(m.v_acc_m);
+    f.speed_mps = Some(m.ground_speed_mps);
+    f.track_deg = Some(m.head_mot_deg);
+    f.s_acc_mps = Some(m.s_acc_mps);
+    // flags bit 4: headVehValid.
+    f.heading_deg = (m.flags & 0x10 != 0).then_some(m.head_veh_deg);
+    epoch.into_fix(week)
+}
+
+/// WGS-84 semi-major axis, m, and first eccentricity squared.
+const WGS84_A: f64 = 6_378_137.0;
+const WGS84_E2: f64 = 6.694_379_990_141_33e-3;
+
+/// Geodetic latitude, longitude (degrees) and ellipsoidal height (m) of an ECEF position
+/// (`None` near the centre of the Earth, where the receiver has no solution). Bowring's
+/// start and three fixed-point steps: below 1 µm near the surface; written here because the
+/// drivers crate has no geodesy dependency for this one conversion.
+fn ecef_to_geodetic([x, y, z]: [f64; 3]) -> Option<(f64, f64, f64)> {
+    let p = x.hypot(y);
+    if p.hypot(z) < 1.0e5 {
+        return None;
+    }
+    let b = WGS84_A * (1.0 - WGS84_E2).sqrt();
+    let ep2 = WGS84_E2 / (1.0 - WGS84_E2);
+    let theta = (z * WGS84_A).atan2(p * b);
+    let mut lat =
+        (z + ep2 * b * theta.sin().powi(3)).atan2(p - WGS84_E2 * WGS84_A * theta.cos().powi(3));
+    let mut height = 0.0;
+    for _ in 0..3 {
+        let n = WGS84_A / (1.0 - WGS84_E2 * lat.sin().powi(2)).sqrt();
+        height = if lat.cos().abs() > 1e-9 {
+            p / lat.cos() - n
+        } else {
+            z.abs() - n * (1.0 - WGS84_E2)
+        };
+        lat = z.atan2(p * (1.0 - WGS84_E2 * n / (n + height)));
+    }
+    Some((lat.to_degrees(), y.atan2(x).to_degrees(), height))
+}
+
+/// An ECEF vector in the local north, east, down frame at `lat_deg`, `lon_deg`.
+fn ecef_to_ned([x, y, z]: [f64; 3], lat_deg: f64, lon_deg: f64) -> [f64; 3] {
+    let (sl, cl) = lat_deg.to_radians().sin_cos();
+    let (so, co) = lon_deg.to_radians().sin_cos();
+    [
+        -sl * co * x - sl * so * y + cl * z,
+        -so * x + co * y,
+        -cl * co * x - cl * so * y - sl * z,
+    ]
+}
+
+/// Unix time of the GPS epoch (1980-01-06T00:00:00Z), ms.
+const GPS_EPOCH_UNIX_MS: i64 = 315_964_800_000;
+
+/// Proleptic Gregorian date of a day count since 1970-01-01 (inverse of `days_from_civil`).
+fn civil_from_days(days: i64) -> Option<Date> {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = (doy - (153 * mp + 2) / 5 + 1) as u8;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 } as u8;
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    Some(Date {
+        year: u16::try_from(year).ok()?,
+        month,
+        day,
+    })
+}
+
+/// UTC of a NAV-TIMEGPS (week, iTOW, fTOW, leap seconds): the date, Unix ms (floor) and the
+/// nanoseconds below that millisecond.
+fn gps_to_utc(m: &ubx::NavTimegps) -> Option<(Date, i64, i64)> {
+    let week = i64::from(m.week);
+    if week < 0 {
+        return None;
+    }
+    // Week 32767 is past 2^63 ns since 1970: checked, so a corrupt week gives no time.
+    let utc_ns = (week * 604_800_000 + i64::from(m.itow_ms) + GPS_EPOCH_UNIX_MS
+        - i64::from(m.leap_s) * 1000)
+        .checked_mul(1_000_000)?
+        .checked_add(i64::from(m.ftow_ns))?;
+    let ms = utc_ns.div_euclid(1_000_000);
+    let date = civil_from_days(ms.div_euclid(DAY_MS))?;
+    Some((date, ms, utc_ns.rem_euclid(1_000_000)))
 }
 
 /// Fix type from NAV-PVT/NAV-STATUS `fixType` and flags (bit 1 diffSoln, bits 6–7 carrier
@@ -429,6 +681,13 @@ fn ubx_itow(msg: &UbxMessage) -> Option<u32> {
         UbxMessage::NavTimeutc(m) => Some(m.itow_ms),
         UbxMessage::NavSat(m) => Some(m.itow_ms),
         UbxMessage::NavCov(m) => Some(m.itow_ms),
+        UbxMessage::NavSol(m) => Some(m.itow_ms),
+        UbxMessage::NavPosecef(m) => Some(m.itow_ms),
+        UbxMessage::NavVelecef(m) => Some(m.itow_ms),
+        UbxMessage::NavTimegps(m) => Some(m.itow_ms),
+        UbxMessage::NavHpposllh(m) => Some(m.itow_ms),
+        UbxMessage::NavRelposned(m) => Some(m.itow_ms),
+        UbxMessage::NavDop(m) => Some(m.itow_ms),
         UbxMessage::Other(raw) if raw.class == 0x01 && raw.payload.len() >= 4 => {
             Some(u32::from_le_bytes([
                 raw.payload[0],
@@ -474,6 +733,7 @@ fn merge(ubx: Option<(EpochFix, bool)>, nmea: Option<EpochFix>) -> Option<EpochF
         vel_ned: a.vel_ned.or(b.vel_ned),
         speed_mps: a.speed_mps.or(b.speed_mps),
         track_deg: a.track_deg.or(b.track_deg),
+        heading_deg: a.heading_deg.or(b.heading_deg),
         h_acc_m: a.h_acc_m.or(b.h_acc_m),
         v_acc_m: a.v_acc_m.or(b.v_acc_m),
         s_acc_mps: a.s_acc_mps.or(b.s_acc_mps),
@@ -644,8 +904,21 @@ impl GnssDecoder {
             self.ready.push_back(GnssFrame::Ubx(msg));
             return;
         }
-        if let UbxMessage::RxmRawx(raw) = &msg {
-            self.ubx_week = Some(raw.week);
+        match &msg {
+            UbxMessage::RxmRawx(raw) => self.ubx_week = Some(raw.week),
+            UbxMessage::NavSol(m) if m.flags & 0x04 != 0 => {
+                self.ubx_week = u16::try_from(m.week).ok();
+            }
+            UbxMessage::NavTimegps(m) if m.valid & 0x02 != 0 => {
+                self.ubx_week = u16::try_from(m.week).ok();
+            }
+            UbxMessage::HnrPvt(m) => {
+                let fix = hnr_fix(m, self.ubx_week);
+                self.ready.push_back(GnssFrame::Ubx(msg));
+                self.ready.push_back(GnssFrame::Fix(fix));
+                return;
+            }
+            _ => {}
         }
         let end_of_epoch =
             matches!(&msg, UbxMessage::Other(raw) if raw.class == 0x01 && raw.id == 0x61);
@@ -1017,5 +1290,175 @@ $GPGGA,123520,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*4D\r\n";
         assert_eq!(fixes[0].1.fix.speed_mps, Some(2.0));
         assert_eq!(fixes[0].1.fix.vel_ned, Some([2.0, 0.0, 0.0]));
         assert_eq!(fixes[0].1.fix.s_acc_mps, Some(0.1));
+    }
+
+    use crate::codec::ubx::{HnrPvt, NavPosllh, NavSol, NavTimegps, NavVelned};
+
+    fn encoded(messages: &[UbxMessage]) -> Vec<u8> {
+        let mut out = Vec::new();
+        for m in messages {
+            UbxEncoder.encode(m, &mut out).expect("encodes");
+        }
+        out
+    }
+
+    #[test]
+    fn ecef_round_trip_of_a_known_point() {
+        // 44.0688°N 121.3143°W, 1110.69 m: ECEF from the closed-form forward formula.
+        let (lat, lon, h) = (44.068_809_737_f64, -121.314_308_893_f64, 1110.6877);
+        let (sl, cl) = lat.to_radians().sin_cos();
+        let (so, co) = lon.to_radians().sin_cos();
+        let n = WGS84_A / (1.0 - WGS84_E2 * sl * sl).sqrt();
+        let ecef = [
+            (n + h) * cl * co,
+            (n + h) * cl * so,
+            (n * (1.0 - WGS84_E2) + h) * sl,
+        ];
+        let (lat2, lon2, h2) = ecef_to_geodetic(ecef).expect("on the Earth");
+        assert!((lat2 - lat).abs() < 1e-11, "{lat2}");
+        assert!((lon2 - lon).abs() < 1e-11, "{lon2}");
+        assert!((h2 - h).abs() < 1e-6, "{h2}");
+        assert_eq!(ecef_to_geodetic([0.0, 0.0, 10.0]), None);
+        // Eastward velocity at the point stays east.
+        let up = [cl * co, cl * so, sl];
+        let east = [-so, co, 0.0];
+        let v = [east[0] * 3.0 - up[0], east[1] * 3.0 - up[1], -up[2]];
+        let [vn, ve, vd] = ecef_to_ned(v, lat, lon);
+        assert!(vn.abs() < 1e-12 && (ve - 3.0).abs() < 1e-12 && (vd - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn old_receiver_messages_of_one_itow_merge_into_one_fix() {
+        // NAV-SOL (ECEF), NAV-POSLLH, NAV-VELNED, NAV-TIMEGPS of iTOW 230 400 000 (week 2000),
+        // then the next epoch's NAV-SOL: the LLH position and NED velocity win over the
+        // ECEF ones, NAV-SOL gives the fix type, satellites and PDOP, NAV-TIMEGPS the UTC.
+        let itow = 230_400_000;
+        let sol = |itow_ms| {
+            UbxMessage::NavSol(NavSol {
+                itow_ms,
+                ftow_ns: 0,
+                week: 2000,
+                gps_fix: 3,
+                flags: 0x0D,
+                ecef_m: [4_158_803.99, 681_905.07, 4_771_844.83],
+                p_acc_m: 5.0,
+                ecef_vel_mps: [0.0, 0.0, 0.0],
+                s_acc_mps: 0.3,
+                pdop: 1.7,
+                num_sv: 9,
+            })
+        };
+        let stream = encoded(&[
+            sol(itow),
+            UbxMessage::NavPosllh(NavPosllh {
+                itow_ms: itow,
+                lon_deg: 9.3117355,
+                lat_deg: 48.740963,
+                height_m: 311.793,
+                height_msl_m: 264.182,
+                h_acc_m: 9.0,
+                v_acc_m: 11.5,
+            }),
+            UbxMessage::NavVelned(NavVelned {
+                itow_ms: itow,
+                vel_n_mps: -0.13,
+                vel_e_mps: -0.38,
+                vel_d_mps: 0.1,
+                speed_mps: 0.41,
+                ground_speed_mps: 0.4,
+                heading_deg: 249.19,
+                s_acc_mps: 0.31,
+                c_acc_deg: 46.0,
+            }),
+            UbxMessage::NavTimegps(NavTimegps {
+                itow_ms: itow,
+                ftow_ns: 0,
+                week: 2000,
+                leap_s: 18,
+                valid: 0x07,
+                t_acc_ns: 20,
+            }),
+            sol(itow + 1000),
+        ]);
+        let fixes: Vec<EpochFix> = fixes_of(&stream).into_iter().map(|(_, f)| f).collect();
+        assert_eq!(fixes.len(), 2, "{fixes:#?}");
+        let f = &fixes[0];
+        assert_eq!(f.itow_ms, Some(itow));
+        assert_eq!(f.fix.lat_deg, Some(48.740963));
+        assert_eq!(f.fix.height_msl_m, Some(264.182));
+        assert_eq!(f.fix.vel_ned, Some([-0.13, -0.38, 0.1]));
+        assert_eq!(f.fix.track_deg, Some(249.19));
+        assert_eq!(
+            (f.fix.fix, f.fix.num_sats, f.fix.pdop),
+            (FixType::Fix3D, Some(9), Some(1.7))
+        );
+        assert_eq!(f.fix.week, Some(2000));
+        // GPS week 2000, Tuesday 16:00:00 GPS = 2018-05-08T15:59:42Z.
+        assert_eq!(f.time_of_day_ms, Some((15 * 3600 + 59 * 60 + 42) * 1000));
+        assert_eq!(f.fix.utc_ns, Some(1_525_795_182_000_000_000));
+        // The NAV-SOL-only epoch: position from ECEF (that point is 0.2 m off the POSLLH
+        // one), zero velocity, no MSL height.
+        let g = &fixes[1];
+        let (lat, lon) = (g.fix.lat_deg.unwrap_or(0.0), g.fix.lon_deg.unwrap_or(0.0));
+        assert!(
+            (lat - 48.740_963).abs() < 1e-5 && (lon - 9.311_735_5).abs() < 1e-5,
+            "{g:?}"
+        );
+        assert_eq!(g.fix.height_msl_m, None);
+        assert_eq!(g.fix.speed_mps, Some(0.0));
+        assert_eq!(g.fix.fix, FixType::Fix3D);
+    }
+
+    #[test]
+    fn hnr_pvt_is_a_fix_of_its_own_and_leaves_the_nav_epoch_open() {
+        let hnr = UbxMessage::HnrPvt(HnrPvt {
+            itow_ms: (2 * 86_400 + 12 * 3600 + 18) * 1000 + 500,
+            year: 2026,
+            month: 12,
+            day: 1,
+            hour: 12,
+            min: 0,
+            sec: 0,
+            valid: 0x07,
+            nano_ns: 500_000_000,
+            gps_fix: 4,
+            flags: 0x13,
+            lon_deg: 11.5000001,
+            lat_deg: 48.1000001,
+            height_m: 600.0,
+            height_msl_m: 553.0,
+            ground_speed_mps: 2.0,
+            speed_mps: 2.0,
+            head_mot_deg: 1.5,
+            head_veh_deg: 2.5,
+            h_acc_m: 1.5,
+            v_acc_m: 2.5,
+            s_acc_mps: 0.1,
+            head_acc_deg: 3.0,
+        });
+        // NAV-PVT of 12:00:00, the HNR-PVT of 12:00:00.5, then the epoch's NMEA.
+        let mut stream = pvt_only(0);
+        stream.extend_from_slice(&encoded(&[hnr]));
+        stream.extend_from_slice(nmea(0).as_bytes());
+        let fixes = fixes_of(&stream);
+        assert_eq!(fixes.len(), 2, "{fixes:#?}");
+        let (_, high_rate) = &fixes[0];
+        assert_eq!(high_rate.time_of_day_ms, Some(43_200_500));
+        assert_eq!(high_rate.fix.lat_deg, Some(48.1000001));
+        assert_eq!(high_rate.fix.heading_deg, Some(2.5));
+        assert_eq!(high_rate.fix.fix, FixType::Dgnss);
+        // The NAV epoch still merges its NMEA.
+        assert_merged(&fixes[1].1, 0);
+    }
+
+    #[test]
+    fn hdt_heading_joins_the_epoch() {
+        let mut stream = nmea(0);
+        stream.push_str(&with_checksum("GPHDT,271.25,T"));
+        stream.push_str(&nmea(1));
+        let fixes = fixes_of(stream.as_bytes());
+        assert_eq!(fixes.len(), 2, "{fixes:#?}");
+        assert_eq!(fixes[0].1.fix.heading_deg, Some(271.25));
+        assert_eq!(fixes[1].1.fix.heading_deg, None);
     }
 }

@@ -1,6 +1,7 @@
 //! u-blox UBX binary codec: framing (`B5 62`, class, id, little-endian length, payload,
 //! Fletcher-8 checksum) and the messages NAV-PVT, NAV-STATUS, NAV-SAT, NAV-POSLLH, NAV-VELNED,
-//! NAV-TIMEUTC, NAV-COV, RXM-RAWX, MON-HW, ESF-RAW, ESF-MEAS and ACK-ACK/NAK. Every other
+//! NAV-TIMEUTC, NAV-DOP, NAV-SOL, NAV-POSECEF, NAV-VELECEF, NAV-TIMEGPS, NAV-HPPOSLLH, NAV-RELPOSNED
+//! (versions 0 and 1), NAV-COV, HNR-PVT, RXM-RAWX, MON-HW, ESF-RAW, ESF-MEAS and ACK-ACK/NAK. Every other
 //! message, and a known message whose length does not match its layout, is kept raw with
 //! class and id.
 //!
@@ -120,6 +121,154 @@ pub struct NavVelned {
     pub heading_deg: f64,
     pub s_acc_mps: f64,
     pub c_acc_deg: f64,
+}
+
+/// NAV-SOL (0x01 0x06): ECEF position and velocity solution (kept by receivers for backward
+/// compatibility; u-blox 6 and older send it instead of NAV-PVT).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NavSol {
+    pub itow_ms: u32,
+    /// Remainder of the rounded iTOW, ns (−500 000 … 500 000).
+    pub ftow_ns: i32,
+    pub week: i16,
+    /// 0 no fix, 1 DR, 2 2D, 3 3D, 4 GNSS+DR, 5 time only.
+    pub gps_fix: u8,
+    /// Bits: 0 gpsFixOk, 1 diffSoln, 2 week valid, 3 time of week valid.
+    pub flags: u8,
+    /// ECEF X, Y, Z, m (sent in cm).
+    pub ecef_m: [f64; 3],
+    /// 3D position accuracy, m.
+    pub p_acc_m: f64,
+    /// ECEF velocity, m/s (sent in cm/s).
+    pub ecef_vel_mps: [f64; 3],
+    pub s_acc_mps: f64,
+    pub pdop: f64,
+    pub num_sv: u8,
+}
+
+/// NAV-POSECEF (0x01 0x01): position in ECEF.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NavPosecef {
+    pub itow_ms: u32,
+    /// ECEF X, Y, Z, m (sent in cm).
+    pub ecef_m: [f64; 3],
+    /// 3D position accuracy, m.
+    pub p_acc_m: f64,
+}
+
+/// NAV-VELECEF (0x01 0x11): velocity in ECEF.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NavVelecef {
+    pub itow_ms: u32,
+    /// ECEF velocity, m/s (sent in cm/s).
+    pub ecef_vel_mps: [f64; 3],
+    pub s_acc_mps: f64,
+}
+
+/// NAV-TIMEGPS (0x01 0x20): GPS time and the GPS−UTC leap seconds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct NavTimegps {
+    pub itow_ms: u32,
+    pub ftow_ns: i32,
+    pub week: i16,
+    /// GPS − UTC, s.
+    pub leap_s: i8,
+    /// Bits: 0 time of week valid, 1 week valid, 2 leap seconds valid.
+    pub valid: u8,
+    pub t_acc_ns: u32,
+}
+
+/// NAV-HPPOSLLH (0x01 0x14): geodetic position to 0.1 mm (the standard and high-precision
+/// parts of each value are added up here; the encoder splits them again).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NavHpposllh {
+    pub version: u8,
+    /// Bit 0: invalidLlh (the position is not valid).
+    pub flags: u8,
+    pub itow_ms: u32,
+    pub lon_deg: f64,
+    pub lat_deg: f64,
+    pub height_m: f64,
+    pub height_msl_m: f64,
+    pub h_acc_m: f64,
+    pub v_acc_m: f64,
+}
+
+/// NAV-RELPOSNED (0x01 0x3C): position of this receiver relative to a reference (an RTK
+/// base, or the other antenna of a dual-antenna heading setup), NED. Version 0 (u-blox 8,
+/// 40 bytes) has no length or heading; version 1 (u-blox 9, 64 bytes) has both.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NavRelposned {
+    pub version: u8,
+    pub ref_station_id: u16,
+    pub itow_ms: u32,
+    /// Relative position north, east, down, m (cm plus 0.1 mm parts, added up).
+    pub rel_pos_ned_m: [f64; 3],
+    /// Baseline length, m (version 1).
+    pub rel_pos_length_m: Option<f64>,
+    /// Heading of the baseline, degrees from true north (version 1; valid when flags bit 8).
+    pub rel_pos_heading_deg: Option<f64>,
+    /// Accuracy of the relative position north, east, down, m.
+    pub acc_ned_m: [f64; 3],
+    pub acc_length_m: Option<f64>,
+    pub acc_heading_deg: Option<f64>,
+    /// Bits: 0 gnssFixOK, 1 diffSoln, 2 relPosValid, 3–4 carrier solution, 5 isMoving,
+    /// 6 refPosMiss, 7 refObsMiss, 8 relPosHeadingValid, 9 relPosNormalized.
+    pub flags: u32,
+}
+
+impl NavRelposned {
+    /// The baseline heading when the receiver marks it valid (and the relative position too).
+    pub fn valid_heading_deg(&self) -> Option<f64> {
+        let valid = self.flags & 0x104 == 0x104;
+        self.rel_pos_heading_deg.filter(|_| valid)
+    }
+}
+
+/// HNR-PVT (0x28 0x00): the high-rate navigation solution of dead-reckoning receivers
+/// (up to 30 Hz, between and independent of the NAV epochs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct HnrPvt {
+    pub itow_ms: u32,
+    pub year: u16,
+    pub month: u8,
+    pub day: u8,
+    pub hour: u8,
+    pub min: u8,
+    pub sec: u8,
+    /// Bits: 0 valid date, 1 valid time, 2 fully resolved.
+    pub valid: u8,
+    pub nano_ns: i32,
+    /// 0 no fix, 1 DR, 2 2D, 3 3D, 4 GNSS+DR, 5 time only.
+    pub gps_fix: u8,
+    /// Bits: 0 gpsFixOk, 1 diffSoln, 2 week set, 3 time of week set, 4 headVeh valid.
+    pub flags: u8,
+    pub lon_deg: f64,
+    pub lat_deg: f64,
+    pub height_m: f64,
+    pub height_msl_m: f64,
+    pub ground_speed_mps: f64,
+    /// 3D speed, m/s.
+    pub speed_mps: f64,
+    pub head_mot_deg: f64,
+    pub head_veh_deg: f64,
+    pub h_acc_m: f64,
+    pub v_acc_m: f64,
+    pub s_acc_mps: f64,
+    pub head_acc_deg: f64,
+}
+
+/// NAV-DOP (0x01 0x04): dilutions of precision.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NavDop {
+    pub itow_ms: u32,
+    pub gdop: f64,
+    pub pdop: f64,
+    pub tdop: f64,
+    pub vdop: f64,
+    pub hdop: f64,
+    pub ndop: f64,
+    pub edop: f64,
 }
 
 /// NAV-TIMEUTC (0x01 0x21): UTC time.
@@ -360,6 +509,22 @@ pub enum UbxMessage {
     NavVelned(NavVelned),
     #[serde(rename = "NAV-TIMEUTC")]
     NavTimeutc(NavTimeutc),
+    #[serde(rename = "NAV-DOP")]
+    NavDop(NavDop),
+    #[serde(rename = "NAV-SOL")]
+    NavSol(NavSol),
+    #[serde(rename = "NAV-POSECEF")]
+    NavPosecef(NavPosecef),
+    #[serde(rename = "NAV-VELECEF")]
+    NavVelecef(NavVelecef),
+    #[serde(rename = "NAV-TIMEGPS")]
+    NavTimegps(NavTimegps),
+    #[serde(rename = "NAV-HPPOSLLH")]
+    NavHpposllh(NavHpposllh),
+    #[serde(rename = "NAV-RELPOSNED")]
+    NavRelposned(NavRelposned),
+    #[serde(rename = "HNR-PVT")]
+    HnrPvt(HnrPvt),
     #[serde(rename = "NAV-COV")]
     NavCov(NavCov),
     #[serde(rename = "RXM-RAWX")]
@@ -388,6 +553,14 @@ impl UbxMessage {
             UbxMessage::NavPosllh(_) => (0x01, 0x02),
             UbxMessage::NavVelned(_) => (0x01, 0x12),
             UbxMessage::NavTimeutc(_) => (0x01, 0x21),
+            UbxMessage::NavDop(_) => (0x01, 0x04),
+            UbxMessage::NavSol(_) => (0x01, 0x06),
+            UbxMessage::NavPosecef(_) => (0x01, 0x01),
+            UbxMessage::NavVelecef(_) => (0x01, 0x11),
+            UbxMessage::NavTimegps(_) => (0x01, 0x20),
+            UbxMessage::NavHpposllh(_) => (0x01, 0x14),
+            UbxMessage::NavRelposned(_) => (0x01, 0x3C),
+            UbxMessage::HnrPvt(_) => (0x28, 0x00),
             UbxMessage::NavCov(_) => (0x01, 0x36),
             UbxMessage::RxmRawx(_) => (0x02, 0x15),
             UbxMessage::MonHw(_) => (0x0A, 0x09),
@@ -441,6 +614,15 @@ impl Le<'_> {
     }
     fn su32(&self, off: usize, scale: f64) -> f64 {
         f64::from(self.u32(off)) / scale
+    }
+    /// Three consecutive signed integers (an ECEF or NED vector) divided by `scale`.
+    fn si32x3(&self, off: usize, scale: f64) -> [f64; 3] {
+        std::array::from_fn(|i| self.si32(off + 4 * i, scale))
+    }
+    /// A standard-precision integer at `off` and its high-precision part at `hp_off`
+    /// (`parts` of them make one standard unit), added up and divided by `scale`.
+    fn hp(&self, off: usize, hp_off: usize, parts: i64, scale: f64) -> f64 {
+        (i64::from(self.i32(off)) * parts + i64::from(self.i8(hp_off))) as f64 / scale
     }
 }
 
@@ -609,6 +791,110 @@ fn parse_known(class: u8, id: u8, p: &[u8]) -> Option<UbxMessage> {
             sec: r.u8(18),
             valid: r.u8(19),
         }),
+        (0x01, 0x04) if n == 18 => {
+            let dop = |off: usize| f64::from(r.u16(off)) / 100.0;
+            UbxMessage::NavDop(NavDop {
+                itow_ms: r.u32(0),
+                gdop: dop(4),
+                pdop: dop(6),
+                tdop: dop(8),
+                vdop: dop(10),
+                hdop: dop(12),
+                ndop: dop(14),
+                edop: dop(16),
+            })
+        }
+        (0x01, 0x06) if n == 52 => UbxMessage::NavSol(NavSol {
+            itow_ms: r.u32(0),
+            ftow_ns: r.i32(4),
+            week: r.i16(8),
+            gps_fix: r.u8(10),
+            flags: r.u8(11),
+            ecef_m: r.si32x3(12, 1e2),
+            p_acc_m: r.su32(24, 1e2),
+            ecef_vel_mps: r.si32x3(28, 1e2),
+            s_acc_mps: r.su32(40, 1e2),
+            pdop: f64::from(r.u16(44)) / 100.0,
+            num_sv: r.u8(47),
+        }),
+        (0x01, 0x01) if n == 20 => UbxMessage::NavPosecef(NavPosecef {
+            itow_ms: r.u32(0),
+            ecef_m: r.si32x3(4, 1e2),
+            p_acc_m: r.su32(16, 1e2),
+        }),
+        (0x01, 0x11) if n == 20 => UbxMessage::NavVelecef(NavVelecef {
+            itow_ms: r.u32(0),
+            ecef_vel_mps: r.si32x3(4, 1e2),
+            s_acc_mps: r.su32(16, 1e2),
+        }),
+        (0x01, 0x20) if n == 16 => UbxMessage::NavTimegps(NavTimegps {
+            itow_ms: r.u32(0),
+            ftow_ns: r.i32(4),
+            week: r.i16(8),
+            leap_s: r.i8(10),
+            valid: r.u8(11),
+            t_acc_ns: r.u32(12),
+        }),
+        (0x01, 0x14) if n == 36 => UbxMessage::NavHpposllh(NavHpposllh {
+            version: r.u8(0),
+            flags: r.u8(3),
+            itow_ms: r.u32(4),
+            lon_deg: r.hp(8, 24, 100, 1e9),
+            lat_deg: r.hp(12, 25, 100, 1e9),
+            height_m: r.hp(16, 26, 10, 1e4),
+            height_msl_m: r.hp(20, 27, 10, 1e4),
+            h_acc_m: r.su32(28, 1e4),
+            v_acc_m: r.su32(32, 1e4),
+        }),
+        (0x01, 0x3C) if n == 40 => UbxMessage::NavRelposned(NavRelposned {
+            version: r.u8(0),
+            ref_station_id: r.u16(2),
+            itow_ms: r.u32(4),
+            rel_pos_ned_m: std::array::from_fn(|i| r.hp(8 + 4 * i, 20 + i, 100, 1e4)),
+            rel_pos_length_m: None,
+            rel_pos_heading_deg: None,
+            acc_ned_m: std::array::from_fn(|i| r.su32(24 + 4 * i, 1e4)),
+            acc_length_m: None,
+            acc_heading_deg: None,
+            flags: r.u32(36),
+        }),
+        (0x01, 0x3C) if n == 64 => UbxMessage::NavRelposned(NavRelposned {
+            version: r.u8(0),
+            ref_station_id: r.u16(2),
+            itow_ms: r.u32(4),
+            rel_pos_ned_m: std::array::from_fn(|i| r.hp(8 + 4 * i, 32 + i, 100, 1e4)),
+            rel_pos_length_m: Some(r.hp(20, 35, 100, 1e4)),
+            rel_pos_heading_deg: Some(r.si32(24, 1e5)),
+            acc_ned_m: std::array::from_fn(|i| r.su32(36 + 4 * i, 1e4)),
+            acc_length_m: Some(r.su32(48, 1e4)),
+            acc_heading_deg: Some(r.su32(52, 1e5)),
+            flags: r.u32(60),
+        }),
+        (0x28, 0x00) if n == 72 => UbxMessage::HnrPvt(HnrPvt {
+            itow_ms: r.u32(0),
+            year: r.u16(4),
+            month: r.u8(6),
+            day: r.u8(7),
+            hour: r.u8(8),
+            min: r.u8(9),
+            sec: r.u8(10),
+            valid: r.u8(11),
+            nano_ns: r.i32(12),
+            gps_fix: r.u8(16),
+            flags: r.u8(17),
+            lon_deg: r.si32(20, 1e7),
+            lat_deg: r.si32(24, 1e7),
+            height_m: r.si32(28, 1e3),
+            height_msl_m: r.si32(32, 1e3),
+            ground_speed_mps: r.si32(36, 1e3),
+            speed_mps: r.si32(40, 1e3),
+            head_mot_deg: r.si32(44, 1e5),
+            head_veh_deg: r.si32(48, 1e5),
+            h_acc_m: r.su32(52, 1e3),
+            v_acc_m: r.su32(56, 1e3),
+            s_acc_mps: r.su32(60, 1e3),
+            head_acc_deg: r.su32(64, 1e5),
+        }),
         (0x01, 0x36) if n == 64 => UbxMessage::NavCov(NavCov {
             itow_ms: r.u32(0),
             version: r.u8(4),
@@ -768,6 +1054,9 @@ impl Put<'_> {
     fn i32(&mut self, v: i32) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
+    fn i16(&mut self, v: i16) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
     fn zeros(&mut self, n: usize) {
         self.0.resize(self.0.len() + n, 0);
     }
@@ -816,6 +1105,29 @@ impl Put<'_> {
         )?;
         self.0.extend_from_slice(&(raw as i16).to_le_bytes());
         Ok(())
+    }
+}
+
+/// Splits a value into its standard-precision integer and high-precision part (`parts` of
+/// them make one standard unit; the part is kept within ±parts/2, inside the ±(parts−1) the
+/// protocol allows).
+fn split_hp(
+    value: f64,
+    scale: f64,
+    parts: i64,
+    field: &'static str,
+) -> Result<(i32, i8), EncodeError> {
+    let total = (value * scale).round();
+    let out_of_range = EncodeError::OutOfRange { field, value };
+    if !total.is_finite() || total.abs() > 2f64.powi(62) {
+        return Err(out_of_range);
+    }
+    let total = total as i64;
+    let coarse = (total as f64 / parts as f64).round() as i64;
+    let fine = total - coarse * parts;
+    match (i32::try_from(coarse), i8::try_from(fine)) {
+        (Ok(c), Ok(f)) => Ok((c, f)),
+        _ => Err(out_of_range),
     }
 }
 
@@ -921,6 +1233,153 @@ fn write_payload(msg: &UbxMessage, w: &mut Put) -> Result<(), EncodeError> {
             for v in [m.month, m.day, m.hour, m.min, m.sec, m.valid] {
                 w.u8(v);
             }
+        }
+        UbxMessage::NavDop(m) => {
+            w.u32(m.itow_ms);
+            let dops = [m.gdop, m.pdop, m.tdop, m.vdop, m.hdop, m.ndop, m.edop];
+            let fields = ["gdop", "pdop", "tdop", "vdop", "hdop", "ndop", "edop"];
+            for (v, field) in dops.into_iter().zip(fields) {
+                w.su16(v, 1e2, field)?;
+            }
+        }
+        UbxMessage::NavSol(m) => {
+            w.u32(m.itow_ms);
+            w.i32(m.ftow_ns);
+            w.i16(m.week);
+            w.u8(m.gps_fix);
+            w.u8(m.flags);
+            for (v, field) in m.ecef_m.iter().zip(["ecef_x_m", "ecef_y_m", "ecef_z_m"]) {
+                w.si32(*v, 1e2, field)?;
+            }
+            w.su32(m.p_acc_m, 1e2, "p_acc_m")?;
+            for (v, field) in m.ecef_vel_mps.iter().zip(["ecef_vx", "ecef_vy", "ecef_vz"]) {
+                w.si32(*v, 1e2, field)?;
+            }
+            w.su32(m.s_acc_mps, 1e2, "s_acc_mps")?;
+            w.su16(m.pdop, 1e2, "pdop")?;
+            w.zeros(1);
+            w.u8(m.num_sv);
+            w.zeros(4);
+        }
+        UbxMessage::NavPosecef(m) => {
+            w.u32(m.itow_ms);
+            for (v, field) in m.ecef_m.iter().zip(["ecef_x_m", "ecef_y_m", "ecef_z_m"]) {
+                w.si32(*v, 1e2, field)?;
+            }
+            w.su32(m.p_acc_m, 1e2, "p_acc_m")?;
+        }
+        UbxMessage::NavVelecef(m) => {
+            w.u32(m.itow_ms);
+            for (v, field) in m.ecef_vel_mps.iter().zip(["ecef_vx", "ecef_vy", "ecef_vz"]) {
+                w.si32(*v, 1e2, field)?;
+            }
+            w.su32(m.s_acc_mps, 1e2, "s_acc_mps")?;
+        }
+        UbxMessage::NavTimegps(m) => {
+            w.u32(m.itow_ms);
+            w.i32(m.ftow_ns);
+            w.i16(m.week);
+            w.u8(m.leap_s as u8);
+            w.u8(m.valid);
+            w.u32(m.t_acc_ns);
+        }
+        UbxMessage::NavHpposllh(m) => {
+            let lon = split_hp(m.lon_deg, 1e9, 100, "lon_deg")?;
+            let lat = split_hp(m.lat_deg, 1e9, 100, "lat_deg")?;
+            let height = split_hp(m.height_m, 1e4, 10, "height_m")?;
+            let msl = split_hp(m.height_msl_m, 1e4, 10, "height_msl_m")?;
+            w.u8(m.version);
+            w.zeros(2);
+            w.u8(m.flags);
+            w.u32(m.itow_ms);
+            for (coarse, _) in [lon, lat, height, msl] {
+                w.i32(coarse);
+            }
+            for (_, fine) in [lon, lat, height, msl] {
+                w.u8(fine as u8);
+            }
+            w.su32(m.h_acc_m, 1e4, "h_acc_m")?;
+            w.su32(m.v_acc_m, 1e4, "v_acc_m")?;
+        }
+        UbxMessage::NavRelposned(m) => {
+            let ned: Vec<(i32, i8)> = m
+                .rel_pos_ned_m
+                .iter()
+                .zip(["rel_pos_n_m", "rel_pos_e_m", "rel_pos_d_m"])
+                .map(|(v, field)| split_hp(*v, 1e4, 100, field))
+                .collect::<Result<_, _>>()?;
+            w.u8(m.version);
+            w.zeros(1);
+            w.u16(m.ref_station_id);
+            w.u32(m.itow_ms);
+            for &(coarse, _) in &ned {
+                w.i32(coarse);
+            }
+            let acc_fields = ["acc_n_m", "acc_e_m", "acc_d_m"];
+            match (
+                m.rel_pos_length_m,
+                m.rel_pos_heading_deg,
+                m.acc_length_m,
+                m.acc_heading_deg,
+            ) {
+                (None, None, None, None) => {
+                    for &(_, fine) in &ned {
+                        w.u8(fine as u8);
+                    }
+                    w.zeros(1);
+                    for (v, field) in m.acc_ned_m.iter().zip(acc_fields) {
+                        w.su32(*v, 1e4, field)?;
+                    }
+                }
+                (Some(length), Some(heading), Some(acc_length), Some(acc_heading)) => {
+                    let length = split_hp(length, 1e4, 100, "rel_pos_length_m")?;
+                    w.i32(length.0);
+                    w.si32(heading, 1e5, "rel_pos_heading_deg")?;
+                    w.zeros(4);
+                    for &(_, fine) in &ned {
+                        w.u8(fine as u8);
+                    }
+                    w.u8(length.1 as u8);
+                    for (v, field) in m.acc_ned_m.iter().zip(acc_fields) {
+                        w.su32(*v, 1e4, field)?;
+                    }
+                    w.su32(acc_length, 1e4, "acc_length_m")?;
+                    w.su32(acc_heading, 1e5, "acc_heading_deg")?;
+                    w.zeros(4);
+                }
+                _ => {
+                    return Err(EncodeError::Invalid {
+                        field: "rel_pos_length_m",
+                        reason: "length, heading and their accuracies must be all present \
+                                 (version 1 layout) or all absent (version 0)",
+                    })
+                }
+            }
+            w.u32(m.flags);
+        }
+        UbxMessage::HnrPvt(m) => {
+            w.u32(m.itow_ms);
+            w.u16(m.year);
+            for v in [m.month, m.day, m.hour, m.min, m.sec, m.valid] {
+                w.u8(v);
+            }
+            w.i32(m.nano_ns);
+            w.u8(m.gps_fix);
+            w.u8(m.flags);
+            w.zeros(2);
+            w.si32(m.lon_deg, 1e7, "lon_deg")?;
+            w.si32(m.lat_deg, 1e7, "lat_deg")?;
+            w.si32(m.height_m, 1e3, "height_m")?;
+            w.si32(m.height_msl_m, 1e3, "height_msl_m")?;
+            w.si32(m.ground_speed_mps, 1e3, "ground_speed_mps")?;
+            w.si32(m.speed_mps, 1e3, "speed_mps")?;
+            w.si32(m.head_mot_deg, 1e5, "head_mot_deg")?;
+            w.si32(m.head_veh_deg, 1e5, "head_veh_deg")?;
+            w.su32(m.h_acc_m, 1e3, "h_acc_m")?;
+            w.su32(m.v_acc_m, 1e3, "v_acc_m")?;
+            w.su32(m.s_acc_mps, 1e3, "s_acc_mps")?;
+            w.su32(m.head_acc_deg, 1e5, "head_acc_deg")?;
+            w.zeros(4);
         }
         UbxMessage::NavCov(m) => {
             w.u32(m.itow_ms);
