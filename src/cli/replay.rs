@@ -7,8 +7,8 @@ use crate::fusion::config::FusionConfig;
 use crate::fusion::export;
 use crate::fusion::kfgins::{self, KfGinsConfig};
 use crate::fusion::mechanisation::NavState;
-use crate::fusion::metrics::{errors, summarise};
-use crate::fusion::navigator::{NavSolution, ReplayOptions, ReplayStats};
+use crate::fusion::metrics::{errors, overlap_s, summarise};
+use crate::fusion::navigator::{NavSolution, ReplayOptions, ReplayResult};
 use crate::fusion::noise;
 use crate::fusion::session;
 use anyhow::{bail, Context};
@@ -39,7 +39,8 @@ pub struct ReplayArgs {
     /// Truth trajectory in KF-GINS .nav format (with --kf-gins), for error statistics.
     #[arg(long, value_name = "FILE.nav", requires = "kf_gins")]
     pub truth: Option<PathBuf>,
-    /// Output directory (default: SESSION/replay, or the KF-GINS `outputpath`).
+    /// Output directory (default: SESSION/replay plus SESSION/replay-NAME.h5, or the KF-GINS
+    /// `outputpath`). With --out nothing is written anywhere else.
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// Withhold GNSS from START for DUR seconds (after the data start); repeatable.
@@ -56,7 +57,8 @@ pub struct ReplayArgs {
     /// the configured/preset values, with a warning.
     #[arg(long, value_name = "FIT.json", requires = "session")]
     pub noise: Option<String>,
-    /// Name of the trajectory file written into the session: SESSION/replay-NAME.h5.
+    /// Name of the trajectory file written into the session without --out:
+    /// SESSION/replay-NAME.h5.
     #[arg(long, default_value = "filter", requires = "session")]
     pub name: String,
 }
@@ -135,6 +137,16 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         None => FusionConfig::default(),
     };
     let session = crate::store::Session::open(dir)?;
+    let out_dir = args.out.clone().unwrap_or_else(|| dir.join("replay"));
+    let in_session = args
+        .out
+        .is_none()
+        .then(|| dir.join(crate::store::layout::replay_file_name(&args.name)));
+    // Before the replay, which can take minutes.
+    ensure_writable(&out_dir)?;
+    if in_session.is_some() {
+        ensure_writable(dir)?;
+    }
     for p in session.problems() {
         tracing::warn!("{p}");
     }
@@ -183,22 +195,22 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         sow_offset,
         start: 0.0,
     };
-    let out_dir = args.out.clone().unwrap_or_else(|| dir.join("replay"));
     let truth = (!r.truth.is_empty()).then_some(&r.truth);
-    let in_session = dir.join(crate::store::layout::replay_file_name(&args.name));
-    let mut sets: Vec<(&str, &[NavSolution])> = vec![("filtered", &r.result.filtered)];
-    if args.smooth {
-        sets.push(("smoothed", &r.result.smoothed));
+    if let Some(path) = &in_session {
+        let mut sets: Vec<(&str, &[NavSolution])> = vec![("filtered", &r.result.filtered)];
+        if args.smooth {
+            sets.push(("smoothed", &r.result.smoothed));
+        }
+        export::write_hdf5(path, &sets)?;
+        println!("wrote {}", path.display());
     }
-    export::write_hdf5(&in_session, &sets)?;
-    println!("wrote {}", in_session.display());
     write_outputs(
         &out_dir,
-        &r.result.filtered,
-        args.smooth.then_some(&r.result.smoothed),
-        &r.result.stats,
+        &r.result,
+        args.smooth,
         truth.map(|t| move |x: f64| session::truth_at(t, x)),
         &outages,
+        args.outage.len(),
         &axis,
     )
 }
@@ -247,6 +259,11 @@ fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
             .into_iter()
             .map(|(a, b)| (a + config.start_s, b + config.start_s))
             .collect();
+    let out_dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| config.output_path.clone());
+    ensure_writable(&out_dir)?;
     let result = kfgins::replay_files(&config, &outages, args.smooth)?;
     let truth = match &args.truth {
         Some(p) => Some(kfgins::read_nav(p)?),
@@ -257,10 +274,6 @@ fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         sow_offset: 0.0,
         start: config.start_s,
     };
-    let out_dir = args
-        .out
-        .clone()
-        .unwrap_or_else(|| config.output_path.clone());
     let lookup = truth.as_ref().map(|rows| {
         move |t: f64| -> Option<NavState> {
             let i = rows.partition_point(|r| r.nav.t_s < t - 1e-4);
@@ -271,31 +284,59 @@ fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
     });
     write_outputs(
         &out_dir,
-        &result.filtered,
-        args.smooth.then_some(&result.smoothed),
-        &result.stats,
+        &result,
+        args.smooth,
         lookup,
         &outages,
+        args.outage.len(),
         &axis,
     )
 }
 
+/// Creates `dir` if needed and checks a file can be created in it; otherwise one line
+/// naming the directory and the reason (read-only session, archive, no permission).
+pub fn ensure_writable(dir: &Path) -> anyhow::Result<()> {
+    let fail = |e: std::io::Error| anyhow::anyhow!("cannot write into {}: {e}", dir.display());
+    std::fs::create_dir_all(dir).map_err(fail)?;
+    let probe = dir.join(format!(".imulab-write-check-{}", std::process::id()));
+    std::fs::File::create(&probe).map_err(fail)?;
+    std::fs::remove_file(&probe).map_err(fail)
+}
+
 fn write_outputs<F: Fn(f64) -> Option<NavState>>(
     out_dir: &Path,
-    filtered: &[NavSolution],
-    smoothed: Option<&Vec<NavSolution>>,
-    stats: &ReplayStats,
+    result: &ReplayResult,
+    smooth: bool,
     truth: Option<F>,
-    outages: &[(f64, f64)],
+    requested: &[(f64, f64)],
+    single_outages: usize,
     axis: &TimeAxis,
 ) -> anyhow::Result<()> {
-    std::fs::create_dir_all(out_dir).with_context(|| format!("{}", out_dir.display()))?;
-    // Periodic outages run on past the data; keep those that start within it.
-    let last_t = filtered.last().map_or(f64::NEG_INFINITY, |s| s.nav.t_s);
-    let outages: Vec<(f64, f64)> = outages.iter().copied().filter(|o| o.0 <= last_t).collect();
+    let (filtered, stats) = (&result.filtered, &result.stats);
+    let data_end = filtered.last().map_or(f64::NEG_INFINITY, |s| s.nav.t_s);
+    // The `--outage` windows come first; periodic ones are generated past the data.
+    for (i, &(a, b)) in requested.iter().enumerate() {
+        if a > data_end {
+            if i < single_outages {
+                println!(
+                    "outage at +{:.0} s starts after the data ends (+{:.0} s): ignored",
+                    a - axis.start,
+                    data_end - axis.start
+                );
+            }
+        } else if b > data_end + 1.0 {
+            println!(
+                "outage at +{:.0} s for {:.0} s runs past the end of the data: counted to +{:.0} s",
+                a - axis.start,
+                b - a,
+                data_end - axis.start
+            );
+        }
+    }
+    let windows = &result.gnss_less;
     let mut sets: Vec<(&str, &[NavSolution])> = vec![("filtered", filtered)];
-    if let Some(s) = smoothed {
-        sets.push(("smoothed", s));
+    if smooth {
+        sets.push(("smoothed", &result.smoothed));
     }
     export::write_hdf5(&out_dir.join("replay.h5"), &sets)?;
     let mut report = serde_json::Map::new();
@@ -316,7 +357,7 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         export::write_csv(&out_dir.join(format!("{name}_trajectory.csv")), sol)?;
         export::write_geojson(&out_dir.join(format!("{name}_trajectory.geojson")), sol)?;
         if let Some(truth) = &truth {
-            let s = summarise(&errors(sol, truth), &outages);
+            let s = summarise(&errors(sol, truth), windows);
             println!(
                 "{name}: {} epochs vs truth: horizontal RMS {:.3} m, p95 {:.3} m, max {:.3} m; vertical RMS {:.3} m; NEES {:.2}; inside 3σ {:.1} %",
                 s.epochs, s.horizontal.rms, s.horizontal.p95, s.horizontal.max, s.vertical.rms,
@@ -328,8 +369,19 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
                 } else {
                     format!("{:.3} m", o.max_horizontal_m)
                 };
+                let withheld = overlap_s((o.start_s, o.start_s + o.duration_s), requested);
+                let origin = if withheld < 0.5 {
+                    "no fixes in the data".to_string()
+                } else if o.duration_s - withheld < 0.5 {
+                    "withheld".to_string()
+                } else {
+                    format!(
+                        "{withheld:.0} s withheld, {:.0} s without fixes in the data",
+                        o.duration_s - withheld
+                    )
+                };
                 println!(
-                    "  outage at +{:.0} s for {:.0} s: max horizontal drift {drift}",
+                    "  outage at +{:.1} s for {:.1} s ({origin}): max horizontal drift {drift}",
                     o.start_s - axis.start,
                     o.duration_s,
                 );
@@ -342,7 +394,14 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
                     crate::fusion::metrics::UNBOUNDED_SIGMA_M
                 );
             }
-            report.insert(name.to_string(), export::summary_json(&s));
+            let mut json = export::summary_json(&s);
+            if let Some(list) = json["outages"].as_array_mut() {
+                for (j, o) in list.iter_mut().zip(&s.outages) {
+                    j["withheld_s"] =
+                        overlap_s((o.start_s, o.start_s + o.duration_s), requested).into();
+                }
+            }
+            report.insert(name.to_string(), json);
         }
     }
     if let Some(s) = filtered.iter().find(|s| {
@@ -366,6 +425,13 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
             + stats.gnss_rejected_out_of_order,
         stats.filter.pd_events
     );
+    if truth.is_none() && !windows.is_empty() {
+        let total: f64 = windows.iter().map(|w| w.1 - w.0).sum();
+        println!(
+            "{} windows without GNSS ({total:.0} s in all; no truth, so no drift figures)",
+            windows.len()
+        );
+    }
     if !report.is_empty() {
         let p = out_dir.join("errors.json");
         std::fs::write(&p, serde_json::to_string_pretty(&report)?)

@@ -107,6 +107,72 @@ pub struct OutageDrift {
     pub unbounded: bool,
 }
 
+/// Shortest stretch without fixes counted as an outage when the data itself lacks them, s.
+pub const MIN_DATA_GAP_S: f64 = 1.0;
+
+/// The windows [start, end) in which the filter had no GNSS: the `withheld` windows (clipped
+/// to the replayed `span`) merged with the stretches where the data has no usable fix (a gap
+/// between consecutive `fix_times` of at least [`MIN_DATA_GAP_S`] beyond the receiver's
+/// interval, and the tail after the last fix). A window starts one receiver interval (the
+/// median spacing of the fixes) after the last fix before it and ends at the next fix, so a
+/// withheld 60 s window of a 10 Hz receiver is reported as 60 s, not 60.1 s.
+pub fn gnss_less_windows(
+    fix_times: &[f64],
+    withheld: &[(f64, f64)],
+    span: (f64, f64),
+) -> Vec<(f64, f64)> {
+    let (from, to) = span;
+    if !(from.is_finite() && to.is_finite() && to > from) {
+        return Vec::new();
+    }
+    let mut diffs: Vec<f64> = fix_times
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .collect();
+    diffs.sort_by(f64::total_cmp);
+    let interval = diffs.get(diffs.len() / 2).copied().unwrap_or(1.0);
+    let mut windows: Vec<(f64, f64)> = withheld
+        .iter()
+        .map(|&(a, b)| (a.max(from), b.min(to)))
+        .filter(|(a, b)| b > a)
+        .collect();
+    let gap = |a: f64, b: f64| b - a - interval >= MIN_DATA_GAP_S && b - a > 2.5 * interval;
+    for w in fix_times.windows(2) {
+        if gap(w[0], w[1]) && w[1] > from && w[0] < to {
+            windows.push(((w[0] + interval).max(from), w[1].min(to)));
+        }
+    }
+    match fix_times.last() {
+        Some(&last) if gap(last, to) => windows.push(((last + interval).max(from), to)),
+        None => windows.push((from, to)),
+        _ => {}
+    }
+    if let Some(&first) = fix_times.first() {
+        if gap(from - interval, first) {
+            windows.push((from, first));
+        }
+    }
+    windows.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut merged: Vec<(f64, f64)> = Vec::with_capacity(windows.len());
+    for (a, b) in windows {
+        match merged.last_mut() {
+            // Windows that overlap or are at most about one fix apart are one blackout.
+            Some(last) if a <= last.1 + 1.5 * interval => last.1 = last.1.max(b),
+            _ => merged.push((a, b)),
+        }
+    }
+    merged
+}
+
+/// Seconds of `window` covered by `withheld` windows (assumed not to overlap each other).
+pub fn overlap_s(window: (f64, f64), withheld: &[(f64, f64)]) -> f64 {
+    withheld
+        .iter()
+        .map(|&(a, b)| (b.min(window.1) - a.max(window.0)).max(0.0))
+        .sum()
+}
+
 /// Summary of a run against the truth.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ErrorSummary {
@@ -190,5 +256,33 @@ mod tests {
         assert_eq!(s.p95, 95.0);
         assert!((s.rms - (338350.0f64 / 100.0).sqrt()).abs() < 1e-12);
         assert_eq!(Spread::of([f64::NAN]), Spread::default());
+    }
+
+    #[test]
+    fn gnss_less_windows_merge_withheld_and_missing_fixes() {
+        // 10 Hz fixes over 0..300 s, none in 100..160 (the data's own outage) nor after 280.
+        let fixes: Vec<f64> = (0..2800)
+            .map(|k| k as f64 * 0.1)
+            .filter(|t| !(100.0..160.0).contains(t))
+            .collect();
+        // Withheld 150..170 overlaps the data's outage; 200..260 stands alone.
+        let w = gnss_less_windows(&fixes, &[(150.0, 170.0), (200.0, 260.0)], (0.0, 300.0));
+        assert_eq!(w.len(), 3, "{w:?}");
+        assert!((w[0].0 - 100.0).abs() < 1e-6 && (w[0].1 - 170.0).abs() < 1e-9);
+        assert!((w[1].0 - 200.0).abs() < 1e-9 && (w[1].1 - 260.0).abs() < 1e-9);
+        assert!((w[2].0 - 280.0).abs() < 1e-6 && w[2].1 == 300.0);
+        assert!((overlap_s(w[0], &[(150.0, 170.0), (200.0, 260.0)]) - 20.0).abs() < 1e-9);
+        // A single missing fix is not an outage; no fix at all is one window.
+        let dropped: Vec<f64> = (0..100)
+            .filter(|k| *k != 50)
+            .map(|k| k as f64 * 0.1)
+            .collect();
+        assert!(gnss_less_windows(&dropped, &[], (0.0, 9.9)).is_empty());
+        assert_eq!(gnss_less_windows(&[], &[], (5.0, 9.0)), vec![(5.0, 9.0)]);
+        // A withheld window beyond the data is clipped to it.
+        assert_eq!(
+            gnss_less_windows(&dropped, &[(9.0, 100.0)], (0.0, 9.9)),
+            vec![(9.0, 9.9)]
+        );
     }
 }

@@ -9,6 +9,7 @@ use crate::fusion::align::{self, StaticLeveller};
 use crate::fusion::config::FusionConfig;
 use crate::fusion::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
 use crate::fusion::mechanisation::{ImuInput, NavState};
+use crate::fusion::metrics;
 use crate::fusion::models::{self, BA, BG, SA, SG};
 use crate::fusion::smoother;
 use nalgebra::{SMatrix, Vector3};
@@ -85,6 +86,10 @@ pub struct ReplayResult {
     pub filtered: Vec<NavSolution>,
     pub smoothed: Vec<NavSolution>,
     pub stats: ReplayStats,
+    /// The [start, end) windows the filter ran without GNSS after it started: the withheld
+    /// outages merged with the stretches the data has no fix (see
+    /// [`metrics::gnss_less_windows`]).
+    pub gnss_less: Vec<(f64, f64)>,
 }
 
 /// Running sums of the current zero-velocity detection window.
@@ -111,6 +116,8 @@ pub struct Navigator<const N: usize> {
     next_output_t: f64,
     last_nhc_t: f64,
     zupt_window: ZuptWindow,
+    /// Times of the valid fixes not withheld (for the GNSS-less windows).
+    fix_times: Vec<f64>,
     result: ReplayResult,
 }
 
@@ -154,6 +161,7 @@ impl<const N: usize> Navigator<N> {
             next_output_t: f64::NEG_INFINITY,
             last_nhc_t: f64::NEG_INFINITY,
             zupt_window: ZuptWindow::default(),
+            fix_times: Vec::new(),
             result: ReplayResult::default(),
             options,
         };
@@ -345,6 +353,7 @@ impl<const N: usize> Navigator<N> {
             stats.gnss_withheld_outage += 1;
             return;
         }
+        self.fix_times.push(fix.t_s);
         let vel = fix
             .vel_ned
             .filter(|v| v.iter().all(|x| x.is_finite()) && v.norm() < 1e3);
@@ -463,6 +472,12 @@ impl<const N: usize> Navigator<N> {
                 }
             }
             self.result.stats.filter = ins.stats;
+            let from = self.result.stats.aligned_at_s.unwrap_or(ins.nav.t_s);
+            self.result.gnss_less = metrics::gnss_less_windows(
+                &self.fix_times,
+                &self.options.outages,
+                (from, ins.nav.t_s),
+            );
         }
         self.result
     }

@@ -32,7 +32,8 @@ fn device(name: &str, kind: DeviceKind, rate_hz: f64) -> DeviceInfo {
     }
 }
 
-fn write_session(dir: &Path) {
+/// Writes the simulated session; the receiver has no rows in `gnss_gap_s` ([start, end), s).
+fn write_session_with_gap(dir: &Path, gnss_gap_s: Option<(f64, f64)>) {
     let mut manifest = Manifest::new(
         vec![
             device("imu0", DeviceKind::Imu, 100.0),
@@ -80,7 +81,8 @@ fn write_session(dir: &Path) {
                 quat_nb: [q.w, q.x, q.y, q.z],
             });
         }
-        if k % 20 == 0 {
+        let t = k as f64 / rate;
+        if k % 20 == 0 && !gnss_gap_s.is_some_and(|(a, b)| t >= a && t < b) {
             let dp = n3(0.3);
             let dv = n3(0.05);
             let fix = if k == 400 {
@@ -121,6 +123,135 @@ fn write_session(dir: &Path) {
     w.append_gnss("gps0", &gnss).expect("gnss");
     w.append_truth_nav(&truth).expect("truth");
     w.close().expect("close");
+}
+
+fn write_session(dir: &Path) {
+    write_session_with_gap(dir, None);
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .expect("read dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn outages_are_reported_over_the_real_windows_without_gnss() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let session = dir.path().join("drive");
+    // The data lacks fixes in 150..170 s; a withheld 160..190 s overlaps it and 60..80 s
+    // stands alone.
+    write_session_with_gap(&session, Some((150.0, 170.0)));
+    let out_dir = dir.path().join("out");
+    let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .arg("replay")
+        .arg(&session)
+        .args([
+            "--outage", "160:30", "--outage", "60:20", "--outage", "9000:10",
+        ])
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .expect("run imulab");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success());
+    assert!(
+        stdout.contains("outage at +60.0 s for 20.0 s (withheld)"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(
+            "outage at +150.0 s for 40.0 s (30 s withheld, 10 s without fixes in the data)"
+        ),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("outage at +9000 s starts after the data ends"),
+        "{stdout}"
+    );
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("errors.json")).expect("errors.json"),
+    )
+    .expect("json");
+    let outages = report["filtered"]["outages"].as_array().expect("outages");
+    assert_eq!(outages.len(), 2, "{outages:?}");
+    let long = &outages[1];
+    assert!((long["duration_s"].as_f64().expect("duration") - 40.0).abs() < 0.05);
+    assert!((long["withheld_s"].as_f64().expect("withheld") - 30.0).abs() < 0.05);
+    let drift = long["max_horizontal_m"].as_f64().expect("drift");
+    assert!(drift.is_finite() && drift > 0.0, "{drift}");
+    // --out: nothing written into the session.
+    assert_eq!(
+        files_in(&session)
+            .iter()
+            .filter(|f| f.starts_with("replay"))
+            .count(),
+        0,
+        "{:?}",
+        files_in(&session)
+    );
+}
+
+#[test]
+fn an_unwritable_output_place_is_one_clear_line() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let session = dir.path().join("drive");
+    write_session(&session);
+    let run = |extra: &[&std::ffi::OsStr]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_imulab"))
+            .arg("replay")
+            .arg(&session)
+            .args(extra)
+            .output()
+            .expect("run");
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).to_string(),
+        )
+    };
+    // A directory under a regular file cannot be created, even by root.
+    let file = dir.path().join("plain-file");
+    std::fs::write(&file, "x").expect("write");
+    let under_file = file.join("out");
+    let (ok, err) = run(&["--out".as_ref(), under_file.as_os_str()]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("cannot write into") && err.contains("plain-file"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+
+    // A read-only session: with --out elsewhere the replay succeeds and leaves it as it was;
+    // without --out it fails with one line (where permissions bind, i.e. not as root).
+    let before = files_in(&session);
+    let set_mode = |mode: u32| {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&session, std::fs::Permissions::from_mode(mode)).expect("chmod");
+    };
+    set_mode(0o555);
+    let out_dir = dir.path().join("elsewhere");
+    let (ok, err) = run(&["--out".as_ref(), out_dir.as_os_str()]);
+    let binds = std::fs::File::create(session.join("probe")).is_err();
+    let (ok_in_session, err_in_session) = run(&[]);
+    set_mode(0o755);
+    assert!(ok, "{err}");
+    assert!(out_dir.join("replay.h5").exists());
+    if binds {
+        assert!(!ok_in_session);
+        assert!(
+            err_in_session.contains("cannot write into"),
+            "{err_in_session}"
+        );
+        assert_eq!(err_in_session.trim().lines().count(), 1, "{err_in_session}");
+        assert_eq!(files_in(&session), before);
+    } else {
+        let _ = std::fs::remove_file(session.join("probe"));
+        println!("running as root: read-only permissions do not bind, in-session case not checked");
+    }
 }
 
 #[test]
