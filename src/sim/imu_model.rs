@@ -69,6 +69,17 @@ pub struct GyroSpec {
     pub bias_tempco_dph_per_c: [f64; 3],
     /// Scale-factor temperature coefficient, ppm/°C.
     pub scale_tempco_ppm_per_c: [f64; 3],
+    /// Second-order bias temperature coefficient, °/h per °C² (bias += c2·ΔT²).
+    pub bias_tempco2_dph_per_c2: [f64; 3],
+    /// Second-order scale-factor temperature coefficient, ppm/°C².
+    pub scale_tempco2_ppm_per_c2: [f64; 3],
+    /// Thermal hysteresis: the bias on a rising temperature lies this far above the bias on
+    /// a falling one, °/h (the branch switches over `thermal.hysteresis_width_c`).
+    pub bias_hysteresis_dph: [f64; 3],
+    /// Warm-up transient: extra bias at power-on, decaying with `thermal.warmup_time_constant_s`, °/h.
+    pub warmup_bias_dph: [f64; 3],
+    /// White-noise change with temperature, % per °C away from the reference.
+    pub noise_tempco_percent_per_c: [f64; 3],
     /// Measurement range ±, °/s (absent: no saturation).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub range_dps: Option<f64>,
@@ -110,6 +121,16 @@ pub struct AccelSpec {
     pub bias_tempco_mg_per_c: [f64; 3],
     /// Scale-factor temperature coefficient, ppm/°C.
     pub scale_tempco_ppm_per_c: [f64; 3],
+    /// Second-order bias temperature coefficient, mg/°C².
+    pub bias_tempco2_mg_per_c2: [f64; 3],
+    /// Second-order scale-factor temperature coefficient, ppm/°C².
+    pub scale_tempco2_ppm_per_c2: [f64; 3],
+    /// Thermal hysteresis: rising-temperature bias minus falling-temperature bias, mg.
+    pub bias_hysteresis_mg: [f64; 3],
+    /// Warm-up transient: extra bias at power-on, mg.
+    pub warmup_bias_mg: [f64; 3],
+    /// White-noise change with temperature, % per °C away from the reference.
+    pub noise_tempco_percent_per_c: [f64; 3],
     /// Measurement range ±, g (absent: no saturation).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub range_g: Option<f64>,
@@ -141,13 +162,42 @@ impl Default for TimingSpec {
     }
 }
 
-/// A complete IMU: both triads, timing, and the temperature the coefficients refer to.
+/// The device's thermal behaviour: how its own temperature follows the chamber, how it is
+/// reported, and the shared constants of the hysteresis and warm-up terms of the triads.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ThermalSpec {
+    /// First-order time constant of the sensor temperature following the chamber, s
+    /// (0: the sensor is at the chamber temperature).
+    pub time_constant_s: f64,
+    /// Temperature change over which the hysteresis moves from one branch to the other, °C.
+    pub hysteresis_width_c: f64,
+    /// Time constant of the warm-up bias transient after power-on, s.
+    pub warmup_time_constant_s: f64,
+    /// Resolution of the temperature the device reports, °C (0: not quantised).
+    pub temp_lsb_c: f64,
+}
+
+impl Default for ThermalSpec {
+    fn default() -> Self {
+        ThermalSpec {
+            time_constant_s: 0.0,
+            hysteresis_width_c: 2.0,
+            warmup_time_constant_s: 0.0,
+            temp_lsb_c: 0.0,
+        }
+    }
+}
+
+/// A complete IMU: both triads, timing, thermal behaviour, and the temperature the
+/// coefficients refer to.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ImuSpec {
     pub gyro: GyroSpec,
     pub accel: AccelSpec,
     pub timing: TimingSpec,
+    pub thermal: ThermalSpec,
     /// Temperature at which biases and scale factors are as specified, °C.
     pub reference_temp_c: f64,
 }
@@ -164,6 +214,7 @@ impl Default for ImuSpec {
                 ..AccelSpec::default()
             },
             timing: TimingSpec::default(),
+            thermal: ThermalSpec::default(),
             reference_temp_c: 25.0,
         }
     }
@@ -195,6 +246,16 @@ pub struct TriadErrors {
     pub bias_tempco: [f64; 3],
     /// Scale-factor temperature coefficient, fraction/°C.
     pub scale_tempco: [f64; 3],
+    /// Second-order bias temperature coefficient, unit/°C².
+    pub bias_tempco2: [f64; 3],
+    /// Second-order scale-factor temperature coefficient, fraction/°C².
+    pub scale_tempco2: [f64; 3],
+    /// Rising minus falling branch of the bias, unit.
+    pub hysteresis: [f64; 3],
+    /// Warm-up bias at power-on, unit.
+    pub warmup: [f64; 3],
+    /// White-noise change, fraction per °C.
+    pub noise_tempco: [f64; 3],
     /// Range ±, unit (infinite: none).
     pub range: f64,
     /// LSB, unit (0: none).
@@ -246,6 +307,11 @@ impl GyroSpec {
             misalignment: self.misalignment_mrad.map(|m| m * 1e-3),
             bias_tempco: scale3(self.bias_tempco_dph_per_c, dph),
             scale_tempco: scale3(self.scale_tempco_ppm_per_c, 1e-6),
+            bias_tempco2: scale3(self.bias_tempco2_dph_per_c2, dph),
+            scale_tempco2: scale3(self.scale_tempco2_ppm_per_c2, 1e-6),
+            hysteresis: scale3(self.bias_hysteresis_dph, dph),
+            warmup: scale3(self.warmup_bias_dph, dph),
+            noise_tempco: scale3(self.noise_tempco_percent_per_c, 1e-2),
             range: self.range_dps.map_or(f64::INFINITY, |r| r * DEG),
             lsb: self.lsb_dps.map_or(0.0, |l| l * DEG),
         };
@@ -295,6 +361,11 @@ impl AccelSpec {
             misalignment: self.misalignment_mrad.map(|m| m * 1e-3),
             bias_tempco: scale3(self.bias_tempco_mg_per_c, mg),
             scale_tempco: scale3(self.scale_tempco_ppm_per_c, 1e-6),
+            bias_tempco2: scale3(self.bias_tempco2_mg_per_c2, mg),
+            scale_tempco2: scale3(self.scale_tempco2_ppm_per_c2, 1e-6),
+            hysteresis: scale3(self.bias_hysteresis_mg, mg),
+            warmup: scale3(self.warmup_bias_mg, mg),
+            noise_tempco: scale3(self.noise_tempco_percent_per_c, 1e-2),
             range: self.range_g.map_or(f64::INFINITY, |r| r * G0),
             lsb: self.lsb_mg.map_or(0.0, |l| l * mg),
         };
@@ -327,6 +398,11 @@ impl TriadErrors {
         finite(&self.misalignment, "misalignment")?;
         finite(&self.bias_tempco, "bias tempco")?;
         finite(&self.scale_tempco, "scale tempco")?;
+        finite(&self.bias_tempco2, "second-order bias tempco")?;
+        finite(&self.scale_tempco2, "second-order scale tempco")?;
+        finite(&self.hysteresis, "bias hysteresis")?;
+        finite(&self.warmup, "warm-up bias")?;
+        finite(&self.noise_tempco, "noise tempco")?;
         let [lo, hi] = self.bias_instability_band_s;
         if self.instability_floor.iter().any(|&b| b > 0.0)
             && !(lo.is_finite() && hi.is_finite() && lo > 0.0 && hi > lo)
@@ -365,6 +441,25 @@ impl ImuSpec {
         }
         if !self.reference_temp_c.is_finite() {
             return Err("reference_temp_c must be finite".into());
+        }
+        let th = &self.thermal;
+        for (value, name) in [
+            (th.time_constant_s, "thermal.time_constant_s"),
+            (th.hysteresis_width_c, "thermal.hysteresis_width_c"),
+            (th.warmup_time_constant_s, "thermal.warmup_time_constant_s"),
+            (th.temp_lsb_c, "thermal.temp_lsb_c"),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("{name} must be finite and >= 0, got {value}"));
+            }
+        }
+        let warms = self.gyro.warmup_bias_dph.iter().any(|&w| w != 0.0)
+            || self.accel.warmup_bias_mg.iter().any(|&w| w != 0.0);
+        if warms && th.warmup_time_constant_s <= 0.0 {
+            return Err(
+                "a warm-up bias needs thermal.warmup_time_constant_s > 0 (how fast it decays)"
+                    .into(),
+            );
         }
         Ok(())
     }
@@ -420,8 +515,25 @@ struct TriadSim {
     misalign_scale: Matrix3<f64>,
     bias_tempco: [f64; 3],
     scale_tempco: [f64; 3],
+    bias_tempco2: [f64; 3],
+    scale_tempco2: [f64; 3],
+    /// Half the hysteresis gap: the bias moves by ± this on the rising / falling branch.
+    half_hysteresis: [f64; 3],
+    warmup: [f64; 3],
+    noise_tempco: [f64; 3],
     range: f64,
     lsb: f64,
+}
+
+/// The thermal state of one epoch, shared by both triads.
+#[derive(Debug, Clone, Copy)]
+struct ThermalState {
+    /// Sensor temperature minus the reference temperature, °C.
+    dtemp: f64,
+    /// Hysteresis branch, from -1 (falling) to +1 (rising).
+    branch: f64,
+    /// Remaining fraction of the warm-up transient, e^(-t/τ).
+    warmup: f64,
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
@@ -485,25 +597,31 @@ impl TriadSim {
             misalign_scale,
             bias_tempco: e.bias_tempco,
             scale_tempco: e.scale_tempco,
+            bias_tempco2: e.bias_tempco2,
+            scale_tempco2: e.scale_tempco2,
+            half_hysteresis: e.hysteresis.map(|h| h / 2.0),
+            warmup: e.warmup,
+            noise_tempco: e.noise_tempco,
             range: e.range,
             lsb: e.lsb,
         }
     }
 
-    /// Output and true total bias for input `x` at time `t_s`, `dtemp` °C from reference,
-    /// with `extra_bias` (g-sensitivity) added. Returns (output, bias, saturated).
+    /// Output and true total bias for input `x` at time `t_s` in thermal state `th`, with
+    /// `extra_bias` (g-sensitivity) added. Returns (output, bias, saturated).
     #[inline]
     fn step(
         &mut self,
         x: &Vector3<f64>,
         t_s: f64,
-        dtemp: f64,
+        th: &ThermalState,
         extra_bias: &Vector3<f64>,
     ) -> ([f64; 3], [f64; 3], bool) {
         let mut scaled = self.misalign_scale * x;
+        let dtemp = th.dtemp;
         if dtemp != 0.0 {
             for i in 0..3 {
-                scaled[i] += self.scale_tempco[i] * dtemp * x[i];
+                scaled[i] += (self.scale_tempco[i] + self.scale_tempco2[i] * dtemp) * dtemp * x[i];
             }
         }
         let mut out = [f64::NAN; 3];
@@ -513,7 +631,11 @@ impl TriadSim {
             if !self.axes[i] {
                 continue;
             }
-            let mut b = self.fixed_bias[i] + self.ramp[i] * t_s + self.bias_tempco[i] * dtemp;
+            let mut b = self.fixed_bias[i]
+                + self.ramp[i] * t_s
+                + (self.bias_tempco[i] + self.bias_tempco2[i] * dtemp) * dtemp
+                + self.half_hysteresis[i] * th.branch
+                + self.warmup[i] * th.warmup;
             for p in &mut self.slow[i] {
                 b += p.step();
             }
@@ -521,7 +643,8 @@ impl TriadSim {
             bias[i] = b;
             let mut y = scaled[i] + b;
             if self.white_sigma[i] > 0.0 {
-                y += self.white_sigma[i] * self.white[i].normal();
+                let k = (1.0 + self.noise_tempco[i] * dtemp).max(0.0);
+                y += k * self.white_sigma[i] * self.white[i].normal();
             }
             if y.abs() > self.range {
                 y = self.range.copysign(y);
@@ -552,6 +675,12 @@ pub struct ImuSimulator {
     accel: Option<TriadSim>,
     g_sensitivity: Option<Matrix3<f64>>,
     reference_temp_c: f64,
+    thermal: ThermalSpec,
+    /// Fraction of the chamber-sensor difference the sensor closes per sample.
+    lag_gain: f64,
+    /// Sensor temperature, °C (None before the first sample: it starts at the chamber's).
+    sensor_temp_c: Option<f64>,
+    branch: f64,
     jitter_sigma_ns: f64,
     jitter_clip_ns: f64,
     jitter: Stream,
@@ -607,6 +736,14 @@ impl ImuSimulator {
             gyro,
             accel,
             reference_temp_c: spec.reference_temp_c,
+            thermal: spec.thermal.clone(),
+            lag_gain: if spec.thermal.time_constant_s > 0.0 {
+                -(-dt / spec.thermal.time_constant_s).exp_m1()
+            } else {
+                1.0
+            },
+            sensor_temp_c: None,
+            branch: 0.0,
             jitter_sigma_ns: spec.timing.jitter_us * 1e3,
             jitter_clip_ns: 0.45 * dt * 1e9,
             jitter: Stream::new(seed, &format!("imu/{name}/jitter")),
@@ -618,20 +755,49 @@ impl ImuSimulator {
         })
     }
 
+    /// The sensor's temperature after one more sample at chamber temperature `chamber_c`
+    /// (first-order lag), moving the hysteresis branch with it.
+    fn follow_chamber(&mut self, chamber_c: f64) -> f64 {
+        let previous = self.sensor_temp_c.unwrap_or(chamber_c);
+        let now = previous + self.lag_gain * (chamber_c - previous);
+        let change = now - previous;
+        if change != 0.0 {
+            let width = self.thermal.hysteresis_width_c;
+            self.branch = if width > 0.0 {
+                (self.branch + 2.0 * change / width).clamp(-1.0, 1.0)
+            } else {
+                change.signum()
+            };
+        }
+        self.sensor_temp_c = Some(now);
+        now
+    }
+
     /// The next epoch given the true rate and specific force in the sensor frame, the
-    /// temperature, and the session's monotonic/wall-clock start times.
+    /// chamber temperature, and the session's monotonic/wall-clock start times. The sensor
+    /// temperature follows the chamber's through the thermal time constant; it is what the
+    /// thermal terms use and what the record reports.
     pub fn step(
         &mut self,
         gyro_true: &Vector3<f64>,
         accel_true: &Vector3<f64>,
-        temp_c: f64,
+        chamber_c: f64,
         start_mono_ns: i64,
         start_wall_ns: i64,
     ) -> ImuEpoch {
         let k = self.index;
         self.index += 1;
         let t_s = k as f64 * self.dt_s;
-        let dtemp = temp_c - self.reference_temp_c;
+        let temp_c = self.follow_chamber(chamber_c);
+        let th = ThermalState {
+            dtemp: temp_c - self.reference_temp_c,
+            branch: self.branch,
+            warmup: if self.thermal.warmup_time_constant_s > 0.0 {
+                (-t_s / self.thermal.warmup_time_constant_s).exp()
+            } else {
+                0.0
+            },
+        };
         let nan3 = [f64::NAN; 3];
         let mut status = 0;
         let (gyro, gyro_bias) = match &mut self.gyro {
@@ -640,7 +806,7 @@ impl ImuSimulator {
                     Some(g) => g * accel_true,
                     None => Vector3::zeros(),
                 };
-                let (y, b, sat) = sim.step(gyro_true, t_s, dtemp, &extra);
+                let (y, b, sat) = sim.step(gyro_true, t_s, &th, &extra);
                 if sat {
                     status |= STATUS_GYRO_SATURATED;
                 }
@@ -650,7 +816,7 @@ impl ImuSimulator {
         };
         let (accel, accel_bias) = match &mut self.accel {
             Some(sim) => {
-                let (y, b, sat) = sim.step(accel_true, t_s, dtemp, &Vector3::zeros());
+                let (y, b, sat) = sim.step(accel_true, t_s, &th, &Vector3::zeros());
                 if sat {
                     status |= STATUS_ACCEL_SATURATED;
                 }
@@ -693,7 +859,11 @@ impl ImuSimulator {
             t_sensor: counter as f64,
             gyro,
             accel,
-            temp: temp_c,
+            temp: if self.thermal.temp_lsb_c > 0.0 {
+                (temp_c / self.thermal.temp_lsb_c).round() * self.thermal.temp_lsb_c
+            } else {
+                temp_c
+            },
             status,
         });
         ImuEpoch { record, truth }
@@ -770,6 +940,70 @@ mod tests {
         assert_eq!(r.accel[2], 2.0 * G0, "clipped at 2 g");
         assert_eq!(r.status, STATUS_ACCEL_SATURATED);
         assert!((e.truth.accel_bias[0] - 10e-3 * G0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn thermal_terms_follow_the_lagging_sensor_temperature() {
+        let mut s = quiet();
+        s.thermal.time_constant_s = 10.0;
+        s.thermal.hysteresis_width_c = 1.0;
+        s.thermal.warmup_time_constant_s = 5.0;
+        s.thermal.temp_lsb_c = 0.125;
+        s.accel.bias_tempco_mg_per_c = [1.0, 0.0, 0.0];
+        s.accel.bias_tempco2_mg_per_c2 = [0.01, 0.0, 0.0];
+        s.accel.bias_hysteresis_mg = [0.0, 2.0, 0.0];
+        s.accel.warmup_bias_mg = [0.0, 0.0, 4.0];
+        s.accel.scale_tempco_ppm_per_c = [0.0, 0.0, 100.0];
+        s.validate().unwrap();
+        let rate = 10.0;
+        let mut sim = ImuSimulator::new(&s, "t", 1, rate, Channels::ACCEL).unwrap();
+        let z = Vector3::zeros();
+        // Power-on at 25 °C (the reference): warm-up bias 4 mg on z, decaying with τ = 5 s.
+        let first = sim.step(&z, &z, 25.0, 0, 0);
+        assert!((first.truth.accel_bias[2] - 4e-3 * G0).abs() < 1e-12);
+        let mut last = first;
+        for _ in 0..50 {
+            last = sim.step(&z, &z, 25.0, 0, 0);
+        }
+        // The 51st sample is at t = 5 s: one warm-up time constant.
+        let expected = 4e-3 * G0 * (-1.0f64).exp();
+        assert!((last.truth.accel_bias[2] - expected).abs() < 1e-9);
+        // Chamber steps to 35 °C: after one time constant the sensor is 63 % of the way.
+        let mut rising = last;
+        for _ in 0..100 {
+            rising = sim.step(&z, &z, 35.0, 0, 0);
+        }
+        let sensor = 25.0 + 10.0 * (1.0 - (-1.0f64).exp());
+        let r = rising.record.unwrap();
+        assert!((r.temp - sensor).abs() <= 0.0625 + 1e-9, "{}", r.temp);
+        assert_eq!((r.temp / 0.125).fract(), 0.0, "reported in 0.125 °C steps");
+        let dt = sensor - 25.0;
+        let bias_x = (dt + 0.01 * dt * dt) * 1e-3 * G0;
+        assert!((rising.truth.accel_bias[0] - bias_x).abs() < 1e-3 * bias_x);
+        // Rising: on the upper branch, +1 mg.
+        assert!((rising.truth.accel_bias[1] - 1e-3 * G0).abs() < 1e-12);
+        // Back down by more than the width: the lower branch, -1 mg.
+        let mut falling = rising;
+        for _ in 0..200 {
+            falling = sim.step(&z, &z, 20.0, 0, 0);
+        }
+        assert!((falling.truth.accel_bias[1] + 1e-3 * G0).abs() < 1e-12);
+        // Scale factor 100 ppm/°C on z with 1 g applied.
+        let g = Vector3::new(0.0, 0.0, G0);
+        let e = sim.step(&g, &g, 20.0, 0, 0);
+        let r = e.record.unwrap();
+        let scale = (r.accel[2] - e.truth.accel_bias[2]) / G0 - 1.0;
+        let expected = 100e-6 * (r.temp - 25.0);
+        assert!(
+            (scale - expected).abs() < 100e-6 * 0.07,
+            "{scale} vs {expected}"
+        );
+        let mut no_warm = s.clone();
+        no_warm.thermal.warmup_time_constant_s = 0.0;
+        assert!(no_warm
+            .validate()
+            .unwrap_err()
+            .contains("warmup_time_constant_s"));
     }
 
     #[test]

@@ -8,7 +8,7 @@
 //! it (the simulated Allan floor is 0.664·B), so the fit of a simulated run reads the preset
 //! back.
 
-use super::imu_model::{AccelSpec, GyroSpec, ImuSpec, DEFAULT_BAND_S};
+use super::imu_model::{AccelSpec, GyroSpec, ImuSpec, ThermalSpec, DEFAULT_BAND_S};
 use crate::allan::fit::BIAS_INSTABILITY_FACTOR;
 
 /// One IMU preset: its name, where its numbers come from, and the spec.
@@ -44,6 +44,11 @@ pub const IMU_PRESETS: &[ImuPreset] = &[
         name: "tactical",
         source: "Safran Sensonor STIM300 datasheet TS1524 (10 g accelerometers): gyro bias instability 0.5 °/h (the Allan minimum, per Sensonor's FAQ; B = 0.5/0.664), ARW 0.15 °/√h, bias repeatability 4 °/h as turn-on σ; accel bias instability 0.05 mg (Allan minimum; B = 0.05/0.664), VRW 0.07 m/s/√h (rev 9: 0.06; the larger used), bias on/off repeatability 0.75 mg as turn-on σ",
         spec: tactical,
+    },
+    ImuPreset {
+        name: "icm20948-thermal",
+        source: "TDK InvenSense ICM-20948 datasheet DS-000189 rev 1.3, accelerometer table (±2 g): zero-g change 0.80 mg/°C, sensitivity change 0.026 %/°C (260 ppm/°C), 230 µg/√Hz, initial zero-g ±25 mg as 3σ; second-order terms, hysteresis, warm-up, thermal time constant and every gyro figure assumed",
+        spec: icm20948_thermal,
     },
 ];
 
@@ -178,6 +183,48 @@ fn tactical() -> ImuSpec {
             ..AccelSpec::default()
         },
     )
+}
+
+fn icm20948_thermal() -> ImuSpec {
+    // The datasheet gives first-order figures only ("±" typical values, read as the
+    // coefficient of this unit); the rest makes the thermal analysis have something to find.
+    let mut spec = with_noise(
+        GyroSpec {
+            // Assumed: consumer-grade gyro figures.
+            noise_density_dps_rthz: Some([0.015; 3]),
+            bias_instability_dph: [10.0; 3],
+            bias_tempco_dph_per_c: [30.0, -20.0, 25.0],
+            bias_tempco2_dph_per_c2: [0.4, 0.3, -0.2],
+            scale_tempco_ppm_per_c: [150.0; 3],
+            bias_hysteresis_dph: [20.0, 15.0, 10.0],
+            warmup_bias_dph: [60.0, -40.0, 50.0],
+            noise_tempco_percent_per_c: [0.3; 3],
+            range_dps: Some(250.0),
+            ..GyroSpec::default()
+        },
+        AccelSpec {
+            noise_density_ug_rthz: Some([230.0; 3]),
+            bias_instability_mg: [0.05; 3],
+            turn_on_bias_sigma_mg: [25.0 / 3.0; 3],
+            bias_tempco_mg_per_c: [0.80, -0.80, 0.80],
+            bias_tempco2_mg_per_c2: [0.004, 0.003, -0.005],
+            scale_tempco_ppm_per_c: [260.0; 3],
+            bias_hysteresis_mg: [0.5, 0.4, 0.6],
+            warmup_bias_mg: [2.0, -1.5, 3.0],
+            noise_tempco_percent_per_c: [0.2; 3],
+            range_g: Some(2.0),
+            ..AccelSpec::default()
+        },
+    );
+    spec.thermal = ThermalSpec {
+        // Assumed: a 3×3 mm package on a small board in moving chamber air.
+        time_constant_s: 120.0,
+        hysteresis_width_c: 3.0,
+        warmup_time_constant_s: 300.0,
+        // The datasheet's temperature sensitivity, 333.87 LSB/°C.
+        temp_lsb_c: 1.0 / 333.87,
+    };
+    spec
 }
 
 #[cfg(test)]

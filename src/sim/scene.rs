@@ -388,9 +388,10 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
             "gyro" => spec.gyro = value.try_into().map_err(at)?,
             "accel" => spec.accel = value.try_into().map_err(at)?,
             "timing" => spec.timing = value.try_into().map_err(at)?,
+            "thermal" => spec.thermal = value.try_into().map_err(at)?,
             "reference_temp_c" => spec.reference_temp_c = value.try_into().map_err(at)?,
             _ => bail!(
-                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `protocol`, `gyro`, `accel`, `timing`, `reference_temp_c`"
+                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `protocol`, `gyro`, `accel`, `timing`, `thermal`, `reference_temp_c`"
             ),
         }
     }
