@@ -1126,9 +1126,9 @@ fn bridging_finding(study: &StudyResult, replays: &[ReplayResult]) -> String {
             .iter()
             .map(|g| {
                 let name = g.name.rsplit('#').next().unwrap_or(&g.name);
-                match g.bridges.get(k).and_then(|b| b.longest_s) {
-                    Some(l) => format!("{name} {l} s"),
-                    None => format!("{name} < {} s", STUDY_OUTAGES_S[0]),
+                match g.bridges.get(k) {
+                    Some(b) => format!("{name} {}", b.text()),
+                    None => format!("{name} n/a"),
                 }
             })
             .collect();

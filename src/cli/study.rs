@@ -30,7 +30,7 @@ pub struct StudyArgs {
     /// Monte Carlo runs per grade.
     #[arg(long, default_value_t = 20)]
     pub runs: usize,
-    /// Horizontal requirements, m, comma-separated (default 0.1,0.5,1.5).
+    /// Horizontal requirements, m, comma-separated (default 0.1,1,10).
     #[arg(long, value_delimiter = ',')]
     pub require: Vec<f64>,
     /// Seed of run 0 (default: the scene's seed).
@@ -93,6 +93,7 @@ pub fn run(args: StudyArgs) -> anyhow::Result<()> {
     options.outage_spacing_s = args.spacing;
     options.settle_s = args.settle;
     options.config = config;
+    options.progress = true;
     let result = match args.threads {
         Some(n) => rayon::ThreadPoolBuilder::new()
             .num_threads(n)

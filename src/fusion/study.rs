@@ -40,11 +40,15 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Default horizontal requirements, m.
-pub const DEFAULT_REQUIREMENTS_M: [f64; 3] = [0.1, 0.5, 1.5];
+pub const DEFAULT_REQUIREMENTS_M: [f64; 3] = [0.1, 1.0, 10.0];
+/// Bootstrap resamples (over runs) for the uncertainty of the longest bridged outage.
+const BOOTSTRAP_RESAMPLES: usize = 400;
+/// The relative precision `runs_for_5pct` is computed for (±5 % at 95 % confidence).
+const TARGET_PRECISION: f64 = 0.05;
 /// Drift is checked at this rate inside an outage, Hz.
 const CHECK_RATE_HZ: f64 = 10.0;
 /// A heading change above this inside an outage counts as a turn, degrees.
@@ -113,10 +117,12 @@ pub struct StudyOptions {
     pub settle_s: f64,
     /// The filter configuration; its IMU model is replaced by each grade's.
     pub config: FusionConfig,
+    /// Show a progress bar on stderr (only when it is a terminal).
+    pub progress: bool,
 }
 
 impl StudyOptions {
-    /// Options with the defaults: requirements 0.1/0.5/1.5 m, one outage per 120 s after a
+    /// Options with the defaults: requirements 0.1/1/10 m, no progress bar, one outage per 120 s after a
     /// 180 s settling time, default filter configuration, covariance every 0.1 s.
     pub fn new(grades: Vec<Grade>, outages_s: Vec<f64>, runs: usize, seed: u64) -> Self {
         Self {
@@ -131,12 +137,13 @@ impl StudyOptions {
                 covariance_interval_s: 0.1,
                 ..FusionConfig::default()
             },
+            progress: false,
         }
     }
 }
 
 /// The drift statistics of one grade at one outage length.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LengthStats {
     pub outage_s: f64,
     /// Outages measured (runs × starts that were aligned).
@@ -149,17 +156,33 @@ pub struct LengthStats {
     pub abs_p95_m: f64,
 }
 
-/// The answer for one requirement.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// The answer for one requirement: the longest outage whose p95 drift is within it.
+///
+/// Found on the drift curves themselves, not on the grid of tested lengths: each outage's
+/// running maximum drift is checked at 10 Hz and the time it first exceeds the requirement
+/// is interpolated between two checks. The p95 drift at length L is within the requirement
+/// exactly when at most n − ⌈0.95 n⌉ of the n outages exceeded it before L, so the longest
+/// such L is that order statistic of the exceedance times. Its Monte Carlo uncertainty is a
+/// bootstrap over runs (the outages of one run share its GNSS errors and IMU realisation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Bridge {
     pub requirement_m: f64,
-    /// Longest tested outage whose p95 drift is within the requirement (None: not even the
-    /// shortest).
+    /// The longest outage within the requirement, s (None: no outage measured). When
+    /// `beyond_horizon`, the drift stayed within it for the whole longest simulated outage
+    /// and this is that length (a lower bound).
     pub longest_s: Option<f64>,
+    pub beyond_horizon: bool,
+    /// 95 % bootstrap interval over runs, s.
+    pub ci95_s: Option<[f64; 2]>,
+    /// Bootstrap standard deviation, s.
+    pub std_s: f64,
+    /// Runs that make the answer stable to ±5 % (95 % confidence), from the bootstrap σ
+    /// scaled by 1/√runs (None when beyond the horizon or not measured).
+    pub runs_for_5pct: Option<usize>,
 }
 
 /// Results of one grade.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GradeResult {
     pub name: String,
     pub noise_origin: String,
@@ -171,7 +194,7 @@ pub struct GradeResult {
 }
 
 /// Results of a study.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StudyResult {
     pub scene_duration_s: f64,
     pub runs: usize,
@@ -190,6 +213,9 @@ pub struct StudyResult {
 struct OutageSample {
     drift_m: Vec<f64>,
     abs_m: Vec<f64>,
+    /// Per requirement, the time since the outage start its drift first exceeded it, s
+    /// (infinite: not within the longest length).
+    exceed_s: Vec<f64>,
     turning: bool,
     standstill: bool,
 }
@@ -419,6 +445,9 @@ struct Fork<const N: usize> {
     next_length: usize,
     drift: Vec<f64>,
     abs: Vec<f64>,
+    /// The previous check: time since the start, running maximum drift.
+    last_check: (f64, f64),
+    exceed_s: Vec<f64>,
 }
 
 impl<const N: usize> Fork<N> {
@@ -426,7 +455,13 @@ impl<const N: usize> Fork<N> {
     /// is not aligned yet. Without constraints the fork propagates no covariance: it applies
     /// no update, so its trajectory is the same without (see
     /// [`Navigator::set_covariance_propagation`]).
-    fn start(main: &Navigator<N>, t0: f64, truth: &[NavState], lengths: &[f64]) -> Option<Self> {
+    fn start(
+        main: &Navigator<N>,
+        t0: f64,
+        truth: &[NavState],
+        lengths: &[f64],
+        requirements: &[f64],
+    ) -> Option<Self> {
         let e0 = horizontal_error(&main.ins()?.nav, truth)?;
         let mut nav = main.clone();
         nav.set_covariance_propagation(false);
@@ -440,6 +475,8 @@ impl<const N: usize> Fork<N> {
             next_length: 0,
             drift: vec![f64::NAN; lengths.len()],
             abs: vec![f64::NAN; lengths.len()],
+            last_check: (0.0, 0.0),
+            exceed_s: vec![f64::INFINITY; requirements.len()],
         })
     }
 
@@ -449,6 +486,7 @@ impl<const N: usize> Fork<N> {
         sample: &ImuInput,
         truth: &[NavState],
         lengths: &[f64],
+        requirements: &[f64],
         check_every: usize,
     ) -> bool {
         let t = sample.t_s();
@@ -463,6 +501,15 @@ impl<const N: usize> Fork<N> {
             {
                 self.max_drift = self.max_drift.max((e - self.e0).norm());
                 self.max_abs = self.max_abs.max(e.norm());
+                let (t_prev, d_prev) = self.last_check;
+                let (t_now, d_now) = (t - self.t0, self.max_drift);
+                for (x, &req) in self.exceed_s.iter_mut().zip(requirements) {
+                    if x.is_infinite() && d_now > req {
+                        // Linear between the two checks the requirement lies between.
+                        *x = t_prev + (req - d_prev) / (d_now - d_prev) * (t_now - t_prev);
+                    }
+                }
+                self.last_check = (t_now, d_now);
             }
             while self.next_length < lengths.len()
                 && t - self.t0 >= lengths[self.next_length] - 1e-9
@@ -496,10 +543,19 @@ impl<const N: usize> Fork<N> {
         (self.next_length == lengths.len()).then_some(OutageSample {
             drift_m: self.drift,
             abs_m: self.abs,
+            exceed_s: self.exceed_s,
             turning,
             standstill,
         })
     }
+}
+
+/// What each fork measures: drift at these outage lengths (s, ascending), the exceedance
+/// time of these requirements (m), checked every this many IMU samples.
+struct Checks<'a> {
+    lengths: &'a [f64],
+    requirements: &'a [f64],
+    every: usize,
 }
 
 /// One run of one grade: the main filter with GNSS over the whole drive and, from each
@@ -510,9 +566,13 @@ fn replay_run<const N: usize>(
     truth: &[NavState],
     config: &FusionConfig,
     starts: &[f64],
-    lengths: &[f64],
-    check_every: usize,
+    checks: &Checks,
 ) -> RunResult {
+    let Checks {
+        lengths,
+        requirements,
+        every: check_every,
+    } = *checks;
     let mut nav = Navigator::<N>::new(config, ReplayOptions::default());
     let mut fixes = gnss.iter().peekable();
     let mut next_start = 0;
@@ -529,7 +589,7 @@ fn replay_run<const N: usize>(
             nav.push_gnss(f);
         }
         while next_start < starts.len() && t >= starts[next_start] {
-            match Fork::start(&nav, t, truth, lengths) {
+            match Fork::start(&nav, t, truth, lengths, requirements) {
                 Some(f) => forks.push(f),
                 None => out.skipped += 1,
             }
@@ -538,7 +598,7 @@ fn replay_run<const N: usize>(
         nav.push_imu(&sample);
         let mut k = 0;
         while k < forks.len() {
-            if forks[k].push(&sample, truth, lengths, check_every) {
+            if forks[k].push(&sample, truth, lengths, requirements, check_every) {
                 match forks.remove(k).finish(truth, lengths) {
                     Some(s) => out.samples.push(s),
                     None => out.skipped += 1,
@@ -569,9 +629,14 @@ fn one_run(
     config.output_interval_s = f64::MAX / 4.0;
     let check_every = ((drive.rate_hz / CHECK_RATE_HZ).round() as usize).max(1);
     let truth = drive.truth_nav();
+    let checks = Checks {
+        lengths,
+        requirements: &options.requirements_m,
+        every: check_every,
+    };
     Ok(match config.states {
-        21 => replay_run::<21>(imu, gnss, truth, &config, starts, lengths, check_every),
-        _ => replay_run::<15>(imu, gnss, truth, &config, starts, lengths, check_every),
+        21 => replay_run::<21>(imu, gnss, truth, &config, starts, &checks),
+        _ => replay_run::<15>(imu, gnss, truth, &config, starts, &checks),
     })
 }
 
@@ -582,6 +647,60 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     }
     let rank = ((p * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
     sorted[rank - 1]
+}
+
+/// The longest outage whose p95 drift stays within requirement `k`: the order statistic
+/// n − ⌈0.95 n⌉ (0-based) of the exceedance times (see [`Bridge`]); infinite when that many
+/// outages never exceeded it.
+fn longest_within(samples: &mut [f64]) -> Option<f64> {
+    let n = samples.len();
+    if n == 0 {
+        return None;
+    }
+    let rank = ((0.95 * n as f64).ceil() as usize).clamp(1, n);
+    let (_, x, _) = samples.select_nth_unstable_by(n - rank, f64::total_cmp);
+    Some(*x)
+}
+
+/// The answer for requirement `k` over `runs` (each a run's outages), with its bootstrap
+/// uncertainty over runs; `horizon` is the longest simulated outage.
+fn bridge(runs: &[RunResult], k: usize, requirement_m: f64, horizon: f64, seed: u64) -> Bridge {
+    let times = |r: &RunResult| {
+        r.samples
+            .iter()
+            .map(|s| s.exceed_s[k])
+            .collect::<Vec<f64>>()
+    };
+    let mut all: Vec<f64> = runs.iter().flat_map(times).collect();
+    let point = longest_within(&mut all);
+    let beyond_horizon = point.is_some_and(f64::is_infinite);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0xb0075 ^ k as u64);
+    let mut boot: Vec<f64> = (0..BOOTSTRAP_RESAMPLES)
+        .filter_map(|_| {
+            let mut pick: Vec<f64> = (0..runs.len())
+                .flat_map(|_| times(&runs[rng.random_range(0..runs.len())]))
+                .collect();
+            longest_within(&mut pick).map(|x| x.min(horizon))
+        })
+        .collect();
+    boot.sort_by(f64::total_cmp);
+    let mean = boot.iter().sum::<f64>() / boot.len().max(1) as f64;
+    let std_s = (boot.iter().map(|x| (x - mean).powi(2)).sum::<f64>()
+        / (boot.len().max(2) - 1) as f64)
+        .sqrt();
+    let longest_s = point.map(|x| x.min(horizon));
+    let runs_for_5pct = longest_s.filter(|l| !beyond_horizon && *l > 0.0).map(|l| {
+        let rel = 1.96 * std_s / (TARGET_PRECISION * l);
+        ((runs.len() as f64 * rel * rel).ceil() as usize).max(1)
+    });
+    Bridge {
+        requirement_m,
+        longest_s,
+        beyond_horizon,
+        ci95_s: (!boot.is_empty()).then(|| [percentile(&boot, 0.025), percentile(&boot, 0.975)]),
+        std_s,
+        runs_for_5pct,
+    }
 }
 
 /// Runs the study. Errors name the grade and run that failed.
@@ -610,8 +729,28 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
         .config
         .validate()
         .context("study filter configuration")?;
+    if options
+        .requirements_m
+        .iter()
+        .any(|r| !(r.is_finite() && *r > 0.0))
+    {
+        bail!(
+            "requirements must be positive numbers of metres, got {:?}",
+            options.requirements_m
+        );
+    }
     let drive = StudyDrive::new(scene)?;
     let end = drive.end_s();
+    let progress = if options.progress && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        indicatif::ProgressBar::new((options.runs * options.grades.len()) as u64).with_style(
+            indicatif::ProgressStyle::with_template(
+                "study {bar:40} {pos}/{len} grade-runs, {elapsed} elapsed, ~{eta} left",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        )
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
     // Runs in parallel, and within a run its grades (they share the run's GNSS fixes);
     // collected in order, so the result does not depend on the thread count.
     let results: Vec<anyhow::Result<Vec<RunResult>>> = (0..options.runs)
@@ -632,19 +771,29 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
                 .grades
                 .par_iter()
                 .map(|grade| {
-                    one_run(&drive, grade, seed, &gnss, options, &starts, &lengths)
-                        .with_context(|| format!("grade {}, run {run}", grade.name))
+                    let r = one_run(&drive, grade, seed, &gnss, options, &starts, &lengths)
+                        .with_context(|| format!("grade {}, run {run}", grade.name));
+                    progress.inc(1);
+                    r
                 })
                 .collect()
         })
         .collect();
-    let mut per_grade: Vec<RunResult> = vec![RunResult::default(); options.grades.len()];
+    progress.finish_and_clear();
+    // Per grade, its runs in order.
+    let mut per_run: Vec<Vec<RunResult>> = vec![Vec::new(); options.grades.len()];
     for result in results {
         for (g, r) in result?.into_iter().enumerate() {
-            per_grade[g].samples.extend(r.samples);
-            per_grade[g].skipped += r.skipped;
+            per_run[g].push(r);
         }
     }
+    let per_grade: Vec<RunResult> = per_run
+        .iter()
+        .map(|runs| RunResult {
+            samples: runs.iter().flat_map(|r| r.samples.clone()).collect(),
+            skipped: runs.iter().map(|r| r.skipped).sum(),
+        })
+        .collect();
     let reference = &per_grade[0];
     let share = |f: fn(&OutageSample) -> bool| {
         reference.samples.iter().filter(|s| f(s)).count() as f64
@@ -661,8 +810,8 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
     let grades = options
         .grades
         .iter()
-        .zip(&per_grade)
-        .map(|(grade, runs)| {
+        .zip(per_grade.iter().zip(&per_run))
+        .map(|(grade, (runs, by_run))| {
             let stats: Vec<LengthStats> = lengths
                 .iter()
                 .enumerate()
@@ -684,14 +833,8 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
             let bridges = options
                 .requirements_m
                 .iter()
-                .map(|&req| Bridge {
-                    requirement_m: req,
-                    longest_s: stats
-                        .iter()
-                        .take_while(|s| s.p95_m <= req)
-                        .last()
-                        .map(|s| s.outage_s),
-                })
+                .enumerate()
+                .map(|(k, &req)| bridge(by_run, k, req, longest, options.seed))
                 .collect();
             GradeResult {
                 name: grade.name.clone(),
@@ -714,7 +857,45 @@ pub fn run_study(scene: &Scene, options: &StudyOptions) -> anyhow::Result<StudyR
     })
 }
 
+impl Bridge {
+    /// "12.3 s [11.1, 13.6], ±5 % with 140 runs", or "≥ 60 s (the longest simulated outage)".
+    pub fn text(&self) -> String {
+        match (self.longest_s, self.beyond_horizon) {
+            (None, _) => "no outage measured".to_string(),
+            (Some(l), true) => format!("≥ {l:.0} s (within it for the whole longest simulated outage; simulate longer outages with --outages)"),
+            (Some(l), false) => {
+                let ci = self
+                    .ci95_s
+                    .map_or(String::new(), |[a, b]| format!(" [{a:.1}, {b:.1}]"));
+                let runs = self
+                    .runs_for_5pct
+                    .map_or(String::new(), |n| format!(", ±5 % with {n} runs"));
+                format!("{l:.1} s{ci}{runs}")
+            }
+        }
+    }
+}
+
 impl StudyResult {
+    /// Reads a study written by `imulab study --json`.
+    pub fn from_json_file(path: &Path) -> anyhow::Result<StudyResult> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading study {}", path.display()))?;
+        serde_json::from_str(&text).with_context(|| {
+            format!(
+                "{}: not a study written by `imulab study --json`",
+                path.display()
+            )
+        })
+    }
+
+    /// The grade studied for `device`: named like it, or an Allan fit `FILE.json#device`.
+    pub fn grade_for(&self, device: &str) -> Option<&GradeResult> {
+        self.grades
+            .iter()
+            .find(|g| g.name == device || g.name.rsplit('#').next() == Some(device))
+    }
+
     /// The horizontal requirements the grades were judged against, m (every grade has a
     /// bridge per requirement, in the same order).
     pub fn requirements_m(&self) -> Vec<f64> {
@@ -758,18 +939,14 @@ impl StudyResult {
         for (k, req) in self.requirements_m().iter().enumerate() {
             let _ = writeln!(
                 s,
-                "Longest outage each grade bridges within {req} m (95 % of {n} outages over {} runs):",
+                "Longest outage each grade bridges within {req} m (p95 drift of {n} outages over {} runs; 95 % interval over runs; runs for ±5 %):",
                 self.runs
             );
             for g in &self.grades {
-                let answer = match g.bridges.get(k).and_then(|b| b.longest_s) {
-                    Some(l) => format!("{l} s"),
-                    None => format!(
-                        "none of the tested lengths (p95 at {} s: {:.3} m)",
-                        g.lengths.first().map_or(f64::NAN, |l| l.outage_s),
-                        g.lengths.first().map_or(f64::NAN, |l| l.p95_m)
-                    ),
-                };
+                let answer = g
+                    .bridges
+                    .get(k)
+                    .map_or_else(|| "n/a".to_string(), Bridge::text);
                 let _ = writeln!(s, "  {:<24} {answer}", g.name);
             }
         }

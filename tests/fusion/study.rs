@@ -104,6 +104,30 @@ fn results_are_identical_for_any_thread_count_and_dear_beats_cheap() {
     for (c, d) in cheap.bridges.iter().zip(&dear.bridges) {
         assert!(d.longest_s.unwrap_or(0.0) >= c.longest_s.unwrap_or(0.0));
     }
+    // The longest outage within each requirement agrees with the grid: tested lengths
+    // shorter than it have their p95 within the requirement, longer ones do not; its
+    // bootstrap interval contains it and the runs for ±5 % are stated.
+    for g in [cheap, dear] {
+        for b in &g.bridges {
+            let l = b.longest_s.expect("measured");
+            for s in &g.lengths {
+                if s.outage_s < l - 0.2 {
+                    assert!(s.p95_m <= b.requirement_m, "{}: {b:?} vs {s:?}", g.name);
+                }
+                if s.outage_s > l + 0.2 {
+                    assert!(s.p95_m > b.requirement_m, "{}: {b:?} vs {s:?}", g.name);
+                }
+            }
+            if b.beyond_horizon {
+                assert_eq!(l, 30.0);
+                assert!(g.lengths.iter().all(|s| s.p95_m <= b.requirement_m));
+            } else {
+                let [lo, hi] = b.ci95_s.expect("interval");
+                assert!(lo <= l && l <= hi && b.std_s.is_finite(), "{b:?}");
+                assert!(b.runs_for_5pct.is_some_and(|n| n >= 1), "{b:?}");
+            }
+        }
+    }
     // Outages fall on turns as well as straights.
     assert!(
         one.turning_share > 0.0 && one.turning_share < 1.0,
