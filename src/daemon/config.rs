@@ -167,6 +167,10 @@ pub enum Protocol {
     Wit,
     /// Xsens MTi Xbus MTData2.
     Xbus,
+    /// VectorNav binary output packets and `$VN` ASCII sentences.
+    Vectornav,
+    /// MicroStrain MIP, IMU data set.
+    Mip,
     /// ASCII/CSV lines from a home-built IMU.
     Csv,
     /// An IMU on a CAN bus, decoded through a DBC file.
@@ -181,6 +185,8 @@ impl Protocol {
             Protocol::Gnss => "gnss",
             Protocol::Wit => "wit",
             Protocol::Xbus => "xbus",
+            Protocol::Vectornav => "vectornav",
+            Protocol::Mip => "mip",
             Protocol::Csv => "csv",
             Protocol::CanDbc => "can-dbc",
         }

@@ -5,7 +5,7 @@
 //! - A [`Link`] delivers [`Input`]: bytes from a byte stream, or CAN frames from a CAN
 //!   transport. CAN frames go to the DBC decoder as frames; they are never turned into text.
 //! - A [`FrameDecoder`] turns the input into [`Frame`]s: the drivers' codecs (WitMotion,
-//!   Xbus, CSV lines, NMEA/UBX, a CAN IMU through a DBC file) behind one small trait.
+//!   Xbus, VectorNav, MIP, CSV lines, NMEA/UBX, a CAN IMU through a DBC file) behind one small trait.
 //!
 //! Link and decoder are traits so the pipeline can also be tested without hardware.
 
@@ -21,6 +21,8 @@ use imulab_drivers::codec::can::CanFrame;
 use imulab_drivers::codec::csv_line::CsvLineDecoder;
 use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
 use imulab_drivers::codec::gnss::{GnssDecoder, GnssFrame};
+use imulab_drivers::codec::mip::{MipDecoder, MipPacket};
+use imulab_drivers::codec::vectornav::{VnDecoder, VnFrame};
 use imulab_drivers::codec::witmotion::WitImuDecoder;
 use imulab_drivers::codec::xbus::{XbusDecoder, XbusMessage};
 use imulab_drivers::codec::Decoder;
@@ -137,6 +139,17 @@ fn xbus_sample(message: XbusMessage) -> Option<Frame> {
         XbusMessage::MtData2 { data, .. } => Some(Frame::Imu(data.to_imu_sample())),
         _ => None,
     }
+}
+
+/// Binary packets and ASCII sentences with angular rate or acceleration are samples;
+/// attitude-only output and register replies are not rows.
+fn vectornav_sample(frame: VnFrame) -> Option<Frame> {
+    frame.to_imu_sample().map(Frame::Imu)
+}
+
+/// IMU data packets with accelerometer or gyro are samples; command replies are not rows.
+fn mip_sample(packet: MipPacket) -> Option<Frame> {
+    packet.to_imu_sample().map(Frame::Imu)
 }
 
 /// A CAN IMU: CAN frames through the DBC mapping into samples.
@@ -385,6 +398,8 @@ pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
         }
         Protocol::Wit => Box::new(|| boxed(WitImuDecoder::new(), imu_sample)),
         Protocol::Xbus => Box::new(|| boxed(XbusDecoder::new(), xbus_sample)),
+        Protocol::Vectornav => Box::new(|| boxed(VnDecoder::new(), vectornav_sample)),
+        Protocol::Mip => Box::new(|| boxed(MipDecoder::new(), mip_sample)),
         Protocol::Csv => {
             let config = device.csv.clone().unwrap_or_default();
             // Checked once here so the factory below cannot fail.

@@ -6,7 +6,10 @@
 //! ACCEL and GYRO packets per sample), `xbus` (Xsens MTData2: PacketCounter,
 //! SampleTimeFine, temperature, acceleration, rate of turn, status word; float32), `csv`
 //! (the drivers' default line layout `time,gx,gy,gz,ax,ay,az,temp`, time = the device
-//! counter), `slcan` (the CAN frames of `fixtures/imu_can.dbc` through the mapping
+//! counter), `vectornav` (VectorNav binary output: Common group TimeStartup, AngularRate,
+//! Accel, IMU group ImuStatus and Temp), `mip` (MicroStrain MIP IMU data set: scaled
+//! accelerometer in g, scaled gyro, shared reference timestamp; MIP carries no
+//! temperature), `slcan` (the CAN frames of `fixtures/imu_can.dbc` through the mapping
 //! `fixtures/imu_can_mapping.toml`, as slcan lines). GNSS protocols (`[[gnss]]`): `gnss`
 //! (default; NMEA GGA and RMC followed by UBX NAV-PVT and NAV-EOE, all for the same
 //! epoch, as a u-blox receiver sends them), `nmea` (GGA and RMC only), `ubx` (NAV-PVT and
@@ -15,7 +18,8 @@
 //! Device clocks: the sample index `k` is recovered from the arrival time (jitter is far
 //! below half a period), so device time is `k / rate` exactly: WitMotion's TIME packet
 //! carries the wall-clock time of the sample (ms resolution), Xbus SampleTimeFine is
-//! `k / rate` in 0.1 ms ticks (wrapping at 2^32), the CAN `TimeUs` signal `k / rate` in µs
+//! `k / rate` in 0.1 ms ticks (wrapping at 2^32), VectorNav TimeStartup and the MIP
+//! reference timestamp `k / rate` in ns, the CAN `TimeUs` signal `k / rate` in µs
 //! wrapping at 2^32 µs, and the csv time column the device counter as simulated.
 //!
 //! Values a protocol cannot carry: a triad the scene does not simulate is left out of the
@@ -30,11 +34,16 @@ use chrono::{DateTime, Datelike, Timelike};
 use imulab_drivers::codec::csv_line::{CsvColumn, CsvLineConfig, CsvLineDecoder, CsvLineEncoder};
 use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
 use imulab_drivers::codec::gnss::{EpochFix, GnssDecoder, GnssFrame};
+use imulab_drivers::codec::mip::{MipDecoder, MipEncoder, MipImuData, MipPacket};
 use imulab_drivers::codec::nmea::{
     Coordinate, Date, Decimal, Gga, NmeaEncoder, NmeaSentence, Rmc, Talker, TimeOfDay,
 };
 use imulab_drivers::codec::slcan::{SlcanDecoder, SlcanEncoder, SlcanMessage};
 use imulab_drivers::codec::ubx::{NavPvt, RawMessage, UbxEncoder, UbxMessage};
+use imulab_drivers::codec::vectornav::{
+    common as vn_common, imu as vn_imu, VnBinary, VnDecoder, VnEncoder, VnFrame, VnOutputFields,
+    VnValues,
+};
 use imulab_drivers::codec::witmotion::{WitEncoder, WitImuDecoder, WitPacket};
 use imulab_drivers::codec::xbus::{
     data_id, MtData2, XbusDecoder, XbusEncoder, XbusMessage, XbusValue, BUS_ID_MASTER,
@@ -55,6 +64,8 @@ const IMU_CAN_MAPPING: &str = include_str!("../../fixtures/imu_can_mapping.toml"
 pub const IMU_PROTOCOLS: &[Protocol] = &[
     Protocol::Wit,
     Protocol::Xbus,
+    Protocol::Vectornav,
+    Protocol::Mip,
     Protocol::Csv,
     Protocol::Slcan,
 ];
@@ -89,6 +100,8 @@ pub struct ImuWire {
 enum ImuFormat {
     Wit,
     Xbus,
+    Vectornav,
+    Mip,
     /// The encoder and a fresh decoder of the same layout.
     Csv(Box<(CsvLineEncoder, CsvLineDecoder)>),
     Slcan(Box<DbcImu>),
@@ -100,6 +113,8 @@ impl ImuWire {
         let format = match protocol {
             Protocol::Wit => ImuFormat::Wit,
             Protocol::Xbus => ImuFormat::Xbus,
+            Protocol::Vectornav => ImuFormat::Vectornav,
+            Protocol::Mip => ImuFormat::Mip,
             Protocol::Csv => {
                 let config = csv_layout(channels);
                 let encoder = CsvLineEncoder::new(config.clone()).map_err(|e| anyhow!("{e}"))?;
@@ -191,6 +206,45 @@ impl ImuWire {
                     out,
                 )
             }
+            ImuFormat::Vectornav => {
+                let f32s = |v: [f64; 3]| v.map(|x| x as f32);
+                let temp = r.temp.is_finite().then_some(r.temp as f32);
+                let mut common = vn_common::TIME_STARTUP;
+                if gyro.is_some() {
+                    common |= vn_common::ANGULAR_RATE;
+                }
+                if accel.is_some() {
+                    common |= vn_common::ACCEL;
+                }
+                let imu = vn_imu::IMU_STATUS | if temp.is_some() { vn_imu::TEMP } else { 0 };
+                let packet = VnBinary {
+                    fields: VnOutputFields {
+                        common,
+                        imu,
+                        ..VnOutputFields::default()
+                    },
+                    values: VnValues {
+                        time_startup_ns: Some((device_time_s * 1e9).round() as u64),
+                        angular_rate: gyro.map(f32s),
+                        accel: accel.map(f32s),
+                        temp_c: temp,
+                        imu_status: Some((r.status & 0xFFFF) as u16),
+                        ..VnValues::default()
+                    },
+                    skipped_fields: 0,
+                };
+                VnEncoder.encode(&VnFrame::Binary(packet), out)
+            }
+            ImuFormat::Mip => {
+                let g = imulab_drivers::codec::mip::STANDARD_GRAVITY;
+                let data = MipImuData {
+                    scaled_accel_g: accel.map(|v| v.map(|x| (x / g) as f32)),
+                    scaled_gyro: gyro.map(|v| v.map(|x| x as f32)),
+                    reference_time_ns: Some((device_time_s * 1e9).round() as u64),
+                    ..MipImuData::default()
+                };
+                MipEncoder.encode(&MipPacket::Imu(data), out)
+            }
             ImuFormat::Csv(csv) => csv.0.encode(&imu_sample(r, gyro, accel, r.t_sensor), out),
             ImuFormat::Slcan(dbc) => {
                 // TimeUs is a 32-bit microsecond count.
@@ -225,6 +279,8 @@ impl ImuWire {
             inner: match &self.format {
                 ImuFormat::Wit => ImuDecoderKind::Wit(WitImuDecoder::new()),
                 ImuFormat::Xbus => ImuDecoderKind::Xbus(XbusDecoder::new()),
+                ImuFormat::Vectornav => ImuDecoderKind::Vectornav(VnDecoder::new()),
+                ImuFormat::Mip => ImuDecoderKind::Mip(MipDecoder::new()),
                 ImuFormat::Csv(csv) => ImuDecoderKind::Csv(csv.1.clone()),
                 ImuFormat::Slcan(dbc) => ImuDecoderKind::Slcan(SlcanDecoder::new(), dbc.clone()),
             },
@@ -240,6 +296,8 @@ pub struct ImuStreamDecoder {
 enum ImuDecoderKind {
     Wit(WitImuDecoder),
     Xbus(XbusDecoder),
+    Vectornav(VnDecoder),
+    Mip(MipDecoder),
     Csv(CsvLineDecoder),
     Slcan(SlcanDecoder, Box<DbcImu>),
 }
@@ -272,6 +330,24 @@ impl ImuStreamDecoder {
                 }
                 None
             }
+            ImuDecoderKind::Vectornav(d) => {
+                d.push(bytes);
+                while let Some(frame) = d.poll() {
+                    if let Some(sample) = frame.to_imu_sample() {
+                        return Some(sample);
+                    }
+                }
+                None
+            }
+            ImuDecoderKind::Mip(d) => {
+                d.push(bytes);
+                while let Some(packet) = d.poll() {
+                    if let Some(sample) = packet.to_imu_sample() {
+                        return Some(sample);
+                    }
+                }
+                None
+            }
             ImuDecoderKind::Csv(d) => {
                 d.push(bytes);
                 d.poll()
@@ -296,7 +372,10 @@ impl ImuStreamDecoder {
         match &mut self.inner {
             ImuDecoderKind::Wit(d) => d.finish(),
             ImuDecoderKind::Slcan(_, dbc) => dbc.finish(),
-            ImuDecoderKind::Xbus(_) | ImuDecoderKind::Csv(_) => None,
+            ImuDecoderKind::Xbus(_)
+            | ImuDecoderKind::Vectornav(_)
+            | ImuDecoderKind::Mip(_)
+            | ImuDecoderKind::Csv(_) => None,
         }
     }
 
@@ -305,6 +384,8 @@ impl ImuStreamDecoder {
         match &self.inner {
             ImuDecoderKind::Wit(d) => d.stats(),
             ImuDecoderKind::Xbus(d) => d.stats(),
+            ImuDecoderKind::Vectornav(d) => d.stats(),
+            ImuDecoderKind::Mip(d) => d.stats(),
             ImuDecoderKind::Csv(d) => d.stats(),
             ImuDecoderKind::Slcan(d, _) => d.stats(),
         }

@@ -49,6 +49,14 @@ channels = ["gyro"]
 name = "can"
 preset = "tactical"
 protocol = "slcan"
+[[imu]]
+name = "vn"
+preset = "industrial"
+protocol = "vectornav"
+[[imu]]
+name = "gx5"
+preset = "industrial"
+protocol = "mip"
 [[gnss]]
 name = "ublox"
 preset = "standalone"
@@ -173,8 +181,8 @@ fn resolution(protocol: Protocol) -> (f64, f64) {
             0.5 * (2000f64 / 32768.0).to_radians(),
             0.5 * 16.0 * 9.80665 / 32768.0,
         ),
-        // float32.
-        Protocol::Xbus => (1e-6, 1e-5),
+        // float32 (MIP: acceleration in g).
+        Protocol::Xbus | Protocol::Vectornav | Protocol::Mip => (1e-6, 1e-5),
         // Shortest round-trip text: exact.
         Protocol::Csv => (0.0, 0.0),
         // Half of 0.01 °/s and 0.0005 g (fixtures/imu_can.dbc).
@@ -217,7 +225,17 @@ fn every_protocol_read_back_from_its_pty_equals_what_was_sent() {
         .collect();
     assert_eq!(
         protocols,
-        ["wit", "xbus", "csv", "slcan", "gnss", "nmea", "ubx"]
+        [
+            "wit",
+            "xbus",
+            "csv",
+            "slcan",
+            "vectornav",
+            "mip",
+            "gnss",
+            "nmea",
+            "ubx"
+        ]
     );
     let (report, got) = serve_and_read(&mut server);
     assert!(!report.stopped);
@@ -277,10 +295,20 @@ fn every_protocol_read_back_from_its_pty_equals_what_was_sent() {
                         stream.sensor
                     ),
                 }
-                let temp = sample.temp_c.unwrap();
+                // The MIP IMU data set has no temperature field.
+                let Some(temp) = sample.temp_c else {
+                    assert_eq!(
+                        stream.protocol,
+                        Protocol::Mip,
+                        "{}: temperature",
+                        stream.sensor
+                    );
+                    continue;
+                };
+                let float32 = matches!(stream.protocol, Protocol::Xbus | Protocol::Vectornav);
                 assert!(
                     (temp - s.record.temp).abs() <= 0.005 + 1e-6
-                        || stream.protocol == Protocol::Xbus && (temp - s.record.temp).abs() < 1e-4
+                        || float32 && (temp - s.record.temp).abs() < 1e-4
                 );
             }
             // Frames go out in time order.

@@ -17,9 +17,11 @@ pub mod csv_line;
 pub mod cycle;
 pub mod dbc;
 pub mod gnss;
+pub mod mip;
 pub mod nmea;
 pub mod slcan;
 pub mod ubx;
+pub mod vectornav;
 pub mod witmotion;
 pub mod xbus;
 
@@ -175,6 +177,10 @@ pub enum Protocol {
     Slcan,
     /// candump log, optionally through a DBC to IMU samples.
     Candump,
+    /// VectorNav binary output packets and async ASCII sentences.
+    Vectornav,
+    /// MicroStrain MIP packets (IMU data set decoded).
+    Mip,
 }
 
 /// One row of the protocol table.
@@ -195,10 +201,12 @@ pub struct ProtocolEntry {
 #[rustfmt::skip]
 pub const PROTOCOLS: &[ProtocolEntry] = &[
     ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", detect: gnss::detect_score, open: |_| Ok(Box::new(gnss::GnssDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", detect: vectornav::detect_score, open: |_| Ok(Box::new(vectornav::VnDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", detect: nmea::detect_score, open: |_| Ok(Box::new(nmea::NmeaDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", detect: ubx::detect_score, open: |_| Ok(Box::new(ubx::UbxDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Wit, name: "wit", summary: "WitMotion serial IMU (0x55 packets) as IMU samples", detect: witmotion::detect_score, open: |_| Ok(Box::new(witmotion::WitImuDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Xbus, name: "xbus", summary: "Xsens MTi Xbus messages, MTData2 decoded", detect: xbus::detect_score, open: |_| Ok(Box::new(xbus::XbusDecoder::new())) },
+    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", detect: mip::detect_score, open: |_| Ok(Box::new(mip::MipDecoder::new())) },
     ProtocolEntry { protocol: Protocol::Csv, name: "csv", summary: "ASCII/CSV IMU lines (column map from --config)", detect: |_| 0, open: csv_line::open_json },
     ProtocolEntry { protocol: Protocol::Slcan, name: "slcan", summary: "slcan ASCII CAN (with --dbc and --config: IMU samples)", detect: slcan::detect_score, open: dbc::open_slcan_json },
     ProtocolEntry { protocol: Protocol::Candump, name: "candump", summary: "candump log (with --dbc and --config: IMU samples)", detect: candump::detect_score, open: dbc::open_candump_json },

@@ -163,3 +163,65 @@ fn candump() {
     let expected = stats(7 + 7 + corrupt.len() - 1, 0, 3, 0);
     check(CandumpDecoder::new, frame, garbage, corrupt, expected);
 }
+
+#[test]
+fn vectornav_binary_and_ascii() {
+    use super::vectornav::{
+        common, VnAscii, VnAsciiKind, VnBinary, VnChecksum, VnDecoder, VnEncoder, VnFrame,
+        VnOutputFields, VnValues,
+    };
+    let packet = VnFrame::Binary(VnBinary {
+        fields: VnOutputFields {
+            common: common::TIME_STARTUP | common::ANGULAR_RATE,
+            ..VnOutputFields::default()
+        },
+        values: VnValues {
+            time_startup_ns: Some(1000),
+            angular_rate: Some([0.5, -0.5, 1.0]),
+            ..VnValues::default()
+        },
+        skipped_fields: 0,
+    });
+    let mut frame = Vec::new();
+    VnEncoder.encode(&packet, &mut frame).expect("valid");
+    let mut corrupt = frame.clone();
+    corrupt[8] ^= 0x01;
+    let garbage = b"\x00\x11";
+    let expected = stats(2 + 2 + corrupt.len(), 1, 0, 0);
+    check(VnDecoder::new, &frame, garbage, &corrupt, expected);
+
+    let sentence = VnFrame::Ascii(VnAscii {
+        kind: VnAsciiKind::Acc,
+        checksum: VnChecksum::Crc16,
+        values: VnValues {
+            accel: Some([0.1, 0.2, -9.8]),
+            ..VnValues::default()
+        },
+    });
+    let mut frame = Vec::new();
+    VnEncoder.encode(&sentence, &mut frame).expect("valid");
+    let mut corrupt = frame.clone();
+    corrupt[9] = b'7';
+    assert_ne!(frame, corrupt);
+    // Line ends are framing; the corrupt sentence is dropped up to its line end.
+    let garbage = b"xy\x00\r\n";
+    let expected = stats(3 + 3 + corrupt.len() - 2, 1, 0, 0);
+    check(VnDecoder::new, &frame, garbage, &corrupt, expected);
+}
+
+#[test]
+fn mip() {
+    use super::mip::{MipDecoder, MipEncoder, MipImuData, MipPacket};
+    let packet = MipPacket::Imu(MipImuData {
+        scaled_accel_g: Some([0.0, 0.0, -1.0]),
+        scaled_gyro: Some([0.25, 0.5, -0.5]),
+        ..MipImuData::default()
+    });
+    let mut frame = Vec::new();
+    MipEncoder.encode(&packet, &mut frame).expect("valid");
+    let mut corrupt = frame.clone();
+    corrupt[8] ^= 0x01;
+    let garbage = b"\x00\x11\r\n";
+    let expected = stats(4 + 4 + corrupt.len(), 1, 0, 0);
+    check(MipDecoder::new, &frame, garbage, &corrupt, expected);
+}

@@ -1,0 +1,536 @@
+//! MicroStrain MIP packets (3DM-GX5, 3DM-CV5/CV7; facts from the 3DM-GX5 DCP manuals).
+//!
+//! Packet: `0x75 0x65`, descriptor set, payload length (≤ 255), the payload as fields of
+//! `length, descriptor, data` (the length counts its own two bytes), then a Fletcher-16
+//! checksum over everything before it (two running 8-bit sums, the first sent first).
+//! Values are big-endian.
+//!
+//! The IMU data set (0x80) is decoded: scaled accelerometer (0x04, g), scaled gyro (0x05,
+//! rad/s), scaled magnetometer (0x06, gauss), delta theta (0x07, rad), delta velocity
+//! (0x08, g·s), quaternion (0x0A), Euler angles (0x0C, rad), internal timestamp (0x0E,
+//! ticks), GPS correlation timestamp (0x12: time of week s, week, valid flags), scaled
+//! ambient pressure (0x17, mbar), and the shared GPS timestamp (0xD3, same layout as 0x12)
+//! and reference timestamp (0xD5, ns). Other IMU fields are counted in `skipped_fields`.
+//! The IMU data set defines no temperature field, so MIP samples carry none. Command
+//! replies (a command descriptor set whose first field is the ACK/NACK field 0xF1: echoed
+//! command descriptor, error code) are [`MipPacket::Reply`]; other packets are kept whole
+//! as [`MipPacket::Other`]. Neither is a sample.
+
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use crate::types::{DecoderStats, ImuSample};
+
+pub const SYNC1: u8 = 0x75;
+pub const SYNC2: u8 = 0x65;
+/// IMU data descriptor set.
+pub const IMU_DATA_SET: u8 = 0x80;
+/// ACK/NACK reply field descriptor.
+pub const ACK_NACK_FIELD: u8 = 0xF1;
+/// 1 g as the manual defines it, m/s².
+pub const STANDARD_GRAVITY: f64 = 9.806_65;
+/// Auto-detection needs at least this many checksummed MIP packets in the sample.
+pub const DETECT_MIN_FRAMES: u32 = 2;
+
+/// IMU data set field descriptors.
+pub mod field {
+    pub const SCALED_ACCEL: u8 = 0x04;
+    pub const SCALED_GYRO: u8 = 0x05;
+    pub const SCALED_MAG: u8 = 0x06;
+    pub const DELTA_THETA: u8 = 0x07;
+    pub const DELTA_VELOCITY: u8 = 0x08;
+    pub const QUATERNION: u8 = 0x0A;
+    pub const EULER_ANGLES: u8 = 0x0C;
+    pub const INTERNAL_TIMESTAMP: u8 = 0x0E;
+    pub const GPS_CORRELATION_TIMESTAMP: u8 = 0x12;
+    pub const SCALED_PRESSURE: u8 = 0x17;
+    pub const SHARED_GPS_TIMESTAMP: u8 = 0xD3;
+    pub const SHARED_REFERENCE_TIMESTAMP: u8 = 0xD5;
+}
+
+/// A GPS time stamp (fields 0x12 and 0xD3).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct MipGpsTime {
+    /// GPS time of week, s.
+    pub tow_s: f64,
+    pub week: u16,
+    pub valid_flags: u16,
+}
+
+/// The fields of one IMU data set packet. Absent = not in the packet.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct MipImuData {
+    /// Scaled acceleration, g.
+    pub scaled_accel_g: Option<[f32; 3]>,
+    /// Scaled angular rate, rad/s.
+    pub scaled_gyro: Option<[f32; 3]>,
+    /// Scaled magnetic field, gauss.
+    pub scaled_mag: Option<[f32; 3]>,
+    /// Delta theta, rad.
+    pub delta_theta: Option<[f32; 3]>,
+    /// Delta velocity, g·s.
+    pub delta_velocity_gs: Option<[f32; 3]>,
+    pub quaternion: Option<[f32; 4]>,
+    /// Roll, pitch, yaw, rad.
+    pub euler_rad: Option<[f32; 3]>,
+    pub internal_timestamp: Option<u32>,
+    pub gps_correlation_time: Option<MipGpsTime>,
+    /// Ambient pressure, mbar.
+    pub pressure_mbar: Option<f32>,
+    pub shared_gps_time: Option<MipGpsTime>,
+    /// Shared reference timestamp, ns.
+    pub reference_time_ns: Option<u64>,
+    /// Fields of the IMU data set not kept.
+    pub skipped_fields: u16,
+}
+
+impl MipImuData {
+    /// The SI sample, or `None` without accelerometer or gyro. Device time: the GPS
+    /// correlation time of week (s), else the shared GPS time of week, else the reference
+    /// timestamp (s), else the internal timestamp in its ticks.
+    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+        if self.scaled_accel_g.is_none() && self.scaled_gyro.is_none() {
+            return None;
+        }
+        let sensor_time = self
+            .gps_correlation_time
+            .or(self.shared_gps_time)
+            .map(|t| t.tow_s)
+            .or(self.reference_time_ns.map(|ns| ns as f64 * 1e-9))
+            .or(self.internal_timestamp.map(f64::from));
+        Some(ImuSample {
+            sensor_time,
+            gyro: self.scaled_gyro.map(|v| v.map(f64::from)),
+            accel: self
+                .scaled_accel_g
+                .map(|v| v.map(|g| f64::from(g) * STANDARD_GRAVITY)),
+            temp_c: None,
+            status: 0,
+        })
+    }
+}
+
+/// One MIP packet.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum MipPacket {
+    /// IMU data set (0x80).
+    Imu(MipImuData),
+    /// A command reply: ACK (`error_code` 0) or NACK, and any reply fields after it.
+    Reply {
+        descriptor_set: u8,
+        command: u8,
+        error_code: u8,
+        more_fields: Vec<u8>,
+    },
+    /// Any other packet, payload kept as is.
+    Other {
+        descriptor_set: u8,
+        payload: Vec<u8>,
+    },
+}
+
+impl MipPacket {
+    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+        match self {
+            MipPacket::Imu(data) => data.to_imu_sample(),
+            _ => None,
+        }
+    }
+}
+
+/// The Fletcher-16 checksum of the manual: (first sum, sum of first sums), each mod 256.
+pub fn fletcher16(bytes: &[u8]) -> [u8; 2] {
+    let (mut a, mut b) = (0u8, 0u8);
+    for &x in bytes {
+        a = a.wrapping_add(x);
+        b = b.wrapping_add(a);
+    }
+    [a, b]
+}
+
+fn f32s<const N: usize>(d: &[u8]) -> [f32; N] {
+    std::array::from_fn(|i| {
+        f32::from_be_bytes([d[4 * i], d[4 * i + 1], d[4 * i + 2], d[4 * i + 3]])
+    })
+}
+
+fn gps_time(d: &[u8]) -> MipGpsTime {
+    MipGpsTime {
+        tow_s: f64::from_be_bytes([d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]]),
+        week: u16::from_be_bytes([d[8], d[9]]),
+        valid_flags: u16::from_be_bytes([d[10], d[11]]),
+    }
+}
+
+/// Parses an IMU data set payload; `Err` with the reason when the fields do not add up.
+pub fn parse_imu_data(payload: &[u8]) -> Result<MipImuData, String> {
+    let mut out = MipImuData::default();
+    let mut rest = payload;
+    while !rest.is_empty() {
+        let len = usize::from(rest[0]);
+        if len < 2 || len > rest.len() {
+            return Err(format!(
+                "field length {len} at payload offset {} ({} bytes left)",
+                payload.len() - rest.len(),
+                rest.len()
+            ));
+        }
+        let (descriptor, data) = (rest[1], &rest[2..len]);
+        match (descriptor, data.len()) {
+            (field::SCALED_ACCEL, 12) => {
+                out.scaled_accel_g = Some(f32s(data));
+            }
+            (field::SCALED_GYRO, 12) => {
+                out.scaled_gyro = Some(f32s(data));
+            }
+            (field::SCALED_MAG, 12) => {
+                out.scaled_mag = Some(f32s(data));
+            }
+            (field::DELTA_THETA, 12) => {
+                out.delta_theta = Some(f32s(data));
+            }
+            (field::DELTA_VELOCITY, 12) => {
+                out.delta_velocity_gs = Some(f32s(data));
+            }
+            (field::QUATERNION, 16) => {
+                out.quaternion = Some(f32s(data));
+            }
+            (field::EULER_ANGLES, 12) => {
+                out.euler_rad = Some(f32s(data));
+            }
+            (field::INTERNAL_TIMESTAMP, 4) => {
+                out.internal_timestamp =
+                    Some(u32::from_be_bytes([data[0], data[1], data[2], data[3]]));
+            }
+            (field::GPS_CORRELATION_TIMESTAMP, 12) => {
+                out.gps_correlation_time = Some(gps_time(data));
+            }
+            (field::SCALED_PRESSURE, 4) => {
+                out.pressure_mbar = Some(f32s::<1>(data)[0]);
+            }
+            (field::SHARED_GPS_TIMESTAMP, 12) => {
+                out.shared_gps_time = Some(gps_time(data));
+            }
+            (field::SHARED_REFERENCE_TIMESTAMP, 8) => {
+                out.reference_time_ns = Some(u64::from_be_bytes([
+                    data[0], data[1], data[2], data[3], data[4], data[5], data[6], data[7],
+                ]));
+            }
+            (
+                field::SCALED_ACCEL
+                | field::SCALED_GYRO
+                | field::SCALED_MAG
+                | field::DELTA_THETA
+                | field::DELTA_VELOCITY
+                | field::QUATERNION
+                | field::EULER_ANGLES
+                | field::INTERNAL_TIMESTAMP
+                | field::GPS_CORRELATION_TIMESTAMP
+                | field::SCALED_PRESSURE
+                | field::SHARED_GPS_TIMESTAMP
+                | field::SHARED_REFERENCE_TIMESTAMP,
+                n,
+            ) => return Err(format!("field {descriptor:#04x} has {n} data bytes")),
+            _ => {
+                out.skipped_fields = out.skipped_fields.saturating_add(1);
+            }
+        }
+        rest = &rest[len..];
+    }
+    Ok(out)
+}
+
+/// Checks that a payload is a whole number of fields.
+fn fields_add_up(payload: &[u8]) -> bool {
+    let mut rest = payload;
+    while let Some(&len) = rest.first() {
+        let len = usize::from(len);
+        if len < 2 || len > rest.len() {
+            return false;
+        }
+        rest = &rest[len..];
+    }
+    true
+}
+
+fn packet_of(descriptor_set: u8, payload: &[u8]) -> Option<MipPacket> {
+    if descriptor_set == IMU_DATA_SET {
+        return match parse_imu_data(payload) {
+            Ok(data) => Some(MipPacket::Imu(data)),
+            Err(reason) => {
+                tracing::debug!("mip: dropping malformed IMU data packet: {reason}");
+                None
+            }
+        };
+    }
+    if !fields_add_up(payload) {
+        return None;
+    }
+    if descriptor_set < 0x80
+        && payload.len() >= 4
+        && payload[0] == 4
+        && payload[1] == ACK_NACK_FIELD
+    {
+        return Some(MipPacket::Reply {
+            descriptor_set,
+            command: payload[2],
+            error_code: payload[3],
+            more_fields: payload[4..].to_vec(),
+        });
+    }
+    Some(MipPacket::Other {
+        descriptor_set,
+        payload: payload.to_vec(),
+    })
+}
+
+fn scan(data: &[u8]) -> Scan<MipPacket> {
+    if data.len() < 4 {
+        // The second sync byte is checked as soon as it is there.
+        if data.len() >= 2 && data[1] != SYNC2 {
+            return Scan::Reject {
+                len: 1,
+                reject: Reject::NoSync,
+            };
+        }
+        return Scan::Incomplete;
+    }
+    if data[1] != SYNC2 {
+        return Scan::Reject {
+            len: 1,
+            reject: Reject::NoSync,
+        };
+    }
+    let payload_len = usize::from(data[3]);
+    let total = 4 + payload_len + 2;
+    if data.len() < total {
+        return Scan::Incomplete;
+    }
+    if fletcher16(&data[..total - 2]) != [data[total - 2], data[total - 1]] {
+        return Scan::Reject {
+            len: 1,
+            reject: Reject::Checksum,
+        };
+    }
+    match packet_of(data[2], &data[4..4 + payload_len]) {
+        Some(frame) => Scan::Frame { len: total, frame },
+        None => Scan::Reject {
+            len: total,
+            reject: Reject::BadContent,
+        },
+    }
+}
+
+/// Streaming MIP decoder.
+///
+/// Framing rule: look for `0x75 0x65`; a packet whose checksum fails costs its first sync
+/// byte and the search goes on from the next byte, so a real packet inside a false one is
+/// still found. A packet whose checksum is right but whose fields do not add up is dropped
+/// whole, counted as malformed, without losing sync. Counting follows the one rule of
+/// [`StreamBuffer`].
+#[derive(Debug, Default, Clone)]
+pub struct MipDecoder {
+    buf: StreamBuffer,
+}
+
+impl MipDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
+
+impl Decoder for MipDecoder {
+    type Frame = MipPacket;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.buf.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<MipPacket> {
+        self.buf.next_scanned(&[SYNC1], scan)
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.buf.stats()
+    }
+}
+
+/// MIP encoder: IMU data fields in ascending descriptor order.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct MipEncoder;
+
+fn put_field(descriptor: u8, data: &[u8], out: &mut Vec<u8>) {
+    out.push(data.len() as u8 + 2);
+    out.push(descriptor);
+    out.extend_from_slice(data);
+}
+
+fn be_f32s(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_be_bytes()).collect()
+}
+
+fn gps_time_bytes(t: &MipGpsTime) -> Vec<u8> {
+    let mut b = t.tow_s.to_be_bytes().to_vec();
+    b.extend_from_slice(&t.week.to_be_bytes());
+    b.extend_from_slice(&t.valid_flags.to_be_bytes());
+    b
+}
+
+/// Appends the IMU data set payload of `data` to `out`.
+pub fn write_imu_data(data: &MipImuData, out: &mut Vec<u8>) {
+    let vectors = [
+        (field::SCALED_ACCEL, data.scaled_accel_g),
+        (field::SCALED_GYRO, data.scaled_gyro),
+        (field::SCALED_MAG, data.scaled_mag),
+        (field::DELTA_THETA, data.delta_theta),
+        (field::DELTA_VELOCITY, data.delta_velocity_gs),
+    ];
+    for (descriptor, v) in vectors {
+        if let Some(v) = v {
+            put_field(descriptor, &be_f32s(&v), out);
+        }
+    }
+    if let Some(q) = data.quaternion {
+        put_field(field::QUATERNION, &be_f32s(&q), out);
+    }
+    if let Some(e) = data.euler_rad {
+        put_field(field::EULER_ANGLES, &be_f32s(&e), out);
+    }
+    if let Some(t) = data.internal_timestamp {
+        put_field(field::INTERNAL_TIMESTAMP, &t.to_be_bytes(), out);
+    }
+    if let Some(t) = &data.gps_correlation_time {
+        put_field(field::GPS_CORRELATION_TIMESTAMP, &gps_time_bytes(t), out);
+    }
+    if let Some(p) = data.pressure_mbar {
+        put_field(field::SCALED_PRESSURE, &p.to_be_bytes(), out);
+    }
+    if let Some(t) = &data.shared_gps_time {
+        put_field(field::SHARED_GPS_TIMESTAMP, &gps_time_bytes(t), out);
+    }
+    if let Some(ns) = data.reference_time_ns {
+        put_field(field::SHARED_REFERENCE_TIMESTAMP, &ns.to_be_bytes(), out);
+    }
+}
+
+impl Encoder for MipEncoder {
+    type Frame = MipPacket;
+
+    fn encode(&self, frame: &MipPacket, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+        let mut payload = Vec::with_capacity(64);
+        let descriptor_set = match frame {
+            MipPacket::Imu(data) => {
+                if data.skipped_fields > 0 {
+                    return Err(EncodeError::Invalid {
+                        field: "skipped_fields",
+                        reason: "fields not kept cannot be encoded",
+                    });
+                }
+                write_imu_data(data, &mut payload);
+                IMU_DATA_SET
+            }
+            MipPacket::Reply {
+                descriptor_set,
+                command,
+                error_code,
+                more_fields,
+            } => {
+                put_field(ACK_NACK_FIELD, &[*command, *error_code], &mut payload);
+                payload.extend_from_slice(more_fields);
+                *descriptor_set
+            }
+            MipPacket::Other {
+                descriptor_set,
+                payload: p,
+            } => {
+                payload.extend_from_slice(p);
+                *descriptor_set
+            }
+        };
+        if payload.len() > 255 {
+            return Err(EncodeError::TooLong {
+                len: payload.len(),
+                max: 255,
+            });
+        }
+        let start = out.len();
+        out.extend_from_slice(&[SYNC1, SYNC2, descriptor_set, payload.len() as u8]);
+        out.extend_from_slice(&payload);
+        let ck = fletcher16(&out[start..]);
+        out.extend_from_slice(&ck);
+        Ok(())
+    }
+}
+
+/// Auto-detection score: checksummed MIP packets, at least [`DETECT_MIN_FRAMES`].
+pub fn detect_score(sample: &[u8]) -> u32 {
+    let frames = accepted_frames(MipDecoder::new(), sample);
+    if frames < DETECT_MIN_FRAMES {
+        0
+    } else {
+        frames
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn manual_example_checksum() {
+        // "Get Device Status" command of the 3DM-GX5 DCP manual: 7565 0C05 0564 186D 01DA 83.
+        let packet = [
+            0x75, 0x65, 0x0C, 0x05, 0x05, 0x64, 0x18, 0x6D, 0x01, 0xDA, 0x83,
+        ];
+        assert_eq!(fletcher16(&packet[..9]), [0xDA, 0x83]);
+        let mut d = MipDecoder::new();
+        let mut frames = Vec::new();
+        d.decode(&packet, |f| frames.push(f));
+        assert_eq!(
+            frames,
+            vec![MipPacket::Other {
+                descriptor_set: 0x0C,
+                payload: packet[4..9].to_vec()
+            }]
+        );
+    }
+
+    #[test]
+    fn ack_reply_is_a_reply_not_a_sample() {
+        let mut bytes = Vec::new();
+        let reply = MipPacket::Reply {
+            descriptor_set: 0x0C,
+            command: 0x64,
+            error_code: 0,
+            more_fields: Vec::new(),
+        };
+        MipEncoder.encode(&reply, &mut bytes).unwrap();
+        assert_eq!(&bytes[..6], &[0x75, 0x65, 0x0C, 0x04, 0x04, 0xF1]);
+        let mut d = MipDecoder::new();
+        let mut frames = Vec::new();
+        d.decode(&bytes, |f| frames.push(f));
+        assert_eq!(frames, vec![reply]);
+        assert_eq!(frames[0].to_imu_sample(), None);
+    }
+
+    #[test]
+    fn fields_that_do_not_add_up_are_malformed_without_losing_sync() {
+        let mut good = Vec::new();
+        let data = MipImuData {
+            scaled_gyro: Some([0.1, 0.2, 0.3]),
+            ..Default::default()
+        };
+        MipEncoder.encode(&MipPacket::Imu(data), &mut good).unwrap();
+        // Accel field claiming 16 bytes in a 14-byte payload, checksum right.
+        let mut bad = vec![0x75, 0x65, 0x80, 0x0E, 0x10, 0x04];
+        bad.extend_from_slice(&[0; 12]);
+        let ck = fletcher16(&bad);
+        bad.extend_from_slice(&ck);
+        let stream = [&good[..], &bad, &good].concat();
+        let mut d = MipDecoder::new();
+        let mut n = 0;
+        d.decode(&stream, |_| n += 1);
+        let s = d.stats();
+        assert_eq!((n, s.frames_malformed, s.resyncs), (2, 1, 0), "{s:?}");
+        assert_eq!(s.bytes_skipped, bad.len() as u64);
+    }
+}
