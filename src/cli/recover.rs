@@ -1,5 +1,6 @@
 //! `imulab recover SESSION`: makes the `*.partial` chunk file of a killed or crashed writer
-//! readable (clears the SWMR superblock flag, trims unwritten rows) and gives it its final name.
+//! readable (clears the SWMR superblock flag, trims unwritten rows, adds the journal's rows,
+//! rebuilds it from the journal when it is beyond repair) and gives it its final name.
 
 use std::path::PathBuf;
 
@@ -28,6 +29,9 @@ pub fn run(args: RecoverArgs) -> anyhow::Result<()> {
                 ""
             }
         );
+        if let Some(why) = &f.rebuilt {
+            println!("  rebuilt from the journal: the HDF5 file was beyond repair ({why})");
+        }
         if f.journal_bytes_dropped > 0 {
             println!(
                 "  journal: dropped a torn tail of {} bytes",
@@ -36,7 +40,7 @@ pub fn run(args: RecoverArgs) -> anyhow::Result<()> {
         }
         for t in &f.tables {
             println!(
-                "  /{:<24} kept {:>9} rows ({} from the journal), dropped {}",
+                "  /{:<24} saved {:>9} rows ({} from the journal), lost {}",
                 t.group, t.rows_kept, t.rows_from_journal, t.rows_dropped
             );
         }

@@ -16,6 +16,12 @@ pub fn partial_file_name(index: u32) -> String {
     chunk_file_name(index) + PARTIAL_SUFFIX
 }
 
+/// Name of the file `imulab recover` builds chunk file number `index` in before renaming it
+/// to its final name (not a chunk file name: readers ignore it).
+pub fn recovering_file_name(index: u32) -> String {
+    chunk_file_name(index) + ".recovering"
+}
+
 /// Suffix of the two write-ahead journal files beside a chunk file (see `journal`), to which
 /// `0` or `1` is added.
 pub const JOURNAL_SUFFIX: &str = ".journal";

@@ -177,14 +177,73 @@ fn partial_hint(dir: &Path, live: bool) -> String {
     }
 }
 
+/// Metadata reads a SWMR reader makes before it gives up on a block whose checksum fails.
+/// HDF5's default (100, each retry after a growing sleep in `H5C_protect`) is meant for a
+/// writer that is about to finish the block; on a damaged or truncated file it made
+/// `inspect` hang for more than 10 minutes. A live writer's torn block is rewritten within
+/// one flush, and the reader's next call sees it.
+const SWMR_METADATA_READ_ATTEMPTS: u32 = 2;
+
+/// Opens `path` read-only for SWMR reading, with [`SWMR_METADATA_READ_ATTEMPTS`].
+pub(crate) fn open_swmr(path: &Path) -> hdf5::Result<hdf5::File> {
+    hdf5::File::with_options()
+        .with_fapl(|p| p.metadata_read_attempts(SWMR_METADATA_READ_ATTEMPTS))
+        .open_as(path, hdf5::file::OpenMode::ReadSWMR)
+}
+
+/// Checks, before HDF5 sees the file, that it starts with an HDF5 superblock and, for a
+/// version 2/3 superblock, that the file is as long as the end-of-file address it records
+/// (a truncated file is refused here with sizes, instead of failing deep inside HDF5).
+/// The error is one line naming the file.
+pub(crate) fn check_superblock(path: &Path) -> Result<(), String> {
+    let shown = path.display();
+    let bytes = {
+        use std::io::Read;
+        let mut head = Vec::with_capacity(64);
+        std::fs::File::open(path)
+            .and_then(|f| f.take(64).read_to_end(&mut head))
+            .map_err(|e| format!("{shown}: {e}"))?;
+        head
+    };
+    let size = std::fs::metadata(path)
+        .map_err(|e| format!("{shown}: {e}"))?
+        .len();
+    if size == 0 {
+        return Err(format!("{shown}: empty file (0 bytes), not an HDF5 file"));
+    }
+    if bytes.len() < 8 || bytes[..8] != super::recover::HDF5_SIGNATURE {
+        return Err(format!(
+            "{shown}: not an HDF5 file (no HDF5 signature at its start; {size} bytes)"
+        ));
+    }
+    let (Some(&version), Some(&size_of_offsets)) = (bytes.get(8), bytes.get(9)) else {
+        return Err(format!("{shown}: truncated HDF5 superblock ({size} bytes)"));
+    };
+    if version >= 2 && size_of_offsets == 8 {
+        // signature 8, version, sizes, flags; base, extension, EOF, root addresses.
+        let Some(eof) = bytes.get(12 + 16..12 + 24) else {
+            return Err(format!("{shown}: truncated HDF5 superblock ({size} bytes)"));
+        };
+        let eof = u64::from_le_bytes(eof.try_into().unwrap_or_default());
+        let base = u64::from_le_bytes(bytes[12..20].try_into().unwrap_or_default());
+        if base.saturating_add(eof) > size {
+            return Err(format!(
+                "{shown}: truncated or corrupt: the file is {size} bytes, its superblock records {}",
+                base.saturating_add(eof)
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Opens one chunk file and checks its schema version; the error is one line naming it.
 /// `partial_hint` is appended when a `*.partial` file does not open.
 fn open_chunk(path: &Path, partial: Option<&str>) -> Result<hdf5::File, String> {
     let shown = path.display();
+    check_superblock(path).map_err(|e| format!("{e}{}", partial.unwrap_or("")))?;
     let file = if partial.is_some() {
         // A live file is read SWMR; a killed writer's file may also open that way.
-        hdf5::File::open_as(path, hdf5::file::OpenMode::ReadSWMR)
-            .or_else(|_| hdf5::File::open(path))
+        open_swmr(path).or_else(|_| hdf5::File::open(path))
     } else {
         hdf5::File::open(path)
     };

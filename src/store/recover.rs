@@ -11,6 +11,14 @@
 //! `journal`) are then appended to each table, from the first row the HDF5 file does not
 //! hold; rows it already holds are skipped, so recovering twice gives the same file. A
 //! partial file without a journal (sessions written before it, schema 1) recovers as before.
+//!
+//! Recover never makes a session worse: it checks the free space first (the copy and the
+//! journal's rows must fit), works on a copy named `chunk-NNNNNN.h5.recovering` and renames
+//! it into place only when it is complete and durable; on any failure the copy goes and the
+//! partial file and its journal are as they were. A truncated copy is padded to the size its
+//! superblock records so HDF5 opens it and what is still there is read; when HDF5 cannot
+//! open it at all, the chunk is rebuilt in a new file from the journal's rows, and the rows
+//! of each table that neither holds are reported as dropped.
 
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -26,7 +34,7 @@ use super::reader::valid_prefix;
 use super::records::{GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 use super::StoreError;
 
-const HDF5_SIGNATURE: [u8; 8] = [0x89, b'H', b'D', b'F', b'\r', b'\n', 0x1a, b'\n'];
+pub(crate) const HDF5_SIGNATURE: [u8; 8] = [0x89, b'H', b'D', b'F', b'\r', b'\n', 0x1a, b'\n'];
 
 /// Jenkins' lookup3 `hashlittle`, byte-at-a-time as HDF5's `H5_checksum_lookup3`.
 pub fn lookup3(key: &[u8], initval: u32) -> u32 {
@@ -209,6 +217,9 @@ pub struct FileRecovery {
     pub tables: Vec<TableRecovery>,
     /// Bytes at the end of the journal dropped as torn or corrupt (0 without a journal).
     pub journal_bytes_dropped: u64,
+    /// Why the HDF5 file was beyond repair, when the chunk was rebuilt from its journal
+    /// into a new file (the rows the journal did not hold are counted as dropped).
+    pub rebuilt: Option<String>,
 }
 
 /// What `recover` did to a session.
@@ -262,11 +273,13 @@ fn repair_table<B: Block>(file: &hdf5::File, group: &str) -> hdf5::Result<TableR
     })
 }
 
-/// The rows of table `id` in `records` from row `from` on, as far as they are contiguous.
-/// A record that does not decode ends them (it passed its CRC, so that is a writer bug, and
-/// reported in the log).
-fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> Vec<R> {
+/// The rows of table `id` in `records` from row `from` on, and how many rows were skipped
+/// because no record holds them (rows the HDF5 file had but lost, when it was damaged and
+/// rebuilt). A record that does not decode ends them (it passed its CRC, so that is a writer
+/// bug, and reported in the log).
+fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> (Vec<R>, u64) {
     let mut rows = Vec::new();
+    let mut lost = 0;
     let mut next = from as u64;
     // The two journal files' records, in row order (they may overlap; overlaps are skipped).
     let mut mine: Vec<&Record> = records.iter().filter(|r| r.id == id).collect();
@@ -278,10 +291,11 @@ fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> Vec<R> {
         }
         if rec.first > next {
             tracing::warn!(
-                "journal of {id}: rows {next}..{} missing; stopping there",
+                "{id}: rows {next}..{} are neither in the HDF5 file nor in the journal",
                 rec.first
             );
-            break;
+            lost += rec.first - next;
+            next = rec.first;
         }
         let mut c = Cursor {
             bytes: &rec.payload,
@@ -298,7 +312,7 @@ fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> Vec<R> {
             }
         }
     }
-    rows
+    (rows, lost)
 }
 
 /// Appends `rows` at row `at` of the table `group` (whose columns all hold `at` rows).
@@ -331,10 +345,11 @@ fn repair_and_replay<B: Block, R: Row>(
     debug_assert_eq!(B::COLUMNS.len(), R::COLUMNS.len());
     let mut t = repair_table::<B>(file, group)?;
     let at = t.rows_kept as usize;
-    let rows: Vec<R> = journal_rows(records, group, at);
+    let (rows, lost): (Vec<R>, u64) = journal_rows(records, group, at);
     append_rows(file, group, at, &rows)?;
     t.rows_kept += rows.len() as u64;
     t.rows_from_journal = rows.len() as u64;
+    t.rows_dropped += lost;
     Ok(t)
 }
 
@@ -412,7 +427,11 @@ fn repair_and_replay_raw(
         n_bytes += new_bytes.len() as u64;
     }
     let at = t.rows_kept as usize;
-    let mut rows: Vec<RawIndexRow> = journal_rows(records, group, at);
+    // Byte offsets are positions in the bytes column: only rows that follow on are kept.
+    let (mut rows, lost): (Vec<RawIndexRow>, u64) = journal_rows(records, group, at);
+    if lost > 0 {
+        rows.clear();
+    }
     let complete = rows
         .iter()
         .take_while(|r| r.offset.saturating_add(u64::from(r.len)) <= n_bytes)
@@ -498,8 +517,8 @@ fn repair_file(path: &Path, records: &[Record]) -> Result<Vec<TableRecovery>, St
 /// Makes the partial chunk file at `path` readable in place, without renaming it: clears
 /// its superblock flags, repairs its tables and appends the rows of its write-ahead journal
 /// (the files `journal`; missing ones count as empty) that the file does not hold. Running
-/// it again changes nothing. [`recover`] does this for every partial file of a session,
-/// then renames each. Returns what it did and the bytes dropped from torn journal tails.
+/// it again changes nothing. [`recover`] does this to a copy of every partial file of a
+/// session, then renames the copy. Returns what it did and the bytes dropped from torn journal tails.
 pub fn repair_partial(
     path: &Path,
     journal: &[PathBuf],
@@ -521,7 +540,7 @@ pub fn repair_partial(
 /// Files that cannot be recovered are left as they are and reported in the error, after
 /// the others have been recovered.
 pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
-    Manifest::load(dir)?;
+    let manifest = Manifest::load(dir)?;
     let Some(lock) = try_writer_lock(dir)? else {
         // A live writer: nothing crashed, so nothing to recover; say how to finish instead.
         return Err(StoreError::io(
@@ -553,39 +572,11 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
     let mut report = RecoverReport::default();
     let mut first_error = None;
     for (index, from) in partials {
-        let to = dir.join(layout::chunk_file_name(index));
-        let result = (|| {
-            if to.exists() {
-                return Err(StoreError::Corrupt {
-                    path: from.clone(),
-                    msg: format!(
-                        "{} already exists; not overwriting completed data",
-                        to.display()
-                    ),
-                });
-            }
-            let journal = journal::journal_paths(dir, index);
-            let (sb, tables, journal_bytes_dropped) = repair_partial(&from, &journal)?;
-            std::fs::rename(&from, &to).map_err(|e| StoreError::io(&to, e))?;
-            fsync_dir(dir)?;
-            // Only now, with the rows durable in the renamed file, may the journal go.
-            for j in &journal {
-                remove_if_present(j)?;
-            }
-            Ok(FileRecovery {
-                from: from.clone(),
-                to: to.clone(),
-                superblock_flags_cleared: sb.flags != 0,
-                tables,
-                journal_bytes_dropped,
-            })
-        })();
-        match result {
+        match recover_one(dir, &manifest, index, &from) {
             Ok(r) => report.files.push(r),
-            Err(e) => {
-                tracing::error!("{e}");
-                first_error.get_or_insert(e);
-            }
+            // The first error is returned (and shown); the others are logged.
+            Err(e) if first_error.is_some() => tracing::error!("{e}"),
+            Err(e) => first_error = Some(e),
         }
     }
     // A journal whose chunk file is complete is left over from a crash between the writer's
@@ -609,6 +600,258 @@ pub fn recover(dir: &Path) -> Result<RecoverReport, StoreError> {
     match first_error {
         Some(e) => Err(e),
         None => Ok(report),
+    }
+}
+
+/// Room kept free beyond the recovered file's own size: HDF5 metadata and the file system.
+const SPACE_MARGIN_BYTES: u64 = 1 << 20;
+
+/// Recovers partial chunk file number `index` at `from`, never touching it or its journal
+/// until the recovered file is complete: a copy is repaired (or, when the HDF5 file is
+/// beyond repair, a new file is rebuilt from the journal) under a temporary name, made
+/// durable and renamed to the final name; only then do the partial file and the journal go.
+/// On any failure the temporary file is removed and the session is as it was.
+fn recover_one(
+    dir: &Path,
+    manifest: &Manifest,
+    index: u32,
+    from: &Path,
+) -> Result<FileRecovery, StoreError> {
+    let to = dir.join(layout::chunk_file_name(index));
+    if to.exists() {
+        return Err(StoreError::Corrupt {
+            path: from.to_path_buf(),
+            msg: format!(
+                "{} already exists; not overwriting completed data",
+                to.display()
+            ),
+        });
+    }
+    let journal = journal::journal_paths(dir, index);
+    let journal_size: u64 = journal
+        .iter()
+        .filter_map(|j| std::fs::metadata(j).ok())
+        .map(|m| m.len())
+        .sum();
+    let partial_size = std::fs::metadata(from)
+        .map_err(|e| StoreError::io(from, e))?
+        .len();
+    let recorded_size = recorded_file_size(from).unwrap_or(0);
+    let need = partial_size.max(recorded_size) + journal_size + SPACE_MARGIN_BYTES;
+    check_free_space(dir, need, from)?;
+
+    let work = dir.join(layout::recovering_file_name(index));
+    let result = repair_copy(from, &work, manifest, &journal).or_else(|repair_error| {
+        let _ = std::fs::remove_file(&work);
+        // Out of room meanwhile (another writer on the disk): say so, do not rebuild.
+        check_free_space(dir, need, from)?;
+        let why = repair_error.to_string();
+        tracing::warn!("{why}; rebuilding the chunk from its journal");
+        rebuild(&work, index, manifest, &journal).map(|(tables, dropped)| {
+            let sb = SuperblockState {
+                offset: 0,
+                version: 0,
+                flags: 0,
+            };
+            (sb, tables, dropped, Some(why))
+        })
+    });
+    let (sb, tables, journal_bytes_dropped, rebuilt) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = std::fs::remove_file(&work);
+            return Err(no_space_if_full(dir, need, from, e));
+        }
+    };
+    let finish = || -> Result<(), StoreError> {
+        std::fs::File::open(&work)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| StoreError::io(&work, e))?;
+        std::fs::rename(&work, &to).map_err(|e| StoreError::io(&to, e))?;
+        fsync_dir(dir)
+    };
+    if let Err(e) = finish() {
+        let _ = std::fs::remove_file(&work);
+        return Err(no_space_if_full(dir, need, from, e));
+    }
+    // Only now, with the rows durable under the final name, may the partial file and the
+    // journal go.
+    remove_if_present(from)?;
+    for j in &journal {
+        remove_if_present(j)?;
+    }
+    fsync_dir(dir)?;
+    Ok(FileRecovery {
+        from: from.to_path_buf(),
+        to,
+        superblock_flags_cleared: sb.flags != 0,
+        tables,
+        journal_bytes_dropped,
+        rebuilt,
+    })
+}
+
+/// What recovering one file gives: the superblock found, the tables, the torn journal
+/// bytes dropped and, when rebuilt, why.
+type Recovered = (SuperblockState, Vec<TableRecovery>, u64, Option<String>);
+
+/// Copies `from` to `work` and repairs the copy ([`repair_partial`]). A copy shorter than
+/// the size its superblock records (a truncated file) is first padded with zeros to it, so
+/// that HDF5 opens it and the rows whose blocks are still there can be read; the missing
+/// blocks fail their checksums and end their tables, the journal supplies the rows after.
+fn repair_copy(
+    from: &Path,
+    work: &Path,
+    manifest: &Manifest,
+    journal: &[PathBuf],
+) -> Result<Recovered, StoreError> {
+    std::fs::copy(from, work).map_err(|e| StoreError::io(work, e))?;
+    if let Some(recorded) = recorded_file_size(work) {
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .open(work)
+            .map_err(|e| StoreError::io(work, e))?;
+        let size = f.metadata().map_err(|e| StoreError::io(work, e))?.len();
+        if size < recorded {
+            f.set_len(recorded).map_err(|e| StoreError::io(work, e))?;
+        }
+    }
+    let (sb, tables, dropped) = repair_partial(work, journal).map_err(|e| named(e, from))?;
+    check_layout(work, manifest).map_err(|msg| StoreError::Corrupt {
+        path: from.to_path_buf(),
+        msg,
+    })?;
+    Ok((sb, tables, dropped, None))
+}
+
+/// Checks that the repaired file at `path` is a chunk file of this build with a table for
+/// every device of `manifest` (damage can leave HDF5 able to open a file whose groups or
+/// attributes are gone, and the rows of its journal would then have nowhere to go).
+fn check_layout(path: &Path, manifest: &Manifest) -> Result<(), String> {
+    let file = hdf5::File::open(path).map_err(|e| e.to_string())?;
+    let version = file
+        .attr(layout::ATTR_SCHEMA_VERSION)
+        .and_then(|a| a.read_scalar::<u32>())
+        .map_err(|_| "no schema_version attribute left".to_string())?;
+    if version != super::SCHEMA_VERSION {
+        return Err(format!("schema version {version} after repair"));
+    }
+    for d in &manifest.devices {
+        let group = match d.kind {
+            super::DeviceKind::Imu => layout::imu_path(&d.name),
+            super::DeviceKind::Gnss => layout::gnss_path(&d.name),
+        };
+        if file.group(&group).is_err() {
+            return Err(format!("table /{group} is gone"));
+        }
+    }
+    if file.group(layout::EVENTS_GROUP).is_err() {
+        return Err(format!("table /{} is gone", layout::EVENTS_GROUP));
+    }
+    Ok(())
+}
+
+/// Rebuilds chunk `index` into a new file `work` from the rows of its journal alone.
+fn rebuild(
+    work: &Path,
+    index: u32,
+    manifest: &Manifest,
+    journal: &[PathBuf],
+) -> Result<(Vec<TableRecovery>, u64), StoreError> {
+    let contents = journal::read(journal)?;
+    let raw = contents.records.iter().any(|r| r.id.starts_with("raw/"));
+    super::writer::create_empty_chunk(work, index, manifest, raw)?;
+    let tables = repair_file(work, &contents.records)?;
+    Ok((tables, contents.dropped_bytes))
+}
+
+/// An error about the temporary copy, said of the file the user has (`from`).
+fn named(e: StoreError, from: &Path) -> StoreError {
+    match e {
+        StoreError::Corrupt { msg, .. } => StoreError::Corrupt {
+            path: from.to_path_buf(),
+            msg,
+        },
+        other => other,
+    }
+}
+
+/// The file size a version 2/3 superblock at the start of `path` records (base address +
+/// end-of-file address), or `None` when there is no such superblock.
+fn recorded_file_size(path: &Path) -> Option<u64> {
+    let mut head = [0u8; 12 + 4 * 8];
+    std::fs::File::open(path).ok()?.read_exact(&mut head).ok()?;
+    if head[..8] != HDF5_SIGNATURE || head[8] < 2 || head[9] != 8 {
+        return None;
+    }
+    let word = |at: usize| u64::from_le_bytes(head[at..at + 8].try_into().unwrap_or_default());
+    Some(word(12).saturating_add(word(12 + 16)))
+}
+
+/// Free bytes for an unprivileged writer on the file system of `dir`.
+fn free_bytes(dir: &Path) -> Option<u64> {
+    let st = nix::sys::statvfs::statvfs(dir).ok()?;
+    Some((st.blocks_available() as u64).saturating_mul(st.fragment_size() as u64))
+}
+
+/// The mount point of the file system holding `dir` (the last ancestor on the same device).
+fn mount_point(dir: &Path) -> PathBuf {
+    use std::os::unix::fs::MetadataExt;
+    let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf());
+    let Ok(dev) = std::fs::metadata(&dir).map(|m| m.dev()) else {
+        return dir;
+    };
+    let mut top = dir.clone();
+    for a in dir.ancestors().skip(1) {
+        match std::fs::metadata(a) {
+            Ok(m) if m.dev() == dev => top = a.to_path_buf(),
+            _ => break,
+        }
+    }
+    top
+}
+
+fn mib(bytes: u64) -> String {
+    if bytes < 1 << 20 {
+        format!("{} KiB", bytes.div_ceil(1 << 10))
+    } else {
+        format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
+    }
+}
+
+/// Refuses to start when the file system of `dir` has less than `need` bytes free, saying
+/// how much is missing.
+fn check_free_space(dir: &Path, need: u64, from: &Path) -> Result<(), StoreError> {
+    match free_bytes(dir) {
+        Some(have) if have < need => Err(no_space(dir, need, have, from)),
+        _ => Ok(()),
+    }
+}
+
+fn no_space(dir: &Path, need: u64, have: u64, from: &Path) -> StoreError {
+    StoreError::io(
+        from,
+        std::io::Error::new(
+            std::io::ErrorKind::StorageFull,
+            format!(
+                "no space left on {}: need {} to recover it, have {} (free {} and run \
+                 `imulab recover {}` again; the file and its journal are untouched)",
+                mount_point(dir).display(),
+                mib(need),
+                mib(have),
+                mib(need - have),
+                dir.display()
+            ),
+        ),
+    )
+}
+
+/// `e`, or the no-space error when the disk has filled up meanwhile (HDF5 then only says
+/// "file write failed").
+fn no_space_if_full(dir: &Path, need: u64, from: &Path, e: StoreError) -> StoreError {
+    match free_bytes(dir) {
+        Some(have) if have < need => no_space(dir, need, have, from),
+        _ => e,
     }
 }
 

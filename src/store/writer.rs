@@ -775,6 +775,30 @@ impl ChunkFile {
     }
 }
 
+/// Creates `path`: a closed chunk file number `index` laid out for `manifest` (with
+/// `/raw/<device>` tables when `raw`) and holding no rows, for `recover` to rebuild a chunk
+/// that is beyond repair into. The layout is made by [`ChunkFile`] itself (one way to lay a
+/// file out), in a scratch directory beside `path` that is removed again.
+pub(crate) fn create_empty_chunk(
+    path: &Path,
+    index: u32,
+    manifest: &Manifest,
+    raw: bool,
+) -> Result<(), StoreError> {
+    let scratch = path.with_extension("layout");
+    let _ = std::fs::remove_dir_all(&scratch);
+    std::fs::create_dir(&scratch).map_err(|e| StoreError::io(&scratch, e))?;
+    let opts = WriterOptions {
+        raw_journal: raw,
+        ..WriterOptions::default()
+    };
+    let made = ChunkFile::create(&scratch, index, manifest, &opts)
+        .and_then(|chunk| chunk.finish(&scratch))
+        .and_then(|file| std::fs::rename(&file, path).map_err(|e| StoreError::io(path, e)));
+    let _ = std::fs::remove_dir_all(&scratch);
+    made
+}
+
 fn plain_group(file: &hdf5::File, path: &str, axis_frame: &str) -> hdf5::Result<Group> {
     let g = match file.group(path) {
         Ok(g) => g,

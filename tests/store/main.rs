@@ -3,6 +3,7 @@
 mod cli;
 mod common;
 mod events;
+mod faults;
 mod journal;
 mod python;
 mod recover;
