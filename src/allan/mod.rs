@@ -1,6 +1,7 @@
 //! Allan-family deviations, confidence intervals, noise-term fit and reports.
 //!
-//! Pipeline: [`input`] reads per-axis rate series (CSV/TSV, .npy, sessions) →
+//! Pipeline: [`input`] reads per-axis rate series (CSV/TSV, .npy, sessions; [`columns`]
+//! tells the roles and units of a file's columns) →
 //! [`numerics::Phase`] integrates one axis into phase with the mean removed →
 //! [`curve::compute_curve`] evaluates a [`deviation::DeviationKind`] over a
 //! [`taus::TauGrid`] with [`edf`] confidence intervals and [`noise_id`] noise types →
@@ -8,6 +9,7 @@
 
 pub mod analysis;
 pub mod block_sums;
+pub mod columns;
 pub mod curve;
 pub mod deviation;
 pub mod edf;

@@ -11,7 +11,8 @@
 
 use super::analysis::{AllanReport, AxisResult};
 use super::fit::{NoiseFit, Term};
-use super::units::SensorKind;
+use super::thermal::ThermalSummary;
+use super::units::{thermal_coefficient_in_units, SensorKind};
 use health::SessionHealth;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -382,6 +383,37 @@ pub fn pretty_unit(unit: &str) -> String {
         .replace("^2", "²")
         .replace("^3", "³")
         .replace("ug", "µg")
+}
+
+/// Unit of an axis's deviations: the input unit (unit·s for TDEV); `input units` when the
+/// input has none.
+pub fn deviation_unit(a: &AxisResult) -> String {
+    let base = match a.unit {
+        super::units::RateUnit::Unspecified => "input units".to_string(),
+        unit => pretty_unit(unit.symbol()),
+    };
+    if a.curve.kind == super::DeviationKind::Tdev {
+        format!("{base}·s")
+    } else {
+        base
+    }
+}
+
+/// The bias temperature coefficient of an axis in engineering units (°/h/°C, mg/°C) with its
+/// standard error, e.g. `bias vs temperature: 1.52 ± 0.03 °/h/°C (4 bins of 5 °C)`.
+pub fn thermal_coefficient_text(a: &AxisResult, t: &ThermalSummary) -> Option<String> {
+    let c = thermal_coefficient_in_units(t.coefficient?, a.sensor, a.unit);
+    let se = t
+        .coefficient_std_error
+        .map(|e| thermal_coefficient_in_units(e, a.sensor, a.unit).value);
+    Some(format!(
+        "bias vs temperature: {}{} {} ({} bins of {} °C)",
+        sig3(c.value),
+        se.map(|e| format!(" ± {}", sig3(e))).unwrap_or_default(),
+        pretty_unit(&c.unit),
+        t.bins.len(),
+        t.bin_width
+    ))
 }
 
 /// Formats a value with 3 significant digits.
@@ -799,7 +831,7 @@ pub fn html_report_with_sessions(
         })
         .collect();
     if !thermal.is_empty() {
-        html.push_str("<h3>Bias against temperature</h3><div class=\"scroll\"><table><thead><tr><th>device</th><th>axis</th><th>coefficient [unit/°C]</th><th>± (1σ)</th><th>bins (T: mean ± spread)</th></tr></thead><tbody>");
+        html.push_str("<h3>Bias against temperature</h3><div class=\"scroll\"><table><thead><tr><th>device</th><th>axis</th><th>coefficient</th><th>± (1σ)</th><th>unit</th><th>bins (T: mean ± spread)</th></tr></thead><tbody>");
         for a in thermal {
             if let Some(t) = &a.thermal {
                 let bins: Vec<String> = t
@@ -814,13 +846,15 @@ pub fn html_report_with_sessions(
                         )
                     })
                     .collect();
+                let in_units = |v: f64| thermal_coefficient_in_units(v, a.sensor, a.unit);
                 let _ = write!(
                     html,
-                    "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
+                    "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
                     escape(&a.device),
                     escape(&a.axis),
-                    t.coefficient.map(sig3).unwrap_or_else(|| "–".into()),
-                    t.coefficient_std_error.map(sig3).unwrap_or_else(|| "–".into()),
+                    t.coefficient.map(|c| sig3(in_units(c).value)).unwrap_or_else(|| "–".into()),
+                    t.coefficient_std_error.map(|e| sig3(in_units(e).value)).unwrap_or_else(|| "–".into()),
+                    escape(&pretty_unit(&in_units(0.0).unit)),
                     escape(&bins.join("; "))
                 );
             }

@@ -1,6 +1,6 @@
 //! Units: what the input rate is measured in, and the engineering units each fitted
 //! noise term is quoted in (gyro ARW °/√h and °/s/√Hz, bias instability °/h, RRW °/h/√h;
-//! accel VRW m/s/√h and µg/√Hz, bias instability mg and µg, acceleration random walk).
+//! accel VRW m/s/√h, mg/√Hz and µg/√Hz, bias instability mg and µg, acceleration random walk).
 
 use super::fit::{NoiseFit, Term};
 use serde::{Deserialize, Serialize};
@@ -165,7 +165,7 @@ pub fn term_units(
             "VRW",
             vec![
                 ("m/s/sqrt(h)".into(), 60.0),
-                ("mg/sqrt(h)".into(), 60.0 * 1000.0 / STANDARD_GRAVITY),
+                ("mg/sqrt(Hz)".into(), 1000.0 / STANDARD_GRAVITY),
                 ("ug/sqrt(Hz)".into(), 1e6 / STANDARD_GRAVITY),
                 ("m/s^2/sqrt(Hz)".into(), 1.0),
             ],
@@ -194,6 +194,29 @@ pub fn term_units(
         (None, Term::BiasInstability) => ("bias instability", vec![(u.to_string(), 1.0)]),
         (None, Term::RateRandomWalk) => ("random walk", vec![(format!("{u}/sqrt(s)"), 1.0)]),
         (None, Term::RateRamp) => ("ramp", vec![(format!("{u}/s"), 1.0)]),
+    }
+}
+
+/// A bias temperature coefficient (`per_degree`, input units per °C) in engineering units:
+/// °/h/°C for a gyro, mg/°C for an accelerometer, the input unit per °C otherwise.
+pub fn thermal_coefficient_in_units(
+    per_degree: f64,
+    sensor: Option<SensorKind>,
+    input: RateUnit,
+) -> Quantity {
+    match sensor {
+        Some(SensorKind::Gyro) => Quantity {
+            value: per_degree * input.to_si() * DEG_PER_RAD * 3600.0,
+            unit: "deg/h/°C".into(),
+        },
+        Some(SensorKind::Accel) => Quantity {
+            value: per_degree * input.to_si() * 1000.0 / STANDARD_GRAVITY,
+            unit: "mg/°C".into(),
+        },
+        None => Quantity {
+            value: per_degree,
+            unit: format!("{}/°C", input.symbol()),
+        },
     }
 }
 

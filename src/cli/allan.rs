@@ -3,6 +3,10 @@
 //! (CSV/TSV, .npy). The input options are shared with `imulab report` and `imulab compare`.
 
 use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions, AxisResult};
+use crate::allan::columns::{
+    detect_layout, fmt_sig, infer_time_unit, looks_like_column_group, median_step,
+    parse_column_groups, role_of, ColumnRole, TimeUnit,
+};
 use crate::allan::input::{
     open_file, read_axes, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
 };
@@ -32,25 +36,34 @@ pub struct AnalysisArgs {
     /// Sensor type of the channels (decides engineering units; implied by --units).
     #[arg(long, value_enum)]
     pub sensor: Option<SensorKind>,
-    /// Channels to analyse, by name or 0-based index (default: all but time/temperature).
-    /// With a session: x, y, z (of --sensor, default both sensors) or gyro_x … accel_z.
+    /// Channels to analyse, by name or 0-based index (default: every column that is not
+    /// the time or the temperature by name; see docs/allan.md). With a session: x, y, z (of
+    /// --sensor, default both sensors) or gyro_x … accel_z.
     #[arg(long, value_delimiter = ',')]
     pub axes: Vec<String>,
+    /// Unit (and so sensor) per column: NAMES=UNIT, one group per occurrence or several in
+    /// one quoted value, e.g. `--columns gx,gy,gz=deg/s --columns ax,ay,az=g` or
+    /// `--columns 'gx,gy,gz=deg/s ax,ay,az=g'`. Columns not named take --units.
+    #[arg(long, value_name = "NAMES=UNIT")]
+    pub columns: Vec<String>,
     /// Deviation type.
     #[arg(long, value_enum, default_value = "oadev")]
     pub kind: DeviationKind,
     /// τ grid: octave, decade, dense:N (N per decade), all, or a list of taus in seconds.
     #[arg(long, default_value = "octave")]
     pub taus: TauGrid,
-    /// Sample rate in Hz (or give --time-column).
+    /// Sample rate in Hz. τ0 is then 1/rate; a time column, if any, is checked against it
+    /// (and its unit inferred from it) but not analysed.
     #[arg(long)]
     pub rate: Option<f64>,
-    /// Channel with time stamps (name or index); τ0 is the median interval.
+    /// Channel with time stamps (name or index; default: the column named like a time,
+    /// see docs/allan.md); without --rate, τ0 is the median interval.
     #[arg(long)]
     pub time_column: Option<String>,
-    /// Unit of the time column: s, ms, us or ns.
-    #[arg(long, default_value = "s")]
-    pub time_unit: String,
+    /// Unit of the time column: s, ms, us or ns (default: from its name, else inferred
+    /// from its median step, with a warning when ambiguous).
+    #[arg(long)]
+    pub time_unit: Option<String>,
     /// Unit of the samples: rad/s, deg/s, deg/h, m/s2, g, mg, or none (results stay in input units).
     #[arg(long, default_value = "none")]
     pub units: RateUnit,
@@ -86,8 +99,10 @@ pub struct AnalysisArgs {
     after_help = "Example: imulab allan gyro.csv --time-column t --axes gx,gy,gz --units rad/s --fit --taus dense:10 --json out.json --html out.html"
 )]
 pub struct AllanArgs {
-    /// Input: a session directory, a CSV/TSV file (header optional) or a NumPy .npy (N or N×k).
-    pub input: PathBuf,
+    /// Inputs: session directories, CSV/TSV/semicolon/space-aligned files (header optional)
+    /// or NumPy .npy files (N or N×k); one device each (a session: every IMU in it).
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
     #[command(flatten)]
     pub analysis: AnalysisArgs,
     /// Write the JSON document (schema: docs/allan.md).
@@ -111,27 +126,38 @@ pub struct AllanArgs {
 }
 
 pub fn run(args: AllanArgs) -> anyhow::Result<()> {
-    let report = analyse_inputs(std::slice::from_ref(&args.input), &args.analysis)?;
-    write_outputs(&report, &args)?;
-    print!("{}", summary_text(&report));
+    if args.analysis.device.is_some() && args.inputs.len() > 1 {
+        bail!("--device names a single input; with several inputs the file names are used");
+    }
+    let report = analyse_inputs(&args.inputs, &args.analysis)?;
+    print!("{}", summary_text(&report, true));
+    for path in write_outputs(&report, &args)? {
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }
 
-fn write_outputs(report: &AllanReport, args: &AllanArgs) -> anyhow::Result<()> {
+/// Writes the requested outputs; returns the paths written.
+fn write_outputs(report: &AllanReport, args: &AllanArgs) -> anyhow::Result<Vec<PathBuf>> {
+    let mut written = Vec::new();
     if let Some(path) = &args.json {
         let file =
             std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
         serde_json::to_writer_pretty(std::io::BufWriter::new(file), report)?;
+        written.push(path.clone());
     }
     if let Some(path) = &args.csv {
         report::write_csv(report, path).with_context(|| format!("writing {}", path.display()))?;
+        written.push(path.clone());
     }
     if let Some(path) = &args.html {
         std::fs::write(path, report::html_report(report, "Allan analysis"))
             .with_context(|| format!("writing {}", path.display()))?;
+        written.push(path.clone());
     }
     if let Some(path) = &args.png {
         report::write_png(report, path).with_context(|| format!("writing {}", path.display()))?;
+        written.push(path.clone());
     }
     if (args.kalibr.is_some() || args.matlab.is_some()) && !args.analysis.fit {
         bail!("--kalibr and --matlab export fitted terms: add --fit");
@@ -139,35 +165,51 @@ fn write_outputs(report: &AllanReport, args: &AllanArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.kalibr {
         std::fs::write(path, export::kalibr_yaml(&report.axes, "/imu0"))
             .with_context(|| format!("writing {}", path.display()))?;
+        written.push(path.clone());
     }
     if let Some(path) = &args.matlab {
         std::fs::write(path, export::matlab_imu_sensor(&report.axes))
             .with_context(|| format!("writing {}", path.display()))?;
+        written.push(path.clone());
     }
-    Ok(())
+    Ok(written)
 }
 
-/// Terminal summary: per axis the curve, then the datasheet table if fitted.
-pub fn summary_text(report: &AllanReport) -> String {
+/// Terminal summary: per axis one line, with `curves` followed by its τ table; then the
+/// datasheet table if fitted.
+pub fn summary_text(report: &AllanReport, curves: bool) -> String {
     use std::fmt::Write;
     let mut out = String::new();
     for a in &report.axes {
         let _ = writeln!(
             out,
-            "{} {} ({}; {} samples, tau0 {} s, gaps policy {:?}, {} gap(s) found on the {}):",
+            "{} {} ({}; {} samples, tau0 {} s, gaps policy {:?}, {} gap(s) found on the {}){}",
             a.device,
             a.axis,
             a.curve.kind.name(),
             a.health.samples,
-            a.tau0,
+            fmt_sig(a.tau0),
             a.health.policy.unwrap_or_default(),
             a.health.gaps,
-            a.health.clock.as_deref().unwrap_or("time stamps")
+            a.health.clock.as_deref().unwrap_or("time stamps"),
+            if curves { ":" } else { "" }
         );
+        if let Some(t) = &a.thermal {
+            if let Some(line) = report::thermal_coefficient_text(a, t) {
+                let _ = writeln!(out, "  {line}");
+            }
+        }
+        if let Some(e) = &a.fit_error {
+            let _ = writeln!(out, "  fit: {e}");
+        }
+        if !curves {
+            continue;
+        }
+        let deviation = format!("dev [{}]", report::deviation_unit(a));
         let _ = writeln!(
             out,
             "  {:>12} {:>12} {:>12} {:>12} {:>9} {:>5}",
-            "tau [s]", "deviation", "low", "high", "edf", "alpha"
+            "tau [s]", deviation, "low", "high", "edf", "alpha"
         );
         for p in &a.curve.points {
             let f = |v: Option<f64>| v.map(|v| format!("{v:.5e}")).unwrap_or_else(|| "-".into());
@@ -183,9 +225,6 @@ pub fn summary_text(report: &AllanReport) -> String {
                     .unwrap_or_else(|| "-".into()),
                 p.alpha
             );
-        }
-        if let Some(e) = &a.fit_error {
-            let _ = writeln!(out, "  fit: {e}");
         }
     }
     if report.axes.iter().any(|a| a.fit.is_some()) {
@@ -240,16 +279,6 @@ impl Progress {
     fn finish(self) {
         self.bar.finish_and_clear();
     }
-}
-
-fn time_scale(unit: &str) -> anyhow::Result<f64> {
-    Ok(match unit {
-        "s" => 1.0,
-        "ms" => 1e-3,
-        "us" | "µs" => 1e-6,
-        "ns" => 1e-9,
-        other => bail!("--time-unit `{other}`: use s, ms, us or ns"),
-    })
 }
 
 /// Opens an input path: a session directory (one IMU of it: `device`, or its only one) or a
@@ -334,10 +363,169 @@ fn expand_sessions(
 struct PlannedInput {
     path: PathBuf,
     source: Box<dyn SampleSource>,
-    axes: Vec<usize>,
+    axes: Vec<PlannedAxis>,
     timing: Timing,
     temperature: Option<usize>,
     device: String,
+}
+
+/// An analysed channel with its unit and sensor.
+type PlannedAxis = (usize, RateUnit, Option<SensorKind>);
+
+/// Rows read to find the median step of a time column.
+const TIME_PROBE_ROWS: usize = 20_000;
+
+/// The first values of channel `channel` (at most [`TIME_PROBE_ROWS`]).
+fn probe_channel(source: &dyn SampleSource, channel: usize) -> anyhow::Result<Vec<f64>> {
+    let mut values = Vec::with_capacity(TIME_PROBE_ROWS);
+    let result = source.for_each_row(&[channel], &mut |_, v| {
+        values.push(v[0]);
+        if values.len() >= TIME_PROBE_ROWS {
+            return Err(crate::allan::input::InputError::Stopped);
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) | Err(crate::allan::input::InputError::Stopped) => Ok(values),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Timing, temperature and analysed channels of a plain file: roles by column name (see
+/// [`crate::allan::columns`]) unless the options name them, units per column.
+fn plan_file(
+    path: &Path,
+    source: &dyn SampleSource,
+    args: &AnalysisArgs,
+) -> anyhow::Result<(Timing, Option<usize>, Vec<PlannedAxis>)> {
+    let file = path.display();
+    let names = source.channels().to_vec();
+    let layout = detect_layout(&names);
+    let named_unit = |i: usize| match role_of(&names[i]) {
+        ColumnRole::Time(unit) => unit,
+        _ => None,
+    };
+    let time = match &args.time_column {
+        Some(c) => {
+            let i = source.channel_index(c)?;
+            Some((i, named_unit(i)))
+        }
+        None => layout.time().map_err(|e| anyhow::anyhow!("{file}: {e}"))?,
+    };
+    let temperature = match &args.temperature_column {
+        Some(c) => Some(source.channel_index(c)?),
+        None => layout
+            .temperature()
+            .map_err(|e| anyhow::anyhow!("{file}: {e}"))?,
+    };
+    let stated_unit = args
+        .time_unit
+        .as_deref()
+        .map(|u| {
+            TimeUnit::parse(u)
+                .ok_or_else(|| anyhow::anyhow!("--time-unit `{u}`: use s, ms, us or ns"))
+        })
+        .transpose()?;
+    if let Some(hz) = args.rate {
+        if !(hz.is_finite() && hz > 0.0) {
+            bail!("--rate {hz}: give the sample rate as a positive number of Hz");
+        }
+    }
+    let timing = match (time, args.rate) {
+        (Some((channel, named)), rate) => {
+            let column = &names[channel];
+            let unit = match stated_unit {
+                Some(u) => u,
+                None => {
+                    let step = median_step(&probe_channel(source, channel)?);
+                    let choice = infer_time_unit(column, step, rate, named)
+                        .map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
+                    if let Some(w) = choice.warning {
+                        eprintln!("warning: {file}: {w}");
+                    }
+                    choice.unit
+                }
+            };
+            match rate {
+                // The stated rate sets τ0; the time column was only checked.
+                Some(hz) => Timing::Rate(hz),
+                None => Timing::TimeChannel {
+                    channel,
+                    scale: unit.scale(),
+                },
+            }
+        }
+        (None, Some(hz)) => Timing::Rate(hz),
+        (None, None) => bail!(
+            "{file}: the sample rate is unknown: no column is named like a time (columns: {}; recognised: time, t, timestamp, millis, micros, Time (s), … see docs/allan.md): give --rate HZ or --time-column NAME",
+            names.join(", ")
+        ),
+    };
+    let groups = parse_column_groups(&args.columns).map_err(|e| anyhow::anyhow!(e))?;
+    let mut unit_of: Vec<Option<RateUnit>> = vec![None; names.len()];
+    // Names absent here may be another input's (checked over all inputs by the caller).
+    for g in &groups {
+        for c in &g.columns {
+            if let Ok(i) = source.channel_index(c) {
+                unit_of[i] = Some(g.unit);
+            }
+        }
+    }
+    let by_name: Vec<Option<SensorKind>> = (0..names.len())
+        .map(|i| match role_of(&names[i]) {
+            ColumnRole::Axis(kind) => kind,
+            _ => None,
+        })
+        .collect();
+    let time_channel = time.map(|t| t.0);
+    let chosen: Vec<usize> = if args.axes.is_empty() {
+        // Every column not named like a time or a temperature, nor chosen as one.
+        let mut axes: Vec<usize> = layout.axes.iter().map(|a| a.0).collect();
+        axes.retain(|&c| Some(c) != time_channel && Some(c) != temperature);
+        axes
+    } else {
+        args.axes
+            .iter()
+            .map(|a| source.channel_index(a))
+            .collect::<Result<_, _>>()?
+    };
+    let mut axes = Vec::with_capacity(chosen.len());
+    for c in chosen {
+        if Some(c) == time_channel {
+            bail!(
+                "{file}: column `{}` is the time column and cannot be analysed as an axis",
+                names[c]
+            );
+        }
+        let unit = unit_of[c].unwrap_or(args.units);
+        let sensor = if unit_of[c].is_some() {
+            unit.sensor()
+        } else {
+            args.sensor.or(args.units.sensor())
+        };
+        if unit_of[c].is_none() {
+            if let (Some(given), Some(named)) = (sensor, by_name[c]) {
+                if given != named {
+                    bail!(
+                        "{file}: column `{}` is {} by its name but --units {} / --sensor say {}: give each sensor's unit with --columns, e.g. --columns 'gx,gy,gz=deg/s ax,ay,az=g'",
+                        names[c],
+                        sensor_word(named),
+                        args.units.symbol(),
+                        sensor_word(given)
+                    );
+                }
+            }
+        }
+        axes.push((c, unit, sensor));
+    }
+    Ok((timing, temperature, axes))
+}
+
+fn sensor_word(kind: SensorKind) -> &'static str {
+    match kind {
+        SensorKind::Gyro => "a gyro",
+        SensorKind::Accel => "an accelerometer",
+    }
 }
 
 /// Reads and analyses every selected axis of every input, one axis in memory at a time.
@@ -350,62 +538,54 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
     if !(args.temperature_bin.is_finite() && args.temperature_bin > 0.0) {
         bail!("--temperature-bin must be a positive number of °C");
     }
+    for path in inputs {
+        let word = path.to_string_lossy();
+        if !path.exists() && looks_like_column_group(&word) {
+            bail!(
+                "`{word}` is not a file but looks like a --columns group: --columns takes one group per occurrence (--columns gx,gy,gz=deg/s --columns ax,ay,az=g) or several in one quoted value (--columns 'gx,gy,gz=deg/s ax,ay,az=g')"
+            );
+        }
+    }
     let sensor = args.sensor.or(args.units.sensor());
     let mut plan: Vec<PlannedInput> = Vec::new();
     for (path, device) in expand_sessions(inputs, args)? {
         let path = &path;
         let source = open_input(path, device.as_deref(), args)?;
         let is_session = path.is_dir();
-        if is_session && (args.rate.is_some() || args.time_column.is_some()) {
-            bail!(
-                "{}: a session carries its own time stamps; drop --rate/--time-column",
-                path.display()
-            );
-        }
-        let time_column = if is_session {
-            Some("t")
-        } else {
-            args.time_column.as_deref()
-        };
-        let time_channel = time_column.map(|c| source.channel_index(c)).transpose()?;
-        let temperature = args
-            .temperature_column
-            .as_deref()
-            .map(|c| source.channel_index(c))
-            .transpose()?;
-        let timing = match (time_channel, args.rate) {
-            // The sensor's own clock where the session has one, else the arrival times.
-            (Some(channel), None) if is_session => {
-                source.native_timing().unwrap_or(Timing::ArrivalTimes {
-                    channel,
-                    scale: 1.0,
-                })
+        let (timing, temperature, axes) = if is_session {
+            if args.rate.is_some() || args.time_column.is_some() {
+                bail!(
+                    "{}: a session carries its own time stamps; drop --rate/--time-column",
+                    path.display()
+                );
             }
-            (Some(channel), None) => Timing::TimeChannel {
+            let channel = source.channel_index("t")?;
+            let timing = source.native_timing().unwrap_or(Timing::ArrivalTimes {
                 channel,
-                scale: time_scale(&args.time_unit)?,
-            },
-            (None, Some(hz)) => Timing::Rate(hz),
-            (Some(_), Some(_)) => bail!("give either --rate or --time-column, not both"),
-            (None, None) => bail!(
-                "{}: the sample rate is unknown: give --rate HZ or --time-column NAME",
-                path.display()
-            ),
-        };
-        let axes: Vec<usize> = if is_session {
-            session_axes(args)
+                scale: 1.0,
+            });
+            let temperature = args
+                .temperature_column
+                .as_deref()
+                .map(|c| source.channel_index(c))
+                .transpose()?;
+            let axes = session_axes(args)
                 .iter()
-                .map(|a| source.channel_index(a))
-                .collect::<Result<_, _>>()?
-        } else if args.axes.is_empty() {
-            (0..source.channels().len())
-                .filter(|&c| Some(c) != time_channel && Some(c) != temperature)
-                .collect()
+                .map(|a| {
+                    let c = source.channel_index(a)?;
+                    // A session knows its channels' units, overriding --units.
+                    let unit = source.channel_unit(c).unwrap_or(args.units);
+                    let kind = if source.channel_unit(c).is_some() {
+                        unit.sensor()
+                    } else {
+                        sensor
+                    };
+                    Ok((c, unit, kind))
+                })
+                .collect::<Result<Vec<_>, crate::allan::input::InputError>>()?;
+            (timing, temperature, axes)
         } else {
-            args.axes
-                .iter()
-                .map(|a| source.channel_index(a))
-                .collect::<Result<_, _>>()?
+            plan_file(path, source.as_ref(), args)?
         };
         if axes.is_empty() {
             bail!("{}: no channels to analyse", path.display());
@@ -428,6 +608,21 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             device,
         });
     }
+    let files: Vec<&PlannedInput> = plan.iter().filter(|p| !p.path.is_dir()).collect();
+    for group in parse_column_groups(&args.columns).map_err(|e| anyhow::anyhow!(e))? {
+        for c in &group.columns {
+            if !files.iter().any(|p| p.source.channel_index(c).is_ok()) {
+                let listed: Vec<String> = files
+                    .iter()
+                    .map(|p| format!("{}: {}", p.path.display(), p.source.channels().join(", ")))
+                    .collect();
+                bail!(
+                    "--columns: no input has a column `{c}` ({})",
+                    listed.join("; ")
+                );
+            }
+        }
+    }
     let total: usize = plan.iter().map(|p| p.axes.len()).sum();
     let mut progress = Progress::new(total as u64);
     let mut results = Vec::new();
@@ -442,9 +637,10 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
     {
         let per_pass = axes_per_pass(source.row_count_hint(), args.memory_mib);
         for group in axes.chunks(per_pass) {
+            let channels: Vec<usize> = group.iter().map(|a| a.0).collect();
             let series = read_axes(
                 source.as_ref(),
-                group,
+                &channels,
                 timing,
                 args.gaps,
                 args.data,
@@ -454,20 +650,13 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             let jobs: Vec<(AxisSeries, AnalysisOptions)> = group
                 .iter()
                 .zip(series)
-                .map(|(&axis, series)| {
-                    // A source that knows its channel's unit (a session) overrides --units.
-                    let known_unit = source.channel_unit(axis);
-                    let unit = known_unit.unwrap_or(args.units);
+                .map(|(&(_, unit, sensor), series)| {
                     let options = AnalysisOptions {
                         kind: args.kind,
                         grid: args.taus.clone(),
                         fit: args.fit,
                         unit,
-                        sensor: if known_unit.is_some() {
-                            unit.sensor()
-                        } else {
-                            sensor
-                        },
+                        sensor,
                     };
                     (series, options)
                 })

@@ -979,7 +979,7 @@ fn noise_finding(report: &AllanReport) -> String {
         return format!("{} IMUs analysed; nothing to compare", devices.len());
     };
     let rows = [
-        ("accel", "VRW", "mg/sqrt(h)", "VRW", "mg/√h"),
+        ("accel", "VRW", "mg/sqrt(Hz)", "VRW", "mg/√Hz"),
         ("gyro", "ARW", "deg/sqrt(h)", "ARW", "°/√h"),
         (
             "accel",

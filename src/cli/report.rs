@@ -32,6 +32,12 @@ pub struct ReportArgs {
     /// Page title.
     #[arg(long, default_value = "IMU noise report")]
     pub title: String,
+    /// Also print each axis's τ table.
+    #[arg(short, long, conflicts_with = "quiet")]
+    pub verbose: bool,
+    /// Print nothing but errors.
+    #[arg(short, long)]
+    pub quiet: bool,
 }
 
 pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
@@ -53,13 +59,17 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
             std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
         serde_json::to_writer_pretty(std::io::BufWriter::new(file), &report)?;
     }
+    let mut written = vec![args.html.clone()];
+    written.extend(args.json.iter().cloned());
     if let Some(path) = &args.png {
-        for written in write_pngs(&report, path)? {
-            println!("wrote {}", written.display());
+        written.extend(write_pngs(&report, path)?);
+    }
+    if !args.quiet {
+        print!("{}", summary_text(&report, args.verbose));
+        for path in written {
+            println!("wrote {}", path.display());
         }
     }
-    print!("{}", summary_text(&report));
-    println!("wrote {}", args.html.display());
     Ok(())
 }
 

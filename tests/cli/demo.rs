@@ -1,32 +1,64 @@
 //! `imulab demo` end to end on a short run (3 simulated minutes served at 30×): the chamber
 //! goes through the `imulogd` binary over ptys, the session holds every row the simulator
 //! sent (its `served.json` report against the session's row counts), and the white-noise
-//! terms of the demo's `report.json` (ARW °/√h and VRW mg/√h per axis) agree with the
+//! terms of the demo's `report.json` (ARW °/√h and VRW mg/√Hz per axis) agree with the
 //! bench presets of issue 5 within the report's own confidence intervals.
 
 use std::path::Path;
 use std::process::Command;
 
-/// Issue 5's presets per axis x/y/z: device, sensor, term, unit, values.
-const PRESETS: [(&str, &str, &str, &str, [f64; 3]); 4] = [
-    ("cheap", "gyro", "ARW", "deg/sqrt(h)", [0.36, 0.31, 0.30]),
-    ("dear", "gyro", "ARW", "deg/sqrt(h)", [0.30, 0.26, 0.30]),
-    ("cheap", "accel", "VRW", "mg/sqrt(h)", [6.6, 7.9, 8.5]),
-    ("dear", "accel", "VRW", "mg/sqrt(h)", [2.8, 3.0, 2.8]),
+/// Issue 5's presets per axis x/y/z: device, sensor, term, unit of the report compared,
+/// values as in the seed paper (ARW °/√h; VRW "mg/√h", i.e. 60 × mg/√Hz) and the factor from
+/// the report's unit per √Hz to that of the paper's values.
+type Preset = (
+    &'static str,
+    &'static str,
+    &'static str,
+    &'static str,
+    [f64; 3],
+    f64,
+);
+const PRESETS: [Preset; 4] = [
+    (
+        "cheap",
+        "gyro",
+        "ARW",
+        "deg/sqrt(h)",
+        [0.36, 0.31, 0.30],
+        1.0,
+    ),
+    (
+        "dear",
+        "gyro",
+        "ARW",
+        "deg/sqrt(h)",
+        [0.30, 0.26, 0.30],
+        1.0,
+    ),
+    (
+        "cheap",
+        "accel",
+        "VRW",
+        "mg/sqrt(Hz)",
+        [6.6, 7.9, 8.5],
+        60.0,
+    ),
+    ("dear", "accel", "VRW", "mg/sqrt(Hz)", [2.8, 3.0, 2.8], 60.0),
 ];
 
 /// The white noise a 16-bit WitMotion frame adds (the demo serves `cheap` as WitMotion, `dear`
 /// as Xbus float32, whose rounding is negligible): one LSB of rounding is uniform, variance
-/// LSB²/12 per sample, i.e. a random walk of LSB/√12 · √τ0 per √s; in °/√h or mg/√h (× 60).
+/// LSB²/12 per sample, i.e. a white noise density of LSB/√12 · √τ0: in °/√h (× 60) for the
+/// gyro, mg/√Hz for the accelerometer.
 fn wire_white_noise(device: &str, sensor: &str) -> f64 {
     if device != "cheap" {
         return 0.0;
     }
-    let lsb = match sensor {
-        "gyro" => 2000.0 / 32768.0,   // °/s (±2000 °/s full scale)
-        _ => 16.0 / 32768.0 * 1000.0, // mg (±16 g full scale)
+    let (lsb, per_sqrt_hz) = match sensor {
+        "gyro" => (2000.0 / 32768.0, 60.0), // °/s (±2000 °/s full scale), to °/√h
+        _ => (16.0 / 32768.0 * 1000.0, 1.0), // mg (±16 g full scale), mg/√Hz
     };
-    lsb / 12f64.sqrt() * (1.0f64 / 150.0).sqrt() * 60.0
+    lsb / 12f64.sqrt() * (1.0f64 / 150.0).sqrt() * per_sqrt_hz
 }
 
 fn session_rows(session: &Path, group: &str) -> u64 {
@@ -97,7 +129,7 @@ fn demo_logs_through_imulogd_and_recovers_the_bench_presets() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.path().join("report.json")).unwrap()).unwrap();
     let axes = report["axes"].as_array().unwrap();
-    for (device, sensor, term, unit, values) in PRESETS {
+    for (device, sensor, term, unit, values, paper_factor) in PRESETS {
         for (i, axis) in ["x", "y", "z"].iter().enumerate() {
             let name = format!("{sensor}_{axis}");
             let a = axes
@@ -119,7 +151,7 @@ fn demo_logs_through_imulogd_and_recovers_the_bench_presets() {
                 .unwrap();
             let value = v["value"].as_f64().unwrap();
             let (low, high) = (v["low"].as_f64().unwrap(), v["high"].as_f64().unwrap());
-            let expected = values[i].hypot(wire_white_noise(device, sensor));
+            let expected = (values[i] / paper_factor).hypot(wire_white_noise(device, sensor));
             println!("{device} {name} {term}: {value:.4} [{low:.4}, {high:.4}] vs {expected:.4}");
             assert!(
                 low <= expected && expected <= high,
