@@ -13,6 +13,7 @@ use super::analysis::{AllanReport, AxisResult};
 use super::fit::{NoiseFit, Term};
 use super::thermal::ThermalSummary;
 use super::units::{thermal_coefficient_in_units, SensorKind};
+use crate::fusion::study::{Bridge, StudyResult};
 use health::SessionHealth;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -742,7 +743,18 @@ small{color:#666}summary{margin:0.8em 0;font-weight:bold}";
 /// `report.input` is read from the session (events, temperature): see
 /// [`html_report_with_sessions`] to pass it in instead.
 pub fn html_report(report: &AllanReport, title: &str) -> String {
-    html_report_with_sessions(report, title, &health::sessions_of_report(report))
+    html_report_with_sessions(report, title, &health::sessions_of_report(report), None)
+}
+
+/// [`html_report`] whose GNSS-outage headline is the filter-based answer of `study`
+/// (`imulab study --json`), the closed-form figure shown as a labelled analytic bound.
+pub fn html_report_with_study(report: &AllanReport, title: &str, study: &StudyResult) -> String {
+    html_report_with_sessions(
+        report,
+        title,
+        &health::sessions_of_report(report),
+        Some(study),
+    )
 }
 
 /// [`html_report`] with the sessions' health given (an `Err` is shown as that input's
@@ -751,6 +763,7 @@ pub fn html_report_with_sessions(
     report: &AllanReport,
     title: &str,
     sessions: &[Result<SessionHealth, String>],
+    study: Option<&StudyResult>,
 ) -> String {
     let mut html = String::new();
     let _ = write!(
@@ -769,7 +782,7 @@ pub fn html_report_with_sessions(
         report.confidence * 100.0
     );
     html.push_str("<h2>1. Summary</h2>");
-    html.push_str(&summary_html(report));
+    html.push_str(&summary_html_with_study(report, study));
     let all: Vec<&AxisResult> = report.axes.iter().collect();
     html.push_str("<h2>2. Noise terms, datasheet style</h2><p class=\"note\">Each cell: fitted value, and under it <small>its 95 % interval</small>. <b>n.i.</b> = not identified: the curve does not show this term; the bound is the largest value the data allow (not zero, not a measurement).</p>");
     // One table per sensor, so no column is half empty.
@@ -974,6 +987,20 @@ fn seconds(v: Option<f64>) -> String {
 /// The summary: verdict, headline terms side by side with ratios, and the GNSS-outage
 /// horizons of each device.
 pub fn summary_html(report: &AllanReport) -> String {
+    summary_html_with_study(report, None)
+}
+
+/// The study's answer for `device` at the requirement closest to 1 m: (requirement, bridge).
+fn study_bridge<'a>(study: Option<&'a StudyResult>, device: &str) -> Option<&'a Bridge> {
+    study?.grade_for(device)?.bridges.iter().min_by(|a, b| {
+        (a.requirement_m - 1.0)
+            .abs()
+            .total_cmp(&(b.requirement_m - 1.0).abs())
+    })
+}
+
+/// [`summary_html`] with the filter-based outage answer of `study` as the headline.
+pub fn summary_html_with_study(report: &AllanReport, study: Option<&StudyResult>) -> String {
     let devices = devices(report);
     let outages = outage::device_outages(report);
     let mut html = String::new();
@@ -1096,7 +1123,46 @@ pub fn summary_html(report: &AllanReport) -> String {
             "<b>{}</b> is the better IMU: lower on {n} of the {compared} headline noise terms",
             escape(devices[best])
         );
-        if let Some((h_best, best_bounded)) = horizon(devices[best]) {
+        let filter_based: Option<Vec<&Bridge>> =
+            devices.iter().map(|d| study_bridge(study, d)).collect();
+        if let Some(bridges) = filter_based {
+            // The filter-based answer; "longer" only where the 95 % intervals do not overlap.
+            let b = bridges[best];
+            let others: Vec<String> = devices
+                .iter()
+                .zip(&bridges)
+                .enumerate()
+                .filter(|(i, _)| *i != best)
+                .map(|(_, (d, o))| {
+                    let separated = match (b.ci95_s, o.ci95_s) {
+                        (Some([lo, _]), Some([_, hi])) => lo > hi,
+                        _ => false,
+                    };
+                    match (b.longest_s, o.longest_s) {
+                        (Some(x), Some(y)) if separated && y > 0.0 => format!(
+                            "{}{:.1}× as long as {} ({})",
+                            if b.beyond_horizon { "at least " } else { "" },
+                            x / y,
+                            escape(d),
+                            escape(&o.text())
+                        ),
+                        _ => format!(
+                            "not established against {} ({}; 95 % intervals overlap)",
+                            escape(d),
+                            escape(&o.text())
+                        ),
+                    }
+                })
+                .collect();
+            let _ = write!(
+                verdict,
+                "; in the filter-based study ({} runs) it bridges a GNSS outage within {} m for {}: {}",
+                study.map_or(0, |s| s.runs),
+                b.requirement_m,
+                escape(&b.text()),
+                others.join(", ")
+            );
+        } else if let Some((h_best, best_bounded)) = horizon(devices[best]) {
             let others: Vec<String> = devices
                 .iter()
                 .enumerate()
@@ -1111,7 +1177,7 @@ pub fn summary_html(report: &AllanReport) -> String {
                         _ => "about ",
                     };
                     Some(format!(
-                        "{qualifier}{:.1}× as long as {}",
+                        "{qualifier}{:.1}× that of {}",
                         h_best / h,
                         escape(d)
                     ))
@@ -1120,7 +1186,7 @@ pub fn summary_html(report: &AllanReport) -> String {
             if !others.is_empty() {
                 let _ = write!(
                     verdict,
-                    ", and it bridges a GNSS outage within 1 m {}",
+                    " (its free-inertial analytic bound for a GNSS outage within 1 m is {}; no filter-based study given: <code>imulab report --study STUDY.json</code>)",
                     others.join(", ")
                 );
             }
@@ -1141,7 +1207,49 @@ pub fn summary_html(report: &AllanReport) -> String {
         let _ = write!(html, "</tr></thead><tbody>{rows}</tbody></table>");
     }
     // Outage bridging.
-    html.push_str("<h3>What this means for bridging a GNSS outage</h3><table><thead><tr><th>device</th><th>within 0.1 m (lane level)</th><th>within 1 m</th><th>largest error source at 1 m</th></tr></thead><tbody>");
+    html.push_str("<h3>What this means for bridging a GNSS outage</h3>");
+    if let Some(study) = study {
+        let reqs = study.requirements_m();
+        html.push_str("<p>Filter-based answer (<code>imulab study</code>: the GNSS/INS filter on a simulated drive, p95 of the outages, 95 % interval over runs):</p><table><thead><tr><th>device</th>");
+        for r in &reqs {
+            let _ = write!(html, "<th>within {r} m</th>");
+        }
+        html.push_str("</tr></thead><tbody>");
+        for d in &devices {
+            let _ = write!(html, "<tr><td>{}</td>", escape(d));
+            match study.grade_for(d) {
+                Some(g) => {
+                    for b in &g.bridges {
+                        let _ = write!(html, "<td>{}</td>", escape(&b.text()));
+                    }
+                }
+                None => {
+                    let _ = write!(
+                        html,
+                        "<td colspan=\"{}\">not in the study (grades: {})</td>",
+                        reqs.len(),
+                        escape(
+                            &study
+                                .grades
+                                .iter()
+                                .map(|g| g.name.as_str())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )
+                    );
+                }
+            }
+            html.push_str("</tr>");
+        }
+        let _ = write!(
+            html,
+            "</tbody></table><p class=\"note\">{} runs of a {:.0} s drive, {} outages per run; \"≥\": within the requirement for the whole longest simulated outage.</p>",
+            study.runs, study.scene_duration_s, study.outages_per_run
+        );
+    } else {
+        html.push_str("<p>No filter-based study given (<code>imulab study … --json STUDY.json</code>, then <code>imulab report … --study STUDY.json</code>); below is the analytic bound only.</p>");
+    }
+    html.push_str("<table><thead><tr><th>device</th><th>analytic bound, within 0.1 m (lane level)</th><th>analytic bound, within 1 m</th><th>largest error source at 1 m</th></tr></thead><tbody>");
     let mut any_bounded = false;
     for o in &outages {
         match o {
@@ -1174,7 +1282,7 @@ pub fn summary_html(report: &AllanReport) -> String {
     html.push_str("</tbody></table>");
     let _ = write!(
         html,
-        "<p class=\"note\">Longest GNSS outage during which the free-inertial horizontal position error (one horizontal channel, 1σ, straight and level, no aiding) stays within the limit, from the fitted terms of the x and y axes: accel bias ½·b·t², gyro bias through tilt g·b<sub>g</sub>·t³/6, VRW σ<sub>v</sub>·t<sup>3/2</sup>/√3, ARW through tilt g·N·t<sup>5/2</sup>/√20, added as a root sum of squares (Groves, <i>Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems</i>, 2nd ed., §5.7); the biases are the bias instabilities, i.e. what a filter could not have estimated before the outage.{} Initial attitude and velocity errors are left out, so real outages do worse; <b><code>imulab study</code> gives the filter-based answer</b> for a drive with outages.</p>",
+        "<p class=\"note\">Analytic bound: longest GNSS outage during which the free-inertial horizontal position error (one horizontal channel, 1σ, straight and level, no aiding) stays within the limit, from the fitted terms of the x and y axes: accel bias ½·b·t², gyro bias through tilt g·b<sub>g</sub>·t³/6, VRW σ<sub>v</sub>·t<sup>3/2</sup>/√3, ARW through tilt g·N·t<sup>5/2</sup>/√20, added as a root sum of squares (Groves, <i>Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems</i>, 2nd ed., §5.7); the biases are the bias instabilities, i.e. what a filter could not have estimated before the outage.{} Initial attitude and velocity errors and the filter are left out, so this is not the answer to quote: the filter-based study is.</p>",
         if any_bounded {
             " ≥: a term was not identified and entered with its upper bound, so the real horizon is at least this long."
         } else {

@@ -24,7 +24,9 @@
 
 use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions};
 use crate::allan::input::{read_axes, DataKind, GapPolicy, SampleSource, Timing};
-use crate::allan::report::{datasheet_table_text, html_report, plot_groups, write_png_axes};
+use crate::allan::report::{
+    datasheet_table_text, html_report, html_report_with_study, plot_groups, write_png_axes,
+};
 use crate::allan::session_source::SessionSource;
 use crate::allan::units::TermInUnits;
 use crate::allan::{DeviationKind, TauGrid};
@@ -61,6 +63,8 @@ const REPLAY_OUTAGES: &str = "every:120:30";
 /// The study's outage lengths (s) and horizontal requirements (m).
 const STUDY_OUTAGES_S: [f64; 7] = [1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 60.0];
 const STUDY_REQUIREMENTS_M: [f64; 2] = [0.1, 1.0];
+/// Title of the demo's report page.
+const REPORT_TITLE: &str = "imulab demo: two bench IMUs in a 25 °C chamber";
 
 /// The drive of the replay and the study: 15 minutes at 150 Hz with both bench IMUs and a
 /// standalone receiver at 10 Hz (a shorter `fixtures/scenes/drive_30min.toml`).
@@ -247,11 +251,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         "Allan deviation and noise-term fit of both IMUs (12 axes) on the devices' 150 Hz sample clock",
     );
     let report = analyse(&ui, &paths.session, &health.imus)?;
-    std::fs::write(
-        &paths.html,
-        html_report(&report, "imulab demo: two bench IMUs in a 25 °C chamber"),
-    )
-    .with_context(|| format!("writing {}", paths.html.display()))?;
+    std::fs::write(&paths.html, html_report(&report, REPORT_TITLE))
+        .with_context(|| format!("writing {}", paths.html.display()))?;
     let file = std::fs::File::create(&paths.json)
         .with_context(|| format!("creating {}", paths.json.display()))?;
     serde_json::to_writer_pretty(std::io::BufWriter::new(file), &report)
@@ -277,6 +278,12 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     print!("{}", indent(&study.summary_text()));
     std::fs::write(&paths.study, serde_json::to_string_pretty(&study)?)
         .with_context(|| format!("writing {}", paths.study.display()))?;
+    // The report's GNSS-outage headline becomes the study's filter-based answer.
+    std::fs::write(
+        &paths.html,
+        html_report_with_study(&report, REPORT_TITLE, &study),
+    )
+    .with_context(|| format!("writing {}", paths.html.display()))?;
 
     println!();
     println!("session  {}", paths.session.display());

@@ -29,6 +29,10 @@ pub struct ReportArgs {
     /// otherwise one file per device and sensor named `<stem>-<device>-<sensor>.png`.
     #[arg(long)]
     pub png: Option<PathBuf>,
+    /// A sensor-grade study of these IMUs (`imulab study --grades FIT.json#DEVICE,... --json`):
+    /// its filter-based answer becomes the report's GNSS-outage headline.
+    #[arg(long, value_name = "STUDY.json")]
+    pub study: Option<PathBuf>,
     /// Page title.
     #[arg(long, default_value = "IMU noise report")]
     pub title: String,
@@ -51,9 +55,16 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
     if args.analysis.temperature_column.is_none() && args.inputs.iter().all(|p| p.is_dir()) {
         args.analysis.temperature_column = Some("temp".into());
     }
+    let study = match &args.study {
+        Some(p) => Some(crate::fusion::study::StudyResult::from_json_file(p)?),
+        None => None,
+    };
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
-    std::fs::write(&args.html, html_report(&report, &args.title))
-        .with_context(|| format!("writing {}", args.html.display()))?;
+    let page = match &study {
+        Some(s) => crate::allan::report::html_report_with_study(&report, &args.title, s),
+        None => html_report(&report, &args.title),
+    };
+    std::fs::write(&args.html, page).with_context(|| format!("writing {}", args.html.display()))?;
     if let Some(path) = &args.json {
         let file =
             std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;

@@ -218,3 +218,96 @@ fn session_report_is_complete_self_contained_and_renders() {
         std::fs::copy(&shot, &keep).unwrap();
     }
 }
+
+/// A study result as `imulab study --json` writes it, for grades `fit#cheap` and `fit#dear`
+/// with these (longest within 1 m, 95 % interval) answers.
+fn study_json(cheap: (f64, [f64; 2]), dear: (f64, [f64; 2])) -> serde_json::Value {
+    let grade = |name: &str, (l, ci): (f64, [f64; 2])| {
+        serde_json::json!({
+            "name": name, "noise_origin": "Allan fit fit.json", "warnings": [], "lengths": [],
+            "skipped": 0,
+            "bridges": [
+                {"requirement_m": 0.1, "longest_s": l / 4.0, "beyond_horizon": false,
+                 "ci95_s": [ci[0] / 4.0, ci[1] / 4.0], "std_s": 0.1, "runs_for_5pct": 30},
+                {"requirement_m": 1.0, "longest_s": l, "beyond_horizon": false,
+                 "ci95_s": ci, "std_s": 0.4, "runs_for_5pct": 25}
+            ]
+        })
+    };
+    serde_json::json!({
+        "scene_duration_s": 1800.0, "runs": 20, "seed": 7, "outages_per_run": 12,
+        "turning_share": 0.2, "standstill_share": 0.0,
+        "grades": [grade("fit#cheap", cheap), grade("fit#dear", dear)]
+    })
+}
+
+#[test]
+fn report_headline_is_the_studys_answer_and_better_needs_separate_intervals() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("bench");
+    write_session(&session);
+    let report = |study: &serde_json::Value| {
+        let study_path = dir.path().join("study.json");
+        std::fs::write(&study_path, study.to_string()).unwrap();
+        let html_path = dir.path().join("report.html");
+        let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+            .arg("report")
+            .arg(&session)
+            .arg("--html")
+            .arg(&html_path)
+            .arg("--study")
+            .arg(&study_path)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        std::fs::read_to_string(&html_path).unwrap()
+    };
+    let verdict = |html: &str| {
+        let a = html.find("class=\"verdict\"").expect("verdict");
+        html[a..a + html[a..].find("</p>").unwrap()].to_string()
+    };
+    // Separate intervals: the ratio of the filter-based answers.
+    let html = report(&study_json((8.2, [6.5, 8.8]), (18.1, [17.1, 18.8])));
+    let v = verdict(&html);
+    assert!(v.contains("filter-based study (20 runs)"), "{v}");
+    assert!(v.contains("18.1 s [17.1, 18.8]"), "{v}");
+    assert!(
+        v.contains("2.2× as long as <b>cheap</b>") || v.contains("2.2× as long as cheap"),
+        "{v}"
+    );
+    assert!(!v.contains("analytic"), "{v}");
+    // The closed form stays, labelled as a bound.
+    assert!(
+        html.contains("analytic bound, within 1 m"),
+        "analytic column missing"
+    );
+    assert!(html.contains("Filter-based answer"));
+    // Overlapping intervals: no "as long as".
+    let v = verdict(&report(&study_json(
+        (16.5, [15.0, 17.5]),
+        (18.1, [17.1, 18.8]),
+    )));
+    assert!(v.contains("not established against cheap"), "{v}");
+    assert!(!v.contains("as long as"), "{v}");
+    // A file that is not a study: one clear line.
+    let bad = dir.path().join("not-a-study.json");
+    std::fs::write(&bad, "{\"axes\": []}").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .arg("report")
+        .arg(&session)
+        .arg("--html")
+        .arg(dir.path().join("x.html"))
+        .arg("--study")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("not-a-study.json"),
+        "{err}"
+    );
+}
