@@ -94,7 +94,7 @@ impl MipImuData {
             .gps_correlation_time
             .or(self.shared_gps_time)
             .map(|t| t.tow_s)
-            .or(self.reference_time_ns.map(|ns| ns as f64 * 1e-9))
+            .or(self.reference_time_ns.map(|ns| ns as f64 / 1e9))
             .or(self.internal_timestamp.map(f64::from));
         Some(ImuSample {
             sensor_time,

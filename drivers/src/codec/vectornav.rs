@@ -173,7 +173,7 @@ impl VnValues {
         let sensor_time = self
             .time_startup_ns
             .or(self.gps_tow_ns)
-            .map(|ns| ns as f64 * 1e-9);
+            .map(|ns| ns as f64 / 1e9);
         Some(ImuSample {
             sensor_time,
             gyro,
