@@ -1,6 +1,13 @@
 //! `imulab inspect SESSION`: what a session holds and how healthy it is: devices, time span,
 //! sample counts, effective rates, gaps, dropped/errored frames, events and file sizes.
 //! Unreadable chunk files are listed while the rest is still inspected.
+//!
+//! A gap is what imulogd calls one (`daemon::gap`): a pause between two arrivals longer than
+//! `gap_factor` nominal periods (from the configuration the session recorded, default 3) and
+//! never shorter than 50 ms, the host latency `allan` also allows on arrival times. The rate
+//! is the median over windows of rows, so a start-up burst of buffered frames does not pass
+//! for a faster device. Rows that a killed writer left only in its journal are counted and
+//! `imulab recover` is pointed at.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -8,7 +15,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use serde::Serialize;
 
-use crate::store::{layout, DeviceKind, EventKind, Session, TimeRange};
+use crate::daemon::config::DEFAULT_GAP_FACTOR;
+use crate::daemon::gap::GapDetector;
+use crate::store::{layout, DeviceKind, EventKind, Manifest, Session, TimeRange};
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Example: imulab inspect runs/2026-11-23-chamber --json > summary.json")]
@@ -33,7 +42,10 @@ pub struct FileReport {
 
 #[derive(Debug, Serialize)]
 pub struct Gap {
-    /// Sample time just before the gap, ns (host monotonic).
+    /// Sample time just before the gap, seconds after the device's first sample (the time
+    /// `imulab export --start` takes).
+    pub after_s: f64,
+    /// The same time, ns (host monotonic, `t_mono_ns`).
     pub after_t_mono_ns: i64,
     pub duration_s: f64,
 }
@@ -52,8 +64,11 @@ pub struct DeviceReport {
     pub first_t_mono_ns: Option<i64>,
     pub last_t_mono_ns: Option<i64>,
     pub span_s: f64,
+    /// Median over windows of rows (see [`steady_rate_hz`]).
     pub effective_rate_hz: Option<f64>,
-    /// Intervals longer than 2 nominal periods.
+    /// `gap_factor` the gaps are counted with (as imulogd's gap events).
+    pub gap_factor: f64,
+    /// Pauses longer than `gap_factor` nominal periods and at least 50 ms.
     pub gap_count: u64,
     pub gap_total_s: f64,
     pub longest_gap_s: f64,
@@ -63,6 +78,8 @@ pub struct DeviceReport {
     /// Sum of `count=N` (or 1 per event) over queue-overflow events of this device.
     pub frames_dropped: u64,
     pub events_by_kind: BTreeMap<String, u64>,
+    /// Rows only in the write-ahead journal of a partial chunk file (not counted in `rows`).
+    pub journal_rows: u64,
 }
 
 #[derive(Debug, Serialize)]
@@ -99,6 +116,42 @@ fn kind_name(kind: EventKind) -> String {
         .ok()
         .and_then(|v| v.as_str().map(str::to_string))
         .unwrap_or_default()
+}
+
+/// `gap_factor` of device `name` in the daemon configuration the session recorded
+/// (`[[device]]` tables), else imulogd's default.
+fn gap_factor(m: &Manifest, name: &str) -> f64 {
+    m.config
+        .get("device")
+        .and_then(|v| v.as_array())
+        .and_then(|devices| {
+            devices
+                .iter()
+                .find(|d| d.get("name").and_then(|n| n.as_str()) == Some(name))
+        })
+        .and_then(|d| d.get("gap_factor"))
+        .and_then(|g| g.as_float().or_else(|| g.as_integer().map(|i| i as f64)))
+        .unwrap_or(DEFAULT_GAP_FACTOR)
+}
+
+/// Rows per window of the rate estimate, at most.
+const RATE_WINDOW_ROWS: usize = 1000;
+
+/// The rate of a device from the times of every `window`-th row (`marks`): the median of
+/// the windows' rates. Frames buffered before the start (or after a reconnect) arrive in a
+/// burst and make `rows / span` too high (101.7 Hz for 100); the median ignores the window
+/// holding the burst, as it does one holding a gap. `None` for fewer than two rows.
+fn steady_rate_hz(marks: &[i64], window: usize, rows: u64, span_s: f64) -> Option<f64> {
+    let mut rates: Vec<f64> = marks
+        .windows(2)
+        .filter(|w| w[1] > w[0])
+        .map(|w| window as f64 / ((w[1] - w[0]) as f64 * 1e-9))
+        .collect();
+    if rates.len() < 3 {
+        return (rows > 1 && span_s > 0.0).then(|| (rows - 1) as f64 / span_s);
+    }
+    rates.sort_by(f64::total_cmp);
+    Some(rates[rates.len() / 2])
 }
 
 /// Builds the report; per-file problems go into `problems` rather than failing.
@@ -141,28 +194,34 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
             DeviceKind::Gnss => layout::gnss_path(&d.name),
         };
         let summary = session.stream_summary(&group);
-        let period_ns = 1e9 / d.rate_hz;
-        let (mut gap_count, mut gap_total_ns, mut longest_ns) = (0u64, 0f64, 0f64);
+        let factor = gap_factor(m, &d.name);
+        let mut detector = GapDetector::new(d.rate_hz, factor);
+        let (mut gap_count, mut gap_total_ns, mut longest_ns) = (0u64, 0i64, 0i64);
         let mut gaps = Vec::new();
-        let mut prev: Option<i64> = None;
+        let first_t = summary.first_t_mono_ns.unwrap_or(0);
+        let window = (summary.rows as usize / 5).clamp(10, RATE_WINDOW_ROWS);
+        let mut marks = Vec::new();
+        let mut seen = 0usize;
         // Whole rows are read (not only the times) so that damage anywhere in the data shows.
         let mut scan = |times: &[i64]| {
             for &t in times {
-                if let Some(p) = prev {
-                    let dt = (t - p) as f64;
-                    if dt > 2.0 * period_ns {
-                        gap_count += 1;
-                        gap_total_ns += dt;
-                        longest_ns = longest_ns.max(dt);
-                        if gaps.len() < max_gaps {
-                            gaps.push(Gap {
-                                after_t_mono_ns: p,
-                                duration_s: dt * 1e-9,
-                            });
-                        }
+                if seen.is_multiple_of(window) {
+                    marks.push(t);
+                }
+                seen += 1;
+                if let Some(g) = detector.observe(t) {
+                    let dt = g.to_mono_ns - g.from_mono_ns;
+                    gap_count += 1;
+                    gap_total_ns += dt;
+                    longest_ns = longest_ns.max(dt);
+                    if gaps.len() < max_gaps {
+                        gaps.push(Gap {
+                            after_s: (g.from_mono_ns - first_t) as f64 * 1e-9,
+                            after_t_mono_ns: g.from_mono_ns,
+                            duration_s: g.duration_s(),
+                        });
                     }
                 }
-                prev = Some(t);
             }
         };
         let mut read_problems = Vec::new();
@@ -202,8 +261,20 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
             (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
             _ => 0.0,
         };
-        let effective_rate_hz =
-            (summary.rows > 1 && span_s > 0.0).then(|| (summary.rows - 1) as f64 / span_s);
+        let effective_rate_hz = steady_rate_hz(&marks, window, summary.rows, span_s);
+        let backlog = session.journal_backlog(&group);
+        let journal_rows = backlog.iter().map(|(_, n)| n).sum();
+        if !backlog.is_empty() && !crate::store::reader::writer_is_live(session.dir()) {
+            for (file, n) in &backlog {
+                problems.push(format!(
+                    "{}: its journal holds {n} more rows of {} than the HDF5 file (the writer \
+                     was killed); run `imulab recover {}` to add them",
+                    file.display(),
+                    d.name,
+                    session.dir().display()
+                ));
+            }
+        }
         let mut by_kind = BTreeMap::new();
         let (mut errored, mut dropped) = (0, 0);
         for e in events.iter().filter(|e| e.device == d.name) {
@@ -233,13 +304,15 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
             last_t_mono_ns: summary.last_t_mono_ns,
             span_s,
             effective_rate_hz,
+            gap_factor: factor,
             gap_count,
-            gap_total_s: gap_total_ns * 1e-9,
-            longest_gap_s: longest_ns * 1e-9,
+            gap_total_s: gap_total_ns as f64 * 1e-9,
+            longest_gap_s: longest_ns as f64 * 1e-9,
             gaps,
             frames_errored: errored,
             frames_dropped: dropped,
             events_by_kind: by_kind,
+            journal_rows,
         });
     }
     InspectReport {
@@ -319,18 +392,23 @@ fn print_text(r: &InspectReport) {
             .effective_rate_hz
             .map(|x| format!("{x:.3} Hz"))
             .unwrap_or_else(|| "-".into());
+        let journal = if d.journal_rows > 0 {
+            format!(" (+{} only in the journal)", d.journal_rows)
+        } else {
+            String::new()
+        };
         println!(
-            "    rows {}  span {:.3} s  rate {} (nominal {} Hz)",
+            "    rows {}{journal}  span {:.3} s  rate {} (nominal {} Hz)",
             d.rows, d.span_s, eff, d.nominal_rate_hz
         );
         println!(
-            "    gaps > 2 periods: {}  (total {:.3} s, longest {:.3} s)  frames errored {}  dropped {}",
-            d.gap_count, d.gap_total_s, d.longest_gap_s, d.frames_errored, d.frames_dropped
+            "    gaps > {} periods: {}  (total {:.3} s, longest {:.3} s)  frames errored {}  dropped {}",
+            d.gap_factor, d.gap_count, d.gap_total_s, d.longest_gap_s, d.frames_errored, d.frames_dropped
         );
         for g in &d.gaps {
             println!(
-                "      gap of {:.3} s after t_mono_ns {}",
-                g.duration_s, g.after_t_mono_ns
+                "      gap of {:.3} s at {:.3} s (after the first sample)",
+                g.duration_s, g.after_s
             );
         }
         if d.gap_count as usize > d.gaps.len() {

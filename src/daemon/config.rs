@@ -368,8 +368,12 @@ pub struct DeviceConfig {
     pub retry_max_ms: u64,
 }
 
+/// `gap_factor` when a device does not set it (also what `imulab inspect` uses for a
+/// session whose configuration does not record it).
+pub const DEFAULT_GAP_FACTOR: f64 = 3.0;
+
 fn default_gap_factor() -> f64 {
-    3.0
+    DEFAULT_GAP_FACTOR
 }
 fn default_retry_initial_ms() -> u64 {
     250

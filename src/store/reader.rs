@@ -501,6 +501,39 @@ impl Session {
         Ok(RawIter { inner })
     }
 
+    /// Rows of table `group` (`imu/<name>`, `gnss/<name>`...) that the write-ahead journal
+    /// of a `*.partial` chunk file holds beyond the rows of that file's HDF5 table. Readers
+    /// do not see them; the live writer moves them into the file as chunks complete, and
+    /// `imulab recover` adds them after a crash. One (partial file, rows) per partial file
+    /// whose journal holds such rows.
+    pub fn journal_backlog(&self, group: &str) -> Vec<(PathBuf, u64)> {
+        let mut out = Vec::new();
+        for entry in self.files.iter().filter(|e| e.info.partial) {
+            let paths = super::journal::journal_paths(&self.dir, entry.info.index);
+            let Ok(contents) = super::journal::read(&paths) else {
+                continue;
+            };
+            let mine = contents.records.iter().filter(|r| r.id == group);
+            let Some(first) = mine.clone().map(|r| r.first).min() else {
+                continue;
+            };
+            let end = mine
+                .map(|r| r.first + u64::from(r.count))
+                .max()
+                .unwrap_or(0);
+            let in_file = entry
+                .file
+                .as_ref()
+                .and_then(|f| open_table(f, group, &[super::columns::T_MONO]).ok())
+                .map_or(0, |(_, len)| len as u64);
+            let rows = end.saturating_sub(in_file.max(first));
+            if rows > 0 {
+                out.push((entry.info.path.clone(), rows));
+            }
+        }
+        out
+    }
+
     /// Row count and time span of a stream (`imu/<name>`, `gnss/<name>`, `events`...), from
     /// dataset sizes and first/last times only.
     pub fn stream_summary(&self, group: &str) -> StreamSummary {

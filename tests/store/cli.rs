@@ -78,7 +78,54 @@ fn inspect_reports_counts_rates_gaps_and_errors() {
 
     let (ok, text, _) = imulab(&["inspect", dir.to_str().unwrap()]);
     assert!(ok);
-    assert!(text.contains("gaps > 2 periods: 1"), "{text}");
+    assert!(text.contains("gaps > 3 periods: 1"), "{text}");
+    // Gap times are seconds after the device's first sample: rows 300..350 are missing.
+    assert!(text.contains("gap of 0.510 s at 2.990 s"), "{text}");
+}
+
+/// 12 s at 100 Hz as a USB serial link delivers it: rows in batches of 4 sharing one
+/// arrival time (every 40 ms), after a start-up burst of 17 buffered rows arriving at once.
+fn session_in_bursts(dir: &Path) {
+    let mut w = SessionWriter::create(dir, manifest(), fast_opts()).unwrap();
+    let arrival = |i: usize| -> i64 {
+        let i = i.saturating_sub(16);
+        imu_row(0, 16 + i / 4 * 4 + 3).t_mono_ns
+    };
+    for start in (0..1200).step_by(100) {
+        for d in 0..2 {
+            let rows: Vec<_> = (start..start + 100)
+                .map(|i| {
+                    let mut r = imu_row(d, i);
+                    r.t_mono_ns = arrival(i);
+                    r.t_sensor = i as f64; // a sample counter
+                    r
+                })
+                .collect();
+            w.append_imu(if d == 0 { "imu_a" } else { "imu_b" }, &rows)
+                .unwrap();
+        }
+    }
+    w.close().unwrap();
+}
+
+#[test]
+fn inspect_rate_and_gaps_ignore_bursts_and_agree_with_allan() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bursts");
+    session_in_bursts(&dir);
+    let d = dir.to_str().unwrap();
+    let (ok, out, err) = imulab(&["inspect", d, "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let a = &v["devices"][0];
+    // rows / span would say (1200 - 1) / 11.84 s = 101.3 Hz.
+    let rate = a["effective_rate_hz"].as_f64().unwrap();
+    assert!((rate - 100.0).abs() < 0.05, "rate {rate}");
+    // 40 ms between batches is no gap, for imulogd (gap_factor 3, at least 50 ms) and allan.
+    assert_eq!(a["gap_count"], 0, "{a}");
+    assert_eq!(a["gap_factor"], 3.0);
+    let (ok, _, err) = imulab(&["allan", d, "--device", "imu_a", "--kind", "oadev"]);
+    assert!(ok, "allan found a problem inspect did not: {err}");
 }
 
 #[test]

@@ -270,6 +270,12 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
     let journal1 = PathBuf::from(format!("{}.journal1", layout_name(2, false)));
     assert!(killed.join(&partial).exists() && killed.join(&journal0).exists());
 
+    // Before recover, inspect says the journal holds more and what to run.
+    let (ok, err) = imulab_within_watchdog(&["inspect", killed.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("its journal holds") && err.contains("run `imulab recover"),
+        "{err}"
+    );
     // Undamaged: what recover keeps, and which rows come from the journal.
     let base = tmp.path().join("base");
     copy_dir(&killed, &base);
