@@ -552,61 +552,102 @@ fn datasheet_table(axes: &[&AxisResult], hide_unidentified: bool) -> (String, Ve
     (html, hidden)
 }
 
-/// Plain-text version of the comparison table for the terminal.
+/// Plain-text version of the comparison table for the terminal: one table per sensor (no
+/// half-empty columns), columns grouped by device with the axis under it, `<bound` for a
+/// term not identified. Six axes of two devices fit in 100 columns.
 pub fn datasheet_table_text(axes: &[&AxisResult]) -> String {
-    let mut rows: Vec<Vec<String>> = vec![std::iter::once("term".to_string())
-        .chain(std::iter::once("unit".to_string()))
-        .chain(axes.iter().map(|a| format!("{} {}", a.device, a.axis)))
-        .collect()];
-    for (label, sensor, term) in DATASHEET_ROWS {
-        if !axes.iter().any(|a| a.sensor == Some(sensor)) {
+    let mut out = String::new();
+    for sensor in [Some(SensorKind::Gyro), Some(SensorKind::Accel), None] {
+        let members: Vec<&AxisResult> = axes
+            .iter()
+            .copied()
+            .filter(|a| a.sensor == sensor)
+            .collect();
+        if members.is_empty() {
             continue;
         }
-        let mut row = vec![label.to_string(), String::new()];
+        if !out.is_empty() {
+            out.push('\n');
+        }
+        out.push_str(&sensor_table_text(&members, sensor));
+    }
+    if !out.is_empty() {
+        out.push_str("(<x: not identified; x is the largest value the data allow)\n");
+    }
+    out
+}
+
+/// The axis name without its sensor prefix (`gyro_x` → `x`) for a table titled by sensor.
+fn short_axis(axis: &str, sensor: Option<SensorKind>) -> &str {
+    let prefixes: &[&str] = match sensor {
+        Some(SensorKind::Gyro) => &["gyro_", "gyro"],
+        Some(SensorKind::Accel) => &["accel_", "acc_", "accel"],
+        None => &[],
+    };
+    prefixes
+        .iter()
+        .find_map(|p| axis.strip_prefix(p).filter(|rest| !rest.is_empty()))
+        .unwrap_or(axis)
+}
+
+/// One sensor's rows of [`datasheet_table_text`].
+fn sensor_table_text(axes: &[&AxisResult], sensor: Option<SensorKind>) -> String {
+    let title = match sensor {
+        Some(SensorKind::Gyro) => "Gyro",
+        Some(SensorKind::Accel) => "Accel",
+        None => "Terms",
+    };
+    let mut devices = vec![title.to_string(), String::new()];
+    let mut names = vec![String::new(), "unit".to_string()];
+    let mut previous: Option<&str> = None;
+    for a in axes {
+        let first = previous != Some(a.device.as_str());
+        devices.push(if first {
+            a.device.clone()
+        } else {
+            String::new()
+        });
+        names.push(short_axis(&a.axis, sensor).to_string());
+        previous = Some(&a.device);
+    }
+    let mut rows = vec![devices, names];
+    let terms: Vec<(String, Term)> = match sensor {
+        Some(kind) => DATASHEET_ROWS
+            .iter()
+            .filter(|(_, s, _)| *s == kind)
+            .map(|(label, _, term)| {
+                let short = label
+                    .strip_prefix("Gyro ")
+                    .or_else(|| label.strip_prefix("Accel "))
+                    .unwrap_or(label);
+                (short.to_string(), *term)
+            })
+            .collect(),
+        None => Term::ALL
+            .iter()
+            .map(|t| (t.symbol().to_string(), *t))
+            .collect(),
+    };
+    for (label, term) in terms {
+        let mut row = vec![label, String::new()];
         for a in axes {
-            let v = (a.sensor == Some(sensor))
-                .then(|| {
-                    a.terms
-                        .iter()
-                        .find(|t| t.term == term)
-                        .and_then(|t| t.values.first())
-                })
-                .flatten();
+            let v = a
+                .terms
+                .iter()
+                .find(|t| t.term == term)
+                .and_then(|t| t.values.first());
             if let Some(v) = v {
-                row[1] = v.unit.clone();
+                row[1] = pretty_unit(&v.unit);
             }
             row.push(match v {
-                Some(v) => match v.value {
-                    Some(value) => sig3(value),
-                    None => format!("n.i.(<{})", sig3(v.high)),
-                },
+                Some(v) => v
+                    .value
+                    .map(sig3)
+                    .unwrap_or_else(|| format!("<{}", sig3(v.high))),
                 None => String::new(),
             });
         }
         rows.push(row);
-    }
-    if axes.iter().any(|a| a.sensor.is_none()) {
-        for term in Term::ALL {
-            let mut row = vec![term.symbol().to_string(), String::new()];
-            for a in axes {
-                let v = a
-                    .terms
-                    .iter()
-                    .find(|t| t.term == term)
-                    .and_then(|t| t.values.first());
-                if let Some(v) = v {
-                    row[1] = v.unit.clone();
-                }
-                row.push(match v {
-                    Some(v) => v
-                        .value
-                        .map(sig3)
-                        .unwrap_or_else(|| format!("n.i.(<{})", sig3(v.high))),
-                    None => String::new(),
-                });
-            }
-            rows.push(row);
-        }
     }
     let widths: Vec<usize> = (0..rows[0].len())
         .map(|c| {

@@ -180,7 +180,10 @@ fn write_outputs(report: &AllanReport, args: &AllanArgs) -> anyhow::Result<Vec<P
 pub fn summary_text(report: &AllanReport, curves: bool) -> String {
     use std::fmt::Write;
     let mut out = String::new();
-    for a in &report.axes {
+    if !curves {
+        out.push_str(&device_lines(report));
+    }
+    for a in report.axes.iter().filter(|_| curves) {
         let _ = writeln!(
             out,
             "{} {} ({}; {} samples, tau0 {} s, gaps policy {:?}, {} gap(s) found on the {}){}",
@@ -201,9 +204,6 @@ pub fn summary_text(report: &AllanReport, curves: bool) -> String {
         }
         if let Some(e) = &a.fit_error {
             let _ = writeln!(out, "  fit: {e}");
-        }
-        if !curves {
-            continue;
         }
         let deviation = format!("dev [{}]", report::deviation_unit(a));
         let _ = writeln!(
@@ -229,11 +229,49 @@ pub fn summary_text(report: &AllanReport, curves: bool) -> String {
     }
     if report.axes.iter().any(|a| a.fit.is_some()) {
         let axes: Vec<&AxisResult> = report.axes.iter().collect();
+        let _ = writeln!(out, "\nNoise terms:");
+        out.push_str(&report::datasheet_table_text(&axes));
+    }
+    out
+}
+
+/// One line per device (axes, samples, τ0, gaps and the clock they were found on), then
+/// per axis only what needs saying: a fit that failed, a thermal coefficient.
+fn device_lines(report: &AllanReport) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let mut devices: Vec<&str> = Vec::new();
+    for a in &report.axes {
+        if !devices.contains(&a.device.as_str()) {
+            devices.push(&a.device);
+        }
+    }
+    for device in devices {
+        let axes: Vec<&AxisResult> = report.axes.iter().filter(|a| a.device == device).collect();
+        let names: Vec<&str> = axes.iter().map(|a| a.axis.as_str()).collect();
+        let samples: u64 = axes.iter().map(|a| a.health.samples).max().unwrap_or(0);
+        let gaps: u64 = axes.iter().map(|a| a.health.gaps).sum();
+        let first = axes[0];
         let _ = writeln!(
             out,
-            "\nNoise terms (n.i. = not identified, upper bound given):"
+            "{device}: {} ({}), {samples} samples, tau0 {} s, {gaps} gap(s) found on the {}",
+            names.join(", "),
+            first.curve.kind.name(),
+            fmt_sig(first.tau0),
+            first.health.clock.as_deref().unwrap_or("time stamps")
         );
-        out.push_str(&report::datasheet_table_text(&axes));
+        for a in axes {
+            if let Some(line) = a
+                .thermal
+                .as_ref()
+                .and_then(|t| report::thermal_coefficient_text(a, t))
+            {
+                let _ = writeln!(out, "  {}: {line}", a.axis);
+            }
+            if let Some(e) = &a.fit_error {
+                let _ = writeln!(out, "  {}: fit: {e}", a.axis);
+            }
+        }
     }
     out
 }

@@ -590,3 +590,62 @@ fn undecidable_columns_are_named() {
         "{err}"
     );
 }
+
+#[test]
+fn compare_of_two_six_axis_files_fits_100_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let cheap = mixed_file(dir.path(), "cheap.csv", 80);
+    let dear = mixed_file(dir.path(), "dear.csv", 90);
+    let (stdout, _) = ok(&[
+        "compare",
+        cheap.to_str().unwrap(),
+        dear.to_str().unwrap(),
+        "--columns",
+        "gx,gy,gz=deg/s ax,ay,az=g",
+    ]);
+    let widest = stdout.lines().map(|l| l.chars().count()).max().unwrap();
+    assert!(widest <= 100, "{widest} columns:\n{stdout}");
+    // The ARW row shows, in input order, the values the fit gives (`allan --fit --json`).
+    let json_path = dir.path().join("both.json");
+    ok(&[
+        "allan",
+        cheap.to_str().unwrap(),
+        dear.to_str().unwrap(),
+        "--columns",
+        "gx,gy,gz=deg/s ax,ay,az=g",
+        "--fit",
+        "--json",
+        json_path.to_str().unwrap(),
+    ]);
+    let doc = json(&json_path);
+    let fitted: Vec<f64> = doc["axes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|a| a["sensor"] == "gyro")
+        .map(|a| {
+            a["terms"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|t| t["name"] == "ARW")
+                .unwrap()["values"][0]["value"]
+                .as_f64()
+                .unwrap()
+        })
+        .collect();
+    let arw = stdout.lines().find(|l| l.starts_with("ARW")).unwrap();
+    let cells: Vec<f64> = arw
+        .split_whitespace()
+        .skip(2)
+        .map(|c| c.parse().unwrap())
+        .collect();
+    assert_eq!(cells.len(), 6, "{arw}");
+    for (cell, value) in cells.iter().zip(&fitted) {
+        close(*cell, *value, 5e-3, "ARW cell");
+    }
+    assert!(
+        stdout.contains("cheap") && stdout.contains("dear"),
+        "{stdout}"
+    );
+}
