@@ -8,7 +8,7 @@ use crate::fusion::export;
 use crate::fusion::kfgins::{self, KfGinsConfig};
 use crate::fusion::mechanisation::NavState;
 use crate::fusion::metrics::{errors, overlap_s, summarise};
-use crate::fusion::navigator::{NavSolution, ReplayOptions, ReplayResult};
+use crate::fusion::navigator::{NavSolution, ReplayOptions, ReplayResult, ReplayStats};
 use crate::fusion::noise;
 use crate::fusion::session;
 use anyhow::{bail, Context};
@@ -303,6 +303,85 @@ pub fn ensure_writable(dir: &Path) -> anyhow::Result<()> {
     std::fs::remove_file(&probe).map_err(fail)
 }
 
+/// Why a replay produced no trajectory (the filter never started), in one line.
+fn no_output_reason(stats: &ReplayStats, start: f64) -> String {
+    let span = |s: Option<(f64, f64)>| {
+        s.map_or("none".to_string(), |(a, b)| {
+            format!("+{:.1} to +{:.1} s", a - start, b - start)
+        })
+    };
+    match (stats.imu_span_s, stats.gnss_span_s) {
+        (None, _) => "no usable IMU sample (all rejected: non-finite or time not increasing)".into(),
+        (_, None) => format!(
+            "no usable GNSS fix to align with ({} invalid, {} duplicate, {} out of order)",
+            stats.gnss_rejected_invalid, stats.gnss_rejected_duplicate, stats.gnss_rejected_out_of_order
+        ),
+        (Some((i0, i1)), Some((g0, g1))) if g1 < i0 || g0 > i1 => format!(
+            "GNSS and IMU do not overlap: IMU {}, GNSS {}",
+            span(stats.imu_span_s),
+            span(stats.gnss_span_s)
+        ),
+        _ => format!(
+            "the filter never aligned: no GNSS fix with a speed of at least the alignment speed while the IMU ran (IMU {}, GNSS {}, {} fixes withheld by outages); give alignment.heading_deg in --config for a standstill start",
+            span(stats.imu_span_s),
+            span(stats.gnss_span_s),
+            stats.gnss_withheld_outage
+        ),
+    }
+}
+
+/// One line per input problem the replay handled (what was done about it).
+fn input_handling(stats: &ReplayStats, start: f64) -> Vec<String> {
+    let mut lines = Vec::new();
+    if stats.imu_rejected_time > 0 {
+        lines.push(format!(
+            "{} IMU samples rejected: time not after the previous sample's (or an increment over more than {} s)",
+            stats.imu_rejected_time,
+            crate::fusion::navigator::MAX_IMU_GAP_S
+        ));
+    }
+    if stats.imu_rejected_non_finite > 0 {
+        lines.push(format!(
+            "{} IMU samples rejected: non-finite values",
+            stats.imu_rejected_non_finite
+        ));
+    }
+    if stats.imu_gaps > 0 {
+        lines.push(format!(
+            "{} IMU time jumps over {} s: the INS coasted across each and restarted its integration history",
+            stats.imu_gaps,
+            crate::fusion::navigator::MAX_IMU_GAP_S
+        ));
+    }
+    if stats.gnss_sigma_fallback > 0 {
+        let (h, v, _) = crate::fusion::navigator::FALLBACK_SIGMA;
+        lines.push(format!(
+            "{} GNSS fixes had a zero, negative or missing position σ: used {h} m horizontal, {v} m vertical",
+            stats.gnss_sigma_fallback
+        ));
+    }
+    let rejected = stats.gnss_rejected_invalid
+        + stats.gnss_rejected_duplicate
+        + stats.gnss_rejected_out_of_order;
+    if rejected > 0 {
+        lines.push(format!(
+            "{rejected} GNSS fixes rejected ({} invalid, {} duplicate time, {} out of order)",
+            stats.gnss_rejected_invalid,
+            stats.gnss_rejected_duplicate,
+            stats.gnss_rejected_out_of_order
+        ));
+    }
+    if let (Some((i0, i1)), Some((g0, g1))) = (stats.imu_span_s, stats.gnss_span_s) {
+        if g0 > i0 + 1.0 || g1 < i1 - 1.0 {
+            lines.push(format!(
+                "GNSS covers +{:.1} to +{:.1} s of the IMU's +{:.1} to +{:.1} s; the rest is inertial only",
+                g0 - start, g1 - start, i0 - start, i1 - start
+            ));
+        }
+    }
+    lines
+}
+
 fn write_outputs<F: Fn(f64) -> Option<NavState>>(
     out_dir: &Path,
     result: &ReplayResult,
@@ -313,6 +392,12 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
     axis: &TimeAxis,
 ) -> anyhow::Result<()> {
     let (filtered, stats) = (&result.filtered, &result.stats);
+    if filtered.is_empty() {
+        bail!("{}", no_output_reason(stats, axis.start));
+    }
+    for line in input_handling(stats, axis.start) {
+        println!("{line}");
+    }
     let data_end = filtered.last().map_or(f64::NEG_INFINITY, |s| s.nav.t_s);
     // The `--outage` windows come first; periodic ones are generated past the data.
     for (i, &(a, b)) in requested.iter().enumerate() {

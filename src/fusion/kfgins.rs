@@ -573,10 +573,25 @@ pub fn replay_files(
             ),
         });
     }
-    let gnss: Vec<GnssObservation> = read_gnss(&config.gnss_path)?
-        .into_iter()
-        .filter(|g| g.t_s >= config.start_s && config.end_s.is_none_or(|e| g.t_s <= e))
+    let all = read_gnss(&config.gnss_path)?;
+    let (imu_from, imu_to) = (imu[0].t_s(), imu[imu.len() - 1].t_s());
+    let gnss: Vec<GnssObservation> = all
+        .iter()
+        .copied()
+        .filter(|g| g.t_s >= imu_from && g.t_s <= imu_to)
         .collect();
+    if gnss.is_empty() {
+        let span = match (all.first(), all.last()) {
+            (Some(a), Some(b)) => format!("its fixes span {:.3}-{:.3} s", a.t_s, b.t_s),
+            _ => "it has no fixes".to_string(),
+        };
+        return Err(KfGinsError::Config {
+            path: config.gnss_path.display().to_string(),
+            what: format!(
+                "no GNSS fix within the IMU data ({imu_from:.3}-{imu_to:.3} s of week): {span}; GNSS and IMU do not overlap"
+            ),
+        });
+    }
     let options = crate::fusion::navigator::ReplayOptions {
         initial: Some(config.initial),
         initial_sensors: config.initial_sensors,

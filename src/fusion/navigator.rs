@@ -58,6 +58,12 @@ pub struct ReplayStats {
     pub gnss_rejected_duplicate: u64,
     pub gnss_rejected_out_of_order: u64,
     pub gnss_gated: u64,
+    /// Fixes whose position σ was zero, negative or missing: used with [`FALLBACK_SIGMA`].
+    pub gnss_sigma_fallback: u64,
+    /// Time of the first and last accepted IMU sample, s.
+    pub imu_span_s: Option<(f64, f64)>,
+    /// Time of the first and last valid GNSS fix, s.
+    pub gnss_span_s: Option<(f64, f64)>,
     pub nhc_updates: u64,
     pub zupt_updates: u64,
     /// Time the filter started (after alignment), s.
@@ -232,6 +238,7 @@ impl<const N: usize> Navigator<N> {
             (None, None) => 0.0,
         };
         stats.imu_samples += 1;
+        stats.imu_span_s = Some(stats.imu_span_s.map_or((t, t), |(a, _)| (a, t)));
         let gap = matches!(self.last_imu, Some((t0, _, _)) if t - t0 > MAX_IMU_GAP_S);
         self.last_imu = Some((t, gyro, accel));
         let Some(ins) = self.ins.as_mut() else {
@@ -344,6 +351,14 @@ impl<const N: usize> Navigator<N> {
             }
         }
         self.last_fix_t = Some(fix.t_s);
+        stats.gnss_span_s = Some(
+            stats
+                .gnss_span_s
+                .map_or((fix.t_s, fix.t_s), |(a, _)| (a, fix.t_s)),
+        );
+        if !fix.sigma_ned_m.iter().all(|s| s.is_finite() && *s > 0.0) {
+            stats.gnss_sigma_fallback += 1;
+        }
         if self
             .options
             .outages

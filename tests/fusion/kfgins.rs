@@ -209,3 +209,140 @@ fn public_kf_gins_dataset_when_present() {
     println!("public dataset: {s:?}");
     assert!(s.epochs > 0 && s.horizontal.rms.is_finite());
 }
+
+/// Runs `imulab replay --kf-gins kf-gins.yaml --truth truth.nav` in `dir` with `extra`
+/// arguments: (success, stdout, stderr).
+fn replay_in(dir: &Path, extra: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .current_dir(dir)
+        .args([
+            "replay",
+            "--kf-gins",
+            "kf-gins.yaml",
+            "--truth",
+            "truth.nav",
+            "--out",
+            "res",
+        ])
+        .args(extra)
+        .output()
+        .expect("run imulab");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Rewrites each line of `file` in `dir` with `edit` (None drops the line).
+fn edit_lines(dir: &Path, file: &str, mut edit: impl FnMut(usize, &str) -> Option<String>) {
+    let p = dir.join(file);
+    let text = std::fs::read_to_string(&p).expect("read");
+    let out: Vec<String> = text
+        .lines()
+        .enumerate()
+        .filter_map(|(i, l)| edit(i, l))
+        .collect();
+    std::fs::write(&p, out.join("\n") + "\n").expect("write");
+}
+
+fn assert_no_nan(dir: &Path) {
+    for f in [
+        "filtered_navresult.nav",
+        "errors.json",
+        "filtered_trajectory.csv",
+    ] {
+        let text = std::fs::read_to_string(dir.join("res").join(f)).expect(f);
+        assert!(!text.to_lowercase().contains("nan"), "NaN in {f}");
+    }
+}
+
+#[test]
+fn gnss_without_standard_deviations_uses_the_stated_fallback() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    // σ columns zero on even lines, negative on the others.
+    edit_lines(dir.path(), "gnss.txt", |i, l| {
+        let mut c: Vec<String> = l.split_whitespace().map(String::from).collect();
+        for s in &mut c[4..7] {
+            *s = if i % 2 == 0 { "0".into() } else { "-1".into() };
+        }
+        Some(c.join(" "))
+    });
+    let (ok, stdout, stderr) = replay_in(dir.path(), &[]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("had a zero, negative or missing position σ: used 2.5 m horizontal"),
+        "{stdout}"
+    );
+    assert_no_nan(dir.path());
+}
+
+#[test]
+fn imu_time_going_backwards_or_jumping_is_rejected_and_counted() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    // Rows 5000..5003 repeated (time going backwards) and rows 9000..9500 removed (a 5 s jump).
+    let text = std::fs::read_to_string(dir.path().join("imu.txt")).expect("imu");
+    let rows: Vec<&str> = text.lines().collect();
+    let mut out: Vec<&str> = Vec::new();
+    for (i, r) in rows.iter().enumerate() {
+        if (9000..9500).contains(&i) {
+            continue;
+        }
+        out.push(r);
+        if i == 5003 {
+            out.extend_from_slice(&rows[5000..5003]);
+        }
+    }
+    std::fs::write(dir.path().join("imu.txt"), out.join("\n") + "\n").expect("write");
+    let (ok, stdout, stderr) = replay_in(dir.path(), &[]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("IMU samples rejected: time not after the previous sample's"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("1 IMU time jumps over 1 s"), "{stdout}");
+    assert_no_nan(dir.path());
+}
+
+#[test]
+fn gnss_not_overlapping_the_imu_is_one_clear_line() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    edit_lines(dir.path(), "gnss.txt", |_, l| {
+        let mut c: Vec<String> = l.split_whitespace().map(String::from).collect();
+        c[0] = format!("{:.3}", c[0].parse::<f64>().expect("time") + 10_000.0);
+        Some(c.join(" "))
+    });
+    let (ok, stdout, stderr) = replay_in(dir.path(), &[]);
+    assert!(!ok, "{stdout}");
+    assert!(
+        stderr.contains("gnss.txt") && stderr.contains("do not overlap"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(!dir
+        .path()
+        .join("res")
+        .join("filtered_navresult.nav")
+        .exists());
+}
+
+#[test]
+fn an_outage_longer_than_the_data_is_counted_to_its_end_and_said() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    let (ok, stdout, stderr) = replay_in(dir.path(), &["--outage", "200:5000"]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("runs past the end of the data"), "{stdout}");
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("res/errors.json")).expect("errors.json"),
+    )
+    .expect("json");
+    let o = &report["filtered"]["outages"][0];
+    let dur = o["duration_s"].as_f64().expect("duration");
+    assert!(dur > 50.0 && dur < 200.0, "clipped to the data: {o}");
+    assert!(o["max_horizontal_m"].as_f64().expect("drift").is_finite());
+    assert_no_nan(dir.path());
+}
