@@ -12,7 +12,12 @@ use imulab_drivers::codec::can::CanFrame;
 use imulab_drivers::codec::candump::{CandumpDecoder, CandumpEncoder, CandumpRecord, IfName};
 use imulab_drivers::codec::csv_line::{CsvLineConfig, CsvLineDecoder, CsvLineEncoder};
 use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping, DbcStreamDecoder};
+use imulab_drivers::codec::mip::{MipDecoder, MipEncoder, MipGpsTime, MipImuData, MipPacket};
 use imulab_drivers::codec::slcan::{SlcanDecoder, SlcanEncoder, SlcanMessage};
+use imulab_drivers::codec::vectornav::{
+    common, imu, VnAscii, VnAsciiKind, VnBinary, VnChecksum, VnDecoder, VnEncoder, VnFrame,
+    VnOutputFields, VnValues,
+};
 use imulab_drivers::codec::witmotion::{WitDecoder, WitEncoder, WitImuDecoder, WitPacket};
 use imulab_drivers::codec::xbus::{MtData2, XbusDecoder, XbusEncoder, XbusMessage, XbusValue};
 use imulab_drivers::codec::{Decoder, Encoder};
@@ -173,6 +178,100 @@ fn main() {
         .collect();
     let (bytes, n) = stream(&xbus, |m, out| XbusEncoder.encode(m, out).expect("valid"));
     report("xbus MTData2", &bytes, n, measure(XbusDecoder::new, &bytes));
+
+    // VectorNav binary output: a bench configuration (Common TimeStartup, AngularRate, Accel,
+    // MagPres; IMU UncompGyro, UncompAccel, ImuStatus: 86-byte packets) and the smallest
+    // useful one (TimeStartup, AngularRate, Accel: 38 bytes).
+    let vn_values = |i: u64| VnValues {
+        time_startup_ns: Some(i * 1_250_000),
+        angular_rate: Some([0.001, -0.002, i as f32 * 1e-4]),
+        accel: Some([0.01, -0.02, -9.81]),
+        mag: Some([0.2, 0.01, 0.45]),
+        temp_c: Some(31.5),
+        pressure_kpa: Some(101.3),
+        uncomp_gyro: Some([0.0011, -0.0021, 0.0]),
+        uncomp_accel: Some([0.011, -0.021, -9.805]),
+        imu_status: Some(0),
+        ..VnValues::default()
+    };
+    let bench_fields = VnOutputFields {
+        common: common::TIME_STARTUP | common::ANGULAR_RATE | common::ACCEL | common::MAG_PRES,
+        imu: imu::UNCOMP_GYRO | imu::UNCOMP_ACCEL | imu::IMU_STATUS,
+        ..VnOutputFields::default()
+    };
+    let small_fields = VnOutputFields {
+        common: common::TIME_STARTUP | common::ANGULAR_RATE | common::ACCEL,
+        ..VnOutputFields::default()
+    };
+    for (name, fields) in [
+        ("vectornav binary 86 B", bench_fields),
+        ("vectornav binary 38 B", small_fields),
+    ] {
+        let frames: Vec<VnFrame> = (0..64)
+            .map(|i| {
+                VnFrame::Binary(VnBinary {
+                    fields,
+                    values: vn_values(i),
+                    skipped_fields: 0,
+                })
+            })
+            .collect();
+        let (bytes, n) = stream(&frames, |f, out| VnEncoder.encode(f, out).expect("valid"));
+        report(name, &bytes, n, measure(VnDecoder::new, &bytes));
+    }
+    let ymr: Vec<VnFrame> = (0..64)
+        .map(|i| {
+            VnFrame::Ascii(VnAscii {
+                kind: VnAsciiKind::Ymr,
+                checksum: VnChecksum::Xor8,
+                values: VnValues {
+                    ypr_deg: Some([10.071, -0.278, i as f32 * 0.01]),
+                    ..vn_values(i)
+                },
+            })
+        })
+        .collect();
+    let (bytes, n) = stream(&ymr, |f, out| VnEncoder.encode(f, out).expect("valid"));
+    report(
+        "vectornav $VNYMR",
+        &bytes,
+        n,
+        measure(VnDecoder::new, &bytes),
+    );
+
+    // MIP IMU data set: accel, gyro, mag, delta theta, delta velocity, GPS correlation
+    // time (90-byte packets), and accel, gyro, reference time (44 bytes).
+    let full: Vec<MipPacket> = (0..64)
+        .map(|i| {
+            MipPacket::Imu(MipImuData {
+                scaled_accel_g: Some([0.001, -0.002, -1.0]),
+                scaled_gyro: Some([0.001, 0.002, i as f32 * 1e-4]),
+                scaled_mag: Some([0.2, 0.01, 0.45]),
+                delta_theta: Some([1e-5, 2e-5, 3e-5]),
+                delta_velocity_gs: Some([0.0, 0.0, -0.001]),
+                gps_correlation_time: Some(MipGpsTime {
+                    tow_s: 345_600.0 + i as f64 * 0.001,
+                    week: 2200,
+                    valid_flags: 7,
+                }),
+                ..MipImuData::default()
+            })
+        })
+        .collect();
+    let small: Vec<MipPacket> = (0..64u64)
+        .map(|i| {
+            MipPacket::Imu(MipImuData {
+                scaled_accel_g: Some([0.001, -0.002, -1.0]),
+                scaled_gyro: Some([0.001, 0.002, 0.0]),
+                reference_time_ns: Some(i * 1_000_000),
+                ..MipImuData::default()
+            })
+        })
+        .collect();
+    for (name, packets) in [("mip IMU 90 B", &full), ("mip IMU 44 B", &small)] {
+        let (bytes, n) = stream(packets, |p, out| MipEncoder.encode(p, out).expect("valid"));
+        report(name, &bytes, n, measure(MipDecoder::new, &bytes));
+    }
 
     // CSV lines, default layout.
     let config = CsvLineConfig::default();

@@ -391,7 +391,7 @@ enum Field {
 
 /// Field kind and size in bytes of bit `bit` of group `g` (0 Common, 1 Time, 2 IMU,
 /// 3 Attitude); `None` for a field whose size this decoder does not know.
-fn field(g: usize, bit: u32) -> Option<(Field, usize)> {
+const fn field(g: usize, bit: u32) -> Option<(Field, usize)> {
     use Field::*;
     Some(match (g, bit) {
         (0, 0) | (1, 0) => (TimeStartup, 8),
@@ -429,6 +429,21 @@ fn field(g: usize, bit: u32) -> Option<(Field, usize)> {
         _ => return None,
     })
 }
+
+/// [`field`] as a lookup table, `[group][bit]`.
+static FIELDS: [[Option<(Field, usize)>; 16]; 4] = {
+    let mut table = [[None; 16]; 4];
+    let mut g = 0;
+    while g < 4 {
+        let mut bit = 0;
+        while bit < 16 {
+            table[g][bit] = field(g, bit as u32);
+            bit += 1;
+        }
+        g += 1;
+    }
+    table
+};
 
 /// Group byte bits of the groups in [`VnOutputFields`] order.
 const GROUP_BITS: [u8; 4] = [group::COMMON, group::TIME, group::IMU, group::ATTITUDE];
@@ -519,7 +534,7 @@ fn binary_layout(data: &[u8]) -> Result<Option<(VnOutputFields, usize, usize)>, 
         while rest != 0 {
             let b = rest.trailing_zeros();
             rest &= rest - 1;
-            let (_, size) = field(g, b).ok_or(Reject::Malformed)?;
+            let (_, size) = FIELDS[g][b as usize].ok_or(Reject::Malformed)?;
             payload += size;
         }
         words[g] = word;
@@ -533,12 +548,38 @@ fn binary_layout(data: &[u8]) -> Result<Option<(VnOutputFields, usize, usize)>, 
     Ok(Some((fields, header_len, payload)))
 }
 
-fn scan_binary(data: &[u8]) -> Scan<VnFrame> {
-    let (fields, header_len, payload_len) = match binary_layout(data) {
-        Ok(Some(layout)) => layout,
-        Ok(None) => return Scan::Incomplete,
-        Err(reject) => return Scan::Reject { len: 1, reject },
+/// The layout of the last binary packet: a device sends one configuration until it is
+/// changed, so the field sizes are summed once per configuration, not once per packet.
+#[derive(Debug, Clone, Copy)]
+struct Layout {
+    /// Group byte and field words as on the wire.
+    header: [u8; 9],
+    header_len: usize,
+    payload_len: usize,
+    fields: VnOutputFields,
+}
+
+fn scan_binary(data: &[u8], cache: &mut Option<Layout>) -> Scan<VnFrame> {
+    let layout = match cache {
+        Some(c) if data.get(1..c.header_len) == Some(&c.header[..c.header_len - 1]) => *c,
+        _ => match binary_layout(data) {
+            Ok(Some((fields, header_len, payload_len))) => {
+                let mut header = [0u8; 9];
+                header[..header_len - 1].copy_from_slice(&data[1..header_len]);
+                let layout = Layout {
+                    header,
+                    header_len,
+                    payload_len,
+                    fields,
+                };
+                *cache = Some(layout);
+                layout
+            }
+            Ok(None) => return Scan::Incomplete,
+            Err(reject) => return Scan::Reject { len: 1, reject },
+        },
     };
+    let (fields, header_len, payload_len) = (layout.fields, layout.header_len, layout.payload_len);
     let total = header_len + payload_len + 2;
     if data.len() < total {
         return Scan::Incomplete;
@@ -561,8 +602,8 @@ fn scan_binary(data: &[u8]) -> Scan<VnFrame> {
         while rest != 0 {
             let b = rest.trailing_zeros();
             rest &= rest - 1;
-            // Every bit was checked by `binary_layout`.
-            if let Some((kind, size)) = field(g, b) {
+            // Every bit was checked when the layout was made.
+            if let Some((kind, size)) = FIELDS[g][b as usize] {
                 store(
                     kind,
                     &payload[at..at + size],
@@ -713,6 +754,7 @@ fn scan_ascii(data: &[u8]) -> Scan<VnFrame> {
 #[derive(Debug, Clone)]
 pub struct VnDecoder {
     buf: StreamBuffer,
+    layout: Option<Layout>,
 }
 
 impl Default for VnDecoder {
@@ -726,6 +768,7 @@ impl VnDecoder {
         // ASCII sentences end in CR LF, which is framing between frames.
         VnDecoder {
             buf: StreamBuffer::text(),
+            layout: None,
         }
     }
 }
@@ -738,13 +781,25 @@ impl Decoder for VnDecoder {
     }
 
     fn poll(&mut self) -> Option<VnFrame> {
-        self.buf.next_scanned(&[SYNC, b'$'], |data| {
-            if data[0] == SYNC {
-                scan_binary(data)
+        loop {
+            if !self.buf.skip_to_start(&[SYNC, b'$']) {
+                return None;
+            }
+            let data = self.buf.data();
+            let scan = if data[0] == SYNC {
+                scan_binary(data, &mut self.layout)
             } else {
                 scan_ascii(data)
+            };
+            match scan {
+                Scan::Incomplete => return None,
+                Scan::Frame { len, frame } => {
+                    self.buf.accept(len);
+                    return Some(frame);
+                }
+                Scan::Reject { len, reject } => self.buf.reject(len, reject),
             }
-        })
+        }
     }
 
     fn stats(&self) -> DecoderStats {
@@ -888,7 +943,7 @@ fn encode_binary(packet: &VnBinary, out: &mut Vec<u8>) -> Result<(), EncodeError
         while rest != 0 {
             let b = rest.trailing_zeros();
             rest &= rest - 1;
-            let (kind, _) = field(g, b).ok_or(EncodeError::Invalid {
+            let (kind, _) = FIELDS[g][b as usize].ok_or(EncodeError::Invalid {
                 field: "fields",
                 reason: "selects a field whose size is not known",
             })?;
