@@ -6,6 +6,7 @@
 //! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
+//! - [`thermal`]: thermal-chamber characterisation and the compensation model.
 //! - [`cli`]: the `imulab` subcommands.
 
 pub mod allan;
@@ -15,3 +16,4 @@ pub mod earth;
 pub mod fusion;
 pub mod sim;
 pub mod store;
+pub mod thermal;

@@ -36,6 +36,8 @@ pub enum Command {
     Status(super::status::StatusArgs),
     /// Allan-family deviations, confidence intervals and noise-term fit of a rate series.
     Allan(super::allan::AllanArgs),
+    /// Thermal-chamber characterisation: bias against temperature, hysteresis, warm-up, lag.
+    Thermal(super::thermal::ThermalArgs),
     /// Self-contained HTML noise report of one or more IMUs.
     Report(super::report::ReportArgs),
     /// Datasheet-style comparison of two or more IMUs.
@@ -65,6 +67,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Sim(args) => super::sim::run(args),
         Command::Status(args) => super::status::run(args),
         Command::Allan(args) => super::allan::run(args),
+        Command::Thermal(args) => super::thermal::run(args),
         Command::Report(args) => super::report::run(args),
         Command::Compare(args) => super::compare::run(args),
         Command::Demo(args) => super::demo::run(args),

@@ -28,3 +28,4 @@ pub mod export;
 pub mod inspect;
 pub mod recover;
 pub mod sim;
+pub mod thermal;

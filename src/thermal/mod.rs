@@ -1,0 +1,12 @@
+//! Thermal-chamber characterisation (`imulab thermal`) and the compensation model it exports.
+//!
+//! - [`polyfit`]: bias against temperature, order from the data, 95 % intervals and bands.
+//! - [`analysis`]: one axis (fit, hysteresis, warm-up, per-plateau noise) and the thermal lag.
+//! - [`model`]: the versioned compensation model (JSON) and the one helper that applies it.
+//! - [`plot`]: the report section's SVG plots; [`report`]: the JSON document, text and HTML.
+
+pub mod analysis;
+pub mod model;
+pub mod plot;
+pub mod polyfit;
+pub mod report;
