@@ -208,8 +208,6 @@ fn replay_command_reads_noise_from_an_allan_fit_and_writes_into_the_session() {
         .arg(&session)
         .arg("--noise")
         .arg(format!("{}#unit", json.display()))
-        .arg("--out")
-        .arg(dir.path().join("out"))
         .output()
         .expect("run imulab");
     let stdout = String::from_utf8_lossy(&out.stdout);
