@@ -85,6 +85,16 @@ fn split_name(name: &str) -> (String, Option<String>) {
     (name.to_lowercase(), None)
 }
 
+/// The rate unit a header name gives in brackets (`gyro_x (rad/s)`, `Acceleration x
+/// (m/s^2)`, `ax [g]`), if it is one [`RateUnit`] knows.
+pub fn unit_of_name(name: &str) -> Option<RateUnit> {
+    let (_, unit) = split_name(name);
+    unit?
+        .parse::<RateUnit>()
+        .ok()
+        .filter(|u| *u != RateUnit::Unspecified)
+}
+
 /// The role of a column from its header name.
 pub fn role_of(name: &str) -> ColumnRole {
     let (base, bracket_unit) = split_name(name);
@@ -492,6 +502,19 @@ mod tests {
                 "{name}"
             );
         }
+        assert_eq!(
+            unit_of_name("Gyroscope x (rad/s)"),
+            Some(RateUnit::RadPerSecond)
+        );
+        assert_eq!(
+            role_of("Gyroscope x (rad/s)"),
+            ColumnRole::Axis(Some(SensorKind::Gyro))
+        );
+        assert_eq!(
+            unit_of_name("Acceleration z (m/s^2)"),
+            Some(RateUnit::MetrePerSecondSquared)
+        );
+        assert_eq!(unit_of_name("Time (s)"), None);
         for name in ["mag_x", "value", "tx", "y"] {
             assert_eq!(role_of(name), ColumnRole::Axis(None), "{name}");
         }

@@ -162,7 +162,17 @@ fn detect_delimiter(lines: &[&str]) -> Option<Delimiter> {
         first >= 2 && lines.iter().all(|l| count(l) == first)
     };
     for byte in [b'\t', b';', b','] {
-        if consistent(&|l: &str| l.split(byte as char).count()) {
+        let count = |l: &str| l.split(byte as char).count();
+        // A header may carry one field more or less than the rows (a trailing delimiter).
+        let header_fits = |rows: usize| count(lines[0]).abs_diff(rows) <= 1;
+        let fits = match lines.get(1..).filter(|rows| !rows.is_empty()) {
+            Some(rows) => {
+                let n = count(rows[0]);
+                n >= 2 && rows.iter().all(|l| count(l) == n) && header_fits(n)
+            }
+            None => consistent(&count),
+        };
+        if fits {
             return Some(Delimiter::Byte(byte));
         }
     }
@@ -233,7 +243,7 @@ impl CsvSource {
         let fields: Vec<String> = match delimiter {
             Delimiter::Byte(b) => first_line
                 .split(b as char)
-                .map(|f| f.trim().to_string())
+                .map(|f| f.trim().trim_matches('"').trim().to_string())
                 .collect(),
             Delimiter::Whitespace => first_line.split_whitespace().map(String::from).collect(),
         };

@@ -5,7 +5,7 @@
 use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions, AxisResult};
 use crate::allan::columns::{
     detect_layout, fmt_sig, infer_time_unit, looks_like_column_group, median_step,
-    parse_column_groups, role_of, ColumnRole, TimeUnit,
+    parse_column_groups, role_of, unit_of_name, ColumnRole, TimeUnit,
 };
 use crate::allan::input::{
     open_file, read_axes, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
@@ -534,6 +534,10 @@ fn plan_file(
                 "{file}: column `{}` is the time column and cannot be analysed as an axis",
                 names[c]
             );
+        }
+        // --columns, then --units, then a unit in the header name (`gyro_x (rad/s)`).
+        if unit_of[c].is_none() && args.units == RateUnit::Unspecified {
+            unit_of[c] = unit_of_name(&names[c]);
         }
         let unit = unit_of[c].unwrap_or(args.units);
         let sensor = if unit_of[c].is_some() {

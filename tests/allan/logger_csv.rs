@@ -649,3 +649,45 @@ fn compare_of_two_six_axis_files_fits_100_columns() {
         "{stdout}"
     );
 }
+
+#[test]
+fn phone_app_quoted_header_with_units_in_brackets() {
+    let dir = tempfile::tempdir().unwrap();
+    // A phone app's export: quoted names with units, seconds from start, gyro in rad/s.
+    let sigma_rad = GYRO_SIGMA.to_radians();
+    let file = write_file(
+        dir.path(),
+        "phone.csv",
+        "\"Time (s)\",\"Gyroscope x (rad/s)\",\"Acceleration x (m/s^2)\"",
+        ",",
+        '.',
+        |i| format!("{:.3}", i as f64 / RATE_HZ),
+        &[white(100, sigma_rad), white(101, ACCEL_SIGMA * 9.806_65)],
+    );
+    let out = dir.path().join("p.json");
+    ok(&[
+        "allan",
+        file.to_str().unwrap(),
+        "--fit",
+        "--json",
+        out.to_str().unwrap(),
+    ]);
+    let doc = json(&out);
+    assert_eq!(
+        axes(&doc),
+        ["phone Gyroscope x (rad/s)", "phone Acceleration x (m/s^2)"]
+    );
+    close(tau0(&doc, 0), 0.01, 1e-9, "τ0");
+    close(
+        term(&doc, "Gyroscope x (rad/s)", "ARW", "deg/sqrt(h)"),
+        true_arw(),
+        0.05,
+        "ARW",
+    );
+    close(
+        term(&doc, "Acceleration x (m/s^2)", "VRW", "m/s/sqrt(h)"),
+        true_vrw(),
+        0.05,
+        "VRW",
+    );
+}
