@@ -29,9 +29,20 @@ pub struct ReplayArgs {
     /// GNSS device of the session (default: the only one).
     #[arg(long, value_name = "G", requires = "session")]
     pub gnss: Option<String>,
-    /// Filter configuration (TOML, see docs/fusion.md) for a session replay.
-    #[arg(long, value_name = "FILE", requires = "session")]
+    /// Filter configuration (TOML, see docs/fusion.md) for a session replay; with --kf-gins,
+    /// the motion constraints only ([nhc], [zupt], [zaru]).
+    #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// Turn on the non-holonomic constraint (land vehicle: no sideways or vertical body
+    /// velocity) with the configured or default settings.
+    #[arg(long)]
+    pub nhc: bool,
+    /// Turn on zero-velocity updates at detected standstills.
+    #[arg(long)]
+    pub zupt: bool,
+    /// Turn on zero angular rate updates at detected standstills (gyro bias).
+    #[arg(long)]
+    pub zaru: bool,
     /// KF-GINS configuration file instead of a session (paths inside resolve against the
     /// current directory).
     #[arg(long, value_name = "CONFIG.yaml")]
@@ -136,6 +147,7 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         Some(p) => FusionConfig::from_file(p)?,
         None => FusionConfig::default(),
     };
+    enable_constraints(&mut config, args);
     let session = crate::store::Session::open(dir)?;
     let out_dir = args.out.clone().unwrap_or_else(|| dir.join("replay"));
     let in_session = args
@@ -248,9 +260,34 @@ fn noise_model(
     }
 }
 
+/// The `--nhc`, `--zupt`, `--zaru` switches over the configuration.
+fn enable_constraints(config: &mut FusionConfig, args: &ReplayArgs) {
+    config.nhc.enabled |= args.nhc;
+    config.zupt.enabled |= args.zupt;
+    config.zaru.enabled |= args.zaru;
+}
+
 fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
     let base = std::env::current_dir().context("current directory")?;
     let config = KfGinsConfig::from_file(path, &base)?;
+    let mut fusion = config.fusion_config();
+    if let Some(p) = &args.config {
+        crate::fusion::config::Constraints::from_file(p)?.apply(&mut fusion);
+    }
+    enable_constraints(&mut fusion, args);
+    fusion.validate()?;
+    let on: Vec<&str> = [
+        (fusion.nhc.enabled, "NHC"),
+        (fusion.zupt.enabled, "ZUPT"),
+        (fusion.zaru.enabled, "ZARU"),
+    ]
+    .iter()
+    .filter(|(e, _)| *e)
+    .map(|(_, n)| *n)
+    .collect();
+    if !on.is_empty() {
+        println!("motion constraints: {}", on.join(", "));
+    }
     if config.initial_bias_std.is_some() {
         tracing::warn!("initbgstd/initbastd/initsgstd/initsastd are not applied: initial sensor-error σ = imunoise σ");
     }
@@ -264,7 +301,7 @@ fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| config.output_path.clone());
     ensure_writable(&out_dir)?;
-    let result = kfgins::replay_files(&config, &outages, args.smooth)?;
+    let result = kfgins::replay_files_with(&config, &fusion, &outages, args.smooth)?;
     let truth = match &args.truth {
         Some(p) => Some(kfgins::read_nav(p)?),
         None => None,
@@ -500,7 +537,7 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         );
     }
     println!(
-        "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), filter PD events {}",
+        "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), NHC/ZUPT/ZARU updates {}/{}/{}, filter PD events {}",
         stats.imu_samples,
         stats.imu_rejected_non_finite + stats.imu_rejected_time,
         stats.gnss_used,
@@ -508,6 +545,9 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         stats.gnss_rejected_invalid
             + stats.gnss_rejected_duplicate
             + stats.gnss_rejected_out_of_order,
+        stats.nhc_updates,
+        stats.zupt_updates,
+        stats.zaru_updates,
         stats.filter.pd_events
     );
     if truth.is_none() && !windows.is_empty() {

@@ -252,6 +252,58 @@ impl Default for ZuptOptions {
     }
 }
 
+/// Zero angular rate update: at a detected standstill (the [`ZuptOptions`] detector) the
+/// bias-corrected gyro mean must equal the earth rate, which observes the gyro biases
+/// (including the vertical one, which GNSS hardly observes). Valid only when the vehicle is
+/// truly still, not merely slow (a car idling with the engine on is; a ship is not).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ZaruOptions {
+    pub enabled: bool,
+    /// σ of the zero-angular-rate pseudo-measurement (window-mean rate), rad/s.
+    pub sigma_rad_s: f64,
+}
+
+impl Default for ZaruOptions {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            sigma_rad_s: 2e-4,
+        }
+    }
+}
+
+/// The motion constraints of a land vehicle, the part of the configuration a KF-GINS replay
+/// takes from a TOML file (`imulab replay --kf-gins CONFIG.yaml --config constraints.toml`):
+/// `[nhc]`, `[zupt]`, `[zaru]`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Constraints {
+    pub nhc: NhcOptions,
+    pub zupt: ZuptOptions,
+    pub zaru: ZaruOptions,
+}
+
+impl Constraints {
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: path.display().to_string(),
+            source: e,
+        })?;
+        toml::from_str(&text).map_err(|e| ConfigError::Constraints {
+            path: path.display().to_string(),
+            message: e.message().to_string(),
+        })
+    }
+
+    /// Applies these constraints to `config`.
+    pub fn apply(&self, config: &mut FusionConfig) {
+        config.nhc = self.nhc;
+        config.zupt = self.zupt;
+        config.zaru = self.zaru;
+    }
+}
+
 /// Initial alignment.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -306,6 +358,7 @@ pub struct FusionConfig {
     pub gnss: GnssOptions,
     pub nhc: NhcOptions,
     pub zupt: ZuptOptions,
+    pub zaru: ZaruOptions,
     pub alignment: AlignmentOptions,
     pub initial: InitialSigma,
     /// Covariance propagation interval, s (the mechanisation runs at the IMU rate).
@@ -323,6 +376,7 @@ impl Default for FusionConfig {
             gnss: GnssOptions::default(),
             nhc: NhcOptions::default(),
             zupt: ZuptOptions::default(),
+            zaru: ZaruOptions::default(),
             alignment: AlignmentOptions::default(),
             initial: InitialSigma::default(),
             covariance_interval_s: 0.05,
@@ -344,6 +398,8 @@ pub enum ConfigError {
         path: String,
         source: Box<toml::de::Error>,
     },
+    #[error("constraints {path}: {message} (with --kf-gins the IMU noise, lever arm and initial state come from the YAML; this file may set [nhc], [zupt] and [zaru] only)")]
+    Constraints { path: String, message: String },
     #[error("fusion config: {key} = {value} is invalid: {why}")]
     Invalid {
         key: &'static str,
@@ -509,6 +565,12 @@ impl FusionConfig {
             pos,
         )?;
         check("zupt.window_s", z.window_s, z.window_s > 0.0, pos)?;
+        check(
+            "zaru.sigma_rad_s",
+            self.zaru.sigma_rad_s,
+            self.zaru.sigma_rad_s > 0.0,
+            pos,
+        )?;
         check(
             "zupt.max_speed_mps",
             z.max_speed_mps,

@@ -558,6 +558,17 @@ pub fn replay_files(
     outages: &[(f64, f64)],
     smooth: bool,
 ) -> Result<crate::fusion::navigator::ReplayResult, KfGinsError> {
+    replay_files_with(config, &config.fusion_config(), outages, smooth)
+}
+
+/// [`replay_files`] with the filter configuration given (the KF-GINS one with motion
+/// constraints added, see [`crate::fusion::config::Constraints`]).
+pub fn replay_files_with(
+    config: &KfGinsConfig,
+    fusion: &FusionConfig,
+    outages: &[(f64, f64)],
+    smooth: bool,
+) -> Result<crate::fusion::navigator::ReplayResult, KfGinsError> {
     let imu = read_imu(
         &config.imu_path,
         config.imu_rate_hz,
@@ -598,12 +609,7 @@ pub fn replay_files(
         outages: outages.to_vec(),
         smooth,
     };
-    Ok(crate::fusion::navigator::replay(
-        &config.fusion_config(),
-        imu,
-        gnss,
-        options,
-    ))
+    Ok(crate::fusion::navigator::replay(fusion, imu, gnss, options))
 }
 
 #[cfg(test)]

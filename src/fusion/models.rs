@@ -318,6 +318,27 @@ pub fn zero_velocity<const N: usize>(nav: &NavState, sigma: f64) -> Measurement<
     }
 }
 
+/// Zero angular rate update at a standstill: `mean_gyro_b` is the window-mean gyro output
+/// with the estimated bias removed; still, the true rate is the earth rate in the body frame,
+/// so the innovation is their difference and it observes the gyro bias error directly
+/// (δb = b̂ − b; the scale-factor terms vanish at rest).
+pub fn zero_angular_rate<const N: usize>(
+    nav: &NavState,
+    mean_gyro_b: &Vector3<f64>,
+    sigma: f64,
+) -> Measurement<3, N> {
+    let earth_b = nav.quat_nb.inverse() * earth::earth_rate_ned(nav.lat_rad);
+    let mut h = SMatrix::<f64, 3, N>::zeros();
+    h.fixed_view_mut::<3, 3>(0, BG)
+        .copy_from(&Matrix3::identity());
+    Measurement {
+        // ω̃ − b̂ = ω + b − b̂ = ω − δb, so h(estimate) − measurement = δb = earth_b − (ω̃ − b̂).
+        z: earth_b - mean_gyro_b,
+        h,
+        r: Matrix3::identity() * sigma * sigma,
+    }
+}
+
 /// Stacks two measurements into one (position and velocity of the same fix).
 pub fn stack<const N: usize>(a: &Measurement<3, N>, b: &Measurement<3, N>) -> Measurement<6, N> {
     let mut z = SVector::<f64, 6>::zeros();

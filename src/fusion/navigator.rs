@@ -66,6 +66,7 @@ pub struct ReplayStats {
     pub gnss_span_s: Option<(f64, f64)>,
     pub nhc_updates: u64,
     pub zupt_updates: u64,
+    pub zaru_updates: u64,
     /// Time the filter started (after alignment), s.
     pub aligned_at_s: Option<f64>,
     pub filter: FilterStats,
@@ -196,7 +197,8 @@ impl<const N: usize> Navigator<N> {
     /// further GNSS fix. Refused (returns false) while non-holonomic or zero-velocity
     /// updates are configured, since those still update the filter.
     pub fn set_covariance_propagation(&mut self, on: bool) -> bool {
-        if !on && (self.config.nhc.enabled || self.config.zupt.enabled) {
+        if !on && (self.config.nhc.enabled || self.config.zupt.enabled || self.config.zaru.enabled)
+        {
             return false;
         }
         match self.ins.as_mut() {
@@ -280,8 +282,9 @@ impl<const N: usize> Navigator<N> {
     /// itself is slow (a smooth straight cruise looks like a standstill to an IMU).
     fn zupt(&mut self, gyro: Vector3<f64>, accel: Vector3<f64>, dt: f64) {
         let z = self.config.zupt;
+        let zaru = self.config.zaru;
         let Some(ins) = self.ins.as_mut() else { return };
-        if !z.enabled {
+        if !(z.enabled || zaru.enabled) {
             return;
         }
         let w = &mut self.zupt_window;
@@ -304,9 +307,17 @@ impl<const N: usize> Navigator<N> {
             && mean_gyro.norm() < z.gyro_threshold_rad_s
             && ins.nav.vel_ned.norm() < z.max_speed_mps
         {
-            let m = models::zero_velocity::<N>(&ins.nav, z.sigma_mps);
-            if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
-                self.result.stats.zupt_updates += 1;
+            if z.enabled {
+                let m = models::zero_velocity::<N>(&ins.nav, z.sigma_mps);
+                if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
+                    self.result.stats.zupt_updates += 1;
+                }
+            }
+            if zaru.enabled {
+                let m = models::zero_angular_rate::<N>(&ins.nav, &mean_gyro, zaru.sigma_rad_s);
+                if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
+                    self.result.stats.zaru_updates += 1;
+                }
             }
         }
     }

@@ -346,3 +346,47 @@ fn an_outage_longer_than_the_data_is_counted_to_its_end_and_said() {
     assert!(o["max_horizontal_m"].as_f64().expect("drift").is_finite());
     assert_no_nan(dir.path());
 }
+
+#[test]
+fn motion_constraints_are_usable_with_kf_gins_from_a_toml_or_flags() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    write_dataset(dir.path());
+    std::fs::write(
+        dir.path().join("constraints.toml"),
+        "[nhc]\nenabled = true\nsigma_mps = 0.1\n[zaru]\nenabled = true\n",
+    )
+    .expect("write");
+    let (ok, stdout, stderr) = replay_in(
+        dir.path(),
+        &["--config", "constraints.toml", "--outages", "every:100:20"],
+    );
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("motion constraints: NHC, ZARU"), "{stdout}");
+    let updates = stdout
+        .split("NHC/ZUPT/ZARU updates ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .expect("update counts");
+    let n: Vec<u64> = updates
+        .split('/')
+        .map(|x| x.trim().parse().expect("count"))
+        .collect();
+    assert!(n[0] > 100 && n[1] == 0 && n[2] > 0, "{updates}");
+    assert_no_nan(dir.path());
+    // Flags do the same; anything but constraints in the TOML is refused in one line.
+    let (ok, stdout, _) = replay_in(dir.path(), &["--nhc", "--zupt"]);
+    assert!(
+        ok && stdout.contains("motion constraints: NHC, ZUPT"),
+        "{stdout}"
+    );
+    std::fs::write(
+        dir.path().join("bad.toml"),
+        "[imu]\narw_rad_per_sqrt_s = 1.0\n",
+    )
+    .expect("write");
+    let (ok, _, stderr) = replay_in(dir.path(), &["--config", "bad.toml"]);
+    assert!(
+        !ok && stderr.contains("bad.toml") && stderr.contains("[nhc], [zupt] and [zaru] only"),
+        "{stderr}"
+    );
+}

@@ -40,6 +40,7 @@ fn example_scenes_parse() {
     for name in [
         "chamber_6h.toml",
         "drive_30min.toml",
+        "drive_30min_open_sky.toml",
         "short_static.toml",
         "short_drive.toml",
         "serve_bench.toml",
