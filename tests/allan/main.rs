@@ -6,3 +6,4 @@ mod reference;
 mod report;
 mod robustness;
 mod session;
+mod stable32;
