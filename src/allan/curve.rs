@@ -3,10 +3,10 @@
 
 use super::block_sums::non_overlapping_from_rate;
 use super::deviation::{
-    decimated_variance, deviation_from_variance, variances_with, DeviationKind,
+    decimated_variance, deviation_from_variance, variance_at, variances_with, DeviationKind,
 };
 use super::edf::{confidence_interval, edf, Alpha, ONE_SIGMA_COVERAGE};
-use super::noise_id::{identify_alpha_decimated, identify_alphas};
+use super::noise_id::{b1_alpha, identify_alpha_decimated, identify_alphas};
 use super::numerics::{for_each_decimation, Phase, Simd};
 use super::taus::TauGrid;
 use serde::{Deserialize, Serialize};
@@ -103,6 +103,11 @@ pub fn compute_curve_segments(
             kept.push(identified[j]);
         }
     }
+    for ((m, _, _), alpha) in pooled.iter().zip(kept.iter_mut()) {
+        if alpha.is_none() {
+            *alpha = b1_alpha_from_phase(longest, *m, max_differences);
+        }
+    }
     let identified = kept;
     let points = assign_alpha(&identified, kind)
         .into_iter()
@@ -146,6 +151,9 @@ pub fn compute_curve_from_rate(
     let analysis = non_overlapping_from_rate(rate, kind, &factors, Simd::detected())?;
     let mut kept = Vec::with_capacity(factors.len());
     let mut defined = Vec::with_capacity(factors.len());
+    let max_differences = if kind == DeviationKind::Hdev { 3 } else { 2 };
+    // The phase, built only if R(n) is asked for (phase noise at the longest τ).
+    let mut phase: Option<Phase> = None;
     for ((&m, variance), alpha) in factors
         .iter()
         .zip(&analysis.variances)
@@ -153,7 +161,17 @@ pub fn compute_curve_from_rate(
     {
         if let Some((variance, count)) = *variance {
             defined.push((m, variance, count));
-            kept.push(*alpha);
+            let alpha = alpha.or_else(|| {
+                let averages: Vec<f64> = rate
+                    .chunks_exact(m)
+                    .map(|c| c.iter().sum::<f64>() / m as f64)
+                    .collect();
+                b1_alpha(&averages, m, max_differences, || {
+                    let phase = phase.get_or_insert_with(|| Phase::from_rate(rate.to_vec()));
+                    variance_at(DeviationKind::Mdev, phase, m).map(|v| v.0)
+                })
+            });
+            kept.push(alpha);
         }
     }
     let points = assign_alpha(&kept, kind)
@@ -166,6 +184,22 @@ pub fn compute_curve_from_rate(
         })
         .collect();
     Some((Curve { kind, tau0, points }, analysis.mean))
+}
+
+/// [`b1_alpha`] at factor `m` of `phase`: the averages are the first differences of the
+/// decimated phase.
+fn b1_alpha_from_phase(phase: &Phase, m: usize, max_differences: u32) -> Option<Alpha> {
+    let averages: Vec<f64> = phase
+        .points
+        .iter()
+        .step_by(m)
+        .collect::<Vec<_>>()
+        .windows(2)
+        .map(|w| (w[1] - w[0]) / m as f64)
+        .collect();
+    b1_alpha(&averages, m, max_differences, || {
+        variance_at(DeviationKind::Mdev, phase, m).map(|v| v.0)
+    })
 }
 
 /// Builds a point with EDF and interval for a known noise exponent.
@@ -192,8 +226,8 @@ pub fn point_with_interval(
     }
 }
 
-/// Fills τ where the lag-1 method had too few points with the α of the nearest shorter τ
-/// (white FM when nothing was identified), and clamps α into the range the variance
+/// Fills τ where neither the lag-1 method nor B1 gave a noise type with the α of the
+/// nearest shorter τ (white FM when nothing was identified), and clamps α into the range the variance
 /// converges for (α ≥ −2 for Allan types, ≥ −4 for Hadamard).
 fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
     let lowest = match kind {

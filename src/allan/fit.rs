@@ -9,6 +9,8 @@
 //! crate in the dependency set provides NNLS.
 
 use super::curve::{Curve, CurvePoint};
+use super::deviation::DeviationKind;
+use super::edf::edf;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -142,11 +144,15 @@ pub fn fit_noise_terms(curve: &Curve) -> Result<NoiseFit, FitError> {
         return Err(FitError::TooFewPoints(usable.len()));
     }
     let rows = usable.len();
+    let weights: Vec<f64> = usable
+        .iter()
+        .map(|p| weighting_edf(curve.kind, p))
+        .collect();
     let measured: Vec<f64> = usable.iter().map(|p| p.deviation * p.deviation).collect();
     let mut reference = measured.clone();
     let mut outcome = None;
     for _round in 0..6 {
-        let (design, target, scales) = weighted_system(&usable, &measured, &reference);
+        let (design, target, scales) = weighted_system(&usable, &weights, &measured, &reference);
         let (free, solution, residual) = best_nonnegative_subset(&design, &target);
         // Model variances for the next round's weights (fall back to measured where ≤ 0).
         for (i, p) in usable.iter().enumerate() {
@@ -223,9 +229,28 @@ fn chi_squared_factors(nu: f64) -> (f64, f64) {
     }
 }
 
+/// The EDF a point is weighted with: the smallest of its own and those the frequency
+/// noises (white, flicker and random-walk FM) would give at its τ. At the last τ the
+/// noise type rests on a handful of averages (B1); a phase noise read there has an EDF
+/// tens of times the random walk's, and one such point outweighed the whole curve (a
+/// rate ramp fitted to random-walk data).
+fn weighting_edf(kind: DeviationKind, p: &CurvePoint) -> f64 {
+    let phase_points = match kind {
+        DeviationKind::Oadev => p.count + 2 * p.m,
+        DeviationKind::Totdev => p.count + 2,
+        // ADEV (the only other Allan variance): ⌊(n − 1)/m⌋ − 1 terms.
+        _ => (p.count + 1) * p.m + 1,
+    };
+    (-2..=0)
+        .filter_map(|alpha| edf(kind, alpha, p.m, phase_points))
+        .chain(p.edf)
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// Weighted, column-scaled design matrix and target for one IRLS round.
 fn weighted_system(
     points: &[&CurvePoint],
+    edfs: &[f64],
     measured: &[f64],
     reference: &[f64],
 ) -> (DMatrix<f64>, DVector<f64>, Vec<f64>) {
@@ -233,7 +258,7 @@ fn weighted_system(
     let mut design = DMatrix::<f64>::zeros(rows, 5);
     let mut target = DVector::<f64>::zeros(rows);
     for (i, p) in points.iter().enumerate() {
-        let weight = (p.edf.unwrap_or(1.0) / 2.0).sqrt() / reference[i];
+        let weight = (edfs[i] / 2.0).sqrt() / reference[i];
         for (j, term) in Term::ALL.iter().enumerate() {
             design[(i, j)] = term.basis(p.tau) * weight;
         }

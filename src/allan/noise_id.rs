@@ -13,13 +13,20 @@
 //! copy. Each pass accumulates shifted sums (Σu, Σu², Σu·u_next with u = w − w₀)
 //! in eight vector lanes and removes the mean algebraically afterwards, so one
 //! vectorised pass replaces the textbook's mean pass plus product pass.
+//!
+//! Where fewer than [`MIN_AVERAGES`] averages remain (the last τ of every curve), the
+//! lag-1 estimate is not trusted and [`b1_alpha`] decides instead, as Stable32 does: the
+//! B1 bias ratio (Barnes; Howe 2000) between the standard and the Allan variance of the
+//! averages gives the τ exponent μ of the Allan variance, and for the phase noises
+//! (μ = −2) the ratio R(n) of the modified to the Allan variance separates white from
+//! flicker PM.
 
 use super::edf::Alpha;
 use super::numerics::{dispatch, for_each_decimation, CompensatedSum, Kernel, Simd};
 
-/// Fewest decimated points the lag-1 estimate is trusted on; below it the caller keeps
-/// the α found at the next shorter τ.
-pub const MIN_POINTS: usize = 32;
+/// Fewest averages (first differences of the decimated phase, ⌊(n − 1)/m⌋) the lag-1
+/// estimate is trusted on, Stable32's bound; below it [`b1_alpha`] decides.
+pub const MIN_AVERAGES: usize = 30;
 
 /// Estimated noise exponent at averaging factor `m`, or `None` when too few points remain.
 ///
@@ -501,16 +508,18 @@ pub enum Lag1 {
 /// The noise exponent from the lag-1 autocorrelations of the difference orders 0, 1, …
 /// of a decimated phase of `points` points (`lag1(d)` is asked in ascending order and
 /// only as far as the decision goes): the first order d whose δ = r/(1 + r) is below
-/// 0.25, or the last allowed one, gives α = 2 − round(2δ) − 2d. Orders that would leave
-/// fewer than [`MIN_POINTS`] values are not allowed.
+/// 0.25, or the last allowed one, gives α = 2 − round(2δ) − 2d. `None` (the caller
+/// takes [`b1_alpha`]) when the phase has fewer than [`MIN_AVERAGES`] + 1 points.
 pub fn decide_alpha(
     points: usize,
     max_differences: u32,
     mut lag1: impl FnMut(usize) -> Lag1,
 ) -> Option<Alpha> {
-    let levels = (0..=max_differences.min(MAX_LEVEL as u32) as usize)
-        .take_while(|&d| points.checked_sub(d).is_some_and(|len| len >= MIN_POINTS))
-        .count();
+    let levels = if points > MIN_AVERAGES {
+        max_differences.min(MAX_LEVEL as u32) as usize + 1
+    } else {
+        0
+    };
     for order in 0..levels {
         let last = order as u32 >= max_differences;
         let r1 = match lag1(order) {
@@ -526,9 +535,73 @@ pub fn decide_alpha(
             return Some(p + 2);
         }
     }
-    // No order was allowed (too few points), or the next difference would have had fewer
-    // than MIN_POINTS points.
+    // Too few points for the lag-1 method.
     None
+}
+
+/// Noise exponent at averaging factor `m` from the B1 bias ratio and R(n), for the τ
+/// where the lag-1 method has too few averages (Stable32's method, NIST SP 1065 §5.6).
+///
+/// `averages` are the ⌊(n − 1)/m⌋ non-overlapping averages of the rate at `m` (any
+/// scale); `modified_variance` gives the modified Allan variance at `m` in the units of
+/// `averages` squared (asked only when B1 points at a phase noise). `max_differences`
+/// 3 (Hadamard) also allows α = −3. `None` with fewer than 2 averages.
+pub fn b1_alpha(
+    averages: &[f64],
+    m: usize,
+    max_differences: u32,
+    modified_variance: impl FnOnce() -> Option<f64>,
+) -> Option<Alpha> {
+    let count = averages.len();
+    if count < 2 {
+        return None;
+    }
+    let n = count as f64;
+    let mean = averages.iter().sum::<f64>() / n;
+    let standard = averages.iter().map(|y| (y - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let allan = averages
+        .windows(2)
+        .map(|w| (w[1] - w[0]).powi(2))
+        .sum::<f64>()
+        / (2.0 * (n - 1.0));
+    if !(allan > 0.0 && standard.is_finite()) {
+        return None;
+    }
+    let ratio = standard / allan;
+    // μ from −2 (phase noises) up; α = −μ − 1 for μ ≥ −1. The boundary between two
+    // neighbouring μ is the geometric mean of their expected ratios.
+    let highest_mu = if max_differences >= 3 { 2 } else { 1 };
+    let mut mu = -2;
+    while mu < highest_mu {
+        let boundary = (b1_expected(count, mu) * b1_expected(count, mu + 1)).sqrt();
+        if ratio <= boundary {
+            break;
+        }
+        mu += 1;
+    }
+    if mu > -2 {
+        return Some(-mu - 1);
+    }
+    // White or flicker PM: R(n) = Mod σ²/σ², 1/n for white PM and about
+    // 3 ln(256/27)/(2(1.038 + 3 ln(πn))) for flicker PM (IEEE 1139, f_h = 1/(2τ0)).
+    let modified = modified_variance()?;
+    let r = modified / allan;
+    let white = 1.0 / m as f64;
+    let flicker = 3.0 * (256.0f64 / 27.0).ln()
+        / (2.0 * (1.038 + 3.0 * (std::f64::consts::PI * m as f64).ln()));
+    Some(if r <= (white * flicker).sqrt() { 2 } else { 1 })
+}
+
+/// Expected B1 ratio of `n` averages for an Allan variance ∝ τ^μ (Barnes):
+/// n(1 − n^μ) / (2(n − 1)(1 − 2^μ)), with its limit n·ln n / (2(n − 1)·ln 2) at μ = 0.
+fn b1_expected(n: usize, mu: i32) -> f64 {
+    let n = n as f64;
+    if mu == 0 {
+        n * n.ln() / (2.0 * (n - 1.0) * std::f64::consts::LN_2)
+    } else {
+        let mu = mu as f64;
+        n * (1.0 - n.powf(mu)) / (2.0 * (n - 1.0) * (1.0 - 2f64.powf(mu)))
+    }
 }
 
 /// Highest difference order considered (Hadamard variances: 3).

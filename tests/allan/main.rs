@@ -7,3 +7,4 @@ mod reference;
 mod report;
 mod robustness;
 mod session;
+mod stable32;

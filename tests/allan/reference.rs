@@ -9,7 +9,7 @@ use imulab::allan::deviation::deviation_at;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
 use std::path::PathBuf;
 
-fn reference_dir() -> Option<PathBuf> {
+pub(crate) fn reference_dir() -> Option<PathBuf> {
     let candidates = [
         std::env::var_os("IMULAB_EXTERNAL").map(PathBuf::from),
         Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/external")),
@@ -26,7 +26,7 @@ fn reference_dir() -> Option<PathBuf> {
     found
 }
 
-fn read_numbers(path: &PathBuf) -> Vec<f64> {
+pub(crate) fn read_numbers(path: &PathBuf) -> Vec<f64> {
     std::fs::read_to_string(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
         .lines()
@@ -41,17 +41,17 @@ fn read_numbers(path: &PathBuf) -> Vec<f64> {
 
 /// One row of a Stable32 table: AF, tau, count, alpha, min sigma, sigma, max sigma.
 #[derive(Debug)]
-struct Row {
-    m: usize,
-    tau: f64,
-    count: usize,
-    alpha: i32,
-    low: f64,
-    sigma: f64,
-    high: f64,
+pub(crate) struct Row {
+    pub(crate) m: usize,
+    pub(crate) tau: f64,
+    pub(crate) count: usize,
+    pub(crate) alpha: i32,
+    pub(crate) low: f64,
+    pub(crate) sigma: f64,
+    pub(crate) high: f64,
 }
 
-fn read_table(path: &PathBuf) -> Vec<Row> {
+pub(crate) fn read_table(path: &PathBuf) -> Vec<Row> {
     std::fs::read_to_string(path)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
         .lines()

@@ -1,0 +1,125 @@
+//! Term selection over many seeds: simulates one axis of every IMU preset (gyro and
+//! accelerometer, no wire, no daemon), fits the noise model to its overlapping Allan
+//! deviation on the octave grid the reports use, and counts per term how often a term
+//! the preset does not have is reported (false positive) and how often one it has is
+//! not (miss). The presets have white noise (N) and bias instability (B); quantization
+//! (Q), rate random walk (K) and rate ramp (R) are absent.
+//!
+//! ```text
+//! cargo run --release --example term_selection -- [--hours 6] [--seeds 20] [--rate 150]
+//! ```
+//!
+//! The table in docs/bench/allan.md ("term selection") comes from this program.
+
+use clap::Parser;
+use imulab::allan::fit::{fit_noise_terms, Term};
+use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
+use imulab::sim::imu_model::{Channels, ImuSimulator};
+use imulab::sim::presets::{imu_preset, imu_preset_names};
+use nalgebra::Vector3;
+
+#[derive(Parser, Debug)]
+struct Args {
+    /// Run length, hours.
+    #[arg(long, default_value_t = 6.0)]
+    hours: f64,
+    /// Seeds 1..=N per preset and sensor.
+    #[arg(long, default_value_t = 20)]
+    seeds: u64,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 150.0)]
+    rate: f64,
+    /// Axis 0, 1 or 2.
+    #[arg(long, default_value_t = 0)]
+    axis: usize,
+}
+
+fn main() -> Result<(), String> {
+    let args = Args::parse();
+    let n = (args.hours * 3600.0 * args.rate).round() as usize;
+    let tau0 = 1.0 / args.rate;
+    let present = [Term::RandomWalk, Term::BiasInstability];
+    // [term] -> (reported, runs)
+    let mut totals = [(0usize, 0usize); 5];
+    println!(
+        "{} h at {} Hz, {} seeds, axis {}: reported / runs per term (N, B present; Q, K, R absent)",
+        args.hours, args.rate, args.seeds, args.axis
+    );
+    println!("preset       sensor |   Q   N   B   K   R");
+    for name in imu_preset_names() {
+        let spec = imu_preset(name).ok_or(format!("no preset {name}"))?;
+        for gyro in [true, false] {
+            let mut reported = [0usize; 5];
+            for seed in 1..=args.seeds {
+                let mut on = [false; 3];
+                on[args.axis] = true;
+                let channels = if gyro {
+                    Channels {
+                        gyro: on,
+                        accel: [false; 3],
+                    }
+                } else {
+                    Channels {
+                        gyro: [false; 3],
+                        accel: on,
+                    }
+                };
+                let mut sim = ImuSimulator::new(&spec, "dut", seed, args.rate, channels)?;
+                let zero = Vector3::zeros();
+                let mut y = Vec::with_capacity(n + 1);
+                for _ in 0..n {
+                    let r = sim
+                        .step(&zero, &zero, spec.reference_temp_c, 0, 0)
+                        .record
+                        .ok_or("dropped sample")?;
+                    y.push(if gyro {
+                        r.gyro[args.axis]
+                    } else {
+                        r.accel[args.axis]
+                    });
+                }
+                let curve = compute_curve(
+                    &Phase::from_rate(y),
+                    tau0,
+                    DeviationKind::Oadev,
+                    &TauGrid::Octave,
+                );
+                let fit = fit_noise_terms(&curve).map_err(|e| e.to_string())?;
+                for (j, term) in Term::ALL.iter().enumerate() {
+                    if fit.get(*term).is_some_and(|t| t.value.is_some()) {
+                        reported[j] += 1;
+                    }
+                }
+            }
+            let cells: Vec<String> = reported.iter().map(|r| format!("{r:>3}")).collect();
+            println!(
+                "{name:<12} {:<6} | {}",
+                if gyro { "gyro" } else { "accel" },
+                cells.join(" ")
+            );
+            for (j, r) in reported.iter().enumerate() {
+                totals[j].0 += r;
+                totals[j].1 += args.seeds as usize;
+            }
+        }
+    }
+    println!("per term over all presets and sensors:");
+    for (j, term) in Term::ALL.iter().enumerate() {
+        let (r, runs) = totals[j];
+        let rate = 100.0 * r as f64 / runs.max(1) as f64;
+        if present.contains(term) {
+            println!(
+                "  {} present: missed {}/{runs} ({:.1} %)",
+                term.symbol(),
+                runs - r,
+                100.0 - rate
+            );
+        } else {
+            println!(
+                "  {} absent: reported {r}/{runs} ({rate:.1} %)",
+                term.symbol()
+            );
+        }
+    }
+    Ok(())
+}
