@@ -227,3 +227,43 @@ fn decodes_a_live_pty_port() {
     );
     assert!(stderr.contains("\"checksum_errors\":0"), "{stderr}");
 }
+
+/// A VectorNav ASCII-only capture (`$VNYMR` sentences, which are also well-formed NMEA) is
+/// detected as VectorNav, not NMEA; a MIP capture as MIP; both come out as JSON frames.
+#[test]
+fn auto_detects_vectornav_ascii_and_mip_captures() {
+    use imulab_drivers::codec::mip::{MipEncoder, MipImuData, MipPacket};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let vn = dir.path().join("vn100.txt");
+    let mut text = String::new();
+    for k in 0..10 {
+        let body = format!(
+            "VNYMR,+{k:03}.071,-000.278,-000.636,+01.0267,-00.2052,+02.7264,-00.497,+00.154,-09.802,-00.003823,+00.000159,-00.000344"
+        );
+        let ck = body.bytes().fold(0u8, |a, b| a ^ b);
+        text.push_str(&format!("${body}*{ck:02X}\r\n"));
+    }
+    std::fs::write(&vn, text).expect("write capture");
+    let (stdout, lines, stderr) = decode_json(&[], &vn);
+    assert_eq!(lines.len(), 10, "{stdout}");
+    assert!(stderr.contains("vectornav"), "{stderr}");
+    assert_eq!(lines[3]["type"], "ascii", "{stdout}");
+    assert_eq!(lines[3]["kind"], "YMR", "{stdout}");
+    assert_eq!(lines[3]["values"]["accel"][2], -9.802, "{stdout}");
+
+    let mip = dir.path().join("gx5.bin");
+    let mut bytes = Vec::new();
+    for k in 0..5 {
+        let packet = MipPacket::Imu(MipImuData {
+            scaled_accel_g: Some([0.0, 0.0, -1.0]),
+            scaled_gyro: Some([0.01 * k as f32, 0.0, 0.0]),
+            ..MipImuData::default()
+        });
+        MipEncoder.encode(&packet, &mut bytes).expect("encode");
+    }
+    std::fs::write(&mip, bytes).expect("write capture");
+    let (stdout, lines, stderr) = decode_json(&[], &mip);
+    assert_eq!(lines.len(), 5, "{stdout}");
+    assert!(stderr.contains("mip"), "{stderr}");
+    assert_eq!(lines[0]["type"], "imu", "{stdout}");
+}

@@ -9,3 +9,4 @@ mod pipeline;
 mod pty;
 mod serial;
 mod store;
+mod vectornav_mip;

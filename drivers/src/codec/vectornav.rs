@@ -665,6 +665,15 @@ fn parse_ascii_values(kind: VnAsciiKind, fields: &[u8]) -> Option<VnValues> {
 }
 
 fn scan_ascii(data: &[u8]) -> Scan<VnFrame> {
+    // A `$` that cannot start a `$VN` sentence is garbage right away (decided on the first
+    // three bytes only, so the outcome does not depend on how much has arrived).
+    let known = data.len().min(3);
+    if data[..known] != b"$VN"[..known] {
+        return Scan::Reject {
+            len: 1,
+            reject: Reject::NoSync,
+        };
+    }
     let window = &data[..data.len().min(MAX_ASCII_LEN + 1)];
     let Some(newline) = memchr::memchr(b'\n', window) else {
         if data.len() > MAX_ASCII_LEN {
@@ -673,25 +682,10 @@ fn scan_ascii(data: &[u8]) -> Scan<VnFrame> {
                 reject: Reject::TooLong,
             };
         }
-        // A `$` that cannot start a `$VN` sentence is garbage right away.
-        let known = data.len().min(3);
-        return if data[..known] == b"$VN"[..known] {
-            Scan::Incomplete
-        } else {
-            Scan::Reject {
-                len: 1,
-                reject: Reject::NoSync,
-            }
-        };
+        return Scan::Incomplete;
     };
     let line = &data[..newline];
     let line = line.strip_suffix(b"\r").unwrap_or(line);
-    if !line.starts_with(b"$VN") {
-        return Scan::Reject {
-            len: 1,
-            reject: Reject::NoSync,
-        };
-    }
     let Some(star) = memchr::memrchr(b'*', line) else {
         return Scan::Reject {
             len: 1,
@@ -1094,6 +1088,24 @@ mod tests {
         let gyro = sample.gyro.unwrap();
         assert!((gyro[0] + 0.003823).abs() < 1e-8, "{gyro:?}");
         assert_eq!(sample.sensor_time, None);
+    }
+
+    #[test]
+    fn counts_do_not_depend_on_how_a_long_line_arrives() {
+        // Found by the fuzz target: a `$` that is no `$VN` start before a line just over the
+        // length limit was counted as too long when the stream came in one piece.
+        let mut stream = b"$$VN".to_vec();
+        stream.extend_from_slice(&[b'x'; 253]);
+        stream.extend_from_slice(b"\n$VN");
+        stream.extend_from_slice(&[b'y'; 300]);
+        let (_, whole) = decode_all(&stream);
+        for split in 0..=stream.len() {
+            let mut d = VnDecoder::new();
+            d.decode(&stream[..split], |_| {});
+            d.decode(&stream[split..], |_| {});
+            assert_eq!(d.stats(), whole, "split at {split}");
+        }
+        assert_eq!(whole.frames_too_long, 1, "{whole:?}");
     }
 
     #[test]

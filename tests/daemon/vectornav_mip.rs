@@ -1,0 +1,175 @@
+//! VectorNav and MicroStrain MIP end to end: the simulator serves a VN-100-like IMU
+//! (VectorNav binary output) and a 3DM-GX5-like IMU (MIP IMU data set) over ptys at 200 Hz,
+//! accelerated, with garbage written into both streams mid-way; the daemon, built from its
+//! configuration as `imulogd` builds it, logs them into an HDF5 session. Every frame sent is
+//! a row, once, in order, equal to what the drivers' decoders make of the sent bytes; the
+//! garbage costs no frame and is a resync event.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use crate::common::daemon::{connected_report, parts_for};
+use imulab::daemon::clock::Arrival;
+use imulab::daemon::config::parse;
+use imulab::daemon::mapping::ImuMapping;
+use imulab::daemon::run;
+use imulab::daemon::session::open_session_sink;
+use imulab::sim::scene::Scene;
+use imulab::sim::serve::{Fault, FaultKind, Sent, ServeOptions, Server, Speed, StartWhen};
+use imulab::store::{EventKind, ImuRecord, Session, TimeRange};
+
+const SCENE_S: f64 = 8.0;
+const SPEED: f64 = 8.0;
+const IMU_HZ: f64 = 200.0;
+
+fn scene() -> Scene {
+    let text = format!(
+        "duration_s = {SCENE_S}\nrate_hz = {IMU_HZ}\nseed = 11\n\
+         [location]\nlat_deg = 48.1\nlon_deg = 11.6\nheight_m = 520.0\n\
+         [motion]\nkind = \"static\"\n\
+         [[imu]]\nname = \"vn\"\npreset = \"industrial\"\nprotocol = \"vectornav\"\n\
+         [[imu]]\nname = \"gx5\"\npreset = \"industrial\"\nprotocol = \"mip\"\n"
+    );
+    Scene::parse(&text, Path::new(".")).unwrap_or_else(|e| panic!("{e:#}"))
+}
+
+fn without_times(mut r: ImuRecord) -> ImuRecord {
+    r.t_mono_ns = 0;
+    r.t_wall_ns = 0;
+    r
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_only_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let faults = ["vn", "gx5"]
+        .map(|sensor| Fault {
+            sensor: sensor.into(),
+            at_s: 4.0,
+            kind: FaultKind::Garbage,
+            bytes: 300,
+            down_s: 0.0,
+        })
+        .to_vec();
+    let mut server = Server::start(
+        scene(),
+        ServeOptions {
+            speed: Speed::Factor(SPEED),
+            link_dir: Some(dir.path().join("dev")),
+            start: StartWhen::OnDemand,
+            record_sent: true,
+            faults,
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e:#}"));
+    let mut devices = String::new();
+    for e in server.endpoints() {
+        devices.push_str(&format!(
+            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\nserial = {{ port = \"{}\", baud = 921600 }}\n",
+            e.sensor,
+            e.protocol.name(),
+            SPEED * IMU_HZ,
+            e.path().display()
+        ));
+    }
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nname = \"vnmip\"\nflush_interval_ms = 100\n\n{devices}",
+        dir.path().display()
+    );
+    let config = parse(&text, "vectornav-mip").unwrap_or_else(|e| panic!("{e}"));
+    let session_dir = dir.path().join("vnmip");
+    let status_path = config.status_path();
+    let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
+    let parts = parts_for(&config, sink, session_dir.clone());
+    let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+    let t = Instant::now();
+    while connected_report(&status_path, 2).is_none() {
+        assert!(t.elapsed() < Duration::from_secs(10), "ptys not opened");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    server.begin();
+    let t = Instant::now();
+    while !server.is_finished() {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "serve did not finish"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let report = server.finish().unwrap_or_else(|e| panic!("{e:#}"));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let _ = stop.send(true);
+    let outcome = daemon.await.unwrap();
+    drop(server);
+    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
+    assert_eq!(report.undelivered_bytes, 0);
+
+    let session = Session::open(&session_dir).expect("the session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    let (events, _) = session.events();
+    let identity = ImuMapping {
+        body_from_sensor: nalgebra::Matrix3::identity(),
+        gyro_scale: 1.0,
+        accel_scale: 1.0,
+    };
+    let no_time = Arrival {
+        mono_ns: 0,
+        wall_ns: 0,
+    };
+    for stream in &report.streams {
+        let Sent::Imu(sent) = &stream.sent else {
+            panic!("only IMUs here")
+        };
+        assert_eq!(stream.encode_errors, 0, "{:?}", stream.first_encode_error);
+        assert_eq!(stream.garbage_bytes, 300);
+        assert_eq!(sent.len() as f64, SCENE_S * IMU_HZ, "{}", stream.sensor);
+        let mut rows = Vec::new();
+        for block in session
+            .imu_blocks(&stream.sensor, TimeRange::all(), 4096)
+            .unwrap()
+        {
+            let block = block.unwrap();
+            rows.extend((0..block.len()).map(|i| block.record(i)));
+        }
+        assert_eq!(
+            rows.len(),
+            sent.len(),
+            "{}: one row per frame",
+            stream.sensor
+        );
+        for (k, (row, frame)) in rows.iter().zip(sent).enumerate() {
+            let sample = frame.sample.as_ref().expect("decodable");
+            let want = without_times(identity.imu_record(sample, no_time));
+            assert_eq!(
+                format!("{:?}", without_times(*row)),
+                format!("{want:?}"),
+                "{} frame {k}",
+                stream.sensor
+            );
+            // Device time is k / rate (TimeStartup, MIP reference timestamp).
+            assert!(
+                (row.t_sensor - k as f64 / IMU_HZ).abs() < 1e-9,
+                "{} frame {k}: t_sensor {}",
+                stream.sensor,
+                row.t_sensor
+            );
+            for axis in 0..3 {
+                assert!((row.gyro[axis] - frame.record.gyro[axis]).abs() < 1e-6);
+                assert!((row.accel[axis] - frame.record.accel[axis]).abs() < 1e-5);
+            }
+        }
+        let resyncs = events
+            .iter()
+            .filter(|e| e.device == stream.sensor && e.kind == EventKind::Resync)
+            .count();
+        assert!(resyncs >= 1, "{}: {events:?}", stream.sensor);
+        println!(
+            "{}: {} rows of {} frames, {} resync event(s)",
+            stream.sensor,
+            rows.len(),
+            sent.len(),
+            resyncs
+        );
+    }
+}
