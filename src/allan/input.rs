@@ -768,8 +768,42 @@ fn npy_reader(path: &Path, single: bool) -> Result<AnyNpyReader, InputError> {
     })
 }
 
-/// Opens a plain file by extension: `.npy` or delimited text.
+/// The first bytes of every HDF5 file (its superblock signature).
+const HDF5_SIGNATURE: [u8; 8] = [0x89, b'H', b'D', b'F', b'\r', b'\n', 0x1a, b'\n'];
+
+/// Refuses an HDF5 file, which is no delimited text: sessions are read as directories.
+fn refuse_hdf5(path: &Path) -> Result<(), InputError> {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    let is_hdf5 = File::open(path)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .is_ok()
+        && head == HDF5_SIGNATURE;
+    if !is_hdf5 {
+        return Ok(());
+    }
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    let message = if crate::store::layout::parse_chunk_file_name(name).is_some() {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        format!(
+            "an HDF5 chunk file of an imulab session; give the session directory instead: \
+             imulab allan {}",
+            dir.display()
+        )
+    } else {
+        "an HDF5 file that is not an imulab session; `allan` reads imulab session \
+         directories, CSV/TSV and .npy files (export the series to one of those)"
+            .into()
+    };
+    Err(InputError::Format {
+        path: path.to_path_buf(),
+        message,
+    })
+}
+
+/// Opens a plain file by extension: `.npy` or delimited text (HDF5 files are refused).
 pub fn open_file(path: &Path) -> Result<Box<dyn SampleSource>, InputError> {
+    refuse_hdf5(path)?;
     let is_npy = path
         .extension()
         .and_then(|e| e.to_str())

@@ -108,6 +108,35 @@ fn is_char_device(_meta: &std::fs::Metadata) -> bool {
     false
 }
 
+/// What frames that are intact but fail their checksum mean.
+const CHECKSUM_ADVICE: &str = "the frames are whole, so the baud rate is right; the data \
+     is corrupted on the way or its sender computes the checksum differently";
+
+/// Whether rejected checksums, rather than a wrong baud rate or protocol, explain a stream
+/// without valid frames: at least 3 of them, and at least one per 160 bytes. Random bytes (a
+/// wrong baud rate) also fail checksums now and then, about one Xbus "frame" per 250 bytes.
+fn checksums_explain(stats: &imulab_drivers::types::DecoderStats, bytes: u64) -> bool {
+    stats.checksum_errors >= 3 && stats.checksum_errors.saturating_mul(160) >= bytes
+}
+
+/// The protocol whose frames in `sample` fail their checksum (see [`checksums_explain`]),
+/// with its decoder's counters, when no protocol was detected.
+fn checksum_failures(sample: &[u8]) -> Option<(Protocol, imulab_drivers::types::DecoderStats)> {
+    let mut line = Vec::new();
+    PROTOCOLS
+        .iter()
+        .filter_map(|entry| {
+            let mut d = entry.protocol.open(&DecoderOptions::default()).ok()?;
+            d.push(sample);
+            while d.next_json(&mut line) {
+                line.clear();
+            }
+            Some((entry.protocol, d.stats()))
+        })
+        .filter(|(_, stats)| checksums_explain(stats, sample.len() as u64))
+        .max_by_key(|(_, stats)| stats.checksum_errors)
+}
+
 pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     let mut source = Source::open(&args)?;
     let started = Instant::now();
@@ -140,17 +169,33 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
                 None => {}
             }
         }
-        codec::detect(&pending).with_context(|| {
-            format!(
-                "no known protocol found in the first {} bytes; pass --protocol ({})",
-                pending.len(),
-                PROTOCOLS
-                    .iter()
-                    .map(|p| p.name)
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )
-        })?
+        if pending.is_empty() && ended {
+            bail!(
+                "{}: empty input (0 bytes): nothing to decode",
+                args.input.display()
+            );
+        }
+        match codec::detect(&pending) {
+            Some(p) => p,
+            None => match checksum_failures(&pending) {
+                Some((p, stats)) => bail!(
+                    "no valid frame in the first {} bytes, but {} {} frames failed their checksum: {}",
+                    pending.len(),
+                    stats.checksum_errors,
+                    p.name(),
+                    CHECKSUM_ADVICE
+                ),
+                None => bail!(
+                    "no known protocol found in the first {} bytes; pass --protocol ({})",
+                    pending.len(),
+                    PROTOCOLS
+                        .iter()
+                        .map(|p| p.name)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            },
+        }
     } else {
         Protocol::from_name(&args.protocol)
             .map_err(|e| anyhow::anyhow!("{e}; pass one of these, or `auto` to detect it"))?
@@ -219,7 +264,21 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
         "stats": stats,
     });
     eprintln!("{summary}");
-    if total_bytes > 0 && stats.frames_ok == 0 {
+    if total_bytes == 0 {
+        bail!(
+            "{}: empty input (0 bytes): nothing to decode",
+            args.input.display()
+        );
+    }
+    if stats.frames_ok == 0 && checksums_explain(&stats, total_bytes) {
+        bail!(
+            "no frames decoded: all {} {} frames in {total_bytes} bytes failed their checksum: {}",
+            stats.checksum_errors,
+            protocol.name(),
+            CHECKSUM_ADVICE
+        );
+    }
+    if stats.frames_ok == 0 {
         let advice = if args.protocol.eq_ignore_ascii_case("auto") {
             "check the baud rate (--baud) or name the protocol with --protocol"
         } else {

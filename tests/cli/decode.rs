@@ -150,6 +150,34 @@ fn unknown_protocol_and_undecodable_input_fail_clearly() {
     let out = imulab().arg("decode").arg(&path).output().expect("run");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no known protocol"));
+
+    // An empty file is an error like garbage, with or without a protocol.
+    let empty = dir.path().join("empty.bin");
+    std::fs::write(&empty, b"").expect("write");
+    for args in [&["decode"][..], &["decode", "--protocol", "nmea"][..]] {
+        let out = imulab().args(args).arg(&empty).output().expect("run");
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("empty input (0 bytes)"), "{args:?}: {err}");
+    }
+
+    // Whole NMEA sentences with wrong checksums: a checksum message, not a baud-rate hint.
+    let bad = dir.path().join("bad.nmea");
+    let mut text = String::new();
+    for k in 0..5 {
+        text += &format!("$GPGGA,12351{k},4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*00\r\n");
+    }
+    std::fs::write(&bad, text).expect("write");
+    for args in [&["decode"][..], &["decode", "--protocol", "nmea"][..]] {
+        let out = imulab().args(args).arg(&bad).output().expect("run");
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("5 nmea frames") && err.contains("failed their checksum"),
+            "{args:?}: {err}"
+        );
+        assert!(!err.contains("--baud"), "{args:?}: {err}");
+    }
 }
 
 /// Pty loopback: the encoders write into the master side, `imulab decode` reads the slave

@@ -129,6 +129,37 @@ fn inspect_rate_and_gaps_ignore_bursts_and_agree_with_allan() {
 }
 
 #[test]
+fn allan_on_an_hdf5_file_says_what_it_is_instead_of_parsing_csv() {
+    let tmp = tempfile::tempdir().unwrap();
+    let other = tmp.path().join("other.h5");
+    {
+        let f = hdf5::File::create(&other).unwrap();
+        f.new_dataset::<f64>()
+            .shape(10)
+            .create("x")
+            .unwrap()
+            .write(&[0.0; 10])
+            .unwrap();
+    }
+    let (ok, _, err) = imulab(&["allan", other.to_str().unwrap(), "--rate", "100"]);
+    assert!(!ok);
+    assert!(
+        one_line(&err).contains("an HDF5 file that is not an imulab session"),
+        "{err}"
+    );
+    let dir = tmp.path().join("s");
+    write_session(&dir, 2, 100, fast_opts());
+    let chunk = dir.join("chunk-000000.h5");
+    let (ok, _, err) = imulab(&["allan", chunk.to_str().unwrap(), "--rate", "100"]);
+    assert!(!ok);
+    assert!(
+        err.contains("give the session directory instead")
+            && err.contains(&format!("imulab allan {}", dir.display())),
+        "{err}"
+    );
+}
+
+#[test]
 fn export_streams_csv_with_exact_values_and_time_range() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("e");

@@ -61,10 +61,26 @@ pub trait Decoder {
     }
 }
 
-/// Auto-detection score of a protocol: the frames its decoder accepts in `sample`.
+/// Fewest valid frames that make a protocol a candidate for auto-detection.
+pub const MIN_DETECT_FRAMES: u64 = 3;
+
+/// Auto-detection score of a protocol: the frames its decoder accepts in `sample`, or 0
+/// unless they make a confident match: at least [`MIN_DETECT_FRAMES`] checksummed frames,
+/// more frames accepted than rejected, and at least half of the sample's bytes inside
+/// accepted frames. Random bytes pass a one-byte checksum now and then (64 KiB of them held
+/// 2 "Xbus frames" beside 260 rejected ones), never all three tests.
 pub(crate) fn accepted_frames(mut decoder: impl Decoder, sample: &[u8]) -> u32 {
     decoder.decode(sample, |_| {});
-    u32::try_from(decoder.stats().frames_ok).unwrap_or(u32::MAX)
+    let s = decoder.stats();
+    let rejected = s.checksum_errors + s.frames_malformed + s.frames_too_long;
+    let confident = s.frames_ok >= MIN_DETECT_FRAMES
+        && s.frames_ok > rejected
+        && s.bytes_skipped.saturating_mul(2) <= sample.len() as u64;
+    if confident {
+        u32::try_from(s.frames_ok).unwrap_or(u32::MAX)
+    } else {
+        0
+    }
 }
 
 /// Why a frame could not be encoded.
@@ -257,7 +273,7 @@ impl Protocol {
 }
 
 /// Guesses the protocol of a stream from a sample of its first bytes (a few kB is plenty).
-/// Returns `None` when no protocol finds a single valid frame.
+/// Returns `None` when no protocol makes a confident match (see `accepted_frames`).
 pub fn detect(sample: &[u8]) -> Option<Protocol> {
     let mut best: Option<(u32, Protocol)> = None;
     for entry in PROTOCOLS {
@@ -517,6 +533,28 @@ impl StreamBuffer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Bytes of a xorshift64 generator (deterministic noise, as a wrong baud rate gives).
+    fn noise(len: usize, mut seed: u64) -> Vec<u8> {
+        (0..len)
+            .map(|_| {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                (seed >> 24) as u8
+            })
+            .collect()
+    }
+
+    #[test]
+    fn random_bytes_are_never_detected() {
+        for seed in 1..=200u64 {
+            for len in [256, 4096, 16 * 1024, 64 * 1024] {
+                let sample = noise(len, seed.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+                assert_eq!(detect(&sample), None, "seed {seed}, {len} bytes");
+            }
+        }
+    }
 
     #[test]
     fn every_protocol_has_a_table_row_and_name_round_trips() {
