@@ -79,6 +79,10 @@ pub struct AnalysisArgs {
     /// they fit, otherwise one axis per pass (memory then follows the longest axis).
     #[arg(long, default_value_t = 1024)]
     pub memory_mib: u64,
+    /// Subtract the bias(T) of this thermal model (`imulab thermal --model`, docs/thermal.md)
+    /// from every sample before the analysis, using the temperature channel.
+    #[arg(long)]
+    pub compensate: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -368,9 +372,12 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             args.time_column.as_deref()
         };
         let time_channel = time_column.map(|c| source.channel_index(c)).transpose()?;
-        let temperature = args
-            .temperature_column
-            .as_deref()
+        // Compensation needs the temperature: a session's `temp` unless another is named.
+        let temperature_column = match (&args.temperature_column, &args.compensate) {
+            (None, Some(_)) if is_session => Some("temp"),
+            (column, _) => column.as_deref(),
+        };
+        let temperature = temperature_column
             .map(|c| source.channel_index(c))
             .transpose()?;
         let timing = match (time_channel, args.rate) {
@@ -428,6 +435,11 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             device,
         });
     }
+    let model = args
+        .compensate
+        .as_deref()
+        .map(crate::thermal::model::ThermalModel::load)
+        .transpose()?;
     let total: usize = plan.iter().map(|p| p.axes.len()).sum();
     let mut progress = Progress::new(total as u64);
     let mut results = Vec::new();
@@ -442,7 +454,7 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
     {
         let per_pass = axes_per_pass(source.row_count_hint(), args.memory_mib);
         for group in axes.chunks(per_pass) {
-            let series = read_axes(
+            let mut series = read_axes(
                 source.as_ref(),
                 group,
                 timing,
@@ -451,6 +463,15 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
                 *temperature,
             )
             .with_context(|| format!("reading {}", path.display()))?;
+            if let Some(model) = &model {
+                for (&axis, s) in group.iter().zip(series.iter_mut()) {
+                    let to_si = source.channel_unit(axis).unwrap_or(args.units).to_si();
+                    let (_, warning) = model.compensate_series(device, s, to_si)?;
+                    if let Some(w) = warning {
+                        tracing::warn!("{w}");
+                    }
+                }
+            }
             let jobs: Vec<(AxisSeries, AnalysisOptions)> = group
                 .iter()
                 .zip(series)
