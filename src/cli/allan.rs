@@ -92,6 +92,10 @@ pub struct AnalysisArgs {
     /// they fit, otherwise one axis per pass (memory then follows the longest axis).
     #[arg(long, default_value_t = 1024)]
     pub memory_mib: u64,
+    /// Subtract the bias(T) of this thermal model (`imulab thermal --model`, docs/thermal.md)
+    /// from every sample before the analysis, using the temperature channel.
+    #[arg(long)]
+    pub compensate: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -606,9 +610,12 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
                 channel,
                 scale: 1.0,
             });
-            let temperature = args
-                .temperature_column
-                .as_deref()
+            // Compensation needs the temperature: a session's `temp` unless another is named.
+            let temperature_column = match (&args.temperature_column, &args.compensate) {
+                (None, Some(_)) => Some("temp"),
+                (column, _) => column.as_deref(),
+            };
+            let temperature = temperature_column
                 .map(|c| source.channel_index(c))
                 .transpose()?;
             let axes = session_axes(args)
@@ -665,6 +672,11 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             }
         }
     }
+    let model = args
+        .compensate
+        .as_deref()
+        .map(crate::thermal::model::ThermalModel::load)
+        .transpose()?;
     let total: usize = plan.iter().map(|p| p.axes.len()).sum();
     let mut progress = Progress::new(total as u64);
     let mut results = Vec::new();
@@ -680,7 +692,7 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         let per_pass = axes_per_pass(source.row_count_hint(), args.memory_mib);
         for group in axes.chunks(per_pass) {
             let channels: Vec<usize> = group.iter().map(|a| a.0).collect();
-            let series = read_axes(
+            let mut series = read_axes(
                 source.as_ref(),
                 &channels,
                 timing,
@@ -689,6 +701,15 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
                 *temperature,
             )
             .with_context(|| format!("reading {}", path.display()))?;
+            if let Some(model) = &model {
+                for (&(_, unit, _), s) in group.iter().zip(series.iter_mut()) {
+                    let to_si = unit.to_si();
+                    let (_, warning) = model.compensate_series(device, s, to_si)?;
+                    if let Some(w) = warning {
+                        tracing::warn!("{w}");
+                    }
+                }
+            }
             let jobs: Vec<(AxisSeries, AnalysisOptions)> = group
                 .iter()
                 .zip(series)

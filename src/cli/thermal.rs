@@ -2,7 +2,7 @@
 //! against temperature with the order chosen from the data, hysteresis, warm-up, thermal
 //! lag, per-plateau noise terms), printed as a summary, and optionally written as JSON, as
 //! an HTML report section with plots, and as the compensation model (`--model`) that
-//! `allan`, `report`, `export` and `replay` apply with `--compensate`.
+//! `allan` and `report` apply with `--compensate`.
 
 use crate::allan::input::{
     open_file, read_axes, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,
@@ -198,7 +198,15 @@ fn analyse_device(
     let mut range = [f64::INFINITY, f64::NEG_INFINITY];
     for axis in &axes {
         let (sensor, unit) = sensor_of(axis)?;
-        let series = read_one(source, axis, &timing, temp)?;
+        let series = match read_one(source, axis, &timing, temp) {
+            Ok(series) => series,
+            // A session lists all six channels; a triad the device does not have is all NaN.
+            Err(e) if args.axes.is_empty() && e.to_string().contains("no valid samples") => {
+                eprintln!("{device} {axis}: skipped, no valid samples");
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
         let tau0 = series.tau0;
         let from_column = chamber_column.as_ref().map(|c| {
             move |t: f64| {
@@ -233,6 +241,9 @@ fn analyse_device(
                 });
         }
         results.push(result);
+    }
+    if results.is_empty() {
+        bail!("{}: no axis with valid samples", source.describe());
     }
     Ok(DeviceThermal {
         device: device.to_string(),

@@ -1,7 +1,7 @@
 //! The thermal compensation model: a versioned JSON document of bias-against-temperature
 //! polynomials per device and axis with their valid temperature range (format in
-//! docs/thermal.md), and [`AxisModel::compensate`], the one place it is applied (`allan`,
-//! `report`, `export` and `replay` all call it through [`ThermalModel::compensate_axis`]).
+//! docs/thermal.md), and [`AxisModel::compensate`], the one place it is applied (`allan
+//! --compensate` and `report --compensate` call it through [`ThermalModel::compensate_series`]).
 //!
 //! Outside the valid range the correction is held at its value at the nearest end of the
 //! range, never extrapolated, and the samples so treated are counted for a warning.
@@ -206,6 +206,43 @@ impl ThermalModel {
         };
         let c = m.compensate(rate, temperature, 1.0 / to_si);
         Ok((c, c.warning(device, axis, m.valid_range_c)))
+    }
+
+    /// Compensates a series read with its temperature (segments in order, the temperature
+    /// aligned with their concatenation), its samples in a unit of SI factor `to_si`.
+    pub fn compensate_series(
+        &self,
+        device: &str,
+        series: &mut crate::allan::input::AxisSeries,
+        to_si: f64,
+    ) -> Result<(Compensation, Option<String>)> {
+        let Some(temperature) = series.temperature.as_deref() else {
+            bail!(
+                "{device} {}: --compensate needs the temperature channel (give --temperature-column)",
+                series.name
+            );
+        };
+        let mut total = Compensation::default();
+        let mut offset = 0;
+        for segment in &mut series.segments {
+            let end = (offset + segment.len()).min(temperature.len());
+            let (c, _) = self.compensate_axis(
+                device,
+                &series.name,
+                segment,
+                &temperature[offset.min(end)..end],
+                to_si,
+            )?;
+            offset += segment.len();
+            total.samples += c.samples;
+            total.below_range += c.below_range;
+            total.above_range += c.above_range;
+            total.no_temperature += c.no_temperature;
+        }
+        let range = self
+            .axis(device, &series.name)
+            .map_or([f64::NAN; 2], |m| m.valid_range_c);
+        Ok((total, total.warning(device, &series.name, range)))
     }
 }
 
