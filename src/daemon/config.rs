@@ -650,6 +650,21 @@ impl Config {
             }
         }
         if issues.0.is_empty() {
+            let floor_mb = reserve_floor_mb(&self.session, &devices);
+            if self.session.disk_reserve_mb < floor_mb {
+                issues.add(
+                    "session.disk_reserve_mb",
+                    format!(
+                        "{} MB is less than the {floor_mb} MB the configured devices can write between two free-space checks",
+                        self.session.disk_reserve_mb
+                    ),
+                    &format!(
+                        "use at least {floor_mb}: rows (HDF5 and journal) and raw bytes at the configured rates over max(flush_interval_ms, {} ms); below that the disk can fill before the daemon stops",
+                        RESERVE_CHECK_INTERVAL_MS
+                    ),
+                );
+                return Err(issues.0);
+            }
             Ok(CheckedConfig {
                 session: self.session.clone(),
                 devices,
@@ -736,6 +751,37 @@ impl Config {
             }
         }
     }
+}
+
+/// How often the daemon checks free space.
+pub const RESERVE_CHECK_INTERVAL_MS: u64 = 1000;
+
+/// The smallest safe `disk_reserve_mb`: what every device can write, at its configured rate,
+/// in the longest time between two free-space checks. A row is counted twice (its HDF5
+/// dataset and the write-ahead journal) at its in-memory size (no compression assumed:
+/// `deflate_level` may be 0); with `raw_journal`, a serial line adds its top byte rate
+/// (baud / 10, 8N1), other transports their row rate × the largest frame.
+pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 {
+    const LARGEST_FRAME_BYTES: f64 = 256.0;
+    let window_s = session.flush_interval_ms.max(RESERVE_CHECK_INTERVAL_MS) as f64 / 1000.0;
+    let bytes_per_s: f64 = devices
+        .iter()
+        .map(|d| {
+            let row = if d.protocol.is_gnss() {
+                std::mem::size_of::<crate::store::GnssRecord>()
+            } else {
+                std::mem::size_of::<crate::store::ImuRecord>()
+            } as f64;
+            let raw = match (&d.transport, session.raw_journal) {
+                (_, false) => 0.0,
+                (Transport::Serial(s), true) => f64::from(s.baud) / 10.0,
+                (Transport::Slcan(s), true) => f64::from(s.baud) / 10.0,
+                (_, true) => d.rate_hz * LARGEST_FRAME_BYTES,
+            };
+            2.0 * d.rate_hz * row + raw
+        })
+        .sum();
+    (bytes_per_s * window_s / f64::from(1u32 << 20)).ceil() as u64
 }
 
 /// Checks that every `{...}` in a session name is a known placeholder.

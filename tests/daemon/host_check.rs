@@ -315,3 +315,42 @@ fn a_disk_below_the_reserve_at_start_creates_no_session() {
         "a session was created"
     );
 }
+
+#[test]
+fn a_reserve_below_what_one_check_interval_can_write_is_refused_with_the_floor() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = format!(
+        "[[device]]\nname = \"imu-a\"\nprotocol = \"wit\"\nrate_hz = 100\nserial = {{ port = \"{}\", baud = 921600 }}\n",
+        dir.path().join("ttyUSB0").display()
+    );
+    // 60 s between flushes of raw bytes at 921600 baud (92160 B/s) and 100 rows/s, each
+    // row in the HDF5 file and in the journal.
+    let row = std::mem::size_of::<imulab::store::ImuRecord>() as f64;
+    let floor = (((92_160.0 + 2.0 * 100.0 * row) * 60.0) / f64::from(1u32 << 20)).ceil() as u64;
+    assert!(floor >= 6, "{floor}");
+    let session = |reserve: u64| {
+        format!(
+            "output_dir = \"{}\"\nflush_interval_ms = 60000\nraw_journal = true\ndisk_reserve_mb = {reserve}",
+            dir.path().display()
+        )
+    };
+    for reserve in [0, floor - 1] {
+        let config = write_config(dir.path(), &session(reserve), &device);
+        assert_refused(
+            &config,
+            dir.path(),
+            &[
+                "session.disk_reserve_mb",
+                &format!("{reserve} MB is less than the {floor} MB"),
+                &format!("use at least {floor}"),
+            ],
+        );
+    }
+    let config = write_config(dir.path(), &session(floor), &device);
+    let out = imulogd("--check-config", &config);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
