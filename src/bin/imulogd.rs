@@ -30,6 +30,11 @@ fn main() -> ExitCode {
         eprintln!("imulogd: {}: {problems}", path.display());
         return ExitCode::from(EXIT_BAD_CONFIG);
     }
+    let host = config::check_host(&config);
+    if !host.issues.is_empty() {
+        eprintln!("imulogd: {}", host_error(&path, host.issues));
+        return ExitCode::from(EXIT_BAD_CONFIG);
+    }
     match run(&config) {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
@@ -64,6 +69,14 @@ fn unsupported(config: &config::CheckedConfig) -> Result<(), String> {
     }
 }
 
+/// The host check's issues as a configuration error naming the file.
+fn host_error(path: &Path, issues: Vec<config::ConfigIssue>) -> config::ConfigError {
+    config::ConfigError {
+        source_name: path.display().to_string(),
+        issues,
+    }
+}
+
 fn check_config(path: &Path) -> ExitCode {
     let config = match config::load(path) {
         Ok(c) => c,
@@ -72,6 +85,11 @@ fn check_config(path: &Path) -> ExitCode {
             return ExitCode::from(EXIT_BAD_CONFIG);
         }
     };
+    let host = config::check_host(&config);
+    if !host.issues.is_empty() {
+        eprintln!("imulogd: {}", host_error(path, host.issues));
+        return ExitCode::from(EXIT_BAD_CONFIG);
+    }
     let s = &config.session;
     // Collected and written at once, so a closed pipe (`imulogd --check-config F | head`)
     // ends the listing quietly instead of panicking in `println!`.
@@ -87,7 +105,16 @@ fn check_config(path: &Path) -> ExitCode {
         if s.raw_journal { "on" } else { "off" },
         s.disk_reserve_mb
     );
+    if host.output_dir_created {
+        text += &format!(
+            "output dir: {} does not exist and will be created\n",
+            s.output_dir.display()
+        );
+    }
     text += &format!("status file: {}\n", config.status_path().display());
+    if host.status_dir_created {
+        text += "status file: its directory does not exist and will be created\n";
+    }
     for d in &config.devices {
         text += &format!(
             "device {}: {} over {}, {} Hz\n",
@@ -114,7 +141,35 @@ fn check_config(path: &Path) -> ExitCode {
 
 fn run(config: &config::CheckedConfig) -> anyhow::Result<u8> {
     let session_dir = daemon::session::session_dir(config, chrono::Utc::now());
+    // Checked before the session directory exists, so a too-full disk leaves no empty session.
+    let reserve_bytes = config.session.disk_reserve_mb.saturating_mul(1 << 20);
+    let free_bytes = daemon::disk::free_bytes_for_new(&session_dir).map_err(|e| {
+        anyhow::anyhow!("cannot read free space for {}: {e}", session_dir.display())
+    })?;
+    if free_bytes < reserve_bytes {
+        let message = format!(
+            "not started: {free_bytes} bytes free for {} is below the disk reserve of {reserve_bytes} bytes (disk_reserve_mb = {}); no session was created",
+            config.session.output_dir.display(),
+            config.session.disk_reserve_mb
+        );
+        tracing::error!("{message}");
+        eprintln!("imulogd: {message}");
+        return Ok(daemon::Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        }
+        .exit_code());
+    }
     let sink = Box::new(daemon::session::open_session_sink(config, &session_dir)?);
+    let status_path = config.status_path();
+    if let Some(status_dir) = status_path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(status_dir).map_err(|e| {
+            anyhow::anyhow!(
+                "cannot create the status file's directory {}: {e}",
+                status_dir.display()
+            )
+        })?;
+    }
     let mut connectors = Vec::new();
     let mut decoders = Vec::new();
     for d in &config.devices {
@@ -129,7 +184,7 @@ fn run(config: &config::CheckedConfig) -> anyhow::Result<u8> {
         connectors,
         decoders,
         free_space,
-        status_path: config.status_path(),
+        status_path,
     };
     // One thread for every device task: their work is a read and a decode per frame, and
     // on one thread a frame's wake-up is one epoll return, where a multi-threaded runtime

@@ -461,7 +461,78 @@ pub fn load(path: &Path) -> Result<CheckedConfig, ConfigError> {
             dbc.mapping = base.join(&dbc.mapping);
         }
     }
+    let clashes = shared_port_issues(&checked.devices);
+    if !clashes.is_empty() {
+        return Err(ConfigError {
+            source_name,
+            issues: clashes,
+        });
+    }
     Ok(checked)
+}
+
+/// What a device holds exclusively: a serial port (serial or slcan, after following
+/// symlinks such as udev names), or a CAN interface together with the DBC mapping that
+/// selects its frames (two devices decoding the same frames would each record them).
+#[derive(Debug, PartialEq, Eq)]
+enum Endpoint {
+    SerialPort(PathBuf),
+    CanFrames { interface: String, mapping: PathBuf },
+}
+
+fn canonical_or_given(path: &Path) -> PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
+fn endpoint(spec: &DeviceSpec) -> Option<Endpoint> {
+    match &spec.transport {
+        Transport::Serial(s) => Some(Endpoint::SerialPort(canonical_or_given(&s.port))),
+        Transport::Slcan(s) => Some(Endpoint::SerialPort(canonical_or_given(&s.port))),
+        Transport::Can(c) => Some(Endpoint::CanFrames {
+            interface: c.interface.clone(),
+            mapping: spec
+                .dbc
+                .as_ref()
+                .map(|d| canonical_or_given(&d.mapping))
+                .unwrap_or_default(),
+        }),
+        // A TCP server (ser2net and the like) may serve several clients.
+        Transport::Tcp(_) => None,
+    }
+}
+
+/// Devices that would open the same port: the second would retry forever at run time.
+fn shared_port_issues(devices: &[DeviceSpec]) -> Vec<ConfigIssue> {
+    let endpoints: Vec<Option<Endpoint>> = devices.iter().map(endpoint).collect();
+    let mut issues = Vec::new();
+    for (j, later) in endpoints.iter().enumerate() {
+        let Some(later) = later else { continue };
+        let Some(i) = endpoints[..j]
+            .iter()
+            .position(|e| e.as_ref() == Some(later))
+        else {
+            continue;
+        };
+        let (what, hint) = match later {
+            Endpoint::SerialPort(port) => (
+                format!("the port {}", port.display()),
+                "a serial port can be opened by one device only; give each device its own port",
+            ),
+            Endpoint::CanFrames { interface, .. } => (
+                format!("the CAN interface {interface} with the same DBC mapping"),
+                "both would decode the same frames; give one device per mapped CAN IMU",
+            ),
+        };
+        issues.push(ConfigIssue {
+            path: format!("device[{j}]"),
+            message: format!(
+                "devices `{}` (device[{i}]) and `{}` (device[{j}]) both use {what}",
+                devices[i].name, devices[j].name
+            ),
+            hint: Some(hint.to_string()),
+        });
+    }
+    issues
 }
 
 /// Parses and validates configuration text; `source_name` is used in the error.
@@ -579,6 +650,21 @@ impl Config {
             }
         }
         if issues.0.is_empty() {
+            let floor_mb = reserve_floor_mb(&self.session, &devices);
+            if self.session.disk_reserve_mb < floor_mb {
+                issues.add(
+                    "session.disk_reserve_mb",
+                    format!(
+                        "{} MB is less than the {floor_mb} MB the configured devices can write between two free-space checks",
+                        self.session.disk_reserve_mb
+                    ),
+                    &format!(
+                        "use at least {floor_mb}: rows (HDF5 and journal) and raw bytes at the configured rates over max(flush_interval_ms, {} ms); below that the disk can fill before the daemon stops",
+                        RESERVE_CHECK_INTERVAL_MS
+                    ),
+                );
+                return Err(issues.0);
+            }
             Ok(CheckedConfig {
                 session: self.session.clone(),
                 devices,
@@ -665,6 +751,37 @@ impl Config {
             }
         }
     }
+}
+
+/// How often the daemon checks free space.
+pub const RESERVE_CHECK_INTERVAL_MS: u64 = 1000;
+
+/// The smallest safe `disk_reserve_mb`: what every device can write, at its configured rate,
+/// in the longest time between two free-space checks. A row is counted twice (its HDF5
+/// dataset and the write-ahead journal) at its in-memory size (no compression assumed:
+/// `deflate_level` may be 0); with `raw_journal`, a serial line adds its top byte rate
+/// (baud / 10, 8N1), other transports their row rate × the largest frame.
+pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 {
+    const LARGEST_FRAME_BYTES: f64 = 256.0;
+    let window_s = session.flush_interval_ms.max(RESERVE_CHECK_INTERVAL_MS) as f64 / 1000.0;
+    let bytes_per_s: f64 = devices
+        .iter()
+        .map(|d| {
+            let row = if d.protocol.is_gnss() {
+                std::mem::size_of::<crate::store::GnssRecord>()
+            } else {
+                std::mem::size_of::<crate::store::ImuRecord>()
+            } as f64;
+            let raw = match (&d.transport, session.raw_journal) {
+                (_, false) => 0.0,
+                (Transport::Serial(s), true) => f64::from(s.baud) / 10.0,
+                (Transport::Slcan(s), true) => f64::from(s.baud) / 10.0,
+                (_, true) => d.rate_hz * LARGEST_FRAME_BYTES,
+            };
+            2.0 * d.rate_hz * row + raw
+        })
+        .sum();
+    (bytes_per_s * window_s / f64::from(1u32 << 20)).ceil() as u64
 }
 
 /// Checks that every `{...}` in a session name is a known placeholder.
@@ -1010,4 +1127,105 @@ pub fn expand_session_name(
         .replace("{date}", &now.format("%Y%m%d").to_string())
         .replace("{time}", &now.format("%H%M%S").to_string())
         .replace("{host}", host)
+}
+
+/// What the host says about the configured paths; the part of the check that cannot be done
+/// from the text alone. Run by `--check-config` and before a session is created.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostCheck {
+    /// Problems that would only show at run time, as config issues.
+    pub issues: Vec<ConfigIssue>,
+    /// True when `output_dir` does not exist yet and will be created.
+    pub output_dir_created: bool,
+    /// True when the status file's directory (other than `output_dir`) will be created.
+    pub status_dir_created: bool,
+}
+
+/// Checks `output_dir` (an existing writable directory, or creatable under one) and
+/// `status_file` (its directory likewise, and an existing file there must be an imulogd
+/// status file: the daemon replaces it every second).
+pub fn check_host(config: &CheckedConfig) -> HostCheck {
+    let mut issues = Issues(Vec::new());
+    let output_dir = &config.session.output_dir;
+    let output_dir_created = check_writable_dir(output_dir, "session.output_dir", &mut issues);
+    let status = config.status_path();
+    let status_dir = status
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let status_dir_created = status_dir != output_dir.as_path()
+        && check_writable_dir(status_dir, "session.status_file", &mut issues);
+    if status.is_dir() {
+        issues.add(
+            "session.status_file",
+            format!("{} is a directory", status.display()),
+            "give a file path, e.g. /run/imulogd/status.json",
+        );
+    } else if status.exists() {
+        if let Err(e) = super::status::read_status_file(&status) {
+            issues.add(
+                "session.status_file",
+                format!("refusing to replace {}: {e:#}", status.display()),
+                "the daemon rewrites this file every second; point status_file at a new path or remove the file",
+            );
+        }
+    }
+    HostCheck {
+        issues: issues.0,
+        output_dir_created,
+        status_dir_created,
+    }
+}
+
+/// Checks that `dir` is a directory files can be created in, or that it can be created.
+/// Returns true when it does not exist yet. Writability is tried with a real file (a
+/// permission check would pass for root on a read-only mount).
+fn check_writable_dir(dir: &Path, key: &str, issues: &mut Issues) -> bool {
+    let mut existing = dir;
+    while !existing.exists() {
+        match existing.parent() {
+            Some(parent) if !parent.as_os_str().is_empty() => existing = parent,
+            _ => {
+                existing = Path::new(".");
+                break;
+            }
+        }
+    }
+    let missing = existing != dir;
+    if !existing.is_dir() {
+        issues.add(
+            key,
+            if missing {
+                format!(
+                    "{} cannot be created: {} is not a directory",
+                    dir.display(),
+                    existing.display()
+                )
+            } else {
+                format!("{} is not a directory", dir.display())
+            },
+            "give a directory path",
+        );
+        return missing;
+    }
+    let probe = existing.join(format!(".imulogd-write-check-{}", std::process::id()));
+    match std::fs::File::create(&probe) {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+        }
+        Err(e) => issues.add(
+            key,
+            if missing {
+                format!(
+                    "{} cannot be created: cannot write in {}: {e}",
+                    dir.display(),
+                    existing.display()
+                )
+            } else {
+                format!("cannot write in {}: {e}", dir.display())
+            },
+            "give a directory the daemon's user can write (ReadWritePaths= in the unit)",
+        ),
+    }
+    missing
 }

@@ -11,6 +11,16 @@ pub fn free_bytes(path: &Path) -> io::Result<u64> {
     Ok(u64::from(stats.blocks_available()).saturating_mul(u64::from(stats.fragment_size())))
 }
 
+/// Free bytes on the filesystem `path` will be created on: that of its nearest existing
+/// ancestor (the session directory does not exist before the session starts).
+pub fn free_bytes_for_new(path: &Path) -> io::Result<u64> {
+    let existing = path
+        .ancestors()
+        .find(|p| !p.as_os_str().is_empty() && p.exists())
+        .unwrap_or(Path::new("."));
+    free_bytes(existing)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

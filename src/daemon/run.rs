@@ -31,7 +31,8 @@ const WRITER_STOP_TIMEOUT: Duration = Duration::from_millis(1500);
 /// flushing, closing and renaming still fit.
 const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
-const DISK_CHECK_INTERVAL: Duration = Duration::from_secs(1);
+const DISK_CHECK_INTERVAL: Duration =
+    Duration::from_millis(super::config::RESERVE_CHECK_INTERVAL_MS);
 /// How often the status file is written.
 const STATUS_INTERVAL: Duration = Duration::from_secs(1);
 

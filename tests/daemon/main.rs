@@ -5,6 +5,7 @@ mod common;
 mod config;
 mod disk;
 mod end_to_end;
+mod host_check;
 mod pipeline;
 mod pty;
 mod serial;
