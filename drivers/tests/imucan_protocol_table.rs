@@ -10,13 +10,22 @@ use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
 use imulab_drivers::codec::slcan::{SlcanEncoder, SlcanMessage};
 use imulab_drivers::codec::witmotion::{WitEncoder, WitPacket};
 use imulab_drivers::codec::xbus::{MtData2, XbusEncoder, XbusMessage};
-use imulab_drivers::codec::{detect, DecoderOptions, Encoder, Protocol};
+use imulab_drivers::codec::{detect, DecoderOptions, Encoder, NamedText, Protocol};
 use imulab_drivers::ImuSample;
 
 fn fixture(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../fixtures")
         .join(name)
+}
+
+/// A fixture's text as `imulab decode` passes it to the codecs.
+fn fixture_text(name: &str) -> NamedText {
+    let path = fixture(name);
+    NamedText {
+        text: std::fs::read_to_string(&path).expect("fixture"),
+        name: path.display().to_string(),
+    }
 }
 
 fn wit_stream() -> Vec<u8> {
@@ -162,8 +171,8 @@ fn json_decoders_print_si_samples() {
     assert_eq!(raw.len(), 30);
     assert_eq!(raw[0]["frame"]["id"], 0x180);
     let options = DecoderOptions {
-        dbc: Some(fixture("imu_can.dbc")),
-        config: Some(fixture("imu_can_mapping.toml")),
+        dbc: Some(fixture_text("imu_can.dbc")),
+        config: Some(fixture_text("imu_can_mapping.toml")),
     };
     let imu = json_lines(Protocol::Candump, &options, &candump);
     assert_eq!(imu.len(), 10);
@@ -172,7 +181,7 @@ fn json_decoders_print_si_samples() {
     // A DBC without a mapping is refused with a clear message.
     let err = Protocol::Slcan
         .open(&DecoderOptions {
-            dbc: Some(fixture("imu_can.dbc")),
+            dbc: Some(fixture_text("imu_can.dbc")),
             config: None,
         })
         .err()

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use imulab_drivers::codec::{self, DecoderOptions, JsonDecoder, Protocol, PROTOCOLS};
+use imulab_drivers::codec::{self, DecoderOptions, JsonDecoder, NamedText, Protocol, PROTOCOLS};
 
 /// How many bytes `auto` looks at before deciding.
 const DETECT_SAMPLE: usize = 16 * 1024;
@@ -200,9 +200,21 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
         Protocol::from_name(&args.protocol)
             .map_err(|e| anyhow::anyhow!("{e}; pass one of these, or `auto` to detect it"))?
     };
+    let read = |path: &Option<std::path::PathBuf>| -> anyhow::Result<Option<NamedText>> {
+        path.as_ref()
+            .map(|p| {
+                let text = std::fs::read_to_string(p)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+                Ok(NamedText {
+                    name: p.display().to_string(),
+                    text,
+                })
+            })
+            .transpose()
+    };
     let options = DecoderOptions {
-        dbc: args.dbc.clone(),
-        config: args.config.clone(),
+        dbc: read(&args.dbc)?,
+        config: read(&args.config)?,
     };
     let mut decoder = protocol.open(&options)?;
 

@@ -368,10 +368,8 @@ pub fn open_json(
     };
     let config = match &options.config {
         None => CsvLineConfig::default(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| fail(format!("{}: {e}", path.display())))?;
-            toml::from_str(&text).map_err(|e| fail(format!("{}: {e}", path.display())))?
+        Some(file) => {
+            toml::from_str(&file.text).map_err(|e| fail(format!("{}: {e}", file.name)))?
         }
     };
     Ok(Box::new(CsvLineDecoder::new(config).map_err(fail)?))

@@ -565,21 +565,17 @@ fn candump_frame(r: &CandumpRecord) -> Option<CanFrame> {
 /// Loads the DBC (`options.dbc`) and its mapping (`options.config`, TOML), if a DBC is given.
 fn load_dbc(protocol: &'static str, options: &DecoderOptions) -> Result<Option<DbcImu>, OpenError> {
     let fail = |reason: String| OpenError { protocol, reason };
-    let Some(dbc_path) = &options.dbc else {
+    let Some(dbc) = &options.dbc else {
         return Ok(None);
     };
-    let read = |p: &std::path::Path| {
-        std::fs::read_to_string(p).map_err(|e| fail(format!("{}: {e}", p.display())))
-    };
-    let dbc_text = read(dbc_path)?;
-    let mapping_path = options.config.as_ref().ok_or_else(|| {
+    let mapping_file = options.config.as_ref().ok_or_else(|| {
         fail("--dbc needs a signal mapping file (TOML, see docs/protocols-imu-can.md)".into())
     })?;
-    let mapping = DbcImuMapping::from_toml_str(&read(mapping_path)?)
-        .map_err(|e| fail(format!("{}: {e}", mapping_path.display())))?;
-    DbcImu::new(&dbc_text, &mapping)
+    let mapping = DbcImuMapping::from_toml_str(&mapping_file.text)
+        .map_err(|e| fail(format!("{}: {e}", mapping_file.name)))?;
+    DbcImu::new(&dbc.text, &mapping)
         .map(Some)
-        .map_err(|e| fail(format!("{}: {e}", dbc_path.display())))
+        .map_err(|e| fail(format!("{}: {e}", dbc.name)))
 }
 
 /// Builds the decoder for `imulab decode --protocol slcan`: CAN messages as JSON, or

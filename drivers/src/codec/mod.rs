@@ -25,8 +25,6 @@ pub mod vectornav;
 pub mod witmotion;
 pub mod xbus;
 
-use std::path::PathBuf;
-
 use crate::types::DecoderStats;
 
 /// A sans-IO decoder: feed bytes with [`push`](Decoder::push), then call
@@ -156,13 +154,22 @@ fn write_json<F: serde::Serialize>(frame: Option<F>, out: &mut Vec<u8>) -> bool 
     }
 }
 
-/// Options a protocol may need to build its decoder.
+/// Options a protocol may need to build its decoder. Codecs do no I/O: the caller reads
+/// the files and passes their text.
 #[derive(Debug, Clone, Default)]
 pub struct DecoderOptions {
     /// DBC file for IMU-over-CAN protocols.
-    pub dbc: Option<PathBuf>,
+    pub dbc: Option<NamedText>,
     /// Protocol-specific configuration file (e.g. a CSV column map or a DBC signal map).
-    pub config: Option<PathBuf>,
+    pub config: Option<NamedText>,
+}
+
+/// The text of a file the caller read, with the name its error messages use.
+#[derive(Debug, Clone)]
+pub struct NamedText {
+    /// Where the text came from (a path), for messages.
+    pub name: String,
+    pub text: String,
 }
 
 /// Why a decoder could not be built from the options.
