@@ -10,7 +10,7 @@
 //! Skips with a message when the folder is absent. Locations tried: `$IMULAB_EXTERNAL/gpsd`,
 //! `CARGO_MANIFEST_DIR/../../shared/external/gpsd`, `/work/shared/external/gpsd`.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use imulab_drivers::codec::gnss::{EpochFix, FixSource, GnssDecoder, GnssFrame, MergeSources};
@@ -555,4 +555,142 @@ fn gpsd_real_captures_decode_like_gpsd() {
         "{} of {epochs} fix epochs disagree with gpsd: {unexpected:#?}",
         unexpected.len()
     );
+}
+
+type EsfKey = (String, u64);
+type EsfFields = Vec<(&'static str, f64)>;
+
+/// Our IMU values of every ESF-RAW sample and ESF-MEAS message in a log, keyed by gpsd's
+/// message name and time tag (a tag can carry several messages, e.g. speed and gyro), in
+/// gpsd's field names and units (gyro deg/s, accel m/s², °C).
+fn esf_values(bytes: &[u8]) -> HashMap<EsfKey, Vec<EsfFields>> {
+    use imulab_drivers::codec::ubx::UbxMessage;
+    fn fields(s: &imulab_drivers::types::ImuSample) -> EsfFields {
+        let mut out = Vec::new();
+        let deg = 180.0 / std::f64::consts::PI;
+        if let Some(g) = s.gyro {
+            for (name, v) in ["gyro_x", "gyro_y", "gyro_z"].into_iter().zip(g) {
+                if !v.is_nan() {
+                    out.push((name, v * deg));
+                }
+            }
+        }
+        if let Some(a) = s.accel {
+            for (name, v) in ["acc_x", "acc_y", "acc_z"].into_iter().zip(a) {
+                if !v.is_nan() {
+                    out.push((name, v));
+                }
+            }
+        }
+        out.extend(s.temp_c.map(|t| ("gyro_temp", t)));
+        out
+    }
+    let mut d = GnssDecoder::new();
+    d.push(bytes);
+    let mut out: HashMap<EsfKey, Vec<EsfFields>> = HashMap::new();
+    let mut take = |frame: GnssFrame| match frame {
+        GnssFrame::Ubx(UbxMessage::EsfRaw(raw)) => {
+            for s in raw.to_imu_samples() {
+                let tag = s.sensor_time.unwrap_or(-1.0) as u64;
+                out.entry(("UBX-ESF-RAW".to_string(), tag))
+                    .or_default()
+                    .push(fields(&s));
+            }
+        }
+        GnssFrame::Ubx(UbxMessage::EsfMeas(m)) => {
+            let values = m.to_imu_sample().map(|s| fields(&s)).unwrap_or_default();
+            out.entry(("UBX-ESF-MEAS".to_string(), u64::from(m.time_tag)))
+                .or_default()
+                .push(values);
+        }
+        _ => {}
+    };
+    while let Some(frame) = d.poll() {
+        take(frame);
+    }
+    while let Some(frame) = d.finish() {
+        take(frame);
+    }
+    out
+}
+
+/// True when gpsd's report has exactly our fields, each equal to gpsd's printed precision
+/// (5 decimals, 2 for temperature).
+fn esf_report_matches(gpsd: &serde_json::Value, ours: &EsfFields) -> bool {
+    let gpsd_fields = gpsd.as_object().map(|o| o.len() - 3).unwrap_or(0);
+    gpsd_fields == ours.len()
+        && ours.iter().all(|(field, ours)| {
+            let tolerance = if *field == "gyro_temp" {
+                0.0051
+            } else {
+                0.51e-5
+            };
+            gpsd[*field]
+                .as_f64()
+                .is_some_and(|g| (g - ours).abs() <= tolerance)
+        })
+}
+
+/// Every IMU report gpsd printed for the dead-reckoning receivers' ESF-RAW and ESF-MEAS
+/// (NEO-M8L, NEO-M8U) equals one of our samples with the same time tag, and every sample with
+/// IMU data we decode was reported by gpsd.
+#[test]
+fn gpsd_esf_imu_reports_match_our_decode() {
+    let Some(dir) = captures_dir() else {
+        eprintln!("SKIPPED gpsd_esf_imu_reports_match_our_decode: no gpsd captures found");
+        return;
+    };
+    let (mut compared, mut ours_total, mut failures) = (0usize, 0usize, Vec::new());
+    for name in ["ublox-neo-m8l.log", "ublox-neo-m8u.log"] {
+        let log = dir.join(name);
+        let (Ok(bytes), Ok(chk)) = (
+            std::fs::read(&log),
+            std::fs::read_to_string(log.with_extension("log.chk")),
+        ) else {
+            eprintln!("SKIPPED {name}: not in {}", dir.display());
+            continue;
+        };
+        let ours = esf_values(&bytes);
+        let mut matched: HashSet<(EsfKey, usize)> = HashSet::new();
+        // gpsd repeats a report in later cycles: each distinct line once.
+        let mut seen_lines = HashSet::new();
+        for line in chk.lines().filter(|l| l.contains("\"class\":\"IMU\"")) {
+            if !seen_lines.insert(line) {
+                continue;
+            }
+            let v: serde_json::Value = serde_json::from_str(line).expect("gpsd JSON");
+            let key = (
+                v["msg"].as_str().unwrap_or("").to_string(),
+                v["timeTag"].as_u64().unwrap_or(u64::MAX),
+            );
+            compared += 1;
+            match ours.get(&key).and_then(|list| {
+                list.iter()
+                    .position(|fields| esf_report_matches(&v, fields))
+            }) {
+                Some(i) => {
+                    matched.insert((key, i));
+                }
+                None => failures.push(format!("{name}: gpsd {line}, ours {:?}", ours.get(&key))),
+            }
+        }
+        for (key, list) in &ours {
+            for (i, fields) in list.iter().enumerate() {
+                // Messages without IMU data (speed, wheel ticks) print the same line for
+                // one tag, which the distinct-line rule above folds into one.
+                if !fields.is_empty() && !matched.contains(&(key.clone(), i)) {
+                    failures.push(format!(
+                        "{name}: ours {key:?} {fields:?} not reported by gpsd"
+                    ));
+                }
+            }
+            ours_total += list.len();
+        }
+    }
+    eprintln!(
+        "gpsd ESF IMU reports: {compared} distinct gpsd reports, {ours_total} samples decoded by \
+         us, {} differences",
+        failures.len()
+    );
+    assert!(failures.is_empty(), "{failures:#?}");
 }

@@ -175,6 +175,9 @@ pub enum Protocol {
     Csv,
     /// An IMU on a CAN bus, decoded through a DBC file.
     CanDbc,
+    /// The IMU inside a u-blox dead-reckoning receiver (NEO-M8L, ZED-F9R): UBX ESF-RAW and
+    /// ESF-MEAS on a receiver port of its own, stored as an IMU device.
+    UbxEsf,
 }
 
 impl Protocol {
@@ -189,6 +192,7 @@ impl Protocol {
             Protocol::Mip => "mip",
             Protocol::Csv => "csv",
             Protocol::CanDbc => "can-dbc",
+            Protocol::UbxEsf => "ubx-esf",
         }
     }
 

@@ -22,6 +22,7 @@ use imulab_drivers::codec::csv_line::CsvLineDecoder;
 use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
 use imulab_drivers::codec::gnss::{GnssDecoder, GnssFrame};
 use imulab_drivers::codec::mip::{MipDecoder, MipPacket};
+use imulab_drivers::codec::ubx::UbxMessage;
 use imulab_drivers::codec::vectornav::{VnDecoder, VnFrame};
 use imulab_drivers::codec::witmotion::WitImuDecoder;
 use imulab_drivers::codec::xbus::{XbusDecoder, XbusMessage};
@@ -150,6 +151,56 @@ fn vectornav_sample(frame: VnFrame) -> Option<Frame> {
 /// IMU data packets with accelerometer or gyro are samples; command replies are not rows.
 fn mip_sample(packet: MipPacket) -> Option<Frame> {
     packet.to_imu_sample().map(Frame::Imu)
+}
+
+/// The IMU of a u-blox dead-reckoning receiver: ESF-RAW (several samples per message) and
+/// ESF-MEAS (one) become samples; fixes, other UBX messages and NMEA are not rows of it.
+struct EsfImuDecoder {
+    gnss: GnssDecoder,
+    ready: VecDeque<ImuSample>,
+    /// CAN frames pushed to this byte decoder (never with a validated config).
+    wrong_input: u64,
+}
+
+impl EsfImuDecoder {
+    fn take(&mut self, frame: GnssFrame) {
+        match frame {
+            GnssFrame::Ubx(UbxMessage::EsfRaw(raw)) => self.ready.extend(raw.to_imu_samples()),
+            GnssFrame::Ubx(UbxMessage::EsfMeas(meas)) => self.ready.extend(meas.to_imu_sample()),
+            _ => {}
+        }
+    }
+}
+
+impl FrameDecoder for EsfImuDecoder {
+    fn push(&mut self, input: Input<'_>) {
+        match input {
+            Input::Bytes(bytes) => self.gnss.push(bytes),
+            Input::Can(_) => self.wrong_input += 1,
+        }
+    }
+
+    fn poll(&mut self) -> Option<Frame> {
+        while self.ready.is_empty() {
+            let frame = self.gnss.poll()?;
+            self.take(frame);
+        }
+        self.ready.pop_front().map(Frame::Imu)
+    }
+
+    fn stats(&self) -> DecoderStats {
+        let mut stats = self.gnss.stats();
+        stats.frames_malformed += self.wrong_input;
+        stats
+    }
+
+    fn finish(&mut self) -> Option<Frame> {
+        while self.ready.is_empty() {
+            let frame = self.gnss.finish()?;
+            self.take(frame);
+        }
+        self.ready.pop_front().map(Frame::Imu)
+    }
 }
 
 /// A CAN IMU: CAN frames through the DBC mapping into samples.
@@ -396,6 +447,13 @@ pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
         Protocol::Nmea | Protocol::Ubx | Protocol::Gnss => {
             Box::new(|| boxed(GnssDecoder::new(), gnss_epoch))
         }
+        Protocol::UbxEsf => Box::new(|| {
+            Box::new(EsfImuDecoder {
+                gnss: GnssDecoder::new(),
+                ready: VecDeque::new(),
+                wrong_input: 0,
+            }) as Box<dyn FrameDecoder>
+        }),
         Protocol::Wit => Box::new(|| boxed(WitImuDecoder::new(), imu_sample)),
         Protocol::Xbus => Box::new(|| boxed(XbusDecoder::new(), xbus_sample)),
         Protocol::Vectornav => Box::new(|| boxed(VnDecoder::new(), vectornav_sample)),

@@ -10,4 +10,5 @@ mod pipeline;
 mod pty;
 mod serial;
 mod store;
+mod ubx_esf;
 mod vectornav_mip;

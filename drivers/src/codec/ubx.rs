@@ -18,7 +18,7 @@
 use serde::Serialize;
 
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
-use crate::types::DecoderStats;
+use crate::types::{DecoderStats, ImuSample};
 
 /// Largest payload accepted (RXM-RAWX with 255 measurements is 8176 bytes).
 pub const MAX_PAYLOAD: usize = 8192;
@@ -461,6 +461,83 @@ pub struct EsfMeas {
     pub id: u16,
     pub data: EsfWords,
     pub calib_ttag: Option<u32>,
+}
+
+/// Collects ESF data words of one measurement epoch into an [`ImuSample`] (sensor frame):
+/// gyro x/y/z (types 14, 13, 5), accelerometer x/y/z (16, 17, 18), gyro temperature (12).
+/// An axis the message did not carry is NaN; wheel ticks and speed are not IMU data.
+#[derive(Default)]
+struct EsfEpoch {
+    gyro: [Option<f64>; 3],
+    accel: [Option<f64>; 3],
+    temp_c: Option<f64>,
+}
+
+impl EsfEpoch {
+    fn add(&mut self, d: EsfData) {
+        let slot = match d.data_type {
+            14 => &mut self.gyro[0],
+            13 => &mut self.gyro[1],
+            5 => &mut self.gyro[2],
+            16 => &mut self.accel[0],
+            17 => &mut self.accel[1],
+            18 => &mut self.accel[2],
+            12 => &mut self.temp_c,
+            _ => return,
+        };
+        *slot = d.si;
+    }
+
+    fn triad(axes: [Option<f64>; 3]) -> Option<[f64; 3]> {
+        axes.iter()
+            .any(Option::is_some)
+            .then(|| axes.map(|a| a.unwrap_or(f64::NAN)))
+    }
+
+    fn sample(&self, sensor_time: f64) -> Option<ImuSample> {
+        let gyro = Self::triad(self.gyro);
+        let accel = Self::triad(self.accel);
+        (gyro.is_some() || accel.is_some()).then_some(ImuSample {
+            sensor_time: Some(sensor_time),
+            gyro,
+            accel,
+            temp_c: self.temp_c,
+            status: 0,
+        })
+    }
+}
+
+impl EsfRaw {
+    /// The IMU samples of this message: consecutive data words with the same sensor time tag
+    /// are one sample (`sensor_time` is that tag as sent). Messages with wheel ticks or speed
+    /// only give none.
+    pub fn to_imu_samples(&self) -> Vec<ImuSample> {
+        let mut out = Vec::new();
+        let mut epoch = EsfEpoch::default();
+        let mut tag = None;
+        for s in &self.samples {
+            if tag.is_some_and(|t| t != s.s_ttag) {
+                out.extend(epoch.sample(f64::from(tag.unwrap_or(0))));
+                epoch = EsfEpoch::default();
+            }
+            tag = Some(s.s_ttag);
+            epoch.add(s.data);
+        }
+        if let Some(t) = tag {
+            out.extend(epoch.sample(f64::from(t)));
+        }
+        out
+    }
+}
+
+impl EsfMeas {
+    /// The IMU sample of this message (`sensor_time` is timeTag, ms), or `None` when it carries
+    /// no gyro or accelerometer data (wheel ticks, speed).
+    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+        let mut epoch = EsfEpoch::default();
+        self.data.iter().for_each(|d| epoch.add(d));
+        epoch.sample(f64::from(self.time_tag) * 1e-3)
+    }
 }
 
 /// ACK-ACK / ACK-NAK: which message was (not) acknowledged.
@@ -1568,5 +1645,97 @@ mod tests {
         let mut frames = Vec::new();
         d.decode(&bytes, |f| frames.push(f));
         assert_eq!(frames, vec![msg]);
+    }
+
+    /// An ESF-RAW payload built by hand: 4 reserved bytes, then (data word, sTtag) pairs.
+    fn esf_raw_frame(pairs: &[(u8, i32, u32)]) -> Vec<u8> {
+        let mut payload = vec![0u8; 4];
+        for &(data_type, value, tag) in pairs {
+            let word = (u32::from(data_type) << 24) | (value as u32 & 0x00FF_FFFF);
+            payload.extend_from_slice(&word.to_le_bytes());
+            payload.extend_from_slice(&tag.to_le_bytes());
+        }
+        let mut frame = vec![0xB5, 0x62, 0x10, 0x03];
+        frame.extend_from_slice(&(payload.len() as u16).to_le_bytes());
+        frame.extend_from_slice(&payload);
+        // Fletcher-8 over class, id, length and payload, written out here independently of
+        // `checksum`.
+        let (mut a, mut b) = (0u8, 0u8);
+        for &x in &frame[2..] {
+            a = a.wrapping_add(x);
+            b = b.wrapping_add(a);
+        }
+        frame.extend_from_slice(&[a, b]);
+        frame
+    }
+
+    #[test]
+    fn esf_raw_words_with_one_time_tag_are_one_imu_sample() {
+        // Two epochs (tags 1000 and 1100) of gyro x/y/z, temperature, accel x/y/z, then a
+        // wheel-tick word (type 8) alone under tag 1200.
+        let mut pairs = Vec::new();
+        for (tag, sign) in [(1000u32, 1i32), (1100, -1)] {
+            pairs.extend_from_slice(&[
+                (14, sign * 4096, tag),     // 1 deg/s
+                (13, sign * 2 * 4096, tag), // 2 deg/s
+                (5, sign * -8192, tag),     // -2 deg/s (24-bit negative)
+                (12, 2550, tag),            // 25.5 °C
+                (16, sign * 1024, tag),     // 1 m/s²
+                (17, sign * -512, tag),     // -0.5 m/s²
+                (18, sign * 10043, tag),    // 9.8076 m/s²
+            ]);
+        }
+        pairs.push((8, 77, 1200));
+        let mut bytes = b"\xB5garbage".to_vec();
+        bytes.extend(esf_raw_frame(&pairs));
+        let mut d = UbxDecoder::new();
+        let mut frames = Vec::new();
+        d.decode(&bytes, |f| frames.push(f));
+        let [UbxMessage::EsfRaw(raw)] = frames.as_slice() else {
+            panic!("expected one ESF-RAW, got {frames:?}");
+        };
+        let samples = raw.to_imu_samples();
+        assert_eq!(samples.len(), 2, "{samples:?}");
+        for (s, (tag, sign)) in samples.iter().zip([(1000.0, 1.0), (1100.0, -1.0)]) {
+            assert_eq!(s.sensor_time, Some(tag));
+            let g = s.gyro.unwrap();
+            for (got, want) in g.iter().zip([1.0, 2.0, -2.0]) {
+                assert!((got - sign * want * DEG_TO_RAD).abs() < 1e-15, "{g:?}");
+            }
+            let a = s.accel.unwrap();
+            assert_eq!(a, [sign, -0.5 * sign, sign * 10043.0 / 1024.0]);
+            assert_eq!(s.temp_c, Some(25.5));
+        }
+        assert!(d.stats().bytes_skipped >= 8);
+        // Re-encoding gives the same bytes (checksum recomputed by the encoder).
+        let mut again = Vec::new();
+        UbxEncoder.encode(&frames[0], &mut again).unwrap();
+        assert_eq!(again, esf_raw_frame(&pairs));
+    }
+
+    #[test]
+    fn esf_meas_with_a_partial_triad_gives_nan_axes_and_wheel_ticks_give_no_sample() {
+        let meas = |words: &[u32]| EsfMeas {
+            time_tag: 2500,
+            flags: (words.len() as u16) << 11,
+            id: 0,
+            data: EsfWords::from_data(
+                &words
+                    .iter()
+                    .map(|&w| EsfData::from_word(w))
+                    .collect::<Vec<_>>(),
+            )
+            .unwrap(),
+            calib_ttag: None,
+        };
+        let s = meas(&[(5 << 24) | 4096]).to_imu_sample().unwrap();
+        assert_eq!(s.sensor_time, Some(2.5));
+        let g = s.gyro.unwrap();
+        assert!(g[0].is_nan() && g[1].is_nan() && (g[2] - DEG_TO_RAD).abs() < 1e-15);
+        assert_eq!(s.accel, None);
+        assert_eq!(
+            meas(&[(11 << 24) | 300, (10 << 24) | 12]).to_imu_sample(),
+            None
+        );
     }
 }
