@@ -268,6 +268,11 @@ pub const IMU_AXES: [&str; 6] = [
 
 /// One session IMU's model axes, applied block by block to streamed rows (`export
 /// --compensate`, `replay --compensate`); counts accumulate over the blocks for the warning.
+///
+/// It removes the change of bias with temperature, bias(T) − bias(reference_c): the
+/// constant term is left in the rates, because a model fitted on a static bench run carries
+/// gravity and the Earth's rate in it, which a navigation filter must see (and it estimates a
+/// constant bias itself).
 #[derive(Debug, Clone)]
 pub struct ImuCompensator {
     device: String,
@@ -296,10 +301,11 @@ impl ImuCompensator {
         let axes = IMU_AXES
             .iter()
             .map(|name| {
-                d.axes
-                    .iter()
-                    .find(|a| a.axis == *name)
-                    .map(|a| (a.clone(), Compensation::default()))
+                d.axes.iter().find(|a| a.axis == *name).map(|a| {
+                    let mut thermal_part = a.clone();
+                    thermal_part.coefficients[0] = 0.0;
+                    (thermal_part, Compensation::default())
+                })
             })
             .collect();
         Ok(ImuCompensator {
