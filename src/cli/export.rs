@@ -1,5 +1,7 @@
 //! `imulab export SESSION --device NAME --format csv`: one device's rows as CSV, streamed in
-//! blocks so memory stays bounded whatever the session length.
+//! blocks so memory stays bounded whatever the session length. With `--compensate MODEL`
+//! the IMU rate columns have the thermal model's bias removed, and a first `#` comment line
+//! says so.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -7,6 +9,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use crate::store::{layout, DeviceKind, Session, TimeRange};
+use crate::thermal::model::{require_session_temperature, ImuCompensator, ThermalModel};
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportFormat {
@@ -15,7 +18,7 @@ pub enum ExportFormat {
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example: imulab export runs/chamber --device imu0 --format csv --start 60 --end 120 -o imu0.csv"
+    after_help = "Example: imulab export runs/chamber --device imu0 --format csv --start 60 --end 120 -o imu0.csv\n  imulab export runs/chamber --device imu0 --compensate thermal-model.json -o imu0-compensated.csv"
 )]
 pub struct ExportArgs {
     /// Session directory.
@@ -34,6 +37,10 @@ pub struct ExportArgs {
     /// End, in seconds after the device's first sample (exclusive).
     #[arg(long)]
     pub end: Option<f64>,
+    /// Thermal model (JSON from `imulab thermal --model`): remove its bias(T) from the IMU's
+    /// gyro and accel columns, using the row's `temp`.
+    #[arg(long, value_name = "MODEL")]
+    pub compensate: Option<PathBuf>,
 }
 
 /// Rows per block read from the session.
@@ -76,6 +83,26 @@ pub fn export_csv(
         }
         None => TimeRange::all(),
     };
+    let mut compensator = match (&args.compensate, device.kind) {
+        (Some(path), DeviceKind::Imu) => {
+            let model = ThermalModel::load(path)?;
+            let c = ImuCompensator::new(&model, &device.name)
+                .with_context(|| format!("thermal model {}", path.display()))?;
+            require_session_temperature(session, &device.name)?;
+            writeln!(
+                out,
+                "# {} compensated with thermal model {} (bias(T) from the temp column removed)",
+                c.axes().join(" "),
+                path.display()
+            )?;
+            Some(c)
+        }
+        (Some(_), DeviceKind::Gnss) => anyhow::bail!(
+            "--compensate applies to an IMU; `{}` is a GNSS receiver",
+            device.name
+        ),
+        (None, _) => None,
+    };
     let mut w = csv::Writer::from_writer(out);
     let mut rows = 0u64;
     match device.kind {
@@ -94,7 +121,10 @@ pub fn export_csv(
                 "status",
             ])?;
             for block in session.imu_blocks(&device.name, range, BLOCK_ROWS)? {
-                let b = block?;
+                let mut b = block?;
+                if let Some(c) = compensator.as_mut() {
+                    c.compensate_block(&mut b.gyro, &mut b.accel, &b.temp);
+                }
                 for i in 0..b.len() {
                     let (g, a) = (b.gyro[i], b.accel[i]);
                     w.write_record([
@@ -167,6 +197,9 @@ pub fn export_csv(
         }
     }
     w.flush()?;
+    for warning in compensator.iter().flat_map(ImuCompensator::warnings) {
+        tracing::warn!("{warning}");
+    }
     Ok(rows)
 }
 

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug)]
 #[command(
     group = clap::ArgGroup::new("input").required(true).args(["session", "kf_gins"]),
-    after_help = "Examples:\n  imulab replay sessions/drive1 --outages every:300:60 --smooth\n  imulab replay --kf-gins dataset/kf-gins.yaml --truth dataset/truth.nav --out results/"
+    after_help = "Examples:\n  imulab replay sessions/drive1 --outages every:300:60 --smooth\n  imulab replay sessions/drive1 --outages every:300:60 --compensate thermal-model.json\n  imulab replay --kf-gins dataset/kf-gins.yaml --truth dataset/truth.nav --out results/"
 )]
 pub struct ReplayArgs {
     /// Session directory to replay.
@@ -72,6 +72,10 @@ pub struct ReplayArgs {
     /// SESSION/replay-NAME.h5.
     #[arg(long, default_value = "filter", requires = "session")]
     pub name: String,
+    /// Thermal model (JSON from `imulab thermal --model`): remove its bias(T) from the
+    /// session IMU's rates, by their `temp`, before the filter.
+    #[arg(long, value_name = "MODEL", requires = "session")]
+    pub compensate: Option<PathBuf>,
 }
 
 fn parse_pair(text: &str, what: &str) -> anyhow::Result<(f64, f64)> {
@@ -182,6 +186,11 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         )
     );
     let outages = parse_outages(&args.outage, args.outages.as_deref(), 30.0 * 86400.0)?;
+    let thermal = args
+        .compensate
+        .as_deref()
+        .map(crate::thermal::model::ThermalModel::load)
+        .transpose()?;
     let options = ReplayOptions {
         outages: outages.clone(),
         smooth: args.smooth,
@@ -193,14 +202,21 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         args.gnss.as_deref(),
         &config,
         options,
+        thermal.as_ref(),
     )?;
-    for p in &r.problems {
+    for p in r.problems.iter().chain(&r.compensation_warnings) {
         tracing::warn!("{p}");
     }
     println!(
         "replayed IMU `{}` with GNSS `{}` ({} epochs without a fix skipped)",
         r.imu_device, r.gnss_device, r.gnss_without_fix
     );
+    if let Some(path) = &args.compensate {
+        println!(
+            "IMU rates thermally compensated with model {} before the filter",
+            path.display()
+        );
+    }
     let (week, sow_offset) = r.gps_time.unwrap_or((0, 0.0));
     let axis = TimeAxis {
         week,

@@ -2,7 +2,7 @@
 //! against temperature with the order chosen from the data, hysteresis, warm-up, thermal
 //! lag, per-plateau noise terms), printed as a summary, and optionally written as JSON, as
 //! an HTML report section with plots, and as the compensation model (`--model`) that
-//! `allan` and `report` apply with `--compensate`.
+//! `allan`, `report`, `export` and `replay` apply with `--compensate`.
 
 use crate::allan::input::{
     open_file, read_axes, AxisSeries, DataKind, GapPolicy, SampleSource, Timing,

@@ -1,12 +1,14 @@
 //! Replay of a recorded or simulated session (`imulab::store`): streams one IMU's rows
 //! block by block through the navigator with one GNSS receiver's fixes, and reads the truth
 //! trajectory of simulated sessions for the error statistics. Times are seconds since the
-//! first IMU row (host monotonic clock).
+//! first IMU row (host monotonic clock). A thermal model, when given, removes its bias(T)
+//! from the IMU rows (by their `temp`) before the filter sees them.
 
 use crate::fusion::config::FusionConfig;
 use crate::fusion::mechanisation::{ImuInput, NavState};
 use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions, ReplayResult};
 use crate::store::{DeviceKind, GnssRecord, Session, StoreError, TimeRange};
+use crate::thermal::model::{require_session_temperature, ImuCompensator, ThermalModel};
 use anyhow::{bail, Context};
 use imulab_drivers::types::FixType;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -39,6 +41,8 @@ pub struct SessionReplay {
     pub gps_time: Option<(u32, f64)>,
     /// Unreadable files and blocks, one line each.
     pub problems: Vec<String>,
+    /// Thermal compensation warnings (samples outside the model's range), one line each.
+    pub compensation_warnings: Vec<String>,
 }
 
 /// The device of `kind` named `wanted`, or the only one of that kind.
@@ -120,18 +124,28 @@ pub fn simulated_imu_preset(session: &Session, device: &str) -> Option<String> {
 }
 
 /// Replays `session` with IMU `imu` and receiver `gnss` (each may be omitted when the session
-/// has only one). Outage windows in `options` are in seconds since the first IMU row.
+/// has only one). Outage windows in `options` are in seconds since the first IMU row;
+/// `thermal`, when given, compensates the IMU rows (see [`ImuCompensator`]).
 pub fn replay_session(
     session: &Session,
     imu: Option<&str>,
     gnss: Option<&str>,
     config: &FusionConfig,
     options: ReplayOptions,
+    thermal: Option<&ThermalModel>,
 ) -> anyhow::Result<SessionReplay> {
     let mut out = SessionReplay {
         imu_device: pick(session, DeviceKind::Imu, imu)?,
         gnss_device: pick(session, DeviceKind::Gnss, gnss)?,
         ..SessionReplay::default()
+    };
+    let mut compensator = match thermal {
+        Some(model) => {
+            let c = ImuCompensator::new(model, &out.imu_device)?;
+            require_session_temperature(session, &out.imu_device)?;
+            Some(c)
+        }
+        None => None,
     };
     let t0 = session
         .stream_summary(&crate::store::layout::imu_path(&out.imu_device))
@@ -183,42 +197,66 @@ pub fn replay_session(
 
     out.result = match config.states {
         21 => stream::<21>(
-            session,
-            &out.imu_device,
-            t0,
+            ImuStream {
+                session,
+                device: &out.imu_device,
+                t0,
+                thermal: compensator.as_mut(),
+            },
             config,
             options,
             &fixes,
             &mut out.problems,
         )?,
         _ => stream::<15>(
-            session,
-            &out.imu_device,
-            t0,
+            ImuStream {
+                session,
+                device: &out.imu_device,
+                t0,
+                thermal: compensator.as_mut(),
+            },
             config,
             options,
             &fixes,
             &mut out.problems,
         )?,
     };
+    out.compensation_warnings = compensator.map(|c| c.warnings()).unwrap_or_default();
     Ok(out)
 }
 
-fn stream<const N: usize>(
-    session: &Session,
-    imu: &str,
+/// The IMU rows a replay streams: the session's device, its time zero and the thermal
+/// compensation applied to each block.
+struct ImuStream<'a> {
+    session: &'a Session,
+    device: &'a str,
     t0: i64,
+    thermal: Option<&'a mut ImuCompensator>,
+}
+
+fn stream<const N: usize>(
+    imu: ImuStream<'_>,
     config: &FusionConfig,
     options: ReplayOptions,
     fixes: &[GnssObservation],
     problems: &mut Vec<String>,
 ) -> anyhow::Result<ReplayResult> {
+    let ImuStream {
+        session,
+        device: imu,
+        t0,
+        mut thermal,
+    } = imu;
     let mut nav = Navigator::<N>::new(config, options);
     let mut next_fix = fixes.iter().peekable();
     for block in readable(
         session.imu_blocks(imu, TimeRange::all(), BLOCK_ROWS)?,
         problems,
     ) {
+        let mut block = block;
+        if let Some(c) = thermal.as_deref_mut() {
+            c.compensate_block(&mut block.gyro, &mut block.accel, &block.temp);
+        }
         for i in 0..block.len() {
             let t = seconds(block.t_mono_ns[i], t0);
             while let Some(f) = next_fix.next_if(|f| f.t_s < t) {

@@ -1,7 +1,8 @@
 //! The thermal compensation model: a versioned JSON document of bias-against-temperature
 //! polynomials per device and axis with their valid temperature range (format in
 //! docs/thermal.md), and [`AxisModel::compensate`], the one place it is applied (`allan
-//! --compensate` and `report --compensate` call it through [`ThermalModel::compensate_series`]).
+//! --compensate` and `report --compensate` call it through [`ThermalModel::compensate_series`],
+//! `export --compensate` and `replay --compensate` through [`ImuCompensator`] block by block).
 //!
 //! Outside the valid range the correction is held at its value at the nearest end of the
 //! range, never extrapolated, and the samples so treated are counted for a warning.
@@ -243,6 +244,121 @@ impl ThermalModel {
             .axis(device, &series.name)
             .map_or([f64::NAN; 2], |m| m.valid_range_c);
         Ok((total, total.warning(device, &series.name, range)))
+    }
+}
+
+/// Errors unless IMU `device` of `session` logged its temperature (some finite `temp`):
+/// compensation needs the sensor's own temperature per sample.
+pub fn require_session_temperature(session: &crate::store::Session, device: &str) -> Result<()> {
+    for block in session.imu_blocks(device, crate::store::TimeRange::all(), 65_536)? {
+        if block?.temp.iter().any(|t| t.is_finite()) {
+            return Ok(());
+        }
+    }
+    bail!(
+        "{}: IMU `{device}` has no temperature (its `temp` column is empty or all NaN); --compensate needs the sensor's own temperature per sample",
+        session.dir().display()
+    )
+}
+
+/// The six IMU channels of a session block, in the order of `gyro` then `accel`.
+pub const IMU_AXES: [&str; 6] = [
+    "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z",
+];
+
+/// One session IMU's model axes, applied block by block to streamed rows (`export
+/// --compensate`, `replay --compensate`); counts accumulate over the blocks for the warning.
+///
+/// It removes the change of bias with temperature, bias(T) − bias(reference_c): the
+/// constant term is left in the rates, because a model fitted on a static bench run carries
+/// gravity and the Earth's rate in it, which a navigation filter must see (and it estimates a
+/// constant bias itself).
+#[derive(Debug, Clone)]
+pub struct ImuCompensator {
+    device: String,
+    /// Per channel of [`IMU_AXES`]: its model and what was done so far.
+    axes: Vec<Option<(AxisModel, Compensation)>>,
+}
+
+impl ImuCompensator {
+    /// The channels of [`IMU_AXES`] the model has for `device`; errors when the model has no
+    /// such device or names an axis a session IMU does not have.
+    pub fn new(model: &ThermalModel, device: &str) -> Result<ImuCompensator> {
+        let Some(d) = model.devices.iter().find(|d| d.device == device) else {
+            let names: Vec<&str> = model.devices.iter().map(|d| d.device.as_str()).collect();
+            bail!(
+                "the thermal model has no device `{device}` (it has: {}); fit one on this device with `imulab thermal --model`",
+                names.join(", ")
+            );
+        };
+        if let Some(a) = d.axes.iter().find(|a| !IMU_AXES.contains(&a.axis.as_str())) {
+            bail!(
+                "the thermal model's device `{device}` has an axis `{}`; a session IMU has {}",
+                a.axis,
+                IMU_AXES.join(", ")
+            );
+        }
+        let axes = IMU_AXES
+            .iter()
+            .map(|name| {
+                d.axes.iter().find(|a| a.axis == *name).map(|a| {
+                    let mut thermal_part = a.clone();
+                    thermal_part.coefficients[0] = 0.0;
+                    (thermal_part, Compensation::default())
+                })
+            })
+            .collect();
+        Ok(ImuCompensator {
+            device: device.to_string(),
+            axes,
+        })
+    }
+
+    /// The channels the model corrects.
+    pub fn axes(&self) -> Vec<&str> {
+        IMU_AXES
+            .iter()
+            .zip(&self.axes)
+            .filter(|(_, a)| a.is_some())
+            .map(|(n, _)| *n)
+            .collect()
+    }
+
+    /// Subtracts the modelled bias (SI units: rad/s, m/s²) from one block's rows.
+    pub fn compensate_block(
+        &mut self,
+        gyro: &mut [[f64; 3]],
+        accel: &mut [[f64; 3]],
+        temp: &[f64],
+    ) {
+        let temperature: Vec<f32> = temp.iter().map(|&t| t as f32).collect();
+        let mut column = Vec::with_capacity(temp.len());
+        for (k, axis) in self.axes.iter_mut().enumerate() {
+            let Some((model, total)) = axis else { continue };
+            let rows: &mut [[f64; 3]] = if k < 3 { gyro } else { accel };
+            column.clear();
+            column.extend(rows.iter().map(|r| r[k % 3]));
+            let c = model.compensate(&mut column, &temperature, 1.0);
+            for (r, v) in rows.iter_mut().zip(&column) {
+                r[k % 3] = *v;
+            }
+            total.samples += c.samples;
+            total.below_range += c.below_range;
+            total.above_range += c.above_range;
+            total.no_temperature += c.no_temperature;
+        }
+    }
+
+    /// The warnings to show after the last block, one per channel that needs one.
+    pub fn warnings(&self) -> Vec<String> {
+        IMU_AXES
+            .iter()
+            .zip(&self.axes)
+            .filter_map(|(name, a)| {
+                let (m, c) = a.as_ref()?;
+                c.warning(&self.device, name, m.valid_range_c)
+            })
+            .collect()
     }
 }
 

@@ -37,7 +37,8 @@ fn short_drive_session(dir: &Path, preset: &str) -> PathBuf {
 
 fn replay_with(session_dir: &Path, config: &FusionConfig) -> ErrorSummary {
     let session = Session::open(session_dir).expect("open");
-    let r = replay_session(&session, None, None, config, ReplayOptions::default()).expect("replay");
+    let r = replay_session(&session, None, None, config, ReplayOptions::default(), None)
+        .expect("replay");
     summarise(&errors(&r.result.filtered, |t| truth_at(&r.truth, t)), &[])
 }
 

@@ -1,6 +1,7 @@
 //! `imulab thermal` end to end: a simulated chamber run with known coefficients is
 //! characterised and the figures checked against the scene; bad temperature input gets
-//! its message; the exported model compensates `imulab allan`.
+//! its message; the exported model compensates `imulab allan` and `imulab export`, and a
+//! model of the drive scene's tempcos shrinks `imulab replay`'s outage drift.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -162,6 +163,179 @@ fn recovers_the_scene_and_the_model_compensates_allan() {
     let before = long_tau(&[]);
     let after = long_tau(&["--compensate", model.to_str().unwrap()]);
     assert!(after < before / 10.0, "before {before}, after {after}");
+
+    // The compensated export's accel_x no longer trends with temperature.
+    let slope = |extra: &[&str]| -> (f64, String) {
+        let csv = dir.path().join("export.csv");
+        let mut args = vec![
+            "export",
+            session.to_str().unwrap(),
+            "--device",
+            "dut",
+            "-o",
+            csv.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let out = imulab(&args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let first = text.lines().next().unwrap().to_string();
+        let header: Vec<&str> = text
+            .lines()
+            .find(|l| !l.starts_with('#'))
+            .unwrap()
+            .split(',')
+            .collect();
+        let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
+        let (ax, temp) = (col("accel_x"), col("temp"));
+        // After the first soak (warm-up settled): least-squares slope of accel_x on temp.
+        let points: Vec<(f64, f64)> = text
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .skip(1 + 1200 * 20)
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (f[temp].parse().unwrap(), f[ax].parse().unwrap())
+            })
+            .collect();
+        let n = points.len() as f64;
+        let (mt, ma) = points
+            .iter()
+            .fold((0.0, 0.0), |(a, b), (t, v)| (a + t / n, b + v / n));
+        let (sta, stt) = points.iter().fold((0.0, 0.0), |(a, b), (t, v)| {
+            (a + (t - mt) * (v - ma), b + (t - mt) * (t - mt))
+        });
+        (sta / stt / 9.806_65e-3, first)
+    };
+    let (raw, raw_first) = slope(&[]);
+    let (flat, first) = slope(&["--compensate", model.to_str().unwrap()]);
+    assert!(raw_first.starts_with("t_mono_ns"), "{raw_first}");
+    assert!(
+        first.starts_with("# accel_x") && first.contains("compensated with thermal model"),
+        "{first}"
+    );
+    // The scene: 0.8 mg/°C plus 0.004 mg/°C² about 25 °C, symmetric over 5..45 °C.
+    assert!(within(raw, 0.8, 0.1), "uncompensated slope {raw} mg/°C");
+    assert!(flat.abs() < 0.02, "compensated slope {flat} mg/°C");
+
+    // A model of another device or with an axis a session IMU does not have: one line.
+    let doc = std::fs::read_to_string(&model).unwrap();
+    for (edited, wanted) in [
+        (doc.replace("\"dut\"", "\"other\""), "no device `dut`"),
+        (doc.replace("\"accel_x\"", "\"mag_x\""), "axis `mag_x`"),
+    ] {
+        let bad = dir.path().join("bad-model.json");
+        std::fs::write(&bad, edited).unwrap();
+        let out = imulab(&[
+            "export",
+            session.to_str().unwrap(),
+            "--device",
+            "dut",
+            "--compensate",
+            bad.to_str().unwrap(),
+        ]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && stderr.contains(wanted), "{stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
+}
+
+/// Mean of the `max horizontal drift X m` lines of a replay's output.
+fn mean_outage_drift(stdout: &str) -> f64 {
+    let drifts: Vec<f64> = stdout
+        .lines()
+        .filter_map(|l| l.split("max horizontal drift ").nth(1))
+        .map(|d| d.trim_end_matches(" m").parse().unwrap())
+        .collect();
+    assert_eq!(drifts.len(), 4, "{stdout}");
+    drifts.iter().sum::<f64>() / drifts.len() as f64
+}
+
+#[test]
+fn compensation_shrinks_the_outage_drift_of_a_thermal_drive() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/fixtures/scenes/thermal_drive.toml"
+    );
+    let session = dir.path().join("session");
+    let out = imulab(&["sim", scene, "-o", session.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The scene's own tempcos (°/h/°C, mg/°C about 25 °C) as a model.
+    let (dph, mg) = (std::f64::consts::PI / 180.0 / 3600.0, 9.806_65e-3);
+    let axes: Vec<serde_json::Value> = [
+        ("gyro_x", "rad/s", 15.0 * dph),
+        ("gyro_y", "rad/s", -12.0 * dph),
+        ("gyro_z", "rad/s", 20.0 * dph),
+        ("accel_x", "m/s^2", 0.5 * mg),
+        ("accel_y", "m/s^2", -0.4 * mg),
+        ("accel_z", "m/s^2", 0.3 * mg),
+    ]
+    .iter()
+    .map(|(axis, unit, c1)| {
+        serde_json::json!({"axis": axis, "unit": unit, "reference_c": 25.0,
+            "valid_range_c": [10.0, 50.0], "coefficients": [0.0, c1], "ci95": [0.0, 0.0]})
+    })
+    .collect();
+    let model = dir.path().join("model.json");
+    let doc = serde_json::json!({"format": "imulab-thermal-model", "version": 1,
+        "generator": "test", "source": "thermal_drive.toml", "temperature": "sensor",
+        "devices": [{"device": "imu", "axes": axes}]});
+    std::fs::write(&model, doc.to_string()).unwrap();
+    let replay = |extra: &[&str]| -> String {
+        let out_dir = dir.path().join("replay");
+        let mut args = vec![
+            "replay",
+            session.to_str().unwrap(),
+            "--outages",
+            "every:120:30",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let out = imulab(&args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let before = mean_outage_drift(&replay(&[]));
+    let compensated = replay(&["--compensate", model.to_str().unwrap()]);
+    assert!(
+        compensated.contains("thermally compensated"),
+        "{compensated}"
+    );
+    let after = mean_outage_drift(&compensated);
+    assert!(
+        after < before / 3.0,
+        "mean outage drift {before:.2} m without, {after:.2} m with compensation"
+    );
+
+    let bad = dir.path().join("other.json");
+    std::fs::write(&bad, doc.to_string().replace("\"imu\"", "\"imu9\"")).unwrap();
+    let out = imulab(&[
+        "replay",
+        session.to_str().unwrap(),
+        "--compensate",
+        bad.to_str().unwrap(),
+        "--out",
+        dir.path().join("bad").to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("no device `imu`"),
+        "{stderr}"
+    );
 }
 
 fn write_csv(dir: &Path, name: &str, temps: impl Fn(usize) -> String) -> std::path::PathBuf {
