@@ -1,6 +1,8 @@
 //! Run time against error of the GNSS/INS replay (`cargo bench --bench fusion`): one
 //! simulated MEMS drive, GNSS withheld for 60 s every 300 s, and the options of issue 8
 //! varied one at a time; then the speed of a 1 h, 200 Hz IMU + 10 Hz GNSS replay.
+//! Then imulab (NHC off and on) against KF-GINS on the same exported KF-GINS files (skipped
+//! when the KF-GINS binary is absent; `-- kf-gins` runs only that part).
 //! Prints markdown tables (copied into docs/bench/fusion.md). Run times are the thread's CPU
 //! time (CLOCK_THREAD_CPUTIME_ID), so a busy shared machine does not inflate them.
 
@@ -162,6 +164,11 @@ fn run(
 }
 
 fn main() {
+    // `cargo bench --bench fusion -- kf-gins` runs only the KF-GINS comparison.
+    if std::env::args().any(|a| a == "kf-gins") {
+        kf_gins_anchor();
+        return;
+    }
     let mut e = mems_errors(11);
     e.gyro_scale = Vector3::zeros();
     e.accel_scale = Vector3::zeros();
@@ -296,4 +303,230 @@ fn main() {
         assert!(r.stats.gnss_used > 0);
     }
     println!("\nSpeed: {hours:.2} h of 200 Hz IMU ({} samples) + 10 Hz GNSS ({} fixes), 15 states, one core: best of 3 = {best:.3} s CPU", d.imu.len(), d.gnss.len());
+    kf_gins_anchor();
+}
+
+/// Where the KF-GINS binary is: `KF_GINS_BIN`, else the build under /work/peers.
+fn kf_gins_binary() -> Option<std::path::PathBuf> {
+    let path = std::env::var_os("KF_GINS_BIN")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| "/work/peers/KF-GINS/bin/KF-GINS".into());
+    path.is_file().then_some(path)
+}
+
+/// The true state nearest to `t` (within 0.1 ms: KF-GINS prints times rounded).
+fn truth_near(d: &SimData, t: f64) -> Option<NavState> {
+    let k = (t * d.imu_rate).round();
+    if k < 0.0 || (k / d.imu_rate - t).abs() > 1e-4 {
+        return None;
+    }
+    d.truth.get(k as usize).map(NavState::from)
+}
+
+/// Writes one simulated drive in KF-GINS's input formats under `dir`: IMU increments, the
+/// GNSS fixes with every epoch inside `outages` removed (KF-GINS has no switch to withhold
+/// GNSS), the truth `.nav` and a configuration naming the filter's noise model `model`.
+fn write_kf_gins_inputs(
+    dir: &std::path::Path,
+    d: &SimData,
+    model: &imulab::fusion::config::ImuModel,
+    outages: &[(f64, f64)],
+) -> std::io::Result<std::path::PathBuf> {
+    use std::io::Write;
+    std::fs::create_dir_all(dir)?;
+    let mut imu = std::io::BufWriter::new(std::fs::File::create(dir.join("imu.txt"))?);
+    for s in &d.imu {
+        if let ImuInput::Increments {
+            t_s, dtheta, dvel, ..
+        } = *s
+        {
+            writeln!(
+                imu,
+                "{t_s:.6} {:.12e} {:.12e} {:.12e} {:.12e} {:.12e} {:.12e}",
+                dtheta.x, dtheta.y, dtheta.z, dvel.x, dvel.y, dvel.z
+            )?;
+        }
+    }
+    imu.flush()?;
+    let mut gnss = std::io::BufWriter::new(std::fs::File::create(dir.join("gnss.txt"))?);
+    for g in d
+        .gnss
+        .iter()
+        .filter(|g| !outages.iter().any(|&(a, b)| g.t_s >= a && g.t_s < b))
+    {
+        writeln!(
+            gnss,
+            "{:.6} {:.10} {:.10} {:.4} {:.4} {:.4} {:.4}",
+            g.t_s,
+            g.lat_rad.to_degrees(),
+            g.lon_rad.to_degrees(),
+            g.height_m,
+            g.sigma_ned_m.x,
+            g.sigma_ned_m.y,
+            g.sigma_ned_m.z
+        )?;
+    }
+    gnss.flush()?;
+    let mut truth = std::io::BufWriter::new(std::fs::File::create(dir.join("truth.nav"))?);
+    for t in &d.truth {
+        writeln!(
+            truth,
+            "{}",
+            imulab::fusion::kfgins::format_nav_line(0, &NavState::from(t))
+        )?;
+    }
+    truth.flush()?;
+    // KF-GINS starts at the first IMU row, so the initial state is the truth there.
+    let t0 = d.imu[0].t_s();
+    let init = truth_near(d, t0).expect("truth at the first IMU epoch");
+    let (roll, pitch, yaw) = init.quat_nb.euler_angles();
+    let to_deg_h = |rad_s: f64| rad_s.to_degrees() * 3600.0;
+    let v3 = |x: f64| format!("[{x:.9}, {x:.9}, {x:.9}]");
+    let yaml = format!(
+        "imupath: \"{imu}\"\ngnsspath: \"{gnss}\"\noutputpath: \"{out}\"\nimudatalen: 7\nimudatarate: {rate}\n\
+starttime: {t0:.6}\nendtime: -1\n\
+initpos: [{lat:.10}, {lon:.10}, {h:.4}]\ninitvel: [{vn:.6}, {ve:.6}, {vd:.6}]\ninitatt: [{r:.8}, {p:.8}, {y:.8}]\n\
+initgyrbias: [0, 0, 0]\ninitaccbias: [0, 0, 0]\ninitgyrscale: [0, 0, 0]\ninitaccscale: [0, 0, 0]\n\
+initposstd: [0.1, 0.1, 0.2]\ninitvelstd: [0.05, 0.05, 0.05]\ninitattstd: [0.5, 0.5, 1.0]\n\
+imunoise:\n  arw: {arw}\n  vrw: {vrw}\n  gbstd: {gb}\n  abstd: {ab}\n  gsstd: {gs}\n  asstd: {as_}\n  corrtime: {ct:.6}\n\
+antlever: [{l0}, {l1}, {l2}]\n",
+        imu = dir.join("imu.txt").display(),
+        gnss = dir.join("gnss.txt").display(),
+        out = dir.display(),
+        rate = d.imu_rate,
+        lat = init.lat_rad.to_degrees(),
+        lon = init.lon_rad.to_degrees(),
+        h = init.height_m,
+        vn = init.vel_ned.x,
+        ve = init.vel_ned.y,
+        vd = init.vel_ned.z,
+        r = roll.to_degrees(),
+        p = pitch.to_degrees(),
+        y = yaw.to_degrees().rem_euclid(360.0),
+        arw = v3(model.arw_rad_per_sqrt_s.to_degrees() * 60.0),
+        vrw = v3(model.vrw_mps_per_sqrt_s * 60.0),
+        gb = v3(to_deg_h(model.gyro_bias.sigma)),
+        ab = v3(model.accel_bias.sigma / 1e-5),
+        gs = v3(model.gyro_scale.sigma * 1e6),
+        as_ = v3(model.accel_scale.sigma * 1e6),
+        ct = model.gyro_bias.tau_s / 3600.0,
+        l0 = LEVER[0],
+        l1 = LEVER[1],
+        l2 = LEVER[2],
+    );
+    let path = dir.join("kf-gins.yaml");
+    std::fs::write(&path, yaml)?;
+    Ok(path)
+}
+
+/// RMS of the per-outage max horizontal drift and the GNSS-on horizontal RMS of a
+/// trajectory against the drive's truth.
+fn drift_metrics(d: &SimData, sol: &[NavState], outages: &[(f64, f64)]) -> (f64, f64, usize) {
+    let solutions: Vec<imulab::fusion::navigator::NavSolution> = sol
+        .iter()
+        .map(|nav| imulab::fusion::navigator::NavSolution {
+            nav: *nav,
+            sensors: Default::default(),
+            cov_nav: nalgebra::SMatrix::identity(),
+            sigma_sensors: [Vector3::repeat(f64::NAN); 4],
+        })
+        .collect();
+    let s = summarise(&errors(&solutions, |t| truth_near(d, t)), outages);
+    let n = s.outages.len();
+    let rms = (s
+        .outages
+        .iter()
+        .map(|o| o.max_horizontal_m.powi(2))
+        .sum::<f64>()
+        / n.max(1) as f64)
+        .sqrt();
+    (rms, s.horizontal_gnss.rms, n)
+}
+
+/// imulab (NHC off and on) against KF-GINS on the same exported files, per IMU grade.
+fn kf_gins_anchor() {
+    let Some(bin) = kf_gins_binary() else {
+        println!("\nKF-GINS comparison skipped: no KF-GINS binary (set KF_GINS_BIN or build it at /work/peers/KF-GINS/bin/KF-GINS)");
+        return;
+    };
+    println!("\nAgainst KF-GINS ({}): 30 min drive, 200 Hz IMU, 10 Hz GNSS position σ 0.3/0.6 m, GNSS removed from the file for 60 s every 180 s\n", bin.display());
+    println!("| IMU grade | filter | RMS of per-outage max horiz. drift, m | GNSS-on horiz. RMS, m | outages |");
+    println!("|---|---|---:|---:|---:|");
+    for (k, grade) in ["industrial", "tactical"].into_iter().enumerate() {
+        let model = imulab::fusion::noise::model_from_preset(grade)
+            .expect("preset")
+            .model;
+        let mut rng_errors = mems_errors(21 + k as u64);
+        let base = FusionConfig::default().imu;
+        let ratio = |x: f64, y: f64| if y > 0.0 { x / y } else { 0.0 };
+        rng_errors.arw = model.arw_rad_per_sqrt_s;
+        rng_errors.vrw = model.vrw_mps_per_sqrt_s;
+        rng_errors.gyro_bias *= ratio(model.gyro_bias.sigma, base.gyro_bias.sigma);
+        rng_errors.accel_bias *= ratio(model.accel_bias.sigma, base.accel_bias.sigma);
+        rng_errors.gyro_scale *= ratio(model.gyro_scale.sigma, base.gyro_scale.sigma);
+        rng_errors.accel_scale *= ratio(model.accel_scale.sigma, base.accel_scale.sigma);
+        let d = simulate(
+            &drive(30.0),
+            200.0,
+            20,
+            &rng_errors,
+            (0.3, 0.6, 0.05),
+            Vector3::from(LEVER),
+            31 + k as u64,
+        );
+        let end = d.truth.last().map_or(0.0, |t| t.t_s);
+        let outages: Vec<(f64, f64)> = (0..)
+            .map(|i| 120.0 + 180.0 * i as f64)
+            .take_while(|&a| a + 60.0 < end)
+            .map(|a| (a, a + 60.0))
+            .collect();
+        let dir = std::env::temp_dir().join(format!("imulab-kf-gins-{grade}"));
+        let yaml = write_kf_gins_inputs(&dir, &d, &model, &outages).expect("write KF-GINS files");
+        let status = std::process::Command::new(&bin)
+            .arg(&yaml)
+            .stdout(std::process::Stdio::null())
+            .status();
+        let theirs = match status {
+            Ok(s) if s.success() => {
+                imulab::fusion::kfgins::read_nav(&dir.join("KF_GINS_Navresult.nav"))
+                    .map(|rows| rows.into_iter().map(|r| r.nav).collect::<Vec<_>>())
+                    .map_err(|e| e.to_string())
+            }
+            Ok(s) => Err(format!("exited with {s}")),
+            Err(e) => Err(e.to_string()),
+        };
+        let config = imulab::fusion::kfgins::KfGinsConfig::from_file(&yaml, &dir)
+            .expect("read back the exported configuration");
+        let mut rows = Vec::new();
+        for nhc in [false, true] {
+            let mut fusion = config.fusion_config();
+            fusion.nhc.enabled = nhc;
+            let r = imulab::fusion::kfgins::replay_files_with(&config, &fusion, &[], false)
+                .expect("replay the exported files");
+            let nav: Vec<NavState> = r.filtered.iter().map(|s| s.nav).collect();
+            rows.push((
+                if nhc {
+                    "imulab, NHC on"
+                } else {
+                    "imulab, NHC off"
+                },
+                drift_metrics(&d, &nav, &outages),
+            ));
+        }
+        match theirs {
+            Ok(nav) => rows.push(("KF-GINS", drift_metrics(&d, &nav, &outages))),
+            Err(e) => println!("| {grade} | KF-GINS failed: {e} | | | |"),
+        }
+        for (name, (drift, gnss_rms, n)) in &rows {
+            println!("| {grade} | {name} | {drift:.2} | {gnss_rms:.3} | {n} |");
+        }
+        if let Some((_, (kf_drift, kf_rms, _))) = rows.iter().find(|r| r.0 == "KF-GINS") {
+            let (ours_drift, ours_rms, _) = rows[1].1;
+            println!(
+                "| {grade} | ratio NHC on / KF-GINS | {:.2} | {:.2} | |",
+                ours_drift / kf_drift,
+                ours_rms / kf_rms
+            );
+        }
+    }
 }

@@ -441,6 +441,13 @@ impl<const N: usize> Navigator<N> {
             UpdateOutcome::Applied { .. } => {
                 stats.gnss_used += 1;
                 self.last_used_fix_t = Some(fix.t_s);
+                // An output already written at this IMU epoch predates the fix: replace it
+                // with the updated solution, so the epoch reports what is known there.
+                if let Some(last) = self.result.filtered.last_mut() {
+                    if last.nav.t_s == ins.nav.t_s {
+                        *last = solution(ins);
+                    }
+                }
             }
             UpdateOutcome::Gated { .. } => stats.gnss_gated += 1,
             UpdateOutcome::Rejected => {}
