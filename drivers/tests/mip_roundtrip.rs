@@ -5,11 +5,11 @@
 
 mod imucan_support;
 
-use imucan_support::{assert_every_split, decode_all};
+use imucan_support::{assert_every_split, decode_all, stream_with_garbage};
 use imulab_drivers::codec::mip::{
     field, MipDecoder, MipEncoder, MipGpsTime, MipImuData, MipPacket, STANDARD_GRAVITY,
 };
-use imulab_drivers::codec::{detect, Decoder, Encoder, Protocol};
+use imulab_drivers::codec::{detect, Decoder, Protocol};
 use proptest::prelude::*;
 
 fn packet(set: u8, fields: &[(u8, Vec<u8>)]) -> Vec<u8> {
@@ -185,16 +185,7 @@ proptest! {
         items in proptest::collection::vec((arb_garbage(), arb_packet()), 0..4),
         tail in arb_garbage(),
     ) {
-        let mut bytes = Vec::new();
-        let mut expected = Vec::new();
-        let mut garbage_len = tail.len();
-        for (garbage, p) in &items {
-            bytes.extend_from_slice(garbage);
-            garbage_len += garbage.len();
-            MipEncoder.encode(p, &mut bytes).expect("valid");
-            expected.push(p.clone());
-        }
-        bytes.extend_from_slice(&tail);
+        let (bytes, expected, garbage_len) = stream_with_garbage(&MipEncoder, &items, &tail);
         let d = assert_every_split(MipDecoder::new, &bytes, &expected);
         let s = d.stats();
         prop_assert_eq!(s.frames_ok, expected.len() as u64);

@@ -6,7 +6,7 @@
 
 mod imucan_support;
 
-use imucan_support::{assert_every_split, decode_all};
+use imucan_support::{assert_every_split, decode_all, stream_with_garbage};
 use imulab_drivers::codec::vectornav::{
     attitude, common, imu, time, VnAscii, VnAsciiKind, VnBinary, VnChecksum, VnDecoder, VnEncoder,
     VnFrame, VnOutputFields, VnValues,
@@ -355,16 +355,7 @@ proptest! {
         items in proptest::collection::vec((arb_garbage(), prop_oneof![arb_binary(), arb_ascii()]), 0..4),
         tail in arb_garbage(),
     ) {
-        let mut bytes = Vec::new();
-        let mut expected = Vec::new();
-        let mut garbage_len = tail.len();
-        for (garbage, frame) in &items {
-            bytes.extend_from_slice(garbage);
-            garbage_len += garbage.len();
-            VnEncoder.encode(frame, &mut bytes).expect("valid");
-            expected.push(frame.clone());
-        }
-        bytes.extend_from_slice(&tail);
+        let (bytes, expected, garbage_len) = stream_with_garbage(&VnEncoder, &items, &tail);
         let d = assert_every_split(VnDecoder::new, &bytes, &expected);
         let s = d.stats();
         prop_assert_eq!(s.frames_ok, expected.len() as u64);

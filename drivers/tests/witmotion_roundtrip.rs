@@ -3,7 +3,7 @@
 
 mod imucan_support;
 
-use imucan_support::{assert_every_split, decode_all};
+use imucan_support::{assert_every_split, decode_all, stream_with_garbage};
 use imulab_drivers::codec::witmotion::{
     WitAssembler, WitDecoder, WitEncoder, WitImuDecoder, WitPacket,
 };
@@ -351,16 +351,7 @@ proptest! {
         items in proptest::collection::vec((arb_garbage(), arb_packet()), 0..8),
         tail in arb_garbage(),
     ) {
-        let mut bytes = Vec::new();
-        let mut expected = Vec::new();
-        let mut garbage_len = tail.len();
-        for (garbage, packet) in &items {
-            bytes.extend_from_slice(garbage);
-            garbage_len += garbage.len();
-            WitEncoder.encode(packet, &mut bytes).expect("valid");
-            expected.push(*packet);
-        }
-        bytes.extend_from_slice(&tail);
+        let (bytes, expected, garbage_len) = stream_with_garbage(&WitEncoder, &items, &tail);
         let d = assert_every_split(WitDecoder::new, &bytes, &expected);
         let s = d.stats();
         prop_assert_eq!(s.frames_ok, expected.len() as u64);

@@ -4,7 +4,7 @@
 
 mod imucan_support;
 
-use imucan_support::{assert_every_split, decode_all};
+use imucan_support::{assert_every_split, decode_all, stream_with_garbage};
 use imulab_drivers::codec::xbus::{
     data_id, MtData2, XbusDecoder, XbusEncoder, XbusMessage, XbusValue,
 };
@@ -232,16 +232,7 @@ proptest! {
         items in proptest::collection::vec((arb_garbage(), arb_message()), 0..4),
         tail in arb_garbage(),
     ) {
-        let mut bytes = Vec::new();
-        let mut expected = Vec::new();
-        let mut garbage_len = tail.len();
-        for (garbage, message) in &items {
-            bytes.extend_from_slice(garbage);
-            garbage_len += garbage.len();
-            XbusEncoder.encode(message, &mut bytes).expect("valid");
-            expected.push(message.clone());
-        }
-        bytes.extend_from_slice(&tail);
+        let (bytes, expected, garbage_len) = stream_with_garbage(&XbusEncoder, &items, &tail);
         let d = assert_every_split(XbusDecoder::new, &bytes, &expected);
         let s = d.stats();
         prop_assert_eq!(s.frames_ok, expected.len() as u64);

@@ -2,7 +2,7 @@
 //!
 //! - [`polyfit`]: bias against temperature, order from the data, 95 % intervals and bands.
 //! - [`analysis`]: one axis (fit, hysteresis, warm-up, per-plateau noise) and the thermal lag.
-//! - [`model`]: the versioned compensation model (JSON) and the one helper that applies it.
+//! - [`model`]: the versioned compensation model (JSON) and the one function that applies it.
 //! - [`plot`]: the report section's SVG plots; [`report`]: the JSON document, text and HTML.
 
 pub mod analysis;

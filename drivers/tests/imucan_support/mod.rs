@@ -1,9 +1,9 @@
-//! Helpers shared by the IMU/CAN codec tests: decode a byte stream split at every byte
-//! boundary and compare with the expected frames.
+//! Helpers shared by the IMU/CAN codec tests: build a stream of encoded frames between
+//! garbage, decode it split at every byte boundary and compare with the expected frames.
 
 #![allow(dead_code)]
 
-use imulab_drivers::codec::Decoder;
+use imulab_drivers::codec::{Decoder, Encoder};
 
 /// Pushes `bytes` in one go and polls until the decoder is empty.
 pub fn decode_all<D: Decoder>(decoder: &mut D, bytes: &[u8]) -> Vec<D::Frame> {
@@ -38,4 +38,27 @@ where
     assert_eq!(frames, expected, "byte-by-byte feed");
     let (_, decoder) = decode_split(make(), bytes, bytes.len());
     decoder
+}
+
+/// The stream of `items` (garbage, then one encoded frame each) followed by `tail`: its
+/// bytes, the frames in order, and how many of its bytes are garbage.
+pub fn stream_with_garbage<E>(
+    encoder: &E,
+    items: &[(Vec<u8>, E::Frame)],
+    tail: &[u8],
+) -> (Vec<u8>, Vec<E::Frame>, usize)
+where
+    E: Encoder,
+    E::Frame: Clone,
+{
+    let mut bytes = Vec::new();
+    let mut garbage_len = tail.len();
+    for (garbage, frame) in items {
+        bytes.extend_from_slice(garbage);
+        garbage_len += garbage.len();
+        encoder.encode(frame, &mut bytes).expect("valid");
+    }
+    bytes.extend_from_slice(tail);
+    let frames = items.iter().map(|(_, frame)| frame.clone()).collect();
+    (bytes, frames, garbage_len)
 }
