@@ -153,59 +153,8 @@ fn default_queue_capacity() -> usize {
     1024
 }
 
-/// Device protocols, named as in the codec table of the drivers crate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Protocol {
-    /// NMEA 0183 sentences.
-    Nmea,
-    /// u-blox UBX binary.
-    Ubx,
-    /// NMEA and UBX interleaved on one port (u-blox default output), merged into epochs.
-    Gnss,
-    /// WitMotion 0x55 frames.
-    Wit,
-    /// Xsens MTi Xbus MTData2.
-    Xbus,
-    /// VectorNav binary output packets and `$VN` ASCII sentences.
-    Vectornav,
-    /// MicroStrain MIP, IMU data set.
-    Mip,
-    /// ASCII/CSV lines from a home-built IMU.
-    Csv,
-    /// An IMU on a CAN bus, decoded through a DBC file.
-    CanDbc,
-    /// The IMU inside a u-blox dead-reckoning receiver (NEO-M8L, ZED-F9R): UBX ESF-RAW and
-    /// ESF-MEAS on a receiver port of its own, stored as an IMU device.
-    UbxEsf,
-}
-
-impl Protocol {
-    pub fn name(self) -> &'static str {
-        match self {
-            Protocol::Nmea => "nmea",
-            Protocol::Ubx => "ubx",
-            Protocol::Gnss => "gnss",
-            Protocol::Wit => "wit",
-            Protocol::Xbus => "xbus",
-            Protocol::Vectornav => "vectornav",
-            Protocol::Mip => "mip",
-            Protocol::Csv => "csv",
-            Protocol::CanDbc => "can-dbc",
-            Protocol::UbxEsf => "ubx-esf",
-        }
-    }
-
-    /// True for protocols that arrive on a CAN bus (SocketCAN or slcan) rather than a byte stream.
-    pub fn is_can(self) -> bool {
-        matches!(self, Protocol::CanDbc)
-    }
-
-    /// True for receivers (their frames are GNSS fixes); false for IMUs.
-    pub fn is_gnss(self) -> bool {
-        matches!(self, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
-    }
-}
+/// Device protocols: the rows of the drivers' protocol table, by their names there.
+pub use imulab_drivers::codec::Protocol;
 
 /// `[device.serial]`: a serial port (or a pty standing in for one).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -989,10 +938,10 @@ fn check_baud(baud: u32, path: &str, issues: &mut Issues) {
 }
 
 fn validate_dbc(d: &DeviceConfig, path: &str, issues: &mut Issues) {
-    match (&d.dbc, d.protocol.is_can()) {
+    match (&d.dbc, d.protocol.entry().dbc) {
         (None, true) => issues.add(
             format!("{path}.dbc"),
-            "protocol `can-dbc` needs a DBC mapping",
+            format!("protocol `{}` needs a DBC mapping", d.protocol.name()),
             "add dbc = { file = \"imu.dbc\", mapping = \"imu_mapping.toml\" }",
         ),
         (Some(_), false) => issues.add(
