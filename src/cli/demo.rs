@@ -37,7 +37,6 @@ use crate::sim::serve::{ServeOptions, ServeReport, Server, Speed, StartWhen};
 use crate::store::{EventKind, Session, TimeRange};
 use anyhow::{bail, Context};
 use clap::Parser;
-use imulab_drivers::codec::Protocol;
 use rayon::prelude::*;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -136,9 +135,10 @@ pub struct DemoArgs {
     /// (as fast as imulogd reads).
     #[arg(long, default_value = "20")]
     pub speed: Speed,
-    /// Output directory (created; must not hold a previous demo's session).
-    #[arg(long, default_value = "imulab-demo")]
-    pub out: PathBuf,
+    /// Output directory (created; must not hold a previous demo's session). Default: a new
+    /// `imulab-demo-<UTC date>-<time>` in the system's temporary directory, printed first.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Seed of the simulated sensors.
     #[arg(long, value_parser = clap::value_parser!(u64).range(0..=i64::MAX as u64))]
     pub seed: Option<u64>,
@@ -202,13 +202,25 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             args.minutes
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create the output directory {}", args.out.display()))?;
-    let out = args
-        .out
+    let chosen = args.out.is_some();
+    let out = args.out.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!(
+            "imulab-demo-{}",
+            chrono::Utc::now().format("%Y%m%d-%H%M%S")
+        ))
+    });
+    std::fs::create_dir_all(&out)
+        .with_context(|| format!("cannot create the output directory {}", out.display()))?;
+    let out = out
         .canonicalize()
-        .with_context(|| format!("{}", args.out.display()))?;
+        .with_context(|| format!("{}", out.display()))?;
     path_str(&out)?;
+    if !chosen {
+        eprintln!(
+            "imulab demo: writing to {} (--out to choose)",
+            out.display()
+        );
+    }
     let paths = Paths::new(&out);
     for p in [&paths.session, &paths.drive] {
         if p.exists() {
@@ -459,7 +471,7 @@ fn imulogd_config(paths: &Paths, server: &Server, link_factor: f64) -> anyhow::R
     for e in server.endpoints() {
         let mut serial = toml::Table::new();
         serial.insert("port".into(), path_str(e.path())?.into());
-        let gnss = is_gnss(e.protocol);
+        let gnss = e.protocol.is_gnss();
         serial.insert("baud".into(), (if gnss { 115_200 } else { 921_600 }).into());
         let mut d = toml::Table::new();
         d.insert("name".into(), e.sensor.clone().into());
@@ -742,11 +754,6 @@ struct Health {
     summary: String,
 }
 
-/// Receivers (their frames are GNSS epochs), as against IMUs.
-fn is_gnss(protocol: Protocol) -> bool {
-    matches!(protocol, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
-}
-
 /// Counts of a device's clock: intervals longer than 1.5 sample periods, and the span, s.
 fn device_clock(session: &Session, device: &str) -> anyhow::Result<(u64, f64)> {
     let period = 1.0 / IMU_HZ;
@@ -781,7 +788,7 @@ fn check_session(dir: &Path, report: &ServeReport) -> anyhow::Result<Health> {
     let mut clock_jumps = 0;
     let mut total_rows = 0;
     for s in &report.streams {
-        let gnss = is_gnss(s.protocol);
+        let gnss = s.protocol.is_gnss();
         let group = if gnss {
             crate::store::layout::gnss_path(&s.sensor)
         } else {
