@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug)]
 #[command(
     group = clap::ArgGroup::new("input").required(true).args(["session", "kf_gins"]),
-    after_help = "Examples:\n  imulab replay sessions/drive1 --outages every:300:60 --smooth\n  imulab replay sessions/drive1 --outages every:300:60 --compensate thermal-model.json\n  imulab replay --kf-gins dataset/kf-gins.yaml --truth dataset/truth.nav --out results/"
+    after_help = "Examples:\n  imulab replay sessions/drive1 --outages every:300:60 --smooth\n  imulab replay sessions/drive1 --outages every:300:60 --compensate thermal-model.json\n  imulab replay sessions/drive1 --outages every:300:60 --calibration imu-cal.json\n  imulab replay --kf-gins dataset/kf-gins.yaml --truth dataset/truth.nav --out results/"
 )]
 pub struct ReplayArgs {
     /// Session directory to replay.
@@ -76,6 +76,10 @@ pub struct ReplayArgs {
     /// session IMU's rates, by their `temp`, before the filter.
     #[arg(long, value_name = "MODEL", requires = "session")]
     pub compensate: Option<PathBuf>,
+    /// Calibration file (`imulab calibrate`, docs/calibration.md): correct the session IMU's
+    /// rates with its bias and scale/misalignment matrices, before --compensate and the filter.
+    #[arg(long, value_name = "FILE", requires = "session")]
+    pub calibration: Option<PathBuf>,
 }
 
 fn parse_pair(text: &str, what: &str) -> anyhow::Result<(f64, f64)> {
@@ -191,9 +195,18 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(crate::thermal::model::ThermalModel::load)
         .transpose()?;
+    let calibration = args
+        .calibration
+        .as_deref()
+        .map(|p| {
+            crate::calib::Calibration::load(p)
+                .and_then(|c| crate::calib::Corrector::new(&c, &imu_device))
+        })
+        .transpose()?;
     let options = ReplayOptions {
         outages: outages.clone(),
         smooth: args.smooth,
+        calibration,
         ..ReplayOptions::default()
     };
     let r = session::replay_session(
@@ -211,6 +224,12 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         "replayed IMU `{}` with GNSS `{}` ({} epochs without a fix skipped)",
         r.imu_device, r.gnss_device, r.gnss_without_fix
     );
+    if let Some(path) = &args.calibration {
+        println!(
+            "IMU rates calibrated with {} before the filter",
+            path.display()
+        );
+    }
     if let Some(path) = &args.compensate {
         println!(
             "IMU rates thermally compensated with model {} before the filter",

@@ -608,6 +608,7 @@ pub fn replay_files_with(
         initial_sensors: config.initial_sensors,
         outages: outages.to_vec(),
         smooth,
+        calibration: None,
     };
     Ok(crate::fusion::navigator::replay(fusion, imu, gnss, options))
 }

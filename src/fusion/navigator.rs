@@ -85,6 +85,9 @@ pub struct ReplayOptions {
     pub outages: Vec<(f64, f64)>,
     /// Run the RTS smoother and return the smoothed trajectory too.
     pub smooth: bool,
+    /// IMU calibration applied to every session row before thermal compensation and the
+    /// filter (`replay --calibration`).
+    pub calibration: Option<crate::calib::Corrector>,
 }
 
 /// Everything a replay produced.

@@ -292,6 +292,9 @@ impl StudyDrive {
                 }
                 v
             }
+            Motion::Tumble(_) | Motion::RateTable(_) => {
+                bail!("the study drives a vehicle: a tumble or rate-table scene has no trajectory to navigate")
+            }
         };
         if !matches!(scene.motion, Motion::Static { .. }) && truth.len() < count {
             bail!(
