@@ -18,6 +18,7 @@ pub mod csv_line;
 pub mod cycle;
 pub mod dbc;
 pub mod gnss;
+pub mod imu_line;
 pub mod mip;
 pub mod nmea;
 pub mod reading;
@@ -213,6 +214,8 @@ pub enum Protocol {
     Vectornav,
     /// MicroStrain MIP packets (IMU data set decoded).
     Mip,
+    /// `$IMU` ASCII lines (NMEA-style checksum) from a microcontroller IMU.
+    ImuLine,
 }
 
 /// Builds a decoder of JSON objects (`imulab decode`).
@@ -252,9 +255,11 @@ fn never(_: &[u8]) -> u32 {
 }
 
 /// The protocol table, one line per protocol. Auto-detection prefers the highest score, and
-/// the earlier line on a tie.
+/// the earlier line on a tie: a protocol whose frames another row's decoder also accepts
+/// (`$IMU` lines are NMEA sentences to `gnss` and `nmea`) goes above that row.
 #[rustfmt::skip]
 pub const PROTOCOLS: &[ProtocolEntry] = &[
+    ProtocolEntry { protocol: Protocol::ImuLine, name: "imu-line", summary: "$IMU,t,gx,gy,gz,ax,ay,az[,temp]*CS ASCII lines", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: imu_line::detect_score, json: Some(|_| Ok(Box::new(imu_line::ImuLineDecoder::new()))), readings: |_| Ok(byte_readings(imu_line::ImuLineDecoder::new)), encoder: Some(|_| Ok(imu_encoder(imu_line::encode_sample))) },
     ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: gnss::detect_score, json: Some(|_| Ok(Box::new(gnss::GnssDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(gnss::encode_fix))) },
     ProtocolEntry { protocol: Protocol::UbxEsf, name: "ubx-esf", summary: "u-blox dead-reckoning receiver's IMU (UBX ESF-RAW, ESF-MEAS) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(|_| Ok(Box::new(gnss::EsfImuDecoder::new()))), readings: |_| Ok(byte_readings(gnss::EsfImuDecoder::new)), encoder: None },
     ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: vectornav::detect_score, json: Some(|_| Ok(Box::new(vectornav::VnDecoder::new()))), readings: |_| Ok(byte_readings(vectornav::VnDecoder::new)), encoder: Some(|_| Ok(imu_encoder(vectornav::encode_sample))) },
