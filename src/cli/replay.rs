@@ -30,7 +30,7 @@ pub struct ReplayArgs {
     #[arg(long, value_name = "G", requires = "session")]
     pub gnss: Option<String>,
     /// Filter configuration (TOML, see docs/fusion.md) for a session replay; with --kf-gins,
-    /// the motion constraints only ([nhc], [zupt], [zaru]).
+    /// the motion constraints only ([nhc], [zupt], [zaru], [odometer], [vehicle]).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Turn on the non-holonomic constraint (land vehicle: no sideways or vertical body
@@ -43,6 +43,10 @@ pub struct ReplayArgs {
     /// Turn on zero angular rate updates at detected standstills (gyro bias).
     #[arg(long)]
     pub zaru: bool,
+    /// Turn on odometer updates from the wheel speed (with --kf-gins: the IMU file's column
+    /// `[odometer] column`, default 8, in m/s).
+    #[arg(long)]
+    pub odometer: bool,
     /// KF-GINS configuration file instead of a session (paths inside resolve against the
     /// current directory).
     #[arg(long, value_name = "CONFIG.yaml")]
@@ -156,6 +160,11 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         None => FusionConfig::default(),
     };
     enable_constraints(&mut config, args);
+    if config.odometer.enabled {
+        bail!(
+            "odometer: a session has no wheel-speed channel (docs/session-format.md); odometer updates work with --kf-gins, from a column of its IMU file"
+        );
+    }
     let session = crate::store::Session::open(dir)?;
     let out_dir = args.out.clone().unwrap_or_else(|| dir.join("replay"));
     let in_session = args
@@ -300,6 +309,7 @@ fn enable_constraints(config: &mut FusionConfig, args: &ReplayArgs) {
     config.nhc.enabled |= args.nhc;
     config.zupt.enabled |= args.zupt;
     config.zaru.enabled |= args.zaru;
+    config.odometer.enabled |= args.odometer;
 }
 
 fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
@@ -315,6 +325,7 @@ fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         (fusion.nhc.enabled, "NHC"),
         (fusion.zupt.enabled, "ZUPT"),
         (fusion.zaru.enabled, "ZARU"),
+        (fusion.odometer.enabled, "odometer"),
     ]
     .iter()
     .filter(|(e, _)| *e)
@@ -572,7 +583,7 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         );
     }
     println!(
-        "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), NHC/ZUPT/ZARU updates {}/{}/{}, filter PD events {}",
+        "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), NHC/ZUPT/ZARU/odometer updates {}/{}/{}/{}, filter PD events {}",
         stats.imu_samples,
         stats.imu_rejected_non_finite + stats.imu_rejected_time,
         stats.gnss_used,
@@ -583,6 +594,7 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         stats.nhc_updates,
         stats.zupt_updates,
         stats.zaru_updates,
+        stats.odometer_updates,
         stats.filter.pd_events
     );
     if truth.is_none() && !windows.is_empty() {
