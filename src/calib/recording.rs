@@ -120,6 +120,8 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
     let mut rec = Recording::default();
     source.for_each_block(&wanted, &mut |first, columns| {
         let rows = columns.first().map_or(0, |c| c.len());
+        // Row-major records from column-major blocks: `i` indexes seven columns at once.
+        #[allow(clippy::needless_range_loop)]
         for i in 0..rows {
             rec.gyro.push([columns[0][i], columns[1][i], columns[2][i]]);
             rec.accel
@@ -146,7 +148,11 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
             rec.t[row]
         );
     }
-    if let Some(k) = rec.t.windows(2).position(|w| !(w[1] > w[0])) {
+    if let Some(k) = rec
+        .t
+        .windows(2)
+        .position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater))
+    {
         bail!(
             "{}: time does not increase at row {} ({} s then {} s)",
             source.describe(),
