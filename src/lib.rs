@@ -7,6 +7,7 @@
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
 //! - [`thermal`]: thermal-chamber characterisation and the compensation model.
+//! - [`watch`]: `imulab watch`, the live page of a session being recorded.
 //! - [`cli`]: the `imulab` subcommands.
 
 pub mod allan;
@@ -17,3 +18,4 @@ pub mod fusion;
 pub mod sim;
 pub mod store;
 pub mod thermal;
+pub mod watch;

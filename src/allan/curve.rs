@@ -229,7 +229,7 @@ pub fn point_with_interval(
 /// Fills τ where neither the lag-1 method nor B1 gave a noise type with the α of the
 /// nearest shorter τ (white FM when nothing was identified), and clamps α into the range the variance
 /// converges for (α ≥ −2 for Allan types, ≥ −4 for Hadamard).
-fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
+pub fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
     let lowest = match kind {
         DeviationKind::Hdev | DeviationKind::Ohdev => -4,
         _ => -2,

@@ -29,3 +29,4 @@ pub mod inspect;
 pub mod recover;
 pub mod sim;
 pub mod thermal;
+pub mod watch;
