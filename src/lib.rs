@@ -8,6 +8,7 @@
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
 //! - [`thermal`]: thermal-chamber characterisation and the compensation model.
 //! - [`calib`]: multi-position, six-position and rate-table calibration and its file.
+//! - [`watch`]: `imulab watch`, the live page of a session being recorded.
 //! - [`cli`]: the `imulab` subcommands.
 
 pub mod allan;
@@ -19,3 +20,4 @@ pub mod fusion;
 pub mod sim;
 pub mod store;
 pub mod thermal;
+pub mod watch;

@@ -62,7 +62,7 @@ pub const LANES: usize = 8;
 pub const LANE_LEN: usize = 512;
 
 /// Samples whose mean is the constant subtracted from every sample.
-const OFFSET_SAMPLES: usize = 4096;
+pub const OFFSET_SAMPLES: usize = 4096;
 
 /// Level whose block sums (m = 16) are kept for the difference orders 2 and 3, which
 /// the noise identification needs wherever the block sums look correlated.
@@ -106,7 +106,7 @@ pub struct LevelSums {
 }
 
 impl LevelSums {
-    fn new(m: usize) -> Self {
+    pub fn new(m: usize) -> Self {
         LevelSums {
             m,
             ..Self::default()
@@ -119,7 +119,7 @@ impl LevelSums {
     }
 
     /// Appends one block sum: the sequential definition the vector passes equal.
-    fn push<const HADAMARD: bool>(&mut self, s: f64) {
+    pub fn push<const HADAMARD: bool>(&mut self, s: f64) {
         let k = self.count;
         let [p1, p2] = self.last;
         if k < 2 {
@@ -199,7 +199,7 @@ impl LevelSums {
 
     /// Lag-1 autocorrelation of the block sums (difference order 1); `None` for zero
     /// variance or fewer than two values. Invariant to the constant in s'.
-    fn lag1_of_sums(&self) -> Option<f64> {
+    pub fn lag1_of_sums(&self) -> Option<f64> {
         if self.count < 2 {
             return None;
         }

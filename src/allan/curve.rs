@@ -234,7 +234,7 @@ pub fn point_with_interval(
 /// see [`super::noise_id::b1_min_averages`]) with the α of the nearest shorter τ (white
 /// FM when nothing was identified), and clamps α into the range the variance
 /// converges for (α ≥ −2 for Allan types, ≥ −4 for Hadamard).
-fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
+pub fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
     let lowest = match kind {
         DeviationKind::Hdev | DeviationKind::Ohdev => -4,
         _ => -2,

@@ -30,3 +30,4 @@ pub mod inspect;
 pub mod recover;
 pub mod sim;
 pub mod thermal;
+pub mod watch;
