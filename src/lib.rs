@@ -7,9 +7,11 @@
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
 //! - [`thermal`]: thermal-chamber characterisation and the compensation model.
+//! - [`calib`]: multi-position, six-position and rate-table calibration and its file.
 //! - [`cli`]: the `imulab` subcommands.
 
 pub mod allan;
+pub mod calib;
 pub mod cli;
 pub mod daemon;
 pub mod earth;

@@ -38,6 +38,8 @@ pub enum Command {
     Allan(super::allan::AllanArgs),
     /// Thermal-chamber characterisation: bias against temperature, hysteresis, warm-up, lag.
     Thermal(super::thermal::ThermalArgs),
+    /// IMU calibration: multi-position tumble, six-position or rate table, to a calibration file.
+    Calibrate(super::calibrate::CalibrateArgs),
     /// Self-contained HTML noise report of one or more IMUs.
     Report(super::report::ReportArgs),
     /// Datasheet-style comparison of two or more IMUs.
@@ -68,6 +70,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Status(args) => super::status::run(args),
         Command::Allan(args) => super::allan::run(args),
         Command::Thermal(args) => super::thermal::run(args),
+        Command::Calibrate(args) => super::calibrate::run(args),
         Command::Report(args) => super::report::run(args),
         Command::Compare(args) => super::compare::run(args),
         Command::Demo(args) => super::demo::run(args),

@@ -3,6 +3,7 @@
 
 pub mod allan;
 pub mod app;
+pub mod calibrate;
 pub mod compare;
 pub mod completions;
 pub mod replay;
