@@ -50,7 +50,6 @@ fn mem_mib(pid: u32, field: &str) -> f64 {
         .find_map(|l| l.strip_prefix(field))
         .and_then(|v| {
             v.trim_start_matches(':')
-                .trim()
                 .split_whitespace()
                 .next()?
                 .parse::<f64>()

@@ -262,7 +262,9 @@ impl AxisAllan {
         lag1.or_else(|| {
             let m = level.sums.m;
             let averages: Vec<f64> = level.early.iter().map(|s| s / m as f64).collect();
-            b1_alpha(&averages, m, MAX_DIFFERENCES, || None)
+            // ADEV of non-overlapping averages: one term per adjacent pair.
+            let terms = averages.len().saturating_sub(1);
+            b1_alpha(&averages, m, terms, KIND, || None)
         })
     }
 }

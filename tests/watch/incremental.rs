@@ -4,7 +4,7 @@
 use imulab::allan::curve::compute_curve_from_rate;
 use imulab::allan::{compute_curve, Curve, DeviationKind, Phase, TauGrid};
 use imulab::watch::allan::AxisAllan;
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 
