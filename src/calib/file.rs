@@ -71,7 +71,7 @@ impl TriadModel {
             bail!("{what}: matrix must hold finite numbers");
         }
         let det = self.m().determinant();
-        if !(det.abs() > 1e-6) {
+        if det.is_nan() || det.abs() <= 1e-6 {
             bail!("{what}: matrix is singular (determinant {det:.3e})");
         }
         Ok(())

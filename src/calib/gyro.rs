@@ -121,8 +121,8 @@ pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -
     let n = poses.len() as f64;
     let mut bias = [0.0; 3];
     for pose in poses {
-        for k in 0..3 {
-            bias[k] += pose.gyro_mean[k] / n;
+        for (b, g) in bias.iter_mut().zip(&pose.gyro_mean) {
+            *b += g / n;
         }
     }
     let mut spread = [0.0; 3];

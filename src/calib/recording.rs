@@ -120,7 +120,7 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
     let mut rec = Recording::default();
     source.for_each_block(&wanted, &mut |first, columns| {
         let rows = columns.first().map_or(0, |c| c.len());
-        for i in 0..rows {
+        (0..rows).for_each(|i| {
             rec.gyro.push([columns[0][i], columns[1][i], columns[2][i]]);
             rec.accel
                 .push([columns[3][i], columns[4][i], columns[5][i]]);
@@ -128,7 +128,7 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
                 Some(hz) => (first + i as u64) as f64 / hz,
                 None => columns[6][i],
             });
-        }
+        });
         Ok(())
     })?;
     if rec.is_empty() {
@@ -146,7 +146,11 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
             rec.t[row]
         );
     }
-    if let Some(k) = rec.t.windows(2).position(|w| !(w[1] > w[0])) {
+    if let Some(k) = rec
+        .t
+        .windows(2)
+        .position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater))
+    {
         bail!(
             "{}: time does not increase at row {} ({} s then {} s)",
             source.describe(),

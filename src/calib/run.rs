@@ -116,8 +116,8 @@ fn bias_only(poses: &[StaticInterval]) -> TriadModel {
     let n = poses.len().max(1) as f64;
     let mut bias = [0.0; 3];
     for p in poses {
-        for k in 0..3 {
-            bias[k] += p.gyro_mean[k] / n;
+        for (b, g) in bias.iter_mut().zip(&p.gyro_mean) {
+            *b += g / n;
         }
     }
     TriadModel {
