@@ -121,7 +121,7 @@ pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -
     let n = poses.len() as f64;
     let mut bias = [0.0; 3];
     for pose in poses {
-        for (b, g) in bias.iter_mut().zip(pose.gyro_mean) {
+        for (b, g) in bias.iter_mut().zip(&pose.gyro_mean) {
             *b += g / n;
         }
     }

@@ -120,9 +120,7 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
     let mut rec = Recording::default();
     source.for_each_block(&wanted, &mut |first, columns| {
         let rows = columns.first().map_or(0, |c| c.len());
-        // Row-major records from column-major blocks: `i` indexes seven columns at once.
-        #[allow(clippy::needless_range_loop)]
-        for i in 0..rows {
+        (0..rows).for_each(|i| {
             rec.gyro.push([columns[0][i], columns[1][i], columns[2][i]]);
             rec.accel
                 .push([columns[3][i], columns[4][i], columns[5][i]]);
@@ -130,7 +128,7 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
                 Some(hz) => (first + i as u64) as f64 / hz,
                 None => columns[6][i],
             });
-        }
+        });
         Ok(())
     })?;
     if rec.is_empty() {

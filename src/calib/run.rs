@@ -116,7 +116,7 @@ fn bias_only(poses: &[StaticInterval]) -> TriadModel {
     let n = poses.len().max(1) as f64;
     let mut bias = [0.0; 3];
     for p in poses {
-        for (b, g) in bias.iter_mut().zip(p.gyro_mean) {
+        for (b, g) in bias.iter_mut().zip(&p.gyro_mean) {
             *b += g / n;
         }
     }
