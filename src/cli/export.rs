@@ -192,6 +192,7 @@ pub fn export_csv(
                 "pdop",
                 "hdop",
                 "vdop",
+                "heading_deg",
             ])?;
             for block in session.gnss_blocks(&device.name, range, BLOCK_ROWS)? {
                 let b = block?;
@@ -217,6 +218,7 @@ pub fn export_csv(
                         f(b.pdop[i]),
                         f(b.hdop[i]),
                         f(b.vdop[i]),
+                        f(b.heading_deg[i]),
                     ])?;
                 }
                 rows += b.len() as u64;

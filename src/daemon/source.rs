@@ -1,7 +1,8 @@
 //! What a device task reads from, and how it decodes it.
 //!
 //! - A [`Connector`] opens (and after a vanish, reopens) a [`Link`]: the drivers' transports
-//!   (serial port or pty, TCP, slcan adapter, SocketCAN), or an in-memory stream in tests.
+//!   (serial port or pty, TCP, slcan adapter, SocketCAN), a capture played back
+//!   ([`super::capture`]), or an in-memory stream in tests.
 //! - A [`Link`] delivers [`Input`]: bytes from a byte stream, or CAN frames from a CAN
 //!   transport. CAN frames go to the DBC decoder as frames; they are never turned into text.
 //! - A [`FrameDecoder`] turns the input into [`Frame`]s: the reading decoder of the
@@ -25,6 +26,7 @@ use imulab_drivers::transport::{StreamTransport, TransportError};
 use imulab_drivers::types::DecoderStats;
 use tokio::io::{AsyncRead, AsyncWrite};
 
+use super::capture::{capture_kind, CaptureConnector};
 use super::config::{DeviceSpec, Transport};
 
 /// How long a TCP connect may take before the attempt counts as failed (and is retried).
@@ -50,6 +52,9 @@ pub enum Received {
     Bytes(usize),
     /// One CAN frame.
     Can(CanFrame),
+    /// The source has nothing more and never will (a capture file at its end): the device
+    /// ends instead of being reopened.
+    End,
 }
 
 /// An open device.
@@ -211,6 +216,13 @@ impl Connector for TransportConnector {
                     transport: SocketCanTransport::open(&c.interface, None)?,
                     stats: DecoderStats::default(),
                 })),
+                // Made by `connector_for` as a `CaptureConnector`, never here.
+                Transport::File(f) => {
+                    return Err(TransportError::Config(format!(
+                        "{} is a capture file, not a device",
+                        f.path.display()
+                    )))
+                }
             })
         })
     }
@@ -223,6 +235,13 @@ impl Connector for TransportConnector {
 /// The connector for a configured transport. Every transport the configuration accepts has
 /// one; the `Result` is kept for transports a build may lack.
 pub fn connector_for(device: &DeviceSpec) -> Result<Box<dyn Connector>, String> {
+    if let Transport::File(source) = &device.transport {
+        let kind = capture_kind(source, &device.name, device.protocol.is_can())?;
+        return Ok(Box::new(CaptureConnector {
+            source: source.clone(),
+            kind,
+        }));
+    }
     Ok(Box::new(TransportConnector {
         transport: device.transport.clone(),
     }))

@@ -604,9 +604,12 @@ fn open_table(
     let mut ds = Vec::with_capacity(cols.len());
     let mut len = usize::MAX;
     for c in cols {
-        let d = g
-            .dataset(c.name)
-            .map_err(|_| hdf5::Error::from(format!("no dataset /{group}/{}", c.name)))?;
+        let d = match g.dataset(c.name) {
+            Ok(d) => d,
+            // A file written before the column: the block reader fills it in.
+            Err(_) if c.optional => break,
+            Err(_) => return Err(format!("no dataset /{group}/{}", c.name).into()),
+        };
         let shape = d.shape();
         let rows = shape.first().copied().unwrap_or(0);
         if c.width != 0 && shape.get(1).copied() != Some(c.width) {

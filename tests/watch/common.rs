@@ -122,6 +122,7 @@ impl LiveSession {
                     h_acc_m: 0.02,
                     v_acc_m: 0.03,
                     s_acc_mps: 0.05,
+                    heading_deg: f64::NAN,
                     fix_type: FixType::RtkFixed,
                     num_sats: 20,
                     pdop: 1.2,
