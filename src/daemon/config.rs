@@ -467,7 +467,7 @@ impl Transport {
             Transport::File(f) => {
                 let pace = match f.pace {
                     Pace::Fast => "fast".to_string(),
-                    Pace::Factor(x) if x == 1.0 => "recorded pace".to_string(),
+                    Pace::Factor(1.0) => "recorded pace".to_string(),
                     Pace::Factor(x) => format!("{x}x recorded pace"),
                 };
                 format!("file {} ({pace})", f.path.display())
