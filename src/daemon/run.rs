@@ -33,6 +33,9 @@ const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
 const DISK_CHECK_INTERVAL: Duration =
     Duration::from_millis(super::config::RESERVE_CHECK_INTERVAL_MS);
+/// Free space below which a failed write is taken for a full disk (less than one chunk of a
+/// table can be written).
+const FULL_DISK_BYTES: u64 = 1 << 20;
 /// How often the status file is written.
 const STATUS_INTERVAL: Duration = Duration::from_secs(1);
 
@@ -315,7 +318,11 @@ pub async fn run(
         let _held = status_lock.lock().unwrap_or_else(|p| p.into_inner());
         write_status_file(&status_path, &report)
     };
-    let disk_full = matches!(&writer_exit, WriterExit::Failed(e) if super::disk::is_disk_full(e));
+    // HDF5 does not always pass the errno on (`H5Dwrite_chunk ... failed`): a failed write
+    // with the session's file system out of room is a full disk too.
+    let disk_full = matches!(&writer_exit, WriterExit::Failed(e) if super::disk::is_disk_full(e))
+        || (matches!(writer_exit, WriterExit::Failed(_))
+            && super::disk::free_bytes(&session_dir).is_ok_and(|f| f < FULL_DISK_BYTES));
     match written {
         // On a full disk this fails too; the outcome says it once.
         Err(e) if disk_full => tracing::debug!("final status file: {e}"),
@@ -334,7 +341,7 @@ pub async fn run(
             free_bytes,
             reserve_bytes,
         },
-        WriterExit::Failed(e) if super::disk::is_disk_full(&e) => Outcome::DiskFull { session_dir },
+        WriterExit::Failed(_) if disk_full => Outcome::DiskFull { session_dir },
         WriterExit::Failed(e) => Outcome::Failed(e),
     }
 }
