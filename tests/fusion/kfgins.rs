@@ -363,7 +363,7 @@ fn motion_constraints_are_usable_with_kf_gins_from_a_toml_or_flags() {
     assert!(ok, "{stderr}");
     assert!(stdout.contains("motion constraints: NHC, ZARU"), "{stdout}");
     let updates = stdout
-        .split("NHC/ZUPT/ZARU updates ")
+        .split("NHC/ZUPT/ZARU/odometer updates ")
         .nth(1)
         .and_then(|s| s.split(',').next())
         .expect("update counts");

@@ -65,7 +65,7 @@ impl LiveSession {
         let writer =
             SessionWriter::create(dir, Manifest::new(devices, toml::Table::new()), options)
                 .unwrap();
-        LiveSession {
+        let mut live = LiveSession {
             writer: Some(writer),
             rng: Xoshiro256PlusPlus::seed_from_u64(24),
             rows: 0,
@@ -73,7 +73,10 @@ impl LiveSession {
             t0_ns,
             bias: [[0.0; 6]; 2],
             gyro_x_a: Vec::new(),
-        }
+        };
+        // As imulogd does: a session-wide event (no device) opens the session.
+        live.event("", EventKind::SessionStart, "");
+        live
     }
 
     fn t_ns(&self, row: u64) -> i64 {
