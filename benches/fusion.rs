@@ -1,6 +1,7 @@
 //! Run time against error of the GNSS/INS replay (`cargo bench --bench fusion`): one
 //! simulated MEMS drive, GNSS withheld for 60 s every 300 s, and the options of issue 8
-//! varied one at a time; then the speed of a 1 h, 200 Hz IMU + 10 Hz GNSS replay.
+//! varied one at a time; then the speed of a 1 h, 200 Hz IMU + 10 Hz GNSS replay (15 and 21
+//! states); then the ANEES of each IMU preset over 50 seeds (`-- nees` runs only that).
 //! Then imulab (NHC off and on) against KF-GINS on the same exported KF-GINS files (skipped
 //! when the KF-GINS binary is absent; `-- kf-gins` runs only that part).
 //! Prints markdown tables (copied into docs/bench/fusion.md). Run times are the thread's CPU
@@ -163,15 +164,42 @@ fn run(
     }
 }
 
+/// The MEMS errors of the bench drives (constant biases, no scale factors).
+fn bench_errors() -> fusion_support::ImuErrors {
+    let mut e = mems_errors(11);
+    e.gyro_scale = Vector3::zeros();
+    e.accel_scale = Vector3::zeros();
+    e
+}
+
+/// The filter of the bench drives: their GNSS errors are white and their biases constant,
+/// and the filter is told so.
+fn bench_config() -> FusionConfig {
+    let mut base = FusionConfig::default();
+    base.gnss.lever_arm_m = LEVER;
+    base.gnss.position_correlation_s = 0.0;
+    base.imu.gyro_bias.tau_s = 3600.0;
+    base.imu.accel_bias.tau_s = 3600.0;
+    base
+}
+
 fn main() {
     // `cargo bench --bench fusion -- kf-gins` runs only the KF-GINS comparison.
     if std::env::args().any(|a| a == "kf-gins") {
         kf_gins_anchor();
         return;
     }
-    let mut e = mems_errors(11);
-    e.gyro_scale = Vector3::zeros();
-    e.accel_scale = Vector3::zeros();
+    // `-- speed` runs only the replay speed.
+    if std::env::args().any(|a| a == "speed") {
+        speed_table(&bench_config(), &bench_errors());
+        return;
+    }
+    // `-- nees` runs only the Monte Carlo consistency table.
+    if std::env::args().any(|a| a == "nees") {
+        nees_table();
+        return;
+    }
+    let e = bench_errors();
     let t0 = Instant::now();
     let d = simulate(
         &drive(30.0),
@@ -192,13 +220,7 @@ fn main() {
         .take_while(|&a| a + 60.0 < end)
         .map(|a| (a, a + 60.0))
         .collect();
-    let mut base = FusionConfig::default();
-    base.gnss.lever_arm_m = LEVER;
-    // This drive's GNSS errors are white and its biases constant: tell the filter so (and
-    // keep the table comparable with the first round).
-    base.gnss.position_correlation_s = 0.0;
-    base.imu.gyro_bias.tau_s = 3600.0;
-    base.imu.accel_bias.tau_s = 3600.0;
+    let base = bench_config();
     let first = {
         let mut c = base;
         c.mechanisation.order = IntegrationOrder::First;
@@ -276,11 +298,18 @@ fn main() {
         );
     }
 
+    speed_table(&base, &e);
+    nees_table();
+    kf_gins_anchor();
+}
+
+/// Replay speed: 1 h of 200 Hz IMU + 10 Hz GNSS, 15 and 21 states.
+fn speed_table(base: &FusionConfig, e: &fusion_support::ImuErrors) {
     let d = simulate(
         &drive(60.0),
         200.0,
         20,
-        &e,
+        e,
         (0.3, 0.6, 0.05),
         Vector3::from(LEVER),
         12,
@@ -290,20 +319,147 @@ fn main() {
         initial: Some(NavState::from(&d.truth[0])),
         ..Default::default()
     };
-    let mut best = f64::INFINITY;
-    for _ in 0..3 {
-        let start = thread_cpu_s();
-        let r = replay(
-            &base,
-            d.imu.iter().copied(),
-            d.gnss.iter().copied(),
-            opts.clone(),
+    println!("\nSpeed: {hours:.2} h of 200 Hz IMU ({} samples) + 10 Hz GNSS ({} fixes), one core, best of 3 (thread CPU time)\n", d.imu.len(), d.gnss.len());
+    println!("| states | CPU s | IMU samples per CPU-second | target |");
+    println!("|---|---:|---:|---:|");
+    for (states, target) in [(15, "≥ 1 M"), (21, "≥ 0.7 M")] {
+        let config = FusionConfig { states, ..*base };
+        let mut best = f64::INFINITY;
+        for _ in 0..3 {
+            let start = thread_cpu_s();
+            let r = replay(
+                &config,
+                d.imu.iter().copied(),
+                d.gnss.iter().copied(),
+                opts.clone(),
+            );
+            best = best.min(thread_cpu_s() - start);
+            assert!(r.stats.gnss_used > 0);
+        }
+        println!(
+            "| {states} | {best:.3} | {:.2} M | {target} |",
+            d.imu.len() as f64 / best / 1e6
         );
-        best = best.min(thread_cpu_s() - start);
-        assert!(r.stats.gnss_used > 0);
     }
-    println!("\nSpeed: {hours:.2} h of 200 Hz IMU ({} samples) + 10 Hz GNSS ({} fixes), 15 states, one core: best of 3 = {best:.3} s CPU", d.imu.len(), d.gnss.len());
-    kf_gins_anchor();
+}
+
+/// Runs of the consistency table per grade and constraint set.
+const NEES_RUNS: usize = 50;
+/// The scene of the consistency table and its withheld GNSS: 60 s every 180 s.
+const NEES_SCENE: &str = "fixtures/scenes/drive_30min_open_sky.toml";
+const NEES_OUTAGE_EVERY_S: f64 = 180.0;
+const NEES_OUTAGE_S: f64 = 60.0;
+
+/// Per-second NEES of the 9 navigation states of one simulated run (index = whole second
+/// since the session start; NaN before the filter starts), and whether the second lies in
+/// a withheld outage.
+fn nees_run(
+    drive: &imulab::fusion::study::StudyDrive,
+    spec: &imulab::sim::imu_model::ImuSpec,
+    config: &FusionConfig,
+    seed: u64,
+) -> Vec<f64> {
+    use imulab::fusion::navigator::Navigator;
+    let end = drive.end_s();
+    let outages: Vec<(f64, f64)> = (1..)
+        .map(|k| k as f64 * NEES_OUTAGE_EVERY_S)
+        .take_while(|a| *a < end)
+        .map(|a| (a, a + NEES_OUTAGE_S))
+        .collect();
+    let fixes: Vec<_> = drive
+        .gnss_records(seed)
+        .expect("gnss")
+        .iter()
+        .filter_map(|r| imulab::fusion::session::observation(r, imulab::sim::scene::START_MONO_NS))
+        .collect();
+    let options = ReplayOptions {
+        outages,
+        ..Default::default()
+    };
+    let mut nav = Navigator::<15>::new(config, options);
+    let mut fixes = fixes.iter().peekable();
+    for r in drive.imu_records(spec, seed).expect("imu") {
+        let sample = ImuInput::Rates {
+            t_s: (r.t_mono_ns - imulab::sim::scene::START_MONO_NS) as f64 * 1e-9,
+            gyro: Vector3::from(r.gyro),
+            accel: Vector3::from(r.accel),
+        };
+        while let Some(f) = fixes.next_if(|f| f.t_s < sample.t_s()) {
+            nav.push_gnss(f);
+        }
+        nav.push_imu(&sample);
+    }
+    let r = nav.finish();
+    let truth = drive.truth_nav();
+    let mut nees = vec![f64::NAN; end as usize + 1];
+    for s in &r.filtered {
+        let k = s.nav.t_s.round();
+        if (s.nav.t_s - k).abs() > 1e-6 || k < 0.0 || k as usize >= nees.len() {
+            continue;
+        }
+        if let Some(t) = imulab::fusion::session::truth_at(truth, s.nav.t_s) {
+            nees[k as usize] = imulab::fusion::metrics::epoch_error(s, &t).nees;
+        }
+    }
+    nees
+}
+
+/// ANEES over [`NEES_RUNS`] seeds per IMU preset and constraint set, with its 95 % band.
+fn nees_table() {
+    use imulab::fusion::metrics::anees;
+    use rayon::prelude::*;
+    let scene = imulab::sim::scene::Scene::load(std::path::Path::new(NEES_SCENE)).expect("scene");
+    let drive = imulab::fusion::study::StudyDrive::new(&scene).expect("drive");
+    let grades = ["consumer", "bench-cheap", "industrial", "tactical"];
+    let sets: [(&str, bool, bool); 3] = [
+        ("GNSS only", false, false),
+        ("NHC", true, false),
+        ("NHC + ZUPT + ZARU", true, true),
+    ];
+    println!(
+        "\nNEES consistency: {NEES_SCENE}, {NEES_RUNS} seeds per row, GNSS withheld {NEES_OUTAGE_S:.0} s every {NEES_OUTAGE_EVERY_S:.0} s, 15 states, NEES of the 9 navigation states once a second from the filter start\n"
+    );
+    println!("| IMU preset | constraints | ANEES (9 expected) | 95 % band of one epoch | epochs inside / below / above | largest epoch ANEES | verdict |");
+    println!("|---|---|---:|---:|---:|---:|---|");
+    for grade in grades {
+        let spec = imulab::sim::presets::imu_preset(grade).expect("preset");
+        let noise = imulab::fusion::noise::model_from_spec(&spec, grade).expect("noise");
+        for (name, nhc, still) in sets {
+            let mut config = FusionConfig {
+                imu: noise.model,
+                output_interval_s: 1.0,
+                ..FusionConfig::default()
+            };
+            config.nhc.enabled = nhc;
+            config.zupt.enabled = still;
+            config.zaru.enabled = still;
+            let seed0 = scene.seed;
+            let runs: Vec<Vec<f64>> = (0..NEES_RUNS as u64)
+                .into_par_iter()
+                .map(|k| nees_run(&drive, &spec, &config, seed0 + k))
+                .collect();
+            match anees(&runs, 9) {
+                Some(a) => println!(
+                    "| {grade} | {name} | {:.2} | [{:.2}, {:.2}] | {:.0} / {:.0} / {:.0} % | {:.1} | {} |",
+                    a.mean,
+                    a.band.0,
+                    a.band.1,
+                    100.0 * a.inside,
+                    100.0 * a.below,
+                    100.0 * a.above,
+                    a.max,
+                    if a.mean < a.band.0 {
+                        "cautious"
+                    } else if a.mean > a.band.1 {
+                        "over-confident"
+                    } else {
+                        "consistent"
+                    }
+                ),
+                None => println!("| {grade} | {name} | no common epochs | | | | |"),
+            }
+        }
+    }
 }
 
 /// Where the KF-GINS binary is: `KF_GINS_BIN`, else the build under /work/peers.
@@ -348,6 +504,32 @@ fn write_kf_gins_inputs(
         }
     }
     imu.flush()?;
+    // The same IMU rows with the wheel speed in column 8 (the true forward speed plus white
+    // noise of ODOMETER_SIGMA_MPS), for imulab's odometer updates; KF-GINS has none.
+    let mut odo = std::io::BufWriter::new(std::fs::File::create(dir.join("imu_odometer.txt"))?);
+    let mut rng = <rand_xoshiro::Xoshiro256PlusPlus as rand::SeedableRng>::seed_from_u64(77);
+    for (s, t) in d.imu.iter().zip(d.truth.iter().skip(1)) {
+        if let ImuInput::Increments {
+            t_s, dtheta, dvel, ..
+        } = *s
+        {
+            let v_b = t.quat_nb.inverse() * t.vel_ned;
+            let noise: f64 =
+                rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+            writeln!(
+                odo,
+                "{t_s:.6} {:.12e} {:.12e} {:.12e} {:.12e} {:.12e} {:.12e} {:.5}",
+                dtheta.x,
+                dtheta.y,
+                dtheta.z,
+                dvel.x,
+                dvel.y,
+                dvel.z,
+                v_b.x + ODOMETER_SIGMA_MPS * noise
+            )?;
+        }
+    }
+    odo.flush()?;
     let mut gnss = std::io::BufWriter::new(std::fs::File::create(dir.join("gnss.txt"))?);
     for g in d
         .gnss
@@ -443,7 +625,11 @@ fn drift_metrics(d: &SimData, sol: &[NavState], outages: &[(f64, f64)]) -> (f64,
     (rms, s.horizontal_gnss.rms, n)
 }
 
-/// imulab (NHC off and on) against KF-GINS on the same exported files, per IMU grade.
+/// σ of the simulated wheel speed, m/s.
+const ODOMETER_SIGMA_MPS: f64 = 0.05;
+
+/// imulab (NHC off and on, and NHC with the odometer) against KF-GINS on the same exported
+/// files, per IMU grade.
 fn kf_gins_anchor() {
     let Some(bin) = kf_gins_binary() else {
         println!("\nKF-GINS comparison skipped: no KF-GINS binary (set KF_GINS_BIN or build it at /work/peers/KF-GINS/bin/KF-GINS)");
@@ -498,20 +684,26 @@ fn kf_gins_anchor() {
         let config = imulab::fusion::kfgins::KfGinsConfig::from_file(&yaml, &dir)
             .expect("read back the exported configuration");
         let mut rows = Vec::new();
-        for nhc in [false, true] {
+        for (name, nhc, odometer) in [
+            ("imulab, NHC off", false, false),
+            ("imulab, NHC on", true, false),
+            ("imulab, NHC + odometer", true, true),
+        ] {
             let mut fusion = config.fusion_config();
             fusion.nhc.enabled = nhc;
-            let r = imulab::fusion::kfgins::replay_files_with(&config, &fusion, &[], false)
+            fusion.odometer.enabled = odometer;
+            fusion.odometer.sigma_mps = ODOMETER_SIGMA_MPS;
+            let mut files = config.clone();
+            if odometer {
+                files.imu_path = dir.join("imu_odometer.txt");
+            }
+            let r = imulab::fusion::kfgins::replay_files_with(&files, &fusion, &[], false)
                 .expect("replay the exported files");
+            if odometer {
+                assert!(r.stats.odometer_updates > 0, "{:?}", r.stats);
+            }
             let nav: Vec<NavState> = r.filtered.iter().map(|s| s.nav).collect();
-            rows.push((
-                if nhc {
-                    "imulab, NHC on"
-                } else {
-                    "imulab, NHC off"
-                },
-                drift_metrics(&d, &nav, &outages),
-            ));
+            rows.push((name, drift_metrics(&d, &nav, &outages)));
         }
         match theirs {
             Ok(nav) => rows.push(("KF-GINS", drift_metrics(&d, &nav, &outages))),
@@ -521,12 +713,14 @@ fn kf_gins_anchor() {
             println!("| {grade} | {name} | {drift:.2} | {gnss_rms:.3} | {n} |");
         }
         if let Some((_, (kf_drift, kf_rms, _))) = rows.iter().find(|r| r.0 == "KF-GINS") {
-            let (ours_drift, ours_rms, _) = rows[1].1;
-            println!(
-                "| {grade} | ratio NHC on / KF-GINS | {:.2} | {:.2} | |",
-                ours_drift / kf_drift,
-                ours_rms / kf_rms
-            );
+            for (label, i) in [("NHC on", 1), ("NHC + odometer", 2)] {
+                let (ours_drift, ours_rms, _) = rows[i].1;
+                println!(
+                    "| {grade} | ratio {label} / KF-GINS | {:.2} | {:.2} | |",
+                    ours_drift / kf_drift,
+                    ours_rms / kf_rms
+                );
+            }
         }
     }
 }

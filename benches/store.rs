@@ -92,6 +92,7 @@ fn gnss_row(i: usize, t: i64) -> GnssRecord {
         pdop: 1.3,
         hdop: 0.7,
         vdop: 1.1,
+        heading_deg: f64::NAN,
     }
 }
 

@@ -103,3 +103,10 @@ pub struct GnssFix {
     pub hdop: Option<f64>,
     pub vdop: Option<f64>,
 }
+
+impl GnssFix {
+    /// Whether the fix has a position (a fix type other than no fix, latitude and longitude).
+    pub fn has_position(&self) -> bool {
+        self.fix != FixType::NoFix && self.lat_deg.is_some() && self.lon_deg.is_some()
+    }
+}

@@ -41,7 +41,8 @@
 //! identification only asks whether its lag-1 autocorrelation r is below 1/3, and
 //! r ≥ ½ − Σ(Δz)²/(2D) with D the phase's spread about its mean, which is at least the
 //! spread D' of the coarser (exactly evaluated) level 2S, whose points are a subset. So
-//! when Σ(Δz)² ≤ D'/3 the fast pass proves r ≥ 1/3 (the phase wanders far more than it
+//! when Σ(Δz)² ≤ D'/3 (a little less: the decision scales r by (L − 1)/L for L points)
+//! the fast pass proves r ≥ 1/3 (the phase wanders far more than it
 //! steps, as for every frequency noise on a long record); otherwise the passes are run
 //! again with the order-0 moments ([`pyramid_with_lane`] with `phase_moments`).
 //!
@@ -61,7 +62,7 @@ pub const LANES: usize = 8;
 pub const LANE_LEN: usize = 512;
 
 /// Samples whose mean is the constant subtracted from every sample.
-const OFFSET_SAMPLES: usize = 4096;
+pub const OFFSET_SAMPLES: usize = 4096;
 
 /// Level whose block sums (m = 16) are kept for the difference orders 2 and 3, which
 /// the noise identification needs wherever the block sums look correlated.
@@ -105,7 +106,7 @@ pub struct LevelSums {
 }
 
 impl LevelSums {
-    fn new(m: usize) -> Self {
+    pub fn new(m: usize) -> Self {
         LevelSums {
             m,
             ..Self::default()
@@ -118,7 +119,7 @@ impl LevelSums {
     }
 
     /// Appends one block sum: the sequential definition the vector passes equal.
-    fn push<const HADAMARD: bool>(&mut self, s: f64) {
+    pub fn push<const HADAMARD: bool>(&mut self, s: f64) {
         let k = self.count;
         let [p1, p2] = self.last;
         if k < 2 {
@@ -198,7 +199,7 @@ impl LevelSums {
 
     /// Lag-1 autocorrelation of the block sums (difference order 1); `None` for zero
     /// variance or fewer than two values. Invariant to the constant in s'.
-    fn lag1_of_sums(&self) -> Option<f64> {
+    pub fn lag1_of_sums(&self) -> Option<f64> {
         if self.count < 2 {
             return None;
         }
@@ -283,16 +284,24 @@ impl Pyramid {
     }
 
     /// Whether the bound of the module docs proves that the lag-1 autocorrelation of
-    /// level `j`'s decimated phase is at least 1/3.
-    fn order0_correlated(&self, j: usize) -> bool {
+    /// level `j`'s decimated phase of `points` points is at least 1/3 after the
+    /// normalisation r·(points − 1)/points of [`decide_alpha`], i.e. r ≥ points/(3(points − 1)):
+    /// Σ(Δz)² ≤ D'·(points − 3)/(3(points − 1)).
+    fn order0_correlated(&self, j: usize, points: usize) -> bool {
         let (Some(level), Some(coarse)) = (self.levels.get(j), self.levels.get(self.inner)) else {
             return false;
         };
         if coarse.count == 0 || level.count == 0 {
             return false;
         }
+        if points < 4 {
+            return false;
+        }
         let (_, spread, _) = coarse.phase_spread(self.delta());
-        spread > 0.0 && level.increments(self.delta()) <= spread / 3.0 * (1.0 - BOUND_MARGIN)
+        let p = points as f64;
+        spread > 0.0
+            && level.increments(self.delta())
+                <= spread * (p - 3.0) / (3.0 * (p - 1.0)) * (1.0 - BOUND_MARGIN)
     }
 
     /// The block sums s' of level `j` into `held` (which may hold a lower level from the
@@ -420,10 +429,11 @@ fn identify(
         let mut unsettled = false;
         let mut high: Option<[Option<f64>; 2]> = None;
         let held = &mut held;
-        let alpha = decide_alpha(n / m + 1, max_differences, |order| {
+        let points = n / m + 1;
+        let alpha = decide_alpha(points, max_differences, |order| {
             let r = match order {
                 0 if pyramid.exact_phase(j) => level.lag1(delta),
-                0 if pyramid.order0_correlated(j) => return Lag1::Correlated,
+                0 if pyramid.order0_correlated(j, points) => return Lag1::Correlated,
                 0 => {
                     unsettled = true;
                     return Lag1::Undefined;
@@ -1135,14 +1145,17 @@ mod tests {
         let fast = pyramid_with_lane(&walk, 1 << 12, true, false, Simd::detected(), 64);
         let exact = pyramid_with_lane(&walk, 1 << 12, true, true, Simd::detected(), 64);
         for j in 0..fast.inner {
+            let points = 100_000 / (1 << j) + 1;
             assert!(!fast.exact_phase(j));
-            assert!(fast.order0_correlated(j), "j={j}");
-            // The bound is a true bound: the exact r is at least 1/3.
-            assert!(exact.levels[j].lag1(exact.delta()).unwrap() >= 1.0 / 3.0);
+            assert!(fast.order0_correlated(j, points), "j={j}");
+            // The bound is a true bound: the exact r, normalised as the decision takes it,
+            // is at least 1/3.
+            let r = exact.levels[j].lag1(exact.delta()).unwrap();
+            assert!(r * (points - 1) as f64 / points as f64 >= 1.0 / 3.0);
         }
         let pm = white_pm_rate(100_000, 13);
         let fast = pyramid_with_lane(&pm, 1 << 12, true, false, Simd::detected(), 64);
-        assert!(!fast.order0_correlated(0));
+        assert!(!fast.order0_correlated(0, 100_001));
         let factors: Vec<usize> = (0..10).map(|j| 1 << j).collect();
         assert!(identify(&fast, &pm, &factors, 3, Simd::detected()).is_none());
     }

@@ -103,9 +103,9 @@ pub fn compute_curve_segments(
             kept.push(identified[j]);
         }
     }
-    for ((m, _, _), alpha) in pooled.iter().zip(kept.iter_mut()) {
+    for ((m, _, count), alpha) in pooled.iter().zip(kept.iter_mut()) {
         if alpha.is_none() {
-            *alpha = b1_alpha_from_phase(longest, *m, max_differences);
+            *alpha = b1_alpha_from_phase(longest, *m, *count, kind);
         }
     }
     let identified = kept;
@@ -151,7 +151,6 @@ pub fn compute_curve_from_rate(
     let analysis = non_overlapping_from_rate(rate, kind, &factors, Simd::detected())?;
     let mut kept = Vec::with_capacity(factors.len());
     let mut defined = Vec::with_capacity(factors.len());
-    let max_differences = if kind == DeviationKind::Hdev { 3 } else { 2 };
     // The phase, built only if R(n) is asked for (phase noise at the longest τ).
     let mut phase: Option<Phase> = None;
     for ((&m, variance), alpha) in factors
@@ -166,7 +165,7 @@ pub fn compute_curve_from_rate(
                     .chunks_exact(m)
                     .map(|c| c.iter().sum::<f64>() / m as f64)
                     .collect();
-                b1_alpha(&averages, m, max_differences, || {
+                b1_alpha(&averages, m, count, kind, || {
                     let phase = phase.get_or_insert_with(|| Phase::from_rate(rate.to_vec()));
                     variance_at(DeviationKind::Mdev, phase, m).map(|v| v.0)
                 })
@@ -186,9 +185,14 @@ pub fn compute_curve_from_rate(
     Some((Curve { kind, tau0, points }, analysis.mean))
 }
 
-/// [`b1_alpha`] at factor `m` of `phase`: the averages are the first differences of the
-/// decimated phase.
-fn b1_alpha_from_phase(phase: &Phase, m: usize, max_differences: u32) -> Option<Alpha> {
+/// [`b1_alpha`] at factor `m` of `phase` for a `kind` estimate of `terms` terms: the
+/// averages are the first differences of the decimated phase.
+fn b1_alpha_from_phase(
+    phase: &Phase,
+    m: usize,
+    terms: usize,
+    kind: DeviationKind,
+) -> Option<Alpha> {
     let averages: Vec<f64> = phase
         .points
         .iter()
@@ -197,7 +201,7 @@ fn b1_alpha_from_phase(phase: &Phase, m: usize, max_differences: u32) -> Option<
         .windows(2)
         .map(|w| (w[1] - w[0]) / m as f64)
         .collect();
-    b1_alpha(&averages, m, max_differences, || {
+    b1_alpha(&averages, m, terms, kind, || {
         variance_at(DeviationKind::Mdev, phase, m).map(|v| v.0)
     })
 }
@@ -226,10 +230,11 @@ pub fn point_with_interval(
     }
 }
 
-/// Fills τ where neither the lag-1 method nor B1 gave a noise type with the α of the
-/// nearest shorter τ (white FM when nothing was identified), and clamps α into the range the variance
+/// Fills τ where neither the lag-1 method nor B1 gave a noise type (too few averages,
+/// see [`super::noise_id::b1_min_averages`]) with the α of the nearest shorter τ (white
+/// FM when nothing was identified), and clamps α into the range the variance
 /// converges for (α ≥ −2 for Allan types, ≥ −4 for Hadamard).
-fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
+pub fn assign_alpha(identified: &[Option<Alpha>], kind: DeviationKind) -> Vec<Alpha> {
     let lowest = match kind {
         DeviationKind::Hdev | DeviationKind::Ohdev => -4,
         _ => -2,

@@ -296,7 +296,7 @@ pub fn decimated_variance(
 }
 
 /// The variance from the sum of squared terms (see [`variance_at`]).
-pub(super) fn normalise(kind: DeviationKind, sum: f64, m: usize, count: usize) -> f64 {
+pub fn normalise(kind: DeviationKind, sum: f64, m: usize, count: usize) -> f64 {
     let mf = m as f64;
     let c = count as f64;
     let variance = match kind {

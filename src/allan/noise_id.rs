@@ -19,8 +19,11 @@
 //! B1 bias ratio (Barnes; Howe 2000) between the standard and the Allan variance of the
 //! averages gives the τ exponent μ of the Allan variance, and for the phase noises
 //! (μ = −2) the ratio R(n) of the modified to the Allan variance separates white from
-//! flicker PM.
+//! flicker PM; with fewer than [`b1_min_averages`] averages the noise type of the next
+//! shorter τ is kept. The normalisations and bounds are Stable32's: with them every α of
+//! the Stable32 tables in `tests/allan/stable32.rs` is reproduced.
 
+use super::deviation::DeviationKind;
 use super::edf::Alpha;
 use super::numerics::{dispatch, for_each_decimation, CompensatedSum, Kernel, Simd};
 
@@ -500,8 +503,8 @@ pub enum Lag1 {
     Value(f64),
     /// Zero variance or too few values: no noise type.
     Undefined,
-    /// Proven to be at least 1/3 (δ ≥ 0.25) without its value: take the next order.
-    /// Only valid below `max_differences`.
+    /// Proven to be at least 1/3 after the normalisation of [`decide_alpha`] (δ ≥ 0.25)
+    /// without its value: take the next order. Only valid below `max_differences`.
     Correlated,
 }
 
@@ -510,6 +513,12 @@ pub enum Lag1 {
 /// only as far as the decision goes): the first order d whose δ = r/(1 + r) is below
 /// 0.25, or the last allowed one, gives α = 2 − round(2δ) − 2d. `None` (the caller
 /// takes [`b1_alpha`]) when the phase has fewer than [`MIN_AVERAGES`] + 1 points.
+///
+/// `lag1(d)` is the textbook r (autocovariance and variance sums over the same series);
+/// the decision takes r·(L − 1)/L, L = points − d values, which is Stable32's
+/// normalisation (the lag-1 autocovariance over L, the variance over L − 1): with it
+/// every α of the Stable32 tables in the lag-1 range is reproduced, without it two
+/// OCXO factors per table fall on the other side of δ = −0.25.
 pub fn decide_alpha(
     points: usize,
     max_differences: u32,
@@ -522,8 +531,9 @@ pub fn decide_alpha(
     };
     for order in 0..levels {
         let last = order as u32 >= max_differences;
+        let values = points - order;
         let r1 = match lag1(order) {
-            Lag1::Value(r1) => r1,
+            Lag1::Value(r1) => r1 * (values - 1) as f64 / values as f64,
             Lag1::Undefined => return None,
             Lag1::Correlated if !last => continue,
             // A caller error; no value to round.
@@ -543,17 +553,23 @@ pub fn decide_alpha(
 /// where the lag-1 method has too few averages (Stable32's method, NIST SP 1065 §5.6).
 ///
 /// `averages` are the ⌊(n − 1)/m⌋ non-overlapping averages of the rate at `m` (any
-/// scale); `modified_variance` gives the modified Allan variance at `m` in the units of
-/// `averages` squared (asked only when B1 points at a phase noise). `max_differences`
-/// 3 (Hadamard) also allows α = −3. `None` with fewer than 2 averages.
+/// scale); `terms` is the number of terms of the `kind` estimate at `m` (the "#" column
+/// of Stable32's tables), the N of the expected ratios, as in Stable32: for ADEV it is
+/// the averages less one, for the overlapping estimators far more. `modified_variance`
+/// gives the modified Allan variance at `m` in the units of `averages` squared (asked only
+/// when B1 points at a phase noise). Hadamard kinds also allow α = −3.
+///
+/// `None` with fewer than [`b1_min_averages`] averages: there the caller keeps the noise
+/// type of the next shorter τ, as Stable32 does.
 pub fn b1_alpha(
     averages: &[f64],
     m: usize,
-    max_differences: u32,
+    terms: usize,
+    kind: DeviationKind,
     modified_variance: impl FnOnce() -> Option<f64>,
 ) -> Option<Alpha> {
     let count = averages.len();
-    if count < 2 {
+    if count < b1_min_averages(kind).max(2) || terms < 2 {
         return None;
     }
     let n = count as f64;
@@ -570,10 +586,13 @@ pub fn b1_alpha(
     let ratio = standard / allan;
     // μ from −2 (phase noises) up; α = −μ − 1 for μ ≥ −1. The boundary between two
     // neighbouring μ is the geometric mean of their expected ratios.
-    let highest_mu = if max_differences >= 3 { 2 } else { 1 };
+    let highest_mu = match kind {
+        DeviationKind::Hdev | DeviationKind::Ohdev => 2,
+        _ => 1,
+    };
     let mut mu = -2;
     while mu < highest_mu {
-        let boundary = (b1_expected(count, mu) * b1_expected(count, mu + 1)).sqrt();
+        let boundary = (b1_expected(terms, mu) * b1_expected(terms, mu + 1)).sqrt();
         if ratio <= boundary {
             break;
         }
@@ -592,7 +611,18 @@ pub fn b1_alpha(
     Some(if r <= (white * flicker).sqrt() { 2 } else { 1 })
 }
 
-/// Expected B1 ratio of `n` averages for an Allan variance ∝ τ^μ (Barnes):
+/// Fewest averages the B1 ratio decides on: 10 for the non-overlapping ADEV and HDEV, 8
+/// for the overlapping estimators. These are Stable32's bounds as its tables show them
+/// (PHASE.DAT and the OCXO set, every τ): one average fewer or more on either side
+/// changes rows of the tables.
+pub fn b1_min_averages(kind: DeviationKind) -> usize {
+    match kind {
+        DeviationKind::Adev | DeviationKind::Hdev => 10,
+        _ => 8,
+    }
+}
+
+/// Expected B1 ratio of `n` terms for an Allan variance ∝ τ^μ (Barnes):
 /// n(1 − n^μ) / (2(n − 1)(1 − 2^μ)), with its limit n·ln n / (2(n − 1)·ln 2) at μ = 0.
 fn b1_expected(n: usize, mu: i32) -> f64 {
     let n = n as f64;

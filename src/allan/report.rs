@@ -63,7 +63,8 @@ const COLORS: [&str; 8] = [
     "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2",
 ];
 
-fn escape(text: &str) -> String {
+/// `text` with the characters HTML and SVG give meaning to (`&`, `<`, `>`, `"`) escaped.
+pub fn escape(text: &str) -> String {
     text.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
@@ -1227,7 +1228,7 @@ pub fn summary_html_with_study(report: &AllanReport, study: Option<&StudyResult>
             if !others.is_empty() {
                 let _ = write!(
                     verdict,
-                    " (its free-inertial analytic bound for a GNSS outage within 1 m is {}; no filter-based study given: <code>imulab report --study STUDY.json</code>)",
+                    " (its free-inertial analytic bound for a GNSS outage within 1 m is {}; no filter-based study)",
                     others.join(", ")
                 );
             }
@@ -1288,7 +1289,7 @@ pub fn summary_html_with_study(report: &AllanReport, study: Option<&StudyResult>
             study.runs, study.scene_duration_s, study.outages_per_run
         );
     } else {
-        html.push_str("<p>No filter-based study given (<code>imulab study … --json STUDY.json</code>, then <code>imulab report … --study STUDY.json</code>); below is the analytic bound only.</p>");
+        html.push_str("<p>No filter-based study: <code>imulab report</code> runs one of the fitted IMUs unless <code>--study-runs 0</code>, or when a fit does not give the white noise of both sensors (or give one: <code>imulab study … --json STUDY.json</code>, then <code>imulab report … --study STUDY.json</code>); below is the analytic bound only.</p>");
     }
     html.push_str("<table><thead><tr><th>device</th><th>analytic bound, within 0.1 m (lane level)</th><th>analytic bound, within 1 m</th><th>largest error source at 1 m</th></tr></thead><tbody>");
     let mut any_bounded = false;

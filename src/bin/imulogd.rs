@@ -117,11 +117,16 @@ fn check_config(path: &Path) -> ExitCode {
     }
     for d in &config.devices {
         text += &format!(
-            "device {}: {} over {}, {} Hz\n",
+            "device {}: {} over {}, {} Hz{}\n",
             d.name,
             d.protocol.name(),
             d.transport.describe(),
-            d.rate_hz
+            d.rate_hz,
+            if d.raw_journal {
+                ", raw bytes kept"
+            } else {
+                ""
+            }
         );
     }
     if let Err(e) = std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes()) {
@@ -200,14 +205,11 @@ fn run(config: &config::CheckedConfig) -> anyhow::Result<u8> {
     runtime.shutdown_timeout(std::time::Duration::from_millis(100));
     match &outcome {
         daemon::Outcome::Stopped => tracing::info!("session {} closed", session_dir.display()),
-        daemon::Outcome::DiskReserve {
-            free_bytes,
-            reserve_bytes,
-        } => tracing::error!(
-            "stopped: {free_bytes} bytes free is below the reserve of {reserve_bytes}; session {} closed cleanly",
-            session_dir.display()
-        ),
-        daemon::Outcome::Failed(e) => tracing::error!("stopped on an error: {e:#}"),
+        failed => {
+            let message = failed.message();
+            tracing::error!("{message}");
+            eprintln!("imulogd: {message}");
+        }
     }
     Ok(outcome.exit_code())
 }

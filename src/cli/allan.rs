@@ -101,6 +101,11 @@ pub struct AnalysisArgs {
     /// from every sample before the analysis, using the temperature channel.
     #[arg(long)]
     pub compensate: Option<PathBuf>,
+    /// Correct the gyro and accel channels with this calibration file (`imulab calibrate`,
+    /// docs/calibration.md) before the analysis (and before --compensate). Files need
+    /// columns named gyro_x … accel_z in rad/s and m/s².
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -335,27 +340,46 @@ pub fn open_input(
     device: Option<&str>,
     args: &AnalysisArgs,
 ) -> anyhow::Result<Box<dyn SampleSource>> {
-    if crate::bag::looks_like_bag(path) {
+    let source: Box<dyn SampleSource> = if crate::bag::looks_like_bag(path) {
         if args.from.is_some() || args.to.is_some() {
             bail!("--from/--to select a time range of a session; import the bag (imulab import) to use them");
         }
-        return Ok(Box::new(BagSource::open(path, args.topic.as_deref())?));
-    }
-    if args.topic.is_some() {
+        Box::new(BagSource::open(path, args.topic.as_deref())?)
+    } else if args.topic.is_some() {
         bail!(
             "{}: --topic selects a topic of a ROS bag or MCAP file",
             path.display()
         );
-    }
-    if path.is_dir() {
-        return Ok(Box::new(SessionSource::open(
-            path, device, args.from, args.to,
-        )?));
-    }
-    if args.from.is_some() || args.to.is_some() {
-        bail!("--from/--to select a time range of a session; for files, cut the file instead");
-    }
-    Ok(open_file(path)?)
+    } else if path.is_dir() {
+        Box::new(SessionSource::open(path, device, args.from, args.to)?)
+    } else {
+        if args.from.is_some() || args.to.is_some() {
+            bail!("--from/--to select a time range of a session; for files, cut the file instead");
+        }
+        open_file(path)?
+    };
+    let Some(cal_path) = &args.calibration else {
+        return Ok(source);
+    };
+    let name = match source.as_any_session() {
+        Some(d) => d.to_string(),
+        None => args.device.clone().unwrap_or_else(|| {
+            path.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "device".into())
+        }),
+    };
+    let corrector =
+        crate::calib::Corrector::new(&crate::calib::Calibration::load(cal_path)?, &name)?;
+    // A session's channels are SI; a file's are when no other unit is given for them.
+    let si = path.is_dir()
+        || (matches!(
+            args.units,
+            RateUnit::Unspecified | RateUnit::RadPerSecond | RateUnit::MetrePerSecondSquared
+        ) && args.columns.is_empty());
+    Ok(Box::new(crate::calib::source::CalibratedSource::new(
+        source, corrector, si,
+    )?))
 }
 
 /// Session channel names for `--axes`/`--sensor`.

@@ -40,6 +40,10 @@ pub enum Command {
     Allan(super::allan::AllanArgs),
     /// Thermal-chamber characterisation: bias against temperature, hysteresis, warm-up, lag.
     Thermal(super::thermal::ThermalArgs),
+    /// IMU calibration: multi-position tumble, six-position or rate table, to a calibration file.
+    Calibrate(super::calibrate::CalibrateArgs),
+    /// Live page of a session being recorded: data health, Allan curves, when to stop.
+    Watch(super::watch::WatchArgs),
     /// Self-contained HTML noise report of one or more IMUs.
     Report(super::report::ReportArgs),
     /// Datasheet-style comparison of two or more IMUs.
@@ -71,6 +75,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Status(args) => super::status::run(args),
         Command::Allan(args) => super::allan::run(args),
         Command::Thermal(args) => super::thermal::run(args),
+        Command::Calibrate(args) => super::calibrate::run(args),
+        Command::Watch(args) => super::watch::run(args),
         Command::Report(args) => super::report::run(args),
         Command::Compare(args) => super::compare::run(args),
         Command::Demo(args) => super::demo::run(args),

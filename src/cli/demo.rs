@@ -31,13 +31,12 @@ use crate::allan::session_source::SessionSource;
 use crate::allan::units::TermInUnits;
 use crate::allan::{DeviationKind, TauGrid};
 use crate::daemon::status::{read_status_file, DeviceState};
-use crate::fusion::study::{run_study, Grade, StudyOptions, StudyResult};
+use crate::fusion::study::{fit_study, StudyResult};
 use crate::sim::scene::Scene;
 use crate::sim::serve::{ServeOptions, ServeReport, Server, Speed, StartWhen};
 use crate::store::{EventKind, Session, TimeRange};
 use anyhow::{bail, Context};
 use clap::Parser;
-use imulab_drivers::codec::Protocol;
 use rayon::prelude::*;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -60,69 +59,12 @@ const DAEMON_STOP_TIMEOUT: Duration = Duration::from_secs(15);
 const DAEMON_DRAIN_TIMEOUT: Duration = Duration::from_secs(120);
 /// Outages of the replay: 30 s every 120 s.
 const REPLAY_OUTAGES: &str = "every:120:30";
-/// The study's outage lengths (s) and horizontal requirements (m).
-const STUDY_OUTAGES_S: [f64; 7] = [1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 60.0];
-const STUDY_REQUIREMENTS_M: [f64; 2] = [0.1, 1.0];
 /// Title of the demo's report page.
 const REPORT_TITLE: &str = "imulab demo: two bench IMUs in a 25 °C chamber";
 
-/// The drive of the replay and the study: 15 minutes at 150 Hz with both bench IMUs and a
-/// standalone receiver at 10 Hz (a shorter `fixtures/scenes/drive_30min.toml`).
-const DRIVE_SCENE: &str = r#"# The drive of `imulab demo`: 15 minutes with both bench IMUs and a 10 Hz standalone GNSS
-# receiver (the replay withholds GNSS 30 s every 120 s; the study places its own outages).
-duration_s = 900
-rate_hz = 150
-seed = 7
-start_utc = 2026-03-02T09:00:00Z
-
-[location]
-lat_deg = 48.1507
-lon_deg = 11.5691
-height_m = 520.0
-
-[motion]
-kind = "segments"
-heading_deg = 90.0
-speed_mps = 0.0
-segments = [
-    { kind = "stop", duration_s = 30 },
-    { kind = "accelerate", dv_mps = 14, duration_s = 20 },
-    { kind = "cruise", duration_s = 120 },
-    { kind = "turn", angle_deg = 90, duration_s = 15 },
-    { kind = "cruise", duration_s = 150 },
-    { kind = "accelerate", dv_mps = 6, duration_s = 15 },
-    { kind = "cruise", duration_s = 150 },
-    { kind = "climb", dh_m = 30, duration_s = 60 },
-    { kind = "cruise", duration_s = 100 },
-    { kind = "turn", angle_deg = -120, duration_s = 40 },
-    { kind = "cruise", duration_s = 80 },
-    { kind = "accelerate", dv_mps = -20, duration_s = 25 },
-    { kind = "stop", duration_s = 95 },
-]
-
-[temperature]
-kind = "constant"
-celsius = 25.0
-
-[[imu]]
-name = "cheap"
-preset = "bench-cheap"
-
-[[imu]]
-name = "dear"
-preset = "bench-dear"
-
-[[gnss]]
-name = "gnss"
-preset = "standalone"
-rate_hz = 10
-latency_s = 0.08
-
-[outputs]
-truth_nav = true
-truth_imu = false
-truth_every = 15
-"#;
+/// The drive of the replay and the study (both bench IMUs, a 10 Hz standalone receiver).
+const DRIVE_SCENE: &str = crate::fusion::study::REFERENCE_DRIVE;
+const STUDY_REQUIREMENTS_M: [f64; 2] = crate::fusion::study::FIT_STUDY_REQUIREMENTS_M;
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -136,9 +78,10 @@ pub struct DemoArgs {
     /// (as fast as imulogd reads).
     #[arg(long, default_value = "20")]
     pub speed: Speed,
-    /// Output directory (created; must not hold a previous demo's session).
-    #[arg(long, default_value = "imulab-demo")]
-    pub out: PathBuf,
+    /// Output directory (created; must not hold a previous demo's session). Default: a new
+    /// `imulab-demo-<UTC date>-<time>` in the system's temporary directory, printed first.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Seed of the simulated sensors.
     #[arg(long, value_parser = clap::value_parser!(u64).range(0..=i64::MAX as u64))]
     pub seed: Option<u64>,
@@ -202,13 +145,25 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             args.minutes
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create the output directory {}", args.out.display()))?;
-    let out = args
-        .out
+    let chosen = args.out.is_some();
+    let out = args.out.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!(
+            "imulab-demo-{}",
+            chrono::Utc::now().format("%Y%m%d-%H%M%S")
+        ))
+    });
+    std::fs::create_dir_all(&out)
+        .with_context(|| format!("cannot create the output directory {}", out.display()))?;
+    let out = out
         .canonicalize()
-        .with_context(|| format!("{}", args.out.display()))?;
+        .with_context(|| format!("{}", out.display()))?;
     path_str(&out)?;
+    if !chosen {
+        eprintln!(
+            "imulab demo: writing to {} (--out to choose)",
+            out.display()
+        );
+    }
     let paths = Paths::new(&out);
     for p in [&paths.session, &paths.drive] {
         if p.exists() {
@@ -274,7 +229,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             args.runs
         ),
     );
-    let study = study(&ui, &paths, args.runs as usize)?;
+    let study = study(&ui, &report, args.runs as usize)?;
     print!("{}", indent(&study.summary_text()));
     std::fs::write(&paths.study, serde_json::to_string_pretty(&study)?)
         .with_context(|| format!("writing {}", paths.study.display()))?;
@@ -459,7 +414,7 @@ fn imulogd_config(paths: &Paths, server: &Server, link_factor: f64) -> anyhow::R
     for e in server.endpoints() {
         let mut serial = toml::Table::new();
         serial.insert("port".into(), path_str(e.path())?.into());
-        let gnss = is_gnss(e.protocol);
+        let gnss = e.protocol.is_gnss();
         serial.insert("baud".into(), (if gnss { 115_200 } else { 921_600 }).into());
         let mut d = toml::Table::new();
         d.insert("name".into(), e.sensor.clone().into());
@@ -742,11 +697,6 @@ struct Health {
     summary: String,
 }
 
-/// Receivers (their frames are GNSS epochs), as against IMUs.
-fn is_gnss(protocol: Protocol) -> bool {
-    matches!(protocol, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
-}
-
 /// Counts of a device's clock: intervals longer than 1.5 sample periods, and the span, s.
 fn device_clock(session: &Session, device: &str) -> anyhow::Result<(u64, f64)> {
     let period = 1.0 / IMU_HZ;
@@ -781,7 +731,7 @@ fn check_session(dir: &Path, report: &ServeReport) -> anyhow::Result<Health> {
     let mut clock_jumps = 0;
     let mut total_rows = 0;
     for s in &report.streams {
-        let gnss = is_gnss(s.protocol);
+        let gnss = s.protocol.is_gnss();
         let group = if gnss {
             crate::store::layout::gnss_path(&s.sensor)
         } else {
@@ -1098,30 +1048,17 @@ fn replay_drive(paths: &Paths, seed: Option<u64>) -> anyhow::Result<Vec<ReplayRe
 
 // --- Stage 5: study ----------------------------------------------------------------------
 
-fn study(ui: &Ui, paths: &Paths, runs: usize) -> anyhow::Result<StudyResult> {
-    let scene = Scene::load(&paths.drive_scene)?;
-    let json = path_str(&paths.json)?;
-    let config = crate::fusion::config::FusionConfig {
-        covariance_interval_s: 0.1,
-        ..Default::default()
-    };
-    config.validate()?;
-    let grades = ["cheap", "dear"]
-        .iter()
-        .map(|d| Grade::parse(&format!("{json}#{d}"), &config.imu))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    for g in &grades {
-        for w in &g.noise.warnings {
+fn study(ui: &Ui, report: &AllanReport, runs: usize) -> anyhow::Result<StudyResult> {
+    let spinner = ui.spinner(&format!("{} simulated drives and replays", 2 * runs));
+    let result = fit_study(report, &["cheap", "dear"], runs, false);
+    spinner.finish_and_clear();
+    let result = result?;
+    for g in &result.grades {
+        for w in &g.warnings {
             println!("  note: {w}");
         }
     }
-    let mut options = StudyOptions::new(grades, STUDY_OUTAGES_S.to_vec(), runs, scene.seed);
-    options.requirements_m = STUDY_REQUIREMENTS_M.to_vec();
-    options.config = config;
-    let spinner = ui.spinner(&format!("{} simulated drives and replays", 2 * runs));
-    let result = run_study(&scene, &options);
-    spinner.finish_and_clear();
-    result
+    Ok(result)
 }
 
 /// What the study and the replays say about outage bridging.

@@ -41,6 +41,10 @@ pub struct ExportArgs {
     /// gyro and accel columns, using the row's `temp`.
     #[arg(long, value_name = "MODEL")]
     pub compensate: Option<PathBuf>,
+    /// Calibration file (`imulab calibrate`, docs/calibration.md): correct the gyro and
+    /// accel columns with its biases and scale/misalignment matrices (before --compensate).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
 }
 
 /// Rows per block read from the session.
@@ -83,6 +87,26 @@ pub fn export_csv(
         }
         None => TimeRange::all(),
     };
+    let calibration = match (&args.calibration, device.kind) {
+        (Some(path), DeviceKind::Imu) => {
+            let c = crate::calib::Corrector::new(
+                &crate::calib::Calibration::load(path)?,
+                &device.name,
+            )?;
+            writeln!(
+                out,
+                "# {} calibrated with {} (corrected = inverse(M) * (raw - b))",
+                c.describe(),
+                path.display()
+            )?;
+            Some(c)
+        }
+        (Some(_), DeviceKind::Gnss) => anyhow::bail!(
+            "--calibration applies to an IMU; `{}` is a GNSS receiver",
+            device.name
+        ),
+        (None, _) => None,
+    };
     let mut compensator = match (&args.compensate, device.kind) {
         (Some(path), DeviceKind::Imu) => {
             let model = ThermalModel::load(path)?;
@@ -122,6 +146,9 @@ pub fn export_csv(
             ])?;
             for block in session.imu_blocks(&device.name, range, BLOCK_ROWS)? {
                 let mut b = block?;
+                if let Some(c) = &calibration {
+                    c.apply(&mut b.gyro, &mut b.accel);
+                }
                 if let Some(c) = compensator.as_mut() {
                     c.compensate_block(&mut b.gyro, &mut b.accel, &b.temp);
                 }
@@ -165,6 +192,7 @@ pub fn export_csv(
                 "pdop",
                 "hdop",
                 "vdop",
+                "heading_deg",
             ])?;
             for block in session.gnss_blocks(&device.name, range, BLOCK_ROWS)? {
                 let b = block?;
@@ -190,6 +218,7 @@ pub fn export_csv(
                         f(b.pdop[i]),
                         f(b.hdop[i]),
                         f(b.vdop[i]),
+                        f(b.heading_deg[i]),
                     ])?;
                 }
                 rows += b.len() as u64;

@@ -80,6 +80,8 @@ pub struct DeviceReport {
     pub events_by_kind: BTreeMap<String, u64>,
     /// Rows only in the write-ahead journal of a partial chunk file (not counted in `rows`).
     pub journal_rows: u64,
+    /// GNSS rows with a heading (`heading_deg` not NaN); `None` for IMUs.
+    pub heading_rows: Option<u64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -201,6 +203,7 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
         let first_t = summary.first_t_mono_ns.unwrap_or(0);
         let window = (summary.rows as usize / 5).clamp(10, RATE_WINDOW_ROWS);
         let mut marks = Vec::new();
+        let mut heading_rows = None;
         let mut seen = 0usize;
         // Whole rows are read (not only the times) so that damage anywhere in the data shows.
         let mut scan = |times: &[i64]| {
@@ -239,12 +242,18 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
             DeviceKind::Gnss => {
                 if let Ok(blocks) = session.gnss_blocks(&d.name, TimeRange::all(), SCAN_BLOCK_ROWS)
                 {
+                    let mut with_heading = 0u64;
                     for block in blocks {
                         match block {
-                            Ok(b) => scan(&b.t_mono_ns),
+                            Ok(b) => {
+                                scan(&b.t_mono_ns);
+                                with_heading +=
+                                    b.heading_deg.iter().filter(|h| !h.is_nan()).count() as u64;
+                            }
                             Err(e) => read_problems.push(e.to_string()),
                         }
                     }
+                    heading_rows = Some(with_heading);
                 }
             }
         }
@@ -313,6 +322,7 @@ pub fn inspect(session: &Session, max_gaps: usize) -> InspectReport {
             frames_dropped: dropped,
             events_by_kind: by_kind,
             journal_rows,
+            heading_rows,
         });
     }
     InspectReport {
@@ -405,6 +415,9 @@ fn print_text(r: &InspectReport) {
             "    gaps > {} periods: {}  (total {:.3} s, longest {:.3} s)  frames errored {}  dropped {}",
             d.gap_factor, d.gap_count, d.gap_total_s, d.longest_gap_s, d.frames_errored, d.frames_dropped
         );
+        if let Some(n) = d.heading_rows {
+            println!("    heading in {n} of {} rows", d.rows);
+        }
         for g in &d.gaps {
             println!(
                 "      gap of {:.3} s at {:.3} s (after the first sample)",

@@ -3,6 +3,7 @@
 
 pub mod allan;
 pub mod app;
+pub mod calibrate;
 pub mod compare;
 pub mod completions;
 pub mod replay;
@@ -30,3 +31,4 @@ pub mod inspect;
 pub mod recover;
 pub mod sim;
 pub mod thermal;
+pub mod watch;

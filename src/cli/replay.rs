@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug)]
 #[command(
     group = clap::ArgGroup::new("input").required(true).args(["session", "kf_gins"]),
-    after_help = "Examples:\n  imulab replay sessions/drive1 --outages every:300:60 --smooth\n  imulab replay sessions/drive1 --outages every:300:60 --compensate thermal-model.json\n  imulab replay --kf-gins dataset/kf-gins.yaml --truth dataset/truth.nav --out results/"
+    after_help = "Examples:\n  imulab replay sessions/drive1 --outages every:300:60 --smooth\n  imulab replay sessions/drive1 --outages every:300:60 --compensate thermal-model.json\n  imulab replay sessions/drive1 --outages every:300:60 --calibration imu-cal.json\n  imulab replay --kf-gins dataset/kf-gins.yaml --truth dataset/truth.nav --out results/"
 )]
 pub struct ReplayArgs {
     /// Session directory to replay.
@@ -30,7 +30,7 @@ pub struct ReplayArgs {
     #[arg(long, value_name = "G", requires = "session")]
     pub gnss: Option<String>,
     /// Filter configuration (TOML, see docs/fusion.md) for a session replay; with --kf-gins,
-    /// the motion constraints only ([nhc], [zupt], [zaru]).
+    /// the motion constraints only ([nhc], [zupt], [zaru], [odometer], [vehicle]).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Turn on the non-holonomic constraint (land vehicle: no sideways or vertical body
@@ -43,6 +43,10 @@ pub struct ReplayArgs {
     /// Turn on zero angular rate updates at detected standstills (gyro bias).
     #[arg(long)]
     pub zaru: bool,
+    /// Turn on odometer updates from the wheel speed (with --kf-gins: the IMU file's column
+    /// `[odometer] column`, default 8, in m/s).
+    #[arg(long)]
+    pub odometer: bool,
     /// KF-GINS configuration file instead of a session (paths inside resolve against the
     /// current directory).
     #[arg(long, value_name = "CONFIG.yaml")]
@@ -76,6 +80,10 @@ pub struct ReplayArgs {
     /// session IMU's rates, by their `temp`, before the filter.
     #[arg(long, value_name = "MODEL", requires = "session")]
     pub compensate: Option<PathBuf>,
+    /// Calibration file (`imulab calibrate`, docs/calibration.md): correct the session IMU's
+    /// rates with its bias and scale/misalignment matrices, before --compensate and the filter.
+    #[arg(long, value_name = "FILE", requires = "session")]
+    pub calibration: Option<PathBuf>,
 }
 
 fn parse_pair(text: &str, what: &str) -> anyhow::Result<(f64, f64)> {
@@ -152,6 +160,11 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         None => FusionConfig::default(),
     };
     enable_constraints(&mut config, args);
+    if config.odometer.enabled {
+        bail!(
+            "odometer: a session has no wheel-speed channel (docs/session-format.md); odometer updates work with --kf-gins, from a column of its IMU file"
+        );
+    }
     let session = crate::store::Session::open(dir)?;
     let out_dir = args.out.clone().unwrap_or_else(|| dir.join("replay"));
     let in_session = args
@@ -191,9 +204,18 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(crate::thermal::model::ThermalModel::load)
         .transpose()?;
+    let calibration = args
+        .calibration
+        .as_deref()
+        .map(|p| {
+            crate::calib::Calibration::load(p)
+                .and_then(|c| crate::calib::Corrector::new(&c, &imu_device))
+        })
+        .transpose()?;
     let options = ReplayOptions {
         outages: outages.clone(),
         smooth: args.smooth,
+        calibration,
         ..ReplayOptions::default()
     };
     let r = session::replay_session(
@@ -211,6 +233,12 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         "replayed IMU `{}` with GNSS `{}` ({} epochs without a fix skipped)",
         r.imu_device, r.gnss_device, r.gnss_without_fix
     );
+    if let Some(path) = &args.calibration {
+        println!(
+            "IMU rates calibrated with {} before the filter",
+            path.display()
+        );
+    }
     if let Some(path) = &args.compensate {
         println!(
             "IMU rates thermally compensated with model {} before the filter",
@@ -281,6 +309,7 @@ fn enable_constraints(config: &mut FusionConfig, args: &ReplayArgs) {
     config.nhc.enabled |= args.nhc;
     config.zupt.enabled |= args.zupt;
     config.zaru.enabled |= args.zaru;
+    config.odometer.enabled |= args.odometer;
 }
 
 fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
@@ -296,6 +325,7 @@ fn run_kf_gins(path: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         (fusion.nhc.enabled, "NHC"),
         (fusion.zupt.enabled, "ZUPT"),
         (fusion.zaru.enabled, "ZARU"),
+        (fusion.odometer.enabled, "odometer"),
     ]
     .iter()
     .filter(|(e, _)| *e)
@@ -553,7 +583,7 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         );
     }
     println!(
-        "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), NHC/ZUPT/ZARU updates {}/{}/{}, filter PD events {}",
+        "IMU samples {} (rejected {}), GNSS used {} (withheld {}, rejected {}), NHC/ZUPT/ZARU/odometer updates {}/{}/{}/{}, filter PD events {}",
         stats.imu_samples,
         stats.imu_rejected_non_finite + stats.imu_rejected_time,
         stats.gnss_used,
@@ -564,6 +594,7 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
         stats.nhc_updates,
         stats.zupt_updates,
         stats.zaru_updates,
+        stats.odometer_updates,
         stats.filter.pd_events
     );
     if truth.is_none() && !windows.is_empty() {

@@ -1,7 +1,9 @@
 //! `imulab report`: one self-contained HTML page for one or more inputs (sessions or plain
 //! files): log-log curves with confidence bands and fitted lines, the datasheet-style
 //! noise-term table (rows: terms; columns: device × axis) and the data's health, after a
-//! summary of which IMU is better and what that means for GNSS outages.
+//! summary of which IMU is better and what that means for GNSS outages: the filter-based
+//! answer of a small sensor-grade study of the fitted IMUs (or of a given study JSON), the
+//! free-inertial figure only as a labelled analytic bound.
 
 use super::allan::{analyse_inputs, summary_text, AnalysisArgs};
 use crate::allan::analysis::AllanReport;
@@ -30,9 +32,14 @@ pub struct ReportArgs {
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// A sensor-grade study of these IMUs (`imulab study --grades FIT.json#DEVICE,... --json`):
-    /// its filter-based answer becomes the report's GNSS-outage headline.
+    /// its filter-based answer becomes the report's GNSS-outage headline, instead of the
+    /// small study the report runs itself.
     #[arg(long, value_name = "STUDY.json")]
     pub study: Option<PathBuf>,
+    /// Monte Carlo runs of the report's own sensor-grade study of the fitted IMUs (the
+    /// reference 15-minute drive; 0 = none, the analytic bound only).
+    #[arg(long, default_value_t = crate::fusion::study::FIT_STUDY_RUNS, conflicts_with = "study")]
+    pub study_runs: usize,
     /// Page title.
     #[arg(long, default_value = "IMU noise report")]
     pub title: String,
@@ -55,11 +62,16 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
     if args.analysis.temperature_column.is_none() && args.inputs.iter().all(|p| p.is_dir()) {
         args.analysis.temperature_column = Some("temp".into());
     }
-    let study = match &args.study {
+    let given = match &args.study {
         Some(p) => Some(crate::fusion::study::StudyResult::from_json_file(p)?),
         None => None,
     };
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
+    let study = match given {
+        Some(s) => Some(s),
+        None if args.study_runs > 0 => own_study(&report, args.study_runs, args.quiet),
+        None => None,
+    };
     let page = match &study {
         Some(s) => crate::allan::report::html_report_with_study(&report, &args.title, s),
         None => html_report(&report, &args.title),
@@ -82,6 +94,54 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The filter-based outage answer for the report's devices: a small study of their fits
+/// (`fusion::study::fit_study`). None, with one line saying why, when a fit does not allow
+/// it (the page then shows the analytic bound only).
+fn own_study(
+    report: &AllanReport,
+    runs: usize,
+    quiet: bool,
+) -> Option<crate::fusion::study::StudyResult> {
+    let mut devices: Vec<&str> = Vec::new();
+    for a in &report.axes {
+        if !devices.contains(&a.device.as_str()) {
+            devices.push(&a.device);
+        }
+    }
+    if !quiet {
+        eprintln!(
+            "GNSS-outage study of {}: {runs} simulated drives of 15 min per IMU (--study-runs 0: none)",
+            devices.join(", ")
+        );
+    }
+    match crate::fusion::study::fit_study(report, &devices, runs, !quiet) {
+        Ok(s) => {
+            if !quiet {
+                for (k, req) in s.requirements_m().iter().enumerate() {
+                    let per: Vec<String> = s
+                        .grades
+                        .iter()
+                        .filter_map(|g| Some(format!("{} {}", g.name, g.bridges.get(k)?.text())))
+                        .collect();
+                    println!(
+                        "longest GNSS outage within {req} m (p95, filter-based): {}",
+                        per.join("; ")
+                    );
+                }
+            }
+            Some(s)
+        }
+        Err(e) => {
+            if !quiet {
+                eprintln!(
+                    "no filter-based outage study: {e:#}; the report shows the analytic bound only"
+                );
+            }
+            None
+        }
+    }
 }
 
 /// The HTML page's plots as PNG files; returns the paths written.

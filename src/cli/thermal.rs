@@ -64,6 +64,25 @@ pub struct ThermalArgs {
     /// Write the compensation model (JSON, docs/thermal.md) here.
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Correct the gyro and accel channels with this calibration file (`imulab calibrate`,
+    /// docs/calibration.md) before the analysis.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+}
+
+/// `source`, corrected with `--calibration` when given (the file's channels are SI).
+fn calibrated(
+    source: Box<dyn SampleSource>,
+    device: &str,
+    args: &ThermalArgs,
+) -> Result<Box<dyn SampleSource>> {
+    let Some(path) = &args.calibration else {
+        return Ok(source);
+    };
+    let corrector = crate::calib::Corrector::new(&crate::calib::Calibration::load(path)?, device)?;
+    Ok(Box::new(crate::calib::source::CalibratedSource::new(
+        source, corrector, true,
+    )?))
 }
 
 const SESSION_AXES: [&str; 6] = [
@@ -271,9 +290,13 @@ pub fn run(args: ThermalArgs) -> Result<()> {
         }
         let mut out = Vec::new();
         for name in names {
-            let source = SessionSource::open(input, Some(&name), None, None)?;
+            let source = calibrated(
+                Box::new(SessionSource::open(input, Some(&name), None, None)?),
+                &name,
+                &args,
+            )?;
             out.push(analyse_device(
-                &source,
+                source.as_ref(),
                 &name,
                 &args,
                 chamber.as_ref(),
@@ -288,10 +311,10 @@ pub fn run(args: ThermalArgs) -> Result<()> {
                 input.display()
             );
         }
-        let source = open_file(input)?;
         let name = input
             .file_stem()
             .map_or("file".into(), |s| s.to_string_lossy().into_owned());
+        let source = calibrated(open_file(input)?, &name, &args)?;
         vec![analyse_device(source.as_ref(), &name, &args, None, false)?]
     };
     let report = ThermalReport::new(input.display().to_string(), devices);

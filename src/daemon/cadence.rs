@@ -85,7 +85,7 @@ impl AsRawFd for Timer {
 /// kernel arms and cancels a high-resolution timer in each `epoll_wait`, i.e. at every
 /// frame's wake-up. The timerfd's kernel timer is set once per period (one
 /// `timerfd_settime`), and the device thread's `epoll_wait` blocks without a timeout
-/// (docs/bench/daemon.md, "Session 6, wake-up cost").
+/// (docs/bench/daemon.md, "Where a wake-up's cost goes").
 pub struct HandoverTimer {
     fd: AsyncFd<Timer>,
 }

@@ -153,59 +153,8 @@ fn default_queue_capacity() -> usize {
     1024
 }
 
-/// Device protocols, named as in the codec table of the drivers crate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Protocol {
-    /// NMEA 0183 sentences.
-    Nmea,
-    /// u-blox UBX binary.
-    Ubx,
-    /// NMEA and UBX interleaved on one port (u-blox default output), merged into epochs.
-    Gnss,
-    /// WitMotion 0x55 frames.
-    Wit,
-    /// Xsens MTi Xbus MTData2.
-    Xbus,
-    /// VectorNav binary output packets and `$VN` ASCII sentences.
-    Vectornav,
-    /// MicroStrain MIP, IMU data set.
-    Mip,
-    /// ASCII/CSV lines from a home-built IMU.
-    Csv,
-    /// An IMU on a CAN bus, decoded through a DBC file.
-    CanDbc,
-    /// The IMU inside a u-blox dead-reckoning receiver (NEO-M8L, ZED-F9R): UBX ESF-RAW and
-    /// ESF-MEAS on a receiver port of its own, stored as an IMU device.
-    UbxEsf,
-}
-
-impl Protocol {
-    pub fn name(self) -> &'static str {
-        match self {
-            Protocol::Nmea => "nmea",
-            Protocol::Ubx => "ubx",
-            Protocol::Gnss => "gnss",
-            Protocol::Wit => "wit",
-            Protocol::Xbus => "xbus",
-            Protocol::Vectornav => "vectornav",
-            Protocol::Mip => "mip",
-            Protocol::Csv => "csv",
-            Protocol::CanDbc => "can-dbc",
-            Protocol::UbxEsf => "ubx-esf",
-        }
-    }
-
-    /// True for protocols that arrive on a CAN bus (SocketCAN or slcan) rather than a byte stream.
-    pub fn is_can(self) -> bool {
-        matches!(self, Protocol::CanDbc)
-    }
-
-    /// True for receivers (their frames are GNSS fixes); false for IMUs.
-    pub fn is_gnss(self) -> bool {
-        matches!(self, Protocol::Nmea | Protocol::Ubx | Protocol::Gnss)
-    }
-}
+/// Device protocols: the rows of the drivers' protocol table, by their names there.
+pub use imulab_drivers::codec::Protocol;
 
 /// `[device.serial]`: a serial port (or a pty standing in for one).
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
@@ -252,6 +201,61 @@ pub struct SlcanConfig {
 pub const SLCAN_BITRATES: [u32; 9] = [
     10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000,
 ];
+
+/// `[device.file]`: a capture played back through the daemon as if it were the device: a
+/// raw byte capture (what a serial port sent), a candump log (for `can-dbc`), or a session
+/// directory whose raw record (`/raw/<device>`, `raw_journal`) is replayed read by read.
+/// Relative paths are relative to the configuration file. The device ends at the end of the
+/// file (it is not reopened); the session ends once every device has ended.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FileConfig {
+    pub path: PathBuf,
+    /// `"recorded"` (the capture's own timing), `"fast"` (as fast as the writer takes it),
+    /// or a factor (2 = twice the recorded pace).
+    #[serde(default)]
+    pub pace: PaceSetting,
+    /// A raw byte capture has no time stamps: it is paced as a serial line at this baud
+    /// (8N1: baud / 10 bytes per second).
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// For a session directory: whose raw record to play (default: this device's name).
+    #[serde(default)]
+    pub device: Option<String>,
+}
+
+/// `pace` as written: a word or a number.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum PaceSetting {
+    Word(String),
+    Factor(f64),
+}
+
+impl Default for PaceSetting {
+    fn default() -> Self {
+        PaceSetting::Word("recorded".to_string())
+    }
+}
+
+/// How fast a file source plays, after validation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Pace {
+    /// No waiting: as fast as the decoder and the writer go (the writer queue then waits
+    /// instead of dropping).
+    Fast,
+    /// The recorded timing divided by this factor (1 = as recorded).
+    Factor(f64),
+}
+
+/// A validated `[device.file]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileSource {
+    pub path: PathBuf,
+    pub pace: Pace,
+    pub baud: Option<u32>,
+    pub device: Option<String>,
+}
 
 /// `[device.dbc]`: the DBC file of a CAN IMU and the signal mapping (TOML, the drivers'
 /// format: `fixtures/imu_can_mapping.toml`, `docs/protocols-imu-can.md`). Relative paths are
@@ -355,6 +359,8 @@ pub struct DeviceConfig {
     #[serde(default)]
     pub slcan: Option<SlcanConfig>,
     #[serde(default)]
+    pub file: Option<FileConfig>,
+    #[serde(default)]
     pub dbc: Option<DbcConfig>,
     /// The line format of a `csv` device (the drivers' [`CsvLineConfig`]); default layout
     /// `time,gx,gy,gz,ax,ay,az,temp` in SI units when absent.
@@ -370,6 +376,9 @@ pub struct DeviceConfig {
     /// Longest retry delay (the delay doubles up to this), ms.
     #[serde(default = "default_retry_max_ms")]
     pub retry_max_ms: u64,
+    /// Keep this device's undecoded bytes (`/raw/<name>`); default: `[session] raw_journal`.
+    #[serde(default)]
+    pub raw_journal: Option<bool>,
 }
 
 /// `gap_factor` when a device does not set it (also what `imulab inspect` uses for a
@@ -393,6 +402,7 @@ pub enum Transport {
     Tcp(TcpConfig),
     Can(CanConfig),
     Slcan(SlcanConfig),
+    File(FileSource),
 }
 
 impl Transport {
@@ -403,7 +413,20 @@ impl Transport {
             Transport::Tcp(t) => format!("tcp {}", t.address),
             Transport::Can(c) => format!("can {}", c.interface),
             Transport::Slcan(s) => format!("slcan {} @ {} bit/s", s.port.display(), s.bitrate),
+            Transport::File(f) => {
+                let pace = match f.pace {
+                    Pace::Fast => "fast".to_string(),
+                    Pace::Factor(1.0) => "recorded pace".to_string(),
+                    Pace::Factor(x) => format!("{x}x recorded pace"),
+                };
+                format!("file {} ({pace})", f.path.display())
+            }
         }
+    }
+
+    /// True for a file source: it ends at the end of the file and is never reopened.
+    pub fn is_file(&self) -> bool {
+        matches!(self, Transport::File(_))
     }
 }
 
@@ -423,6 +446,8 @@ pub struct DeviceSpec {
     pub csv: Option<CsvLineConfig>,
     pub retry_initial_ms: u64,
     pub retry_max_ms: u64,
+    /// Whether this device's undecoded bytes are kept (`/raw/<name>`).
+    pub raw_journal: bool,
 }
 
 /// The validated configuration the daemon runs from.
@@ -435,6 +460,12 @@ pub struct CheckedConfig {
 }
 
 impl CheckedConfig {
+    /// True when some device keeps its undecoded bytes (the session then has `/raw/<name>`
+    /// groups).
+    pub fn any_raw_journal(&self) -> bool {
+        self.devices.iter().any(|d| d.raw_journal)
+    }
+
     /// Where the status JSON goes.
     pub fn status_path(&self) -> PathBuf {
         self.session
@@ -463,6 +494,9 @@ pub fn load(path: &Path) -> Result<CheckedConfig, ConfigError> {
         if let Some(dbc) = &mut device.dbc {
             dbc.file = base.join(&dbc.file);
             dbc.mapping = base.join(&dbc.mapping);
+        }
+        if let Transport::File(f) = &mut device.transport {
+            f.path = base.join(&f.path);
         }
     }
     let clashes = shared_port_issues(&checked.devices);
@@ -500,8 +534,9 @@ fn endpoint(spec: &DeviceSpec) -> Option<Endpoint> {
                 .map(|d| canonical_or_given(&d.mapping))
                 .unwrap_or_default(),
         }),
-        // A TCP server (ser2net and the like) may serve several clients.
-        Transport::Tcp(_) => None,
+        // A TCP server (ser2net and the like) may serve several clients; a file can be read
+        // by several devices (a session's devices from one session directory).
+        Transport::Tcp(_) | Transport::File(_) => None,
     }
 }
 
@@ -649,7 +684,7 @@ impl Config {
                     "every device needs its own name; it names the HDF5 group",
                 );
             }
-            if let Some(spec) = validate_device(device, &path, &mut issues) {
+            if let Some(spec) = validate_device(device, &path, &self.session, &mut issues) {
                 devices.push(spec);
             }
         }
@@ -763,7 +798,7 @@ pub const RESERVE_CHECK_INTERVAL_MS: u64 = 1000;
 /// The smallest safe `disk_reserve_mb`: what every device can write, at its configured rate,
 /// in the longest time between two free-space checks. A row is counted twice (its HDF5
 /// dataset and the write-ahead journal) at its in-memory size (no compression assumed:
-/// `deflate_level` may be 0); with `raw_journal`, a serial line adds its top byte rate
+/// `deflate_level` may be 0); with a device's `raw_journal`, a serial line adds its top byte rate
 /// (baud / 10, 8N1), other transports their row rate × the largest frame.
 pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 {
     const LARGEST_FRAME_BYTES: f64 = 256.0;
@@ -776,7 +811,7 @@ pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 
             } else {
                 std::mem::size_of::<crate::store::ImuRecord>()
             } as f64;
-            let raw = match (&d.transport, session.raw_journal) {
+            let raw = match (&d.transport, d.raw_journal) {
                 (_, false) => 0.0,
                 (Transport::Serial(s), true) => f64::from(s.baud) / 10.0,
                 (Transport::Slcan(s), true) => f64::from(s.baud) / 10.0,
@@ -805,7 +840,12 @@ fn check_placeholders(name: &str) -> Result<(), String> {
     Ok(())
 }
 
-fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<DeviceSpec> {
+fn validate_device(
+    d: &DeviceConfig,
+    path: &str,
+    session: &SessionConfig,
+    issues: &mut Issues,
+) -> Option<DeviceSpec> {
     let before = issues.0.len();
     if d.name.is_empty()
         || d.name.len() > MAX_DEVICE_NAME_LEN
@@ -876,6 +916,7 @@ fn validate_device(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<
         csv: d.csv.clone(),
         retry_initial_ms: d.retry_initial_ms,
         retry_max_ms: d.retry_max_ms,
+        raw_journal: d.raw_journal.unwrap_or(session.raw_journal),
     })
 }
 
@@ -893,6 +934,46 @@ fn validate_transport(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Opti
     if let Some(s) = &d.slcan {
         given.push(("slcan", Transport::Slcan(s.clone())));
     }
+    if let Some(f) = &d.file {
+        let pace = match &f.pace {
+            PaceSetting::Word(w) if w == "recorded" => Some(Pace::Factor(1.0)),
+            PaceSetting::Word(w) if w == "fast" => Some(Pace::Fast),
+            PaceSetting::Factor(x) if x.is_finite() && *x > 0.0 && *x <= 1e6 => {
+                Some(Pace::Factor(*x))
+            }
+            other => {
+                let shown = match other {
+                    PaceSetting::Word(w) => format!("`{w}`"),
+                    PaceSetting::Factor(x) => x.to_string(),
+                };
+                issues.add(
+                    format!("{path}.file.pace"),
+                    format!("{shown} is not a pace"),
+                    "use \"recorded\", \"fast\" or a speed factor above 0, e.g. 4",
+                );
+                None
+            }
+        };
+        if f.path.as_os_str().is_empty() {
+            issues.add(
+                format!("{path}.file.path"),
+                "is empty",
+                "the capture to play: a raw byte file, a candump log or a session directory",
+            );
+        }
+        if let Some(baud) = f.baud {
+            check_baud(baud, &format!("{path}.file.baud"), issues);
+        }
+        given.push((
+            "file",
+            Transport::File(FileSource {
+                path: f.path.clone(),
+                pace: pace.unwrap_or(Pace::Fast),
+                baud: f.baud,
+                device: f.device.clone(),
+            }),
+        ));
+    }
     if given.len() != 1 {
         let names: Vec<&str> = given.iter().map(|(n, _)| *n).collect();
         issues.add(
@@ -902,13 +983,14 @@ fn validate_transport(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Opti
             } else {
                 format!("more than one transport given ({})", names.join(", "))
             },
-            "give exactly one of [device.serial], [device.tcp], [device.can], [device.slcan]",
+            "give exactly one of [device.serial], [device.tcp], [device.can], [device.slcan], [device.file]",
         );
         return None;
     }
     let (kind, transport) = given.pop()?;
     let on_can = matches!(transport, Transport::Can(_) | Transport::Slcan(_));
-    if d.protocol.is_can() != on_can {
+    // A file carries either: bytes, or (for `can-dbc`) a candump log of frames.
+    if !transport.is_file() && d.protocol.is_can() != on_can {
         issues.add(
             format!("{path}.{kind}"),
             format!(
@@ -951,6 +1033,9 @@ fn validate_transport(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Opti
                 );
             }
         }
+        // Checked in full against the file system when the source is made
+        // (`source::connector_for`, also run by --check-config).
+        Transport::File(_) => {}
         Transport::Can(c) => {
             if c.interface.is_empty()
                 || c.interface.len() > 15
@@ -989,10 +1074,10 @@ fn check_baud(baud: u32, path: &str, issues: &mut Issues) {
 }
 
 fn validate_dbc(d: &DeviceConfig, path: &str, issues: &mut Issues) {
-    match (&d.dbc, d.protocol.is_can()) {
+    match (&d.dbc, d.protocol.entry().dbc) {
         (None, true) => issues.add(
             format!("{path}.dbc"),
-            "protocol `can-dbc` needs a DBC mapping",
+            format!("protocol `{}` needs a DBC mapping", d.protocol.name()),
             "add dbc = { file = \"imu.dbc\", mapping = \"imu_mapping.toml\" }",
         ),
         (Some(_), false) => issues.add(

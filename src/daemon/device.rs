@@ -28,9 +28,10 @@ use crate::store::{EventKind, EventRecord};
 use super::backoff::Backoff;
 use super::cadence::{Cadence, HandoverTimer};
 use super::clock::{self, Arrival};
-use super::config::DeviceSpec;
+use super::config::{DeviceSpec, Transport};
 use super::gap::{Gap, GapDetector};
 use super::mapping::{gnss_record, ImuMapping};
+use super::pathwatch::PathWatch;
 use super::source::{Connector, DecoderFactory, Frame, FrameDecoder, Input, Link, Received};
 use super::status::{DeviceShared, DeviceState};
 use super::timerel::{gps_time_ns, TimeRelationTracker};
@@ -57,6 +58,65 @@ pub fn batch_window(flush_interval: Duration) -> Duration {
 
 /// Length of one GNSS-time ↔ host-time window.
 const TIME_RELATION_WINDOW_S: f64 = 60.0;
+
+/// Frames that were waiting in a buffer (the kernel's, a USB adapter's, the device's) when a
+/// device was opened arrive together in the first reads after the open, all stamped at read
+/// time: their arrival times say nothing about when they were sampled. A read is part of
+/// such a burst while it delivers more frames than the device can have sent since the read
+/// before (twice the nominal rate, plus one frame); the burst ends at the first read that
+/// does not. One `info` event per burst says how many rows and which arrival times
+/// (`t_mono_ns` range) it covers.
+#[derive(Debug)]
+struct BurstTracker {
+    rate_hz: f64,
+    /// The previous read with frames (at first: when the device was opened).
+    prev_mono_ns: i64,
+    /// Still in the burst (no read yet within the rate).
+    open: bool,
+    frames: u64,
+    first_mono_ns: i64,
+    last_mono_ns: i64,
+}
+
+impl BurstTracker {
+    fn new(rate_hz: f64, opened_mono_ns: i64) -> Self {
+        BurstTracker {
+            rate_hz,
+            prev_mono_ns: opened_mono_ns,
+            open: true,
+            frames: 0,
+            first_mono_ns: 0,
+            last_mono_ns: 0,
+        }
+    }
+
+    /// A read at `at_mono_ns` that delivered `frames` frames; the finished burst, when this
+    /// read ended it.
+    fn observe(&mut self, at_mono_ns: i64, frames: u64) -> Option<(u64, i64, i64)> {
+        if !self.open || frames == 0 {
+            return None;
+        }
+        let dt_s = (at_mono_ns - self.prev_mono_ns).max(0) as f64 * 1e-9;
+        self.prev_mono_ns = at_mono_ns;
+        if frames as f64 > 2.0 * self.rate_hz * dt_s + 1.0 {
+            if self.frames == 0 {
+                self.first_mono_ns = at_mono_ns;
+            }
+            self.frames += frames;
+            self.last_mono_ns = at_mono_ns;
+            return None;
+        }
+        self.finish()
+    }
+
+    /// Ends the burst (at its first read within the rate, or when the connection ends).
+    fn finish(&mut self) -> Option<(u64, i64, i64)> {
+        if !std::mem::replace(&mut self.open, false) || self.frames == 0 {
+            return None;
+        }
+        Some((self.frames, self.first_mono_ns, self.last_mono_ns))
+    }
+}
 
 /// Everything one device task needs.
 pub struct DeviceTask {
@@ -85,6 +145,8 @@ enum ConnectionEnd {
     WriterGone,
     /// The device vanished: end of stream or a read error.
     Vanished(String),
+    /// A capture file reached its end.
+    Finished,
 }
 
 /// Reads a device task still makes after shutdown is requested, for what the device had
@@ -177,6 +239,28 @@ impl DeviceTask {
         }
     }
 
+    /// The event for a burst of `frames` buffered frames read from `first` to `last` ns.
+    fn burst_event(
+        &self,
+        (frames, first, last): (u64, i64, i64),
+        opened_mono_ns: i64,
+    ) -> EventRecord {
+        let detail = format!(
+            "burst after the open: {frames} frames that waited in a buffer arrived {:.1} ms after it, within {:.1} ms; their rows' arrival times (t_mono_ns {first}..={last}) are read times, not sample times",
+            (first - opened_mono_ns) as f64 * 1e-6,
+            (last - first) as f64 * 1e-6,
+        );
+        tracing::info!(device = %self.spec.name, "{detail}");
+        let now = clock::now();
+        EventRecord {
+            t_mono_ns: first,
+            t_wall_ns: now.wall_ns - (now.mono_ns - first),
+            device: self.spec.name.clone(),
+            kind: EventKind::Info,
+            detail,
+        }
+    }
+
     /// Sends one event on its own.
     fn send_event(&self, kind: EventKind, detail: String) -> bool {
         let mut batch = Batch::new(self.index);
@@ -210,7 +294,24 @@ impl DeviceTask {
         let mut failed_attempts: u32 = 0;
         let mut down_since_mono_ns: Option<i64> = None;
         let where_ = self.connector.describe();
+        let mut path_watch = match &self.spec.transport {
+            Transport::Serial(s) => Some(&s.port),
+            Transport::Slcan(s) => Some(&s.port),
+            _ => None,
+        }
+        .and_then(|port| match PathWatch::new(port) {
+            Ok(w) => Some(w),
+            Err(e) => {
+                tracing::debug!(device = %self.spec.name, "not watching {}: {e}", port.display());
+                None
+            }
+        });
+        // Whether the last wait ended because the device path changed.
+        let mut woken_by_watch = false;
         loop {
+            if let Some(w) = &mut path_watch {
+                w.clear();
+            }
             let opened = tokio::select! {
                 r = self.connector.connect() => r,
                 _ = stopped(&mut shutdown) => break,
@@ -224,7 +325,12 @@ impl DeviceTask {
                             .map(|t| (clock::mono_ns() - t) as f64 * 1e-9)
                             .unwrap_or(0.0);
                         self.shared.counters().reconnects += 1;
-                        format!("reopened {where_} after {down_s:.3} s down ({failed_attempts} failed attempts)")
+                        let how = if woken_by_watch {
+                            ", at once when its path appeared"
+                        } else {
+                            ""
+                        };
+                        format!("reopened {where_} after {down_s:.3} s down ({failed_attempts} failed attempts{how})")
                     } else if failed_attempts > 0 {
                         format!("opened {where_} after {failed_attempts} failed attempts")
                     } else {
@@ -277,9 +383,23 @@ impl DeviceTask {
                         &mut tally,
                         true,
                     );
-                    let _ = self.hand_over(&mut held, &mut tally);
+                    let _ = self.hand_over(&mut held, &mut tally).await;
                     match end {
                         ConnectionEnd::Stop | ConnectionEnd::WriterGone => break,
+                        ConnectionEnd::Finished => {
+                            let detail = format!("{where_}: end of the capture, device done");
+                            tracing::info!(device = %self.spec.name, "{detail}");
+                            self.send_event(EventKind::Info, detail);
+                            break;
+                        }
+                        // A capture is not reopened: that would play it again.
+                        ConnectionEnd::Vanished(why) if self.spec.transport.is_file() => {
+                            let detail = format!("{where_}: replay stopped: {why}");
+                            tracing::error!(device = %self.spec.name, "{detail}");
+                            self.shared.counters().last_error = Some(why);
+                            self.send_event(EventKind::Info, detail);
+                            break;
+                        }
                         ConnectionEnd::Vanished(why) => {
                             let detail = format!("{where_} vanished: {why}; retrying");
                             tracing::warn!(device = %self.spec.name, "{detail}");
@@ -294,6 +414,13 @@ impl DeviceTask {
                             }
                         }
                     }
+                }
+                Err(e) if self.spec.transport.is_file() => {
+                    let why = format!("cannot open {where_}: {e}");
+                    tracing::error!(device = %self.spec.name, "{why}");
+                    self.shared.counters().last_error = Some(why.clone());
+                    self.send_event(EventKind::Info, why);
+                    break;
                 }
                 Err(e) => {
                     failed_attempts += 1;
@@ -318,8 +445,17 @@ impl DeviceTask {
                 }
             }
             let delay = backoff.next_delay();
+            // The back-off bounds the wait; the device path appearing ends it at once.
+            let appeared = async {
+                match &mut path_watch {
+                    Some(w) => w.changed().await,
+                    None => std::future::pending().await,
+                }
+            };
+            woken_by_watch = false;
             tokio::select! {
                 _ = tokio::time::sleep(delay) => {}
+                _ = appeared => woken_by_watch = true,
                 _ = stopped(&mut shutdown) => break,
             }
         }
@@ -328,14 +464,21 @@ impl DeviceTask {
     }
 
     /// Hands `batch` to the writer (replacing it by an empty one sized like it) and
-    /// publishes the counters collected since the last hand-over.
-    fn hand_over(&self, batch: &mut Batch, tally: &mut Tally) -> Result<(), WriterGone> {
+    /// publishes the counters collected since the last hand-over. A live device's batch is
+    /// dropped and counted when the queue is full; a capture's waits for room (its bytes can
+    /// wait, and a fast replay outruns any writer).
+    async fn hand_over(&self, batch: &mut Batch, tally: &mut Tally) -> Result<(), WriterGone> {
         tally.publish(&self.shared);
         if let Some(watchdog) = &self.watchdog {
             watchdog.device_alive(clock::mono_ns());
         }
         let next = batch.sized_like();
-        self.queue.send(std::mem::replace(batch, next))
+        let batch = std::mem::replace(batch, next);
+        if self.spec.transport.is_file() {
+            self.queue.send_waiting(batch).await
+        } else {
+            self.queue.send(batch)
+        }
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -350,6 +493,10 @@ impl DeviceTask {
         shutdown: &mut watch::Receiver<bool>,
     ) -> ConnectionEnd {
         let mut buffer = vec![0u8; READ_BUFFER_BYTES];
+        let opened_mono_ns = clock::mono_ns();
+        // A capture has no buffer of the device's: its pieces come as paced.
+        let mut burst = (!self.spec.transport.is_file())
+            .then(|| BurstTracker::new(self.spec.rate_hz, opened_mono_ns));
         // The batch being collected, and the grid point it is due at the writer (set by its
         // first read): one timer expiry per period, shared with the other devices' tasks.
         let mut batch = Batch::new(self.index);
@@ -427,7 +574,7 @@ impl DeviceTask {
                 }
                 Wake::Handover(Ok(())) => {
                     due = None;
-                    if self.hand_over(&mut batch, tally).is_err() {
+                    if self.hand_over(&mut batch, tally).await.is_err() {
                         break ConnectionEnd::WriterGone;
                     }
                     continue;
@@ -439,11 +586,13 @@ impl DeviceTask {
             let input = match &received {
                 Ok(Received::Bytes(n)) => Input::Bytes(buffer.get(..*n).unwrap_or(&buffer[..])),
                 Ok(Received::Can(frame)) => Input::Can(frame),
+                Ok(Received::End) => break ConnectionEnd::Finished,
                 Err(e) if e.is_retryable() => break ConnectionEnd::Vanished(e.to_string()),
                 // Not a vanish (an I/O or protocol error on an open device): reopening is
                 // still the only way to carry on, so it is retried the same way.
                 Err(e) => break ConnectionEnd::Vanished(format!("error: {e}")),
             };
+            let rows_before = batch.rows();
             self.decode_chunk(
                 input,
                 at,
@@ -455,6 +604,11 @@ impl DeviceTask {
                 tally,
                 false,
             );
+            if let Some(b) = burst.as_mut() {
+                if let Some(done) = b.observe(at.mono_ns, batch.rows() - rows_before) {
+                    batch.events.push(self.burst_event(done, opened_mono_ns));
+                }
+            }
             if batch.is_empty() {
                 continue;
             }
@@ -464,7 +618,7 @@ impl DeviceTask {
             // (judged on the read's own arrival time: no further clock read per frame).
             if full || due.is_some_and(|d_mono_ns| at.mono_ns >= d_mono_ns) {
                 due = None;
-                if self.hand_over(&mut batch, tally).is_err() {
+                if self.hand_over(&mut batch, tally).await.is_err() {
                     break ConnectionEnd::WriterGone;
                 }
             } else if due.is_none() {
@@ -482,9 +636,12 @@ impl DeviceTask {
                 due = Some(d_mono_ns);
             }
         };
+        if let Some(done) = burst.as_mut().and_then(BurstTracker::finish) {
+            batch.events.push(self.burst_event(done, opened_mono_ns));
+        }
         // What was collected is not lost with the connection (nor at shutdown).
         if !matches!(end, ConnectionEnd::WriterGone) {
-            let _ = self.hand_over(&mut batch, tally);
+            let _ = self.hand_over(&mut batch, tally).await;
         }
         end
     }
@@ -498,7 +655,8 @@ impl DeviceTask {
             Input::Bytes(bytes) => batch.push_raw(at.mono_ns, bytes),
             Input::Can(frame) => {
                 let interface = match &self.spec.transport {
-                    super::config::Transport::Can(c) => c.interface.as_str(),
+                    Transport::Can(c) => c.interface.as_str(),
+                    Transport::File(_) => "can0",
                     _ => "slcan0",
                 };
                 let Ok(interface) = IfName::new(interface).or_else(|_| IfName::new("can")) else {

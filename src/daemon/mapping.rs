@@ -71,6 +71,7 @@ pub fn gnss_record(fix: &GnssFix, at: Arrival) -> GnssRecord {
         pdop: fix.pdop.unwrap_or(nan),
         hdop: fix.hdop.unwrap_or(nan),
         vdop: fix.vdop.unwrap_or(nan),
+        heading_deg: fix.heading_deg.unwrap_or(nan),
     }
 }
 

@@ -8,7 +8,10 @@
 //! - [`sink`]: the [`sink::RecordSink`] the writer writes to (session store or memory).
 //! - [`source`]: device links through the drivers' transports ([`source::Connector`], bytes or
 //!   CAN frames) and the drivers' codecs behind [`source::FrameDecoder`].
+//! - [`capture`]: captures (raw bytes, candump logs, a session's raw record) played back as a
+//!   device.
 //! - [`mapping`]: frames to rows, units and the axis rotation into the body frame.
+//! - [`pathwatch`]: inotify on a device path, so a returning device is reopened at once.
 //! - [`timerel`]: the GNSS-time ↔ host-time relation.
 //! - [`status`]: live counters and the status file.
 //! - [`run`]: signals, systemd notification, start and clean stop.
@@ -16,12 +19,14 @@
 pub mod args;
 pub mod backoff;
 pub mod cadence;
+pub mod capture;
 pub mod clock;
 pub mod config;
 pub mod device;
 pub mod disk;
 pub mod gap;
 pub mod mapping;
+pub mod pathwatch;
 pub mod run;
 pub mod session;
 pub mod sink;

@@ -33,6 +33,9 @@ const WRITER_DRAIN_BUDGET: Duration = Duration::from_millis(1000);
 /// How often free space is checked.
 const DISK_CHECK_INTERVAL: Duration =
     Duration::from_millis(super::config::RESERVE_CHECK_INTERVAL_MS);
+/// Free space below which a failed write is taken for a full disk (less than one chunk of a
+/// table can be written).
+const FULL_DISK_BYTES: u64 = 1 << 20;
 /// How often the status file is written.
 const STATUS_INTERVAL: Duration = Duration::from_secs(1);
 
@@ -67,17 +70,42 @@ pub enum Outcome {
     Stopped,
     /// Free space fell below the reserve; the session was closed cleanly.
     DiskReserve { free_bytes: u64, reserve_bytes: u64 },
+    /// The file system filled up (ENOSPC) before the reserve check could stop the session:
+    /// what could be closed is closed; the chunk file being written needs `imulab recover`.
+    DiskFull { session_dir: PathBuf },
     /// Writing failed, or the writer did not finish in time.
     Failed(anyhow::Error),
 }
 
 impl Outcome {
-    /// 0 after a clean stop, 3 when the disk reserve was reached, 1 on failure.
+    /// 0 after a clean stop, 3 when the disk reserve was reached or the disk is full (a
+    /// restart cannot help), 1 on another failure.
     pub fn exit_code(&self) -> u8 {
         match self {
             Outcome::Stopped => 0,
-            Outcome::DiskReserve { .. } => 3,
+            Outcome::DiskReserve { .. } | Outcome::DiskFull { .. } => 3,
             Outcome::Failed(_) => 1,
+        }
+    }
+
+    /// The one line that says how the run ended, for the log and the terminal.
+    pub fn message(&self) -> String {
+        match self {
+            Outcome::Stopped => "stopped; the session is closed".to_string(),
+            Outcome::DiskReserve {
+                free_bytes,
+                reserve_bytes,
+            } => format!(
+                "stopped: {free_bytes} bytes free is below the reserve of {reserve_bytes}; the session is closed cleanly"
+            ),
+            Outcome::DiskFull { session_dir } => format!(
+                "disk full: no space left on the file system of {dir}; the session was closed as far as it could be: free some space, then run `imulab recover {dir}`",
+                dir = session_dir.display()
+            ),
+            Outcome::Failed(e) => format!(
+                "stopped on an error: {}",
+                crate::cli::errors::render(e)
+            ),
         }
     }
 }
@@ -213,7 +241,7 @@ pub async fn run(
             decoders,
             queue: QueueSender::new(tx.clone(), shared[index].clone()),
             shared: shared[index].clone(),
-            raw_journal: config.session.raw_journal,
+            raw_journal: spec.raw_journal,
             handover,
             settled: Some(settled_tx.clone()),
             watchdog: watchdog.clone(),
@@ -290,11 +318,19 @@ pub async fn run(
         let _held = status_lock.lock().unwrap_or_else(|p| p.into_inner());
         write_status_file(&status_path, &report)
     };
-    if let Err(e) = written {
-        tracing::warn!(
+    // HDF5 does not always pass the errno on (`H5Dwrite_chunk ... failed`): a failed write
+    // with the session's file system out of room is a full disk too.
+    let disk_full = matches!(&writer_exit, WriterExit::Failed(e) if super::disk::is_disk_full(e))
+        || (matches!(writer_exit, WriterExit::Failed(_))
+            && super::disk::free_bytes(&session_dir).is_ok_and(|f| f < FULL_DISK_BYTES));
+    match written {
+        // On a full disk this fails too; the outcome says it once.
+        Err(e) if disk_full => tracing::debug!("final status file: {e}"),
+        Err(e) => tracing::warn!(
             "cannot write the status file {}: {e}",
             status_path.display()
-        );
+        ),
+        Ok(()) => {}
     }
     match writer_exit {
         WriterExit::Clean => Outcome::Stopped,
@@ -305,6 +341,7 @@ pub async fn run(
             free_bytes,
             reserve_bytes,
         },
+        WriterExit::Failed(_) if disk_full => Outcome::DiskFull { session_dir },
         WriterExit::Failed(e) => Outcome::Failed(e),
     }
 }

@@ -41,6 +41,7 @@ fn device_info(spec: &DeviceSpec) -> DeviceInfo {
         Transport::Slcan(s) => s.port.display().to_string(),
         Transport::Tcp(t) => t.address.clone(),
         Transport::Can(c) => c.interface.clone(),
+        Transport::File(f) => f.path.display().to_string(),
     };
     let mut extra = BTreeMap::new();
     let rotated = spec.body_from_sensor != nalgebra::Matrix3::identity();
@@ -92,7 +93,7 @@ pub fn writer_options(config: &CheckedConfig) -> WriterOptions {
         flush_interval: super::run::writer_flush_interval(s.flush_interval_ms),
         chunk_interval: std::time::Duration::from_millis(s.chunk_interval_ms()),
         deflate_level: s.deflate_level,
-        raw_journal: s.raw_journal,
+        raw_journal: config.any_raw_journal(),
         rows_per_chunk: None,
         fsync_on_flush: true,
     }

@@ -1,249 +1,46 @@
 //! What a device task reads from, and how it decodes it.
 //!
 //! - A [`Connector`] opens (and after a vanish, reopens) a [`Link`]: the drivers' transports
-//!   (serial port or pty, TCP, slcan adapter, SocketCAN), or an in-memory stream in tests.
+//!   (serial port or pty, TCP, slcan adapter, SocketCAN), a capture played back
+//!   ([`super::capture`]), or an in-memory stream in tests.
 //! - A [`Link`] delivers [`Input`]: bytes from a byte stream, or CAN frames from a CAN
 //!   transport. CAN frames go to the DBC decoder as frames; they are never turned into text.
-//! - A [`FrameDecoder`] turns the input into [`Frame`]s: the drivers' codecs (WitMotion,
-//!   Xbus, VectorNav, MIP, CSV lines, NMEA/UBX, a CAN IMU through a DBC file) behind one small trait.
+//! - A [`FrameDecoder`] turns the input into [`Frame`]s: the reading decoder of the
+//!   protocol's row in the drivers' table (`imulab_drivers::codec::PROTOCOLS`).
 //!
 //! Link and decoder are traits so the pipeline can also be tested without hardware.
 
-use std::collections::VecDeque;
 use std::future::Future;
 use std::path::Path;
 use std::pin::Pin;
-use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
 use imulab_drivers::codec::can::CanFrame;
-use imulab_drivers::codec::csv_line::CsvLineDecoder;
-use imulab_drivers::codec::dbc::{DbcImu, DbcImuMapping};
-use imulab_drivers::codec::gnss::{GnssDecoder, GnssFrame};
-use imulab_drivers::codec::mip::{MipDecoder, MipPacket};
-use imulab_drivers::codec::ubx::UbxMessage;
-use imulab_drivers::codec::vectornav::{VnDecoder, VnFrame};
-use imulab_drivers::codec::witmotion::WitImuDecoder;
-use imulab_drivers::codec::xbus::{XbusDecoder, XbusMessage};
-use imulab_drivers::codec::Decoder;
+use imulab_drivers::codec::{DecoderOptions, NamedText};
 use imulab_drivers::transport::serial::{open_serial, SerialConfig as DriverSerialConfig};
 use imulab_drivers::transport::slcan::SlcanTransport;
 use imulab_drivers::transport::socketcan::SocketCanTransport;
 use imulab_drivers::transport::tcp::connect_tcp;
 use imulab_drivers::transport::{StreamTransport, TransportError};
-use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
+use imulab_drivers::types::DecoderStats;
 use tokio::io::{AsyncRead, AsyncWrite};
 
-use super::config::{DeviceSpec, Protocol, Transport};
+use super::capture::{capture_kind, CaptureConnector};
+use super::config::{DeviceSpec, Transport};
 
 /// How long a TCP connect may take before the attempt counts as failed (and is retried).
 const TCP_CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// One decoded frame, in the drivers crate's device-independent types.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Frame {
-    Imu(ImuSample),
-    Gnss(GnssFix),
-}
-
-/// What one receive from a device delivered.
-#[derive(Debug, Clone, Copy)]
-pub enum Input<'a> {
-    /// Bytes from a byte stream (serial, pty, TCP).
-    Bytes(&'a [u8]),
-    /// One CAN frame (SocketCAN, or an slcan adapter's decoded line).
-    Can(&'a CanFrame),
-}
-
-/// A sans-IO decoder as the daemon sees it: the codecs' `push`/`poll`/`stats`, with frames
-/// already converted to [`Frame`].
-pub trait FrameDecoder: Send {
-    /// Feeds one input. Input of the wrong kind (CAN frames to a byte decoder or the reverse)
-    /// is counted as malformed; configuration validation keeps it from happening.
-    fn push(&mut self, input: Input<'_>);
-    fn poll(&mut self) -> Option<Frame>;
-    fn stats(&self) -> DecoderStats;
-    /// The input ended (device vanished, shutdown): frames the decoder held back.
-    fn finish(&mut self) -> Option<Frame> {
-        None
-    }
-}
-
-/// Any drivers' byte decoder, with a function that picks the frames the daemon logs.
-struct ByteDecoder<D: Decoder> {
-    inner: D,
-    convert: fn(D::Frame) -> Option<Frame>,
-    /// CAN frames pushed to this byte decoder (never with a validated config).
-    wrong_input: u64,
-}
-
-impl<D: Decoder + Send> FrameDecoder for ByteDecoder<D> {
-    fn push(&mut self, input: Input<'_>) {
-        match input {
-            Input::Bytes(bytes) => self.inner.push(bytes),
-            Input::Can(_) => self.wrong_input += 1,
-        }
-    }
-
-    fn poll(&mut self) -> Option<Frame> {
-        loop {
-            let frame = self.inner.poll()?;
-            if let Some(frame) = (self.convert)(frame) {
-                return Some(frame);
-            }
-        }
-    }
-
-    fn stats(&self) -> DecoderStats {
-        let mut stats = self.inner.stats();
-        stats.frames_malformed += self.wrong_input;
-        stats
-    }
-
-    fn finish(&mut self) -> Option<Frame> {
-        loop {
-            let frame = self.inner.finish()?;
-            if let Some(frame) = (self.convert)(frame) {
-                return Some(frame);
-            }
-        }
-    }
-}
-
-fn boxed<D: Decoder + Send + 'static>(
-    inner: D,
-    convert: fn(D::Frame) -> Option<Frame>,
-) -> Box<dyn FrameDecoder> {
-    Box::new(ByteDecoder {
-        inner,
-        convert,
-        wrong_input: 0,
-    })
-}
-
-/// Merged navigation epochs are the rows; raw sentences and messages stay in the journal.
-fn gnss_epoch(frame: GnssFrame) -> Option<Frame> {
-    match frame {
-        GnssFrame::Fix(epoch) => Some(Frame::Gnss(epoch.fix)),
-        _ => None,
-    }
-}
-
-fn imu_sample(sample: ImuSample) -> Option<Frame> {
-    Some(Frame::Imu(sample))
-}
-
-/// MTData2 messages are samples; other Xbus messages (acks, errors) are not rows.
-fn xbus_sample(message: XbusMessage) -> Option<Frame> {
-    match message {
-        XbusMessage::MtData2 { data, .. } => Some(Frame::Imu(data.to_imu_sample())),
-        _ => None,
-    }
-}
-
-/// Binary packets and ASCII sentences with angular rate or acceleration are samples;
-/// attitude-only output and register replies are not rows.
-fn vectornav_sample(frame: VnFrame) -> Option<Frame> {
-    frame.to_imu_sample().map(Frame::Imu)
-}
-
-/// IMU data packets with accelerometer or gyro are samples; command replies are not rows.
-fn mip_sample(packet: MipPacket) -> Option<Frame> {
-    packet.to_imu_sample().map(Frame::Imu)
-}
-
-/// The IMU of a u-blox dead-reckoning receiver: ESF-RAW (several samples per message) and
-/// ESF-MEAS (one) become samples; fixes, other UBX messages and NMEA are not rows of it.
-struct EsfImuDecoder {
-    gnss: GnssDecoder,
-    ready: VecDeque<ImuSample>,
-    /// CAN frames pushed to this byte decoder (never with a validated config).
-    wrong_input: u64,
-}
-
-impl EsfImuDecoder {
-    fn take(&mut self, frame: GnssFrame) {
-        match frame {
-            GnssFrame::Ubx(UbxMessage::EsfRaw(raw)) => self.ready.extend(raw.to_imu_samples()),
-            GnssFrame::Ubx(UbxMessage::EsfMeas(meas)) => self.ready.extend(meas.to_imu_sample()),
-            _ => {}
-        }
-    }
-}
-
-impl FrameDecoder for EsfImuDecoder {
-    fn push(&mut self, input: Input<'_>) {
-        match input {
-            Input::Bytes(bytes) => self.gnss.push(bytes),
-            Input::Can(_) => self.wrong_input += 1,
-        }
-    }
-
-    fn poll(&mut self) -> Option<Frame> {
-        while self.ready.is_empty() {
-            let frame = self.gnss.poll()?;
-            self.take(frame);
-        }
-        self.ready.pop_front().map(Frame::Imu)
-    }
-
-    fn stats(&self) -> DecoderStats {
-        let mut stats = self.gnss.stats();
-        stats.frames_malformed += self.wrong_input;
-        stats
-    }
-
-    fn finish(&mut self) -> Option<Frame> {
-        while self.ready.is_empty() {
-            let frame = self.gnss.finish()?;
-            self.take(frame);
-        }
-        self.ready.pop_front().map(Frame::Imu)
-    }
-}
-
-/// A CAN IMU: CAN frames through the DBC mapping into samples.
-struct CanImuDecoder {
-    imu: DbcImu,
-    ready: VecDeque<ImuSample>,
-    /// Byte input pushed to this CAN decoder (never with a validated config).
-    wrong_input: u64,
-}
-
-impl FrameDecoder for CanImuDecoder {
-    fn push(&mut self, input: Input<'_>) {
-        match input {
-            Input::Can(frame) => {
-                if let Some(sample) = self.imu.push_frame(frame) {
-                    self.ready.push_back(sample);
-                }
-            }
-            Input::Bytes(_) => self.wrong_input += 1,
-        }
-    }
-
-    fn poll(&mut self) -> Option<Frame> {
-        self.ready.pop_front().map(Frame::Imu)
-    }
-
-    fn stats(&self) -> DecoderStats {
-        let mut stats = self.imu.stats();
-        stats.frames_malformed += self.wrong_input;
-        stats
-    }
-
-    fn finish(&mut self) -> Option<Frame> {
-        self.ready
-            .pop_front()
-            .or_else(|| self.imu.finish())
-            .map(Frame::Imu)
-    }
-}
-
+/// What one receive from a device delivered: bytes or one CAN frame.
+pub use imulab_drivers::codec::reading::Input;
+/// One decoded frame: an IMU sample or a GNSS fix.
+pub use imulab_drivers::codec::reading::Reading as Frame;
+/// A protocol's reading decoder, as the daemon runs it.
+pub use imulab_drivers::codec::reading::ReadingDecoder as FrameDecoder;
 /// Makes a fresh decoder (one per connection, so a partial frame from before a disconnect
 /// is not glued to the bytes after it).
-pub type DecoderFactory = Box<dyn Fn() -> Box<dyn FrameDecoder> + Send + Sync>;
+pub use imulab_drivers::codec::reading::ReadingDecoderFactory as DecoderFactory;
 
 /// A boxed future, so links and connectors can be trait objects.
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
@@ -255,6 +52,9 @@ pub enum Received {
     Bytes(usize),
     /// One CAN frame.
     Can(CanFrame),
+    /// The source has nothing more and never will (a capture file at its end): the device
+    /// ends instead of being reopened.
+    End,
 }
 
 /// An open device.
@@ -416,6 +216,13 @@ impl Connector for TransportConnector {
                     transport: SocketCanTransport::open(&c.interface, None)?,
                     stats: DecoderStats::default(),
                 })),
+                // Made by `connector_for` as a `CaptureConnector`, never here.
+                Transport::File(f) => {
+                    return Err(TransportError::Config(format!(
+                        "{} is a capture file, not a device",
+                        f.path.display()
+                    )))
+                }
             })
         })
     }
@@ -428,65 +235,44 @@ impl Connector for TransportConnector {
 /// The connector for a configured transport. Every transport the configuration accepts has
 /// one; the `Result` is kept for transports a build may lack.
 pub fn connector_for(device: &DeviceSpec) -> Result<Box<dyn Connector>, String> {
+    if let Transport::File(source) = &device.transport {
+        let kind = capture_kind(source, &device.name, device.protocol.is_can())?;
+        return Ok(Box::new(CaptureConnector {
+            source: source.clone(),
+            kind,
+        }));
+    }
     Ok(Box::new(TransportConnector {
         transport: device.transport.clone(),
     }))
 }
 
-fn read_text(what: &str, path: &Path) -> Result<String, String> {
-    std::fs::read_to_string(path)
-        .map_err(|e| format!("cannot read the {what} {}: {e}", path.display()))
+fn read_text(what: &str, path: &Path) -> Result<NamedText, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read the {what} {}: {e}", path.display()))?;
+    Ok(NamedText {
+        name: path.display().to_string(),
+        text,
+    })
 }
 
-/// The decoder factory for a configured protocol. Reads and checks the files a protocol
-/// needs (the DBC and its signal mapping) once, so a bad file is reported at start-up and by
-/// `--check-config`, not on every connection.
+/// The decoder factory for a configured protocol, from its row of the drivers' table. Reads
+/// and checks the files a protocol needs (the DBC and its signal mapping) once, so a bad file
+/// is reported at start-up and by `--check-config`, not on every connection.
 pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
-    Ok(match device.protocol {
-        // One decoder for all three: it takes NMEA, UBX or both interleaved.
-        Protocol::Nmea | Protocol::Ubx | Protocol::Gnss => {
-            Box::new(|| boxed(GnssDecoder::new(), gnss_epoch))
-        }
-        Protocol::UbxEsf => Box::new(|| {
-            Box::new(EsfImuDecoder {
-                gnss: GnssDecoder::new(),
-                ready: VecDeque::new(),
-                wrong_input: 0,
-            }) as Box<dyn FrameDecoder>
-        }),
-        Protocol::Wit => Box::new(|| boxed(WitImuDecoder::new(), imu_sample)),
-        Protocol::Xbus => Box::new(|| boxed(XbusDecoder::new(), xbus_sample)),
-        Protocol::Vectornav => Box::new(|| boxed(VnDecoder::new(), vectornav_sample)),
-        Protocol::Mip => Box::new(|| boxed(MipDecoder::new(), mip_sample)),
-        Protocol::Csv => {
-            let config = device.csv.clone().unwrap_or_default();
-            // Checked once here so the factory below cannot fail.
-            let template = CsvLineDecoder::new(config).map_err(|e| format!("device.{e}"))?;
-            Box::new(move || boxed(template.clone(), imu_sample))
-        }
-        Protocol::CanDbc => {
-            let dbc = device
-                .dbc
-                .as_ref()
-                .ok_or("protocol `can-dbc` needs [device.dbc]")?;
-            let dbc_text = read_text("DBC file", &dbc.file)?;
-            let mapping_text = read_text("DBC signal mapping", &dbc.mapping)?;
-            let mapping = DbcImuMapping::from_toml_str(&mapping_text)
-                .map_err(|e| format!("{}: {e}", dbc.mapping.display()))?;
-            let template = Arc::new(DbcImu::new(&dbc_text, &mapping).map_err(|e| {
-                format!(
-                    "{} with mapping {}: {e}",
-                    dbc.file.display(),
-                    dbc.mapping.display()
-                )
-            })?);
-            Box::new(move || {
-                Box::new(CanImuDecoder {
-                    imu: (*template).clone(),
-                    ready: VecDeque::new(),
-                    wrong_input: 0,
-                }) as Box<dyn FrameDecoder>
-            })
-        }
-    })
+    let mut options = DecoderOptions::default();
+    if let Some(dbc) = &device.dbc {
+        options.dbc = Some(read_text("DBC file", &dbc.file)?);
+        options.config = Some(read_text("DBC signal mapping", &dbc.mapping)?);
+    }
+    if let Some(csv) = &device.csv {
+        options.config = Some(NamedText {
+            name: format!("device `{}` [device.csv]", device.name),
+            text: toml::to_string(csv).map_err(|e| format!("[device.csv]: {e}"))?,
+        });
+    }
+    device
+        .protocol
+        .readings(&options)
+        .map_err(|e| e.to_string())
 }

@@ -14,7 +14,7 @@
 //! A wedged writer never turns, a wedged device thread never answers: either way the feeding
 //! stops and systemd restarts the service. The device thread carries no pending timer for
 //! this: a pending tokio timer would give every park of that thread a timeout, i.e. cost at
-//! every frame's wake-up (docs/bench/daemon.md, "Session 6, wake-up cost").
+//! every frame's wake-up (docs/bench/daemon.md, "Where a wake-up's cost goes").
 
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::time::Duration;

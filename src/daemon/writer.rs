@@ -115,6 +115,25 @@ impl QueueSender {
             Err(TrySendError::Disconnected(_)) => Err(WriterGone),
         }
     }
+
+    /// Queues a batch, waiting (a millisecond at a time, off the writer's thread) while the
+    /// queue is full: for sources whose data can wait (a capture played back), so nothing is
+    /// dropped.
+    pub async fn send_waiting(&self, mut batch: Batch) -> Result<(), WriterGone> {
+        if batch.is_empty() {
+            return Ok(());
+        }
+        loop {
+            match self.tx.try_send(batch) {
+                Ok(()) => return Ok(()),
+                Err(TrySendError::Full(back)) => {
+                    batch = back;
+                    tokio::time::sleep(Duration::from_millis(1)).await;
+                }
+                Err(TrySendError::Disconnected(_)) => return Err(WriterGone),
+            }
+        }
+    }
 }
 
 /// Requests to the writer from the control side (signals, shutdown).
@@ -207,6 +226,7 @@ pub fn run_writer(
         reported_drops: Vec::new(),
         tracker,
         last_status: None,
+        status_failing: false,
     };
     state.reported_drops = vec![(0, 0, 0); state.devices.len()];
     {
@@ -239,12 +259,24 @@ pub fn run_writer(
             free_bytes,
             reserve_bytes,
         } => format!("disk reserve reached: {free_bytes} bytes free, reserve {reserve_bytes}"),
-        WriterExit::Failed(e) => format!("write failed: {e:#}"),
+        WriterExit::Failed(e) if super::disk::is_disk_full(e) => {
+            "disk full: no space left on device".to_string()
+        }
+        WriterExit::Failed(e) => format!("write failed: {}", crate::cli::errors::render(e)),
     };
     let _ = sink.append_event(&session_event(EventKind::SessionStop, reason));
     if let Err(e) = sink.close() {
-        tracing::error!("closing the session failed: {e:#}");
-        if matches!(outcome, WriterExit::Clean) {
+        let failed_before = matches!(outcome, WriterExit::Failed(_));
+        if super::disk::is_disk_full(&e) {
+            // Said once, by whoever reports the outcome (closing on a full disk fails too).
+            tracing::debug!("closing the session on a full disk: {e:#}");
+        } else {
+            tracing::error!(
+                "closing the session failed: {}",
+                crate::cli::errors::render(&e)
+            );
+        }
+        if !failed_before {
             outcome = WriterExit::Failed(e);
         }
     }
@@ -271,6 +303,8 @@ struct WriterState {
     tracker: StatusTracker,
     /// When the status file was last written.
     last_status: Option<Instant>,
+    /// The last status write failed (said once, not every second).
+    status_failing: bool,
 }
 
 impl WriterState {
@@ -394,11 +428,16 @@ impl WriterState {
             let _held = status.lock.lock().unwrap_or_else(|p| p.into_inner());
             write_status_file(&status.path, &report)
         };
-        if let Err(e) = written {
-            tracing::warn!(
-                "cannot write the status file {}: {e}",
-                status.path.display()
-            );
+        match written {
+            Err(e) if self.status_failing => tracing::debug!("status file: {e}"),
+            Err(e) => {
+                self.status_failing = true;
+                tracing::warn!(
+                    "cannot write the status file {}: {e} (said once until it works again)",
+                    status.path.display()
+                );
+            }
+            Ok(()) => self.status_failing = false,
         }
     }
 

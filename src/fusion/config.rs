@@ -237,6 +237,11 @@ pub struct ZuptOptions {
     /// … and the INS speed is below this, m/s (an IMU alone cannot tell a standstill from
     /// a smooth straight cruise).
     pub max_speed_mps: f64,
+    /// χ² gate on the normalised innovation vᵀ(P_v + R)⁻¹v (3 degrees of freedom; 0 = off):
+    /// the zero-velocity hypothesis must agree with the filter's own velocity and its σ.
+    /// Without it the end of a smooth braking (0.5 m/s, steady deceleration, no rotation)
+    /// passes the IMU tests and is pinned to zero at σ 0.01 m/s.
+    pub innovation_gate: f64,
 }
 
 impl Default for ZuptOptions {
@@ -248,6 +253,7 @@ impl Default for ZuptOptions {
             accel_threshold_mps2: 0.05,
             window_s: 0.5,
             max_speed_mps: 1.0,
+            innovation_gate: 16.27,
         }
     }
 }
@@ -273,15 +279,73 @@ impl Default for ZaruOptions {
     }
 }
 
+/// Where the IMU sits in the vehicle: the rotation from the IMU's body frame to the vehicle
+/// frame (forward, right, down) and the point the non-holonomic constraint and the
+/// odometer hold at. Both are given, not estimated.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VehicleOptions {
+    /// IMU mounting angles: the IMU's roll, pitch and yaw relative to the vehicle frame
+    /// (degrees; as the attitude is relative to NED): a yaw of 90 means the IMU's x axis
+    /// points to the vehicle's right.
+    pub mounting_deg: [f64; 3],
+    /// From the IMU to the vehicle point without sideslip or vertical motion (the middle of
+    /// the rear axle on the ground for a car), in the IMU frame, m.
+    pub lever_arm_m: [f64; 3],
+}
+
+impl VehicleOptions {
+    /// The rotation from the IMU frame to the vehicle frame, C_b^v.
+    pub fn imu_to_vehicle(&self) -> nalgebra::Matrix3<f64> {
+        let [r, p, y] = self.mounting_deg.map(f64::to_radians);
+        nalgebra::Rotation3::from_euler_angles(r, p, y).into_inner()
+    }
+}
+
+impl Default for VehicleOptions {
+    fn default() -> Self {
+        Self {
+            mounting_deg: [0.0; 3],
+            lever_arm_m: [0.0; 3],
+        }
+    }
+}
+
+/// Odometer (wheel speed): the vehicle's forward speed at [`VehicleOptions::lever_arm_m`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OdometerOptions {
+    pub enabled: bool,
+    /// σ of one speed reading, m/s.
+    pub sigma_mps: f64,
+    /// Apply at most this often, s.
+    pub interval_s: f64,
+    /// KF-GINS IMU files: the (1-based) column holding the forward wheel speed, m/s.
+    pub column: usize,
+}
+
+impl Default for OdometerOptions {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            sigma_mps: 0.05,
+            interval_s: 0.2,
+            column: 8,
+        }
+    }
+}
+
 /// The motion constraints of a land vehicle, the part of the configuration a KF-GINS replay
 /// takes from a TOML file (`imulab replay --kf-gins CONFIG.yaml --config constraints.toml`):
-/// `[nhc]`, `[zupt]`, `[zaru]`.
+/// `[nhc]`, `[zupt]`, `[zaru]`, `[odometer]` and `[vehicle]`.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Constraints {
     pub nhc: NhcOptions,
     pub zupt: ZuptOptions,
     pub zaru: ZaruOptions,
+    pub odometer: OdometerOptions,
+    pub vehicle: VehicleOptions,
 }
 
 impl Constraints {
@@ -301,6 +365,8 @@ impl Constraints {
         config.nhc = self.nhc;
         config.zupt = self.zupt;
         config.zaru = self.zaru;
+        config.odometer = self.odometer;
+        config.vehicle = self.vehicle;
     }
 }
 
@@ -359,6 +425,8 @@ pub struct FusionConfig {
     pub nhc: NhcOptions,
     pub zupt: ZuptOptions,
     pub zaru: ZaruOptions,
+    pub odometer: OdometerOptions,
+    pub vehicle: VehicleOptions,
     pub alignment: AlignmentOptions,
     pub initial: InitialSigma,
     /// Covariance propagation interval, s (the mechanisation runs at the IMU rate).
@@ -377,6 +445,8 @@ impl Default for FusionConfig {
             nhc: NhcOptions::default(),
             zupt: ZuptOptions::default(),
             zaru: ZaruOptions::default(),
+            odometer: OdometerOptions::default(),
+            vehicle: VehicleOptions::default(),
             alignment: AlignmentOptions::default(),
             initial: InitialSigma::default(),
             covariance_interval_s: 0.05,
@@ -566,6 +636,12 @@ impl FusionConfig {
         )?;
         check("zupt.window_s", z.window_s, z.window_s > 0.0, pos)?;
         check(
+            "zupt.innovation_gate",
+            z.innovation_gate,
+            z.innovation_gate >= 0.0,
+            nonneg,
+        )?;
+        check(
             "zaru.sigma_rad_s",
             self.zaru.sigma_rad_s,
             self.zaru.sigma_rad_s > 0.0,
@@ -577,6 +653,37 @@ impl FusionConfig {
             z.max_speed_mps > 0.0,
             pos,
         )?;
+        let o = &self.odometer;
+        check("odometer.sigma_mps", o.sigma_mps, o.sigma_mps > 0.0, pos)?;
+        check(
+            "odometer.interval_s",
+            o.interval_s,
+            o.interval_s >= 0.0,
+            nonneg,
+        )?;
+        if o.column < 8 {
+            return Err(ConfigError::Invalid {
+                key: "odometer.column",
+                value: o.column.to_string(),
+                why: "must be 8 or more (columns 1-7 are time and increments)",
+            });
+        }
+        for (i, m) in self.vehicle.mounting_deg.iter().enumerate() {
+            let key = [
+                "vehicle.mounting_deg[0]",
+                "vehicle.mounting_deg[1]",
+                "vehicle.mounting_deg[2]",
+            ][i];
+            check(key, *m, m.abs() <= 180.0, "must be finite and within ±180°")?;
+        }
+        for (i, l) in self.vehicle.lever_arm_m.iter().enumerate() {
+            let key = [
+                "vehicle.lever_arm_m[0]",
+                "vehicle.lever_arm_m[1]",
+                "vehicle.lever_arm_m[2]",
+            ][i];
+            check(key, *l, l.abs() < 100.0, "must be finite and within ±100 m")?;
+        }
         let a = &self.alignment;
         if let Some(h) = a.heading_deg {
             check("alignment.heading_deg", h, true, "must be finite")?;

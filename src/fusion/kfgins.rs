@@ -2,7 +2,8 @@
 //! in that layout replay here and results compare line by line with KF-GINS:
 //!
 //! - IMU file: `sow dθx dθy dθz dvx dvy dvz` (s, rad, m/s; increments over the interval
-//!   ending at `sow`, body axes forward-right-down); columns past the seventh are ignored.
+//!   ending at `sow`, body axes forward-right-down); columns past the seventh are ignored,
+//!   except the wheel speed (m/s) when `[odometer]` names its column.
 //! - GNSS file: `sow lat lon h σN σE σD` (deg, deg, m, m), optionally followed by
 //!   `vN vE vD σvN σvE σvD` (m/s).
 //! - Navigation file (truth `.nav` and our `navresult` output):
@@ -435,11 +436,29 @@ pub fn read_imu(
     start: f64,
     end: Option<f64>,
 ) -> Result<Vec<ImuInput>, KfGinsError> {
+    Ok(read_imu_with_wheel_speed(path, rate_hz, start, end, None)?.0)
+}
+
+/// Wheel-speed readings: (time, forward speed m/s).
+pub type WheelSpeeds = Vec<(f64, f64)>;
+
+/// [`read_imu`] that also reads the wheel speed (m/s) from the 1-based `column` of every
+/// row, when given: (time, speed) per kept row. A row without that column is an error naming
+/// the file and line.
+pub fn read_imu_with_wheel_speed(
+    path: &Path,
+    rate_hz: f64,
+    start: f64,
+    end: Option<f64>,
+    column: Option<usize>,
+) -> Result<(Vec<ImuInput>, WheelSpeeds), KfGinsError> {
     let name = path.display().to_string();
     let mut out = Vec::new();
+    let mut wheel = Vec::new();
     let mut prev_t: Option<f64> = None;
+    let want = column.map_or(7, |c| c.max(7));
     for (n, line) in read(path)?.lines().enumerate() {
-        let Some(v) = numbers(line, 7, &name, n)? else {
+        let Some(v) = numbers(line, want, &name, n)? else {
             continue;
         };
         let t = v[0];
@@ -454,8 +473,11 @@ pub fn read_imu(
             dtheta: Vector3::new(v[1], v[2], v[3]),
             dvel: Vector3::new(v[4], v[5], v[6]),
         });
+        if let Some(c) = column {
+            wheel.push((t, v[c - 1]));
+        }
     }
-    Ok(out)
+    Ok((out, wheel))
 }
 
 /// Reads a KF-GINS GNSS file (7 columns, or 13 with velocity and its σ).
@@ -569,11 +591,12 @@ pub fn replay_files_with(
     outages: &[(f64, f64)],
     smooth: bool,
 ) -> Result<crate::fusion::navigator::ReplayResult, KfGinsError> {
-    let imu = read_imu(
+    let (imu, wheel) = read_imu_with_wheel_speed(
         &config.imu_path,
         config.imu_rate_hz,
         config.start_s,
         config.end_s,
+        fusion.odometer.enabled.then_some(fusion.odometer.column),
     )?;
     if imu.is_empty() {
         return Err(KfGinsError::Config {
@@ -608,8 +631,11 @@ pub fn replay_files_with(
         initial_sensors: config.initial_sensors,
         outages: outages.to_vec(),
         smooth,
+        calibration: None,
     };
-    Ok(crate::fusion::navigator::replay(fusion, imu, gnss, options))
+    Ok(crate::fusion::navigator::replay_with_wheel_speed(
+        fusion, imu, gnss, wheel, options,
+    ))
 }
 
 #[cfg(test)]

@@ -245,6 +245,55 @@ pub fn summarise(all: &[ErrorEpoch], outages: &[(f64, f64)]) -> ErrorSummary {
     }
 }
 
+/// Average NEES over Monte Carlo runs (Bar-Shalom, Li, Kirubarajan, *Estimation with
+/// Applications to Tracking and Navigation*, §5.4.2): at each epoch the mean NEES of M runs
+/// times M is χ² with M·n degrees of freedom for a consistent filter of n states, so the
+/// epoch's ANEES lies in [χ²(0.025; Mn)/M, χ²(0.975; Mn)/M] with 95 % probability.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Anees {
+    pub runs: usize,
+    pub epochs: usize,
+    /// Mean over epochs of the per-epoch ANEES (n expected).
+    pub mean: f64,
+    /// The 95 % two-sided band of one epoch's ANEES.
+    pub band: (f64, f64),
+    /// Share of epochs whose ANEES lies inside the band (0.95 expected), below it and above it.
+    pub inside: f64,
+    pub below: f64,
+    pub above: f64,
+    /// Largest per-epoch ANEES.
+    pub max: f64,
+}
+
+/// [`Anees`] of `nees[run][epoch]` (NaN = no value) for `dof` states; only epochs where every
+/// run has a finite NEES count. None without runs or common epochs.
+pub fn anees(nees: &[Vec<f64>], dof: usize) -> Option<Anees> {
+    let m = nees.len();
+    let len = nees.iter().map(Vec::len).min()?;
+    let per_epoch: Vec<f64> = (0..len)
+        .filter(|&k| nees.iter().all(|r| r[k].is_finite()))
+        .map(|k| nees.iter().map(|r| r[k]).sum::<f64>() / m as f64)
+        .collect();
+    if m == 0 || per_epoch.is_empty() {
+        return None;
+    }
+    let nu = (m * dof) as f64;
+    let lo = crate::allan::edf::chi_squared_quantile(nu, 0.025)? / m as f64;
+    let hi = crate::allan::edf::chi_squared_quantile(nu, 0.975)? / m as f64;
+    let n = per_epoch.len() as f64;
+    let share = |f: &dyn Fn(f64) -> bool| per_epoch.iter().filter(|x| f(**x)).count() as f64 / n;
+    Some(Anees {
+        runs: m,
+        epochs: per_epoch.len(),
+        mean: per_epoch.iter().sum::<f64>() / n,
+        band: (lo, hi),
+        inside: share(&|x| x >= lo && x <= hi),
+        below: share(&|x| x < lo),
+        above: share(&|x| x > hi),
+        max: per_epoch.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -284,5 +333,30 @@ mod tests {
             gnss_less_windows(&dropped, &[(9.0, 100.0)], (0.0, 9.9)),
             vec![(9.0, 9.9)]
         );
+    }
+    /// χ² samples of the right dimension fall inside the band 95 % of the time; scaled
+    /// by 2 (an over-confident filter) they fall above it.
+    #[test]
+    fn anees_band_holds_for_chi_squared_samples() {
+        use rand::SeedableRng;
+        use rand_distr::{ChiSquared, Distribution};
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let chi = ChiSquared::new(9.0).expect("dof");
+        let runs: Vec<Vec<f64>> = (0..50)
+            .map(|_| (0..2000).map(|_| chi.sample(&mut rng)).collect())
+            .collect();
+        let a = anees(&runs, 9).expect("anees");
+        assert!((a.mean - 9.0).abs() < 0.05, "{a:?}");
+        assert!(
+            (a.band.0 - 7.86).abs() < 0.03 && (a.band.1 - 10.21).abs() < 0.03,
+            "{a:?}"
+        );
+        assert!((a.inside - 0.95).abs() < 0.015, "{a:?}");
+        let doubled: Vec<Vec<f64>> = runs
+            .iter()
+            .map(|r| r.iter().map(|x| 2.0 * x).collect())
+            .collect();
+        assert!(anees(&doubled, 9).expect("anees").above > 0.99);
+        assert!(anees(&[], 9).is_none());
     }
 }

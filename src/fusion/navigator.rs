@@ -18,6 +18,8 @@ use nalgebra::{SMatrix, Vector3};
 pub const FALLBACK_SIGMA: (f64, f64, f64) = (2.5, 5.0, 0.1);
 /// IMU gaps longer than this restart the mechanisation history, s.
 pub const MAX_IMU_GAP_S: f64 = 1.0;
+/// A wheel-speed reading is used only this close to the filter's time, s.
+pub const MAX_WHEEL_LAG_S: f64 = 0.02;
 
 /// One GNSS fix as the filter uses it (antenna position).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -66,7 +68,12 @@ pub struct ReplayStats {
     pub gnss_span_s: Option<(f64, f64)>,
     pub nhc_updates: u64,
     pub zupt_updates: u64,
+    /// Detected standstills whose zero velocity the filter's velocity contradicted (χ² gate).
+    pub zupt_gated: u64,
     pub zaru_updates: u64,
+    pub odometer_updates: u64,
+    /// Wheel-speed readings not finite or not at an IMU epoch.
+    pub odometer_rejected: u64,
     /// Time the filter started (after alignment), s.
     pub aligned_at_s: Option<f64>,
     pub filter: FilterStats,
@@ -85,6 +92,9 @@ pub struct ReplayOptions {
     pub outages: Vec<(f64, f64)>,
     /// Run the RTS smoother and return the smoothed trajectory too.
     pub smooth: bool,
+    /// IMU calibration applied to every session row before thermal compensation and the
+    /// filter (`replay --calibration`).
+    pub calibration: Option<crate::calib::Corrector>,
 }
 
 /// Everything a replay produced.
@@ -122,6 +132,7 @@ pub struct Navigator<const N: usize> {
     last_used_fix_t: Option<f64>,
     next_output_t: f64,
     last_nhc_t: f64,
+    last_odometer_t: f64,
     zupt_window: ZuptWindow,
     /// Times of the valid fixes not withheld (for the GNSS-less windows).
     fix_times: Vec<f64>,
@@ -167,6 +178,7 @@ impl<const N: usize> Navigator<N> {
             last_used_fix_t: None,
             next_output_t: f64::NEG_INFINITY,
             last_nhc_t: f64::NEG_INFINITY,
+            last_odometer_t: f64::NEG_INFINITY,
             zupt_window: ZuptWindow::default(),
             fix_times: Vec::new(),
             result: ReplayResult::default(),
@@ -197,8 +209,8 @@ impl<const N: usize> Navigator<N> {
     /// further GNSS fix. Refused (returns false) while non-holonomic or zero-velocity
     /// updates are configured, since those still update the filter.
     pub fn set_covariance_propagation(&mut self, on: bool) -> bool {
-        if !on && (self.config.nhc.enabled || self.config.zupt.enabled || self.config.zaru.enabled)
-        {
+        let c = &self.config;
+        if !on && (c.nhc.enabled || c.zupt.enabled || c.zaru.enabled || c.odometer.enabled) {
             return false;
         }
         match self.ins.as_mut() {
@@ -307,13 +319,20 @@ impl<const N: usize> Navigator<N> {
             && mean_gyro.norm() < z.gyro_threshold_rad_s
             && ins.nav.vel_ned.norm() < z.max_speed_mps
         {
+            let mut still = true;
             if z.enabled {
                 let m = models::zero_velocity::<N>(&ins.nav, z.sigma_mps);
-                if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
-                    self.result.stats.zupt_updates += 1;
+                match ins.update(&m, z.innovation_gate) {
+                    UpdateOutcome::Applied { .. } => self.result.stats.zupt_updates += 1,
+                    UpdateOutcome::Gated { .. } => {
+                        self.result.stats.zupt_gated += 1;
+                        still = false;
+                    }
+                    UpdateOutcome::Rejected => {}
                 }
             }
-            if zaru.enabled {
+            // A window the velocity test says is moving is not a standstill for ZARU either.
+            if zaru.enabled && still {
                 let m = models::zero_angular_rate::<N>(&ins.nav, &mean_gyro, zaru.sigma_rad_s);
                 if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
                     self.result.stats.zaru_updates += 1;
@@ -332,9 +351,45 @@ impl<const N: usize> Navigator<N> {
             return;
         }
         self.last_nhc_t = ins.nav.t_s;
-        let m = models::non_holonomic::<N>(&ins.nav, c.sigma_mps);
+        let m = models::non_holonomic::<N>(
+            &ins.nav,
+            &ins.last_gyro(),
+            &self.config.vehicle,
+            c.sigma_mps,
+        );
         if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
             self.result.stats.nhc_updates += 1;
+        }
+    }
+
+    /// Feeds one wheel-speed reading (forward speed of the vehicle point, m/s) taken at time
+    /// `t_s`, the time of the IMU sample just pushed: an odometer update when
+    /// `odometer.enabled`, at most every `odometer.interval_s`. A reading that is not finite
+    /// or more than [`MAX_WHEEL_LAG_S`] from the filter's time is counted and skipped.
+    pub fn push_wheel_speed(&mut self, t_s: f64, speed_mps: f64) {
+        let c = self.config.odometer;
+        let Some(ins) = self.ins.as_mut() else { return };
+        let stats = &mut self.result.stats;
+        if !c.enabled {
+            return;
+        }
+        if !(speed_mps.is_finite() && (t_s - ins.nav.t_s).abs() <= MAX_WHEEL_LAG_S) {
+            stats.odometer_rejected += 1;
+            return;
+        }
+        if ins.nav.t_s - self.last_odometer_t < c.interval_s {
+            return;
+        }
+        self.last_odometer_t = ins.nav.t_s;
+        let m = models::odometer::<N>(
+            &ins.nav,
+            &ins.last_gyro(),
+            &self.config.vehicle,
+            speed_mps,
+            c.sigma_mps,
+        );
+        if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
+            stats.odometer_updates += 1;
         }
     }
 
@@ -523,9 +578,21 @@ pub fn replay(
     gnss: impl IntoIterator<Item = GnssObservation>,
     options: ReplayOptions,
 ) -> ReplayResult {
+    replay_with_wheel_speed(config, imu, gnss, std::iter::empty(), options)
+}
+
+/// [`replay`] with wheel-speed readings (time, forward speed m/s; in time order, each at
+/// the time of an IMU sample), fed after the IMU sample of their time.
+pub fn replay_with_wheel_speed(
+    config: &FusionConfig,
+    imu: impl IntoIterator<Item = ImuInput>,
+    gnss: impl IntoIterator<Item = GnssObservation>,
+    wheel: impl IntoIterator<Item = (f64, f64)>,
+    options: ReplayOptions,
+) -> ReplayResult {
     match config.states {
-        21 => run::<21>(config, imu, gnss, options),
-        _ => run::<15>(config, imu, gnss, options),
+        21 => run::<21>(config, imu, gnss, wheel, options),
+        _ => run::<15>(config, imu, gnss, wheel, options),
     }
 }
 
@@ -533,16 +600,21 @@ fn run<const N: usize>(
     config: &FusionConfig,
     imu: impl IntoIterator<Item = ImuInput>,
     gnss: impl IntoIterator<Item = GnssObservation>,
+    wheel: impl IntoIterator<Item = (f64, f64)>,
     options: ReplayOptions,
 ) -> ReplayResult {
     let mut navigator = Navigator::<N>::new(config, options);
     let mut fixes = gnss.into_iter().peekable();
+    let mut wheel = wheel.into_iter().peekable();
     for sample in imu {
         let t = sample.t_s();
         while let Some(fix) = fixes.next_if(|f| f.t_s < t || f.t_s.is_nan()) {
             navigator.push_gnss(&fix);
         }
         navigator.push_imu(&sample);
+        while let Some((tw, v)) = wheel.next_if(|w| w.0 <= t || w.0.is_nan()) {
+            navigator.push_wheel_speed(tw, v);
+        }
     }
     for fix in fixes {
         navigator.push_gnss(&fix);

@@ -247,6 +247,7 @@ fn stream<const N: usize>(
         t0,
         mut thermal,
     } = imu;
+    let calibration = options.calibration.clone();
     let mut nav = Navigator::<N>::new(config, options);
     let mut next_fix = fixes.iter().peekable();
     for block in readable(
@@ -254,6 +255,9 @@ fn stream<const N: usize>(
         problems,
     ) {
         let mut block = block;
+        if let Some(c) = &calibration {
+            c.apply(&mut block.gyro, &mut block.accel);
+        }
         if let Some(c) = thermal.as_deref_mut() {
             c.compensate_block(&mut block.gyro, &mut block.accel, &block.temp);
         }

@@ -82,21 +82,128 @@ impl Grade {
             );
         }
         let report = noise::read_allan_report(Path::new(path))?;
-        let fit = noise::allan_device(&report, device, path)?;
-        let spec = noise::spec_from_allan(&fit).with_context(|| format!("grade {arg}"))?;
-        let noise = noise::model_from_allan(&fit, base, &format!("Allan fit {path}"));
+        let mut grade = Grade::from_allan(&report, device, &format!("Allan fit {path}"), base)
+            .with_context(|| format!("grade {arg}"))?;
         let stem = Path::new(path)
             .file_stem()
             .map_or(path.to_string(), |s| s.to_string_lossy().into_owned());
+        grade.name = match device {
+            Some(d) => format!("{stem}#{d}"),
+            None => stem,
+        };
+        Ok(grade)
+    }
+
+    /// A grade from the fit of `device` (None: the only device) in an Allan report; named
+    /// after the device. Fails when the fit does not give the white noise of both sensors.
+    pub fn from_allan(
+        report: &crate::allan::analysis::AllanReport,
+        device: Option<&str>,
+        origin: &str,
+        base: &crate::fusion::config::ImuModel,
+    ) -> anyhow::Result<Grade> {
+        let fit = noise::allan_device(report, device, origin)?;
+        let spec = noise::spec_from_allan(&fit)?;
+        let noise = noise::model_from_allan(&fit, base, origin);
         Ok(Grade {
-            name: match device {
-                Some(d) => format!("{stem}#{d}"),
-                None => stem,
-            },
+            name: fit.device.clone(),
             spec,
             noise,
         })
     }
+}
+
+/// The drive a study of Allan fits runs on when no scene is given (`imulab report`, `imulab
+/// demo`): 15 minutes at 150 Hz with a 10 Hz standalone receiver (a shorter
+/// `fixtures/scenes/drive_30min.toml`; the study places its own outages). Its two bench IMUs
+/// are what the demo replays; a study simulates each grade in their place.
+pub const REFERENCE_DRIVE: &str = r#"# The reference drive of `imulab report` and `imulab demo`: 15 minutes with two bench IMUs
+# and a 10 Hz standalone GNSS receiver (a replay withholds its own outages; a study places its own).
+duration_s = 900
+rate_hz = 150
+seed = 7
+start_utc = 2026-03-02T09:00:00Z
+
+[location]
+lat_deg = 48.1507
+lon_deg = 11.5691
+height_m = 520.0
+
+[motion]
+kind = "segments"
+heading_deg = 90.0
+speed_mps = 0.0
+segments = [
+    { kind = "stop", duration_s = 30 },
+    { kind = "accelerate", dv_mps = 14, duration_s = 20 },
+    { kind = "cruise", duration_s = 120 },
+    { kind = "turn", angle_deg = 90, duration_s = 15 },
+    { kind = "cruise", duration_s = 150 },
+    { kind = "accelerate", dv_mps = 6, duration_s = 15 },
+    { kind = "cruise", duration_s = 150 },
+    { kind = "climb", dh_m = 30, duration_s = 60 },
+    { kind = "cruise", duration_s = 100 },
+    { kind = "turn", angle_deg = -120, duration_s = 40 },
+    { kind = "cruise", duration_s = 80 },
+    { kind = "accelerate", dv_mps = -20, duration_s = 25 },
+    { kind = "stop", duration_s = 95 },
+]
+
+[temperature]
+kind = "constant"
+celsius = 25.0
+
+[[imu]]
+name = "cheap"
+preset = "bench-cheap"
+
+[[imu]]
+name = "dear"
+preset = "bench-dear"
+
+[[gnss]]
+name = "gnss"
+preset = "standalone"
+rate_hz = 10
+latency_s = 0.08
+
+[outputs]
+truth_nav = true
+truth_imu = false
+truth_every = 15
+"#;
+/// Outage lengths (s) and horizontal requirements (m) of a study of Allan fits.
+pub const FIT_STUDY_OUTAGES_S: [f64; 7] = [1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 60.0];
+pub const FIT_STUDY_REQUIREMENTS_M: [f64; 2] = [0.1, 1.0];
+/// Monte Carlo runs of a study of Allan fits unless told otherwise.
+pub const FIT_STUDY_RUNS: usize = 8;
+
+/// The filter-based outage answer for the Allan fits of `devices` in `report`: a study on
+/// [`REFERENCE_DRIVE`] with [`FIT_STUDY_OUTAGES_S`] and [`FIT_STUDY_REQUIREMENTS_M`], seed
+/// = the drive's. Fails (naming the device) when a fit does not allow simulating the IMU.
+pub fn fit_study(
+    report: &crate::allan::analysis::AllanReport,
+    devices: &[&str],
+    runs: usize,
+    progress: bool,
+) -> anyhow::Result<StudyResult> {
+    let scene = Scene::parse(REFERENCE_DRIVE, Path::new(".")).context("reference drive")?;
+    let config = FusionConfig {
+        covariance_interval_s: 0.1,
+        ..FusionConfig::default()
+    };
+    let grades = devices
+        .iter()
+        .map(|d| {
+            Grade::from_allan(report, Some(d), &format!("Allan fit of {d}"), &config.imu)
+                .with_context(|| format!("device {d}"))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut options = StudyOptions::new(grades, FIT_STUDY_OUTAGES_S.to_vec(), runs, scene.seed);
+    options.requirements_m = FIT_STUDY_REQUIREMENTS_M.to_vec();
+    options.config = config;
+    options.progress = progress;
+    run_study(&scene, &options)
 }
 
 /// What to study.
@@ -291,6 +398,9 @@ impl StudyDrive {
                     }
                 }
                 v
+            }
+            Motion::Tumble(_) | Motion::RateTable(_) => {
+                bail!("the study drives a vehicle: a tumble or rate-table scene has no trajectory to navigate")
             }
         };
         if !matches!(scene.motion, Motion::Static { .. }) && truth.len() < count {

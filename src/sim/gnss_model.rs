@@ -353,6 +353,7 @@ impl GnssSimulator {
             pdop: f64::NAN,
             hdop: f64::NAN,
             vdop: f64::NAN,
+            heading_deg: f64::NAN,
         };
         let [n, u, v] = [0, 1, 2].map(|i| self.geometry[i].step(&mut self.geometry_stream));
         let n0 = f64::from(self.spec.num_sats);

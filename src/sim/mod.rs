@@ -10,9 +10,11 @@
 //! - [`temperature`]: temperature profiles.
 //! - [`truth_file`]: truth trajectories read from CSV.
 //! - [`motion`]: the truth trajectory generator (segments) and the static truth.
+//! - [`attitude`]: tumbles and rate tables at a fixed place.
 //! - [`wire`]: records to device protocol bytes (and back, for the reference).
 //! - [`serve`]: a scene served as byte streams on ptys (`imulab sim --serve`).
 
+pub mod attitude;
 pub mod flicker;
 pub mod gnss_model;
 pub mod imu_model;

@@ -10,6 +10,7 @@
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 
+use super::attitude::AttitudeProgram;
 use super::gnss_model::GnssSimulator;
 use super::imu_model::ImuSimulator;
 use super::motion::{static_truth, MotionGenerator, TruthSample};
@@ -36,6 +37,7 @@ enum TruthSource {
     Static(TruthSample),
     Generator(MotionGenerator),
     File(TruthFileReader),
+    Attitude(AttitudeProgram, f64),
 }
 
 impl TruthSource {
@@ -64,6 +66,16 @@ impl TruthSource {
             Motion::TruthFile(path) => {
                 TruthSource::File(TruthFileReader::open(path, scene.rate_hz)?)
             }
+            Motion::Tumble(spec) => TruthSource::Attitude(
+                AttitudeProgram::tumble(spec, scene.seed, loc.lat_deg, loc.lon_deg, loc.height_m)
+                    .map_err(|e| anyhow!("motion (tumble): {e}"))?,
+                scene.rate_hz,
+            ),
+            Motion::RateTable(spec) => TruthSource::Attitude(
+                AttitudeProgram::rate_table(spec, loc.lat_deg, loc.lon_deg, loc.height_m)
+                    .map_err(|e| anyhow!("motion (rate_table): {e}"))?,
+                scene.rate_hz,
+            ),
         })
     }
 
@@ -76,6 +88,9 @@ impl TruthSource {
                 for _ in 0..len {
                     out.push(g.next().ok_or_else(|| anyhow!("motion ended early"))?);
                 }
+            }
+            TruthSource::Attitude(program, rate_hz) => {
+                out.extend((0..len).map(|i| program.at((first + i as u64) as f64 / *rate_hz)));
             }
             TruthSource::File(f) => {
                 for i in 0..len {

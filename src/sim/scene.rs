@@ -9,6 +9,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use nalgebra::UnitQuaternion;
 use serde::Deserialize;
 
+use super::attitude::{AttitudeProgram, RateTableSpec, TumbleSpec};
 use super::gnss_model::{GnssSpec, GNSS_PRESETS};
 use super::imu_model::{Channels, ImuSpec};
 use super::motion::{MotionSpec, Segment};
@@ -77,6 +78,8 @@ enum MotionFile {
     TruthFile {
         path: PathBuf,
     },
+    Tumble(TumbleSpec),
+    RateTable(RateTableSpec),
 }
 
 /// A sensor table: its name, an optional preset, and everything else as overrides.
@@ -119,6 +122,10 @@ pub enum Motion {
     Segments(MotionSpec),
     /// Truth read from a CSV file (see [`super::truth_file`]).
     TruthFile(PathBuf),
+    /// Static poses joined by rotations (see [`super::attitude`]).
+    Tumble(TumbleSpec),
+    /// Constant-rate segments about one body axis (see [`super::attitude`]).
+    RateTable(RateTableSpec),
 }
 
 /// One IMU of a scene.
@@ -237,6 +244,16 @@ impl Scene {
                 segments,
             }),
             MotionFile::TruthFile { path } => Motion::TruthFile(base_dir.join(path)),
+            MotionFile::Tumble(spec) => {
+                AttitudeProgram::tumble(&spec, file.seed, loc.lat_deg, loc.lon_deg, loc.height_m)
+                    .map_err(|e| anyhow!("motion (tumble): {e}"))?;
+                Motion::Tumble(spec)
+            }
+            MotionFile::RateTable(spec) => {
+                AttitudeProgram::rate_table(&spec, loc.lat_deg, loc.lon_deg, loc.height_m)
+                    .map_err(|e| anyhow!("motion (rate_table): {e}"))?;
+                Motion::RateTable(spec)
+            }
         };
         file.temperature
             .validate()

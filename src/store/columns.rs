@@ -43,6 +43,9 @@ pub(crate) struct Column {
     pub width: usize,
     pub units: &'static str,
     pub description: &'static str,
+    /// Added after the first files were written: a file without it is read as if every
+    /// row held the column's missing value (optional columns come last in a table).
+    pub optional: bool,
 }
 
 const fn col(
@@ -58,6 +61,15 @@ const fn col(
         width,
         units,
         description,
+        optional: false,
+    }
+}
+
+/// A column that older files lack (see [`Column::optional`]).
+const fn optional(c: Column) -> Column {
+    Column {
+        optional: true,
+        ..c
     }
 }
 
@@ -173,6 +185,13 @@ pub(crate) const GNSS_COLUMNS: &[Column] = &[
     col("pdop", ColType::F64, 0, "", "position DOP"),
     col("hdop", ColType::F64, 0, "", "horizontal DOP"),
     col("vdop", ColType::F64, 0, "", "vertical DOP"),
+    optional(col(
+        "heading_deg",
+        ColType::F64,
+        0,
+        "deg",
+        "true heading, clockwise from true north (NMEA HDT, NAV-RELPOSNED, vehicle heading); NaN if none",
+    )),
 ];
 
 pub(crate) const EVENT_COLUMNS: &[Column] = &[
@@ -491,6 +510,7 @@ impl Row for GnssRecord {
         sink.put(&ds[14], start, &gather(rows, |r| r.pdop))?;
         sink.put(&ds[15], start, &gather(rows, |r| r.hdop))?;
         sink.put(&ds[16], start, &gather(rows, |r| r.vdop))?;
+        sink.put(&ds[17], start, &gather(rows, |r| r.heading_deg))?;
         sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
     }
     fn encode(&self, out: &mut Vec<u8>) {
@@ -505,6 +525,7 @@ impl Row for GnssRecord {
         out.push(self.fix_type as u8);
         out.push(self.num_sats);
         put_f64s(out, &[self.pdop, self.hdop, self.vdop]);
+        put_f64s(out, &[self.heading_deg]);
     }
     fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
         Ok(GnssRecord {
@@ -525,6 +546,8 @@ impl Row for GnssRecord {
             pdop: c.f64()?,
             hdop: c.f64()?,
             vdop: c.f64()?,
+            // Journal records of version 1 have no heading.
+            heading_deg: if c.version >= 2 { c.f64()? } else { f64::NAN },
         })
     }
 }
@@ -854,6 +877,8 @@ pub struct GnssBlock {
     pub pdop: Vec<f64>,
     pub hdop: Vec<f64>,
     pub vdop: Vec<f64>,
+    /// NaN where there is none (and for every row of a file written before the column).
+    pub heading_deg: Vec<f64>,
 }
 
 /// Stored fix type code back to [`FixType`]; unknown codes read as `NoFix`.
@@ -898,6 +923,7 @@ impl GnssBlock {
             pdop: self.pdop[i],
             hdop: self.hdop[i],
             vdop: self.vdop[i],
+            heading_deg: self.heading_deg[i],
         }
     }
 }
@@ -922,7 +948,11 @@ impl Block for GnssBlock {
             num_sats: get_1d(&ds[13], r.clone())?,
             pdop: get_1d(&ds[14], r.clone())?,
             hdop: get_1d(&ds[15], r.clone())?,
-            vdop: get_1d(&ds[16], r)?,
+            vdop: get_1d(&ds[16], r.clone())?,
+            heading_deg: match ds.get(17) {
+                Some(d) => get_1d(d, r)?,
+                None => vec![f64::NAN; r.len()],
+            },
         })
     }
 }

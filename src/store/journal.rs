@@ -16,7 +16,7 @@
 //! | field | bytes |
 //! |---|---|
 //! | magic `IMLJ` | 4 |
-//! | version (1) | 1 |
+//! | version (2; 1 is read too) | 1 |
 //! | length of the table id | 1 |
 //! | table id, UTF-8 (`imu/imu0`, `gnss/gps`, `events`, `raw/x`, `raw/x/bytes`, ...) | n |
 //! | index of the first row in the table (for `raw/x/bytes`: of the first byte) | 8 |
@@ -27,6 +27,9 @@
 //!
 //! A reader stops at the first record that is cut short, has a bad magic or version, or a
 //! bad CRC: that is the tail a crash tore, and it is dropped.
+//!
+//! Version 2 rows of a GNSS table end with `heading_deg`; version 1 rows (written before that
+//! column) do not, and read back with a NaN heading. Other tables are the same in both.
 
 use std::fs::File;
 use std::io::Write;
@@ -37,7 +40,9 @@ use super::manifest::fsync_dir;
 use super::StoreError;
 
 const MAGIC: [u8; 4] = *b"IMLJ";
-const VERSION: u8 = 1;
+const VERSION: u8 = 2;
+/// The oldest record version read.
+const OLDEST_VERSION: u8 = 1;
 /// Bytes of a record before its table id, and after the id before the payload.
 const HEAD: usize = 4 + 1 + 1;
 const MID: usize = 8 + 4 + 4;
@@ -68,6 +73,8 @@ pub(crate) fn put_record(out: &mut Vec<u8>, id: &str, first: u64, count: u32, pa
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) struct Record {
     pub id: String,
+    /// The record's format version (see the module doc).
+    pub version: u8,
     pub first: u64,
     pub count: u32,
     pub payload: Vec<u8>,
@@ -95,7 +102,7 @@ pub(crate) fn parse(bytes: &[u8]) -> Contents {
 }
 
 fn parse_one(b: &[u8]) -> Option<(Record, usize)> {
-    if b.len() < HEAD || b[..4] != MAGIC || b[4] != VERSION {
+    if b.len() < HEAD || b[..4] != MAGIC || !(OLDEST_VERSION..=VERSION).contains(&b[4]) {
         return None;
     }
     let id_len = usize::from(b[5]);
@@ -113,6 +120,7 @@ fn parse_one(b: &[u8]) -> Option<(Record, usize)> {
     Some((
         Record {
             id,
+            version: b[4],
             first,
             count,
             payload: b[mid + MID..body_end].to_vec(),
@@ -251,6 +259,8 @@ impl Journal {
 /// Little-endian field reader over a record's payload, for `columns::Row::decode`.
 pub(crate) struct Cursor<'a> {
     pub bytes: &'a [u8],
+    /// The record's format version: what fields its rows have.
+    pub version: u8,
 }
 
 impl<'a> Cursor<'a> {

@@ -271,10 +271,21 @@ impl Session {
     /// Fails only when the directory is not a session or its manifest is bad; per-file
     /// problems are reported by [`Session::files`] and [`Session::problems`].
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
+        Self::open_files(dir, 0, true)
+    }
+
+    /// [`Session::open`] of the chunk files numbered `first_index` and up only, without
+    /// the warning about a live writer: what a follower of a live session opens at every
+    /// look (`imulab watch`), the files before being complete and read already.
+    pub fn open_from(dir: &Path, first_index: u32) -> Result<Self, StoreError> {
+        Self::open_files(dir, first_index, false)
+    }
+
+    fn open_files(dir: &Path, first_index: u32, warn_live: bool) -> Result<Self, StoreError> {
         // Says whether the path is missing, a file, or a directory without a manifest.
         let manifest = Manifest::load(dir)?;
         let live = writer_is_live(dir);
-        if live {
+        if live && warn_live {
             tracing::warn!(
                 "{}: still being written (a live writer holds {}): reading what it has flushed so far; \
                  rerun when the writer has stopped for the whole run",
@@ -289,6 +300,9 @@ impl Session {
             let name = entry.file_name();
             let Some(name) = name.to_str() else { continue };
             if let Some((index, partial)) = layout::parse_chunk_file_name(name) {
+                if index < first_index {
+                    continue;
+                }
                 found.push((index, partial, entry.path()));
             }
         }
@@ -590,9 +604,12 @@ fn open_table(
     let mut ds = Vec::with_capacity(cols.len());
     let mut len = usize::MAX;
     for c in cols {
-        let d = g
-            .dataset(c.name)
-            .map_err(|_| hdf5::Error::from(format!("no dataset /{group}/{}", c.name)))?;
+        let d = match g.dataset(c.name) {
+            Ok(d) => d,
+            // A file written before the column: the block reader fills it in.
+            Err(_) if c.optional => break,
+            Err(_) => return Err(format!("no dataset /{group}/{}", c.name).into()),
+        };
         let shape = d.shape();
         let rows = shape.first().copied().unwrap_or(0);
         if c.width != 0 && shape.get(1).copied() != Some(c.width) {

@@ -48,6 +48,9 @@ pub struct GnssRecord {
     pub pdop: f64,
     pub hdop: f64,
     pub vdop: f64,
+    /// True heading, degrees clockwise from true north (NMEA HDT, a dual-antenna
+    /// NAV-RELPOSNED, a dead-reckoning receiver's vehicle heading); NaN when none.
+    pub heading_deg: f64,
 }
 
 /// What kind of thing an event records.

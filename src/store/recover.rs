@@ -24,8 +24,8 @@ use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use super::columns::{
-    put_1d, Block, ChunkSink, Column, EventBlock, EventRow, GnssBlock, ImuBlock, RawIndexBlock,
-    RawIndexRow, Row, TruthImuBlock, TruthNavBlock, RAW_BYTES,
+    create_column, put_1d, put_str_attr, Block, ChunkSink, Column, EventBlock, EventRow, GnssBlock,
+    ImuBlock, RawIndexBlock, RawIndexRow, Row, TruthImuBlock, TruthNavBlock, RAW_BYTES,
 };
 use super::journal::{self, Cursor, Record};
 use super::layout;
@@ -299,6 +299,7 @@ fn journal_rows<R: Row>(records: &[Record], id: &str, from: usize) -> (Vec<R>, u
         }
         let mut c = Cursor {
             bytes: &rec.payload,
+            version: rec.version,
         };
         let decoded: Result<Vec<R>, String> = (0..rec.count).map(|_| R::decode(&mut c)).collect();
         match decoded {
@@ -443,6 +444,27 @@ fn repair_and_replay_raw(
     Ok(t)
 }
 
+/// Gives a table of a file written before its optional columns existed those columns,
+/// NaN in every row it has, so the journal's rows (which have them) can be appended.
+fn add_optional_columns<B: Block>(file: &hdf5::File, group: &str) -> hdf5::Result<()> {
+    let g = file.group(group)?;
+    let t = g.dataset(B::COLUMNS[0].name)?;
+    let rows = t.shape().first().copied().unwrap_or(0);
+    let chunk_rows = t
+        .chunk()
+        .and_then(|c| c.first().copied())
+        .unwrap_or(layout::EVENT_CHUNK_ROWS);
+    for c in B::COLUMNS.iter().filter(|c| c.optional) {
+        if g.dataset(c.name).is_ok() {
+            continue;
+        }
+        let d = create_column(&g, c, chunk_rows, 1)?;
+        put_str_attr(&d, layout::ATTR_AXIS_FRAME, "NED")?;
+        put_1d(&d, 0, &vec![f64::NAN; rows])?;
+    }
+    Ok(())
+}
+
 fn member_names(file: &hdf5::File, group: &str) -> Vec<String> {
     file.group(group)
         .and_then(|g| g.member_names())
@@ -469,6 +491,7 @@ fn repair_file(path: &Path, records: &[Record]) -> Result<Vec<TableRecovery>, St
         }
         for name in member_names(&file, layout::GNSS_GROUP) {
             let group = layout::gnss_path(&name);
+            add_optional_columns::<GnssBlock>(&file, &group)?;
             tables.push(repair_and_replay::<GnssBlock, GnssRecord>(
                 &file, &group, records,
             )?);

@@ -180,3 +180,37 @@ fn demo_without_imulogd_says_how_to_build_it() {
     );
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
 }
+
+#[test]
+fn demo_without_out_writes_to_a_new_directory_it_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let lone = dir.path().join("imulab");
+    std::fs::copy(env!("CARGO_BIN_EXE_imulab"), &lone).unwrap();
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    // Run from a directory of its own: nothing may appear there.
+    let cwd = dir.path().join("cwd");
+    std::fs::create_dir(&cwd).unwrap();
+    let run = Command::new(&lone)
+        .arg("demo")
+        .current_dir(&cwd)
+        .env("TMPDIR", &tmp)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    let made: Vec<_> = std::fs::read_dir(&tmp)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(made.len(), 1, "{made:?}");
+    let name = made[0].file_name().unwrap().to_string_lossy().into_owned();
+    assert!(name.starts_with("imulab-demo-"), "{name}");
+    assert!(
+        stderr.contains(&format!(
+            "writing to {}",
+            made[0].canonicalize().unwrap().display()
+        )),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read_dir(&cwd).unwrap().count(), 0);
+}

@@ -153,3 +153,93 @@ async fn a_filling_disk_stops_the_session_cleanly_with_exit_status_3() {
         stop.detail
     );
 }
+
+/// The reserve check is fooled (free space reads as plenty) and the file system really fills
+/// up: the daemon stops with exit status 3, says "disk full" once and points at `imulab
+/// recover`; once space is freed, recover gives back the rows written, contiguous from the
+/// first.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_says_disk_full_once_and_the_session_recovers() {
+    let fs = match SmallFs::mount(8) {
+        Ok(fs) => fs,
+        Err(reason) => {
+            println!("SKIPPED a_full_disk_says_disk_full_once: {reason}");
+            return;
+        }
+    };
+    // All but ~1.5 MiB taken by a ballast file, freed after the run.
+    let ballast = fs.path().join("ballast");
+    std::fs::write(&ballast, vec![0u8; 6 << 20 | 512 << 10]).unwrap();
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nflush_interval_ms = 100\nraw_journal = true\ndeflate_level = 0\n\
+         disk_reserve_mb = 4\n\
+         [[device]]\nname = \"imu\"\nprotocol = \"csv\"\nrate_hz = 10000\nserial = {{ port = \"/dev/imu\" }}\n",
+        fs.path().display()
+    );
+    let config = parse(&text, "test").unwrap_or_else(|e| panic!("{e}"));
+    let session_dir: PathBuf = fs.path().join("session");
+    let sink = open_session_sink(&config, &session_dir).expect("session created");
+    let imu = QueueConnector::default();
+    let mut port = imu.plug();
+    let decoders: DecoderFactory =
+        Box::new(|| Box::new(LineDecoder::default()) as Box<dyn FrameDecoder>);
+    let parts = DaemonParts {
+        sink: Box::new(sink),
+        session_dir: session_dir.clone(),
+        connectors: vec![Box::new(imu) as Box<dyn Connector>],
+        decoders: vec![decoders],
+        // Lies: the reserve check never stops the session, ENOSPC does.
+        free_space: Box::new(|| Ok(u64::MAX / 2)),
+        status_path: fs.path().join("status.json"),
+    };
+    let (_stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+    let sender = tokio::spawn(async move {
+        let mut seq = 0u64;
+        loop {
+            let mut burst = Vec::new();
+            for _ in 0..250 {
+                burst.extend_from_slice(&encode_imu(
+                    seq,
+                    [1e-3 * seq as f64, 0.0, 0.0],
+                    [0.0, 0.0, 9.81],
+                ));
+                seq += 1;
+            }
+            if port.write_all(&burst).await.is_err() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    });
+    let outcome = tokio::time::timeout(Duration::from_secs(30), daemon)
+        .await
+        .expect("the daemon stops by itself")
+        .unwrap();
+    sender.abort();
+    let message = outcome.message();
+    println!("{message}");
+    assert!(matches!(outcome, Outcome::DiskFull { .. }), "{outcome:?}");
+    assert_eq!(outcome.exit_code(), 3);
+    assert_eq!(message.matches("disk full").count(), 1, "{message}");
+    assert!(!message.contains("No space left"), "said once: {message}");
+    assert!(
+        message.contains(&format!("imulab recover {}", session_dir.display())),
+        "{message}"
+    );
+
+    std::fs::remove_file(&ballast).unwrap();
+    let report = imulab::store::recover(&session_dir).unwrap_or_else(|e| panic!("{e}"));
+    println!("{report:?}");
+    let session = Session::open(&session_dir).expect("session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    let mut next = 0u64;
+    for block in session.imu_blocks("imu", TimeRange::all(), 4096).unwrap() {
+        for s in &block.unwrap().t_sensor {
+            assert_eq!(*s as u64, next, "rows are contiguous from 0");
+            next += 1;
+        }
+    }
+    println!("{next} rows recovered");
+    assert!(next > 1000, "{next} rows");
+}

@@ -41,17 +41,17 @@ fn bench_scene() -> Scene {
 
 /// Row equality with the arrival times left out; NaN equals NaN (the debug form compares
 /// every value exactly, bit for bit up to the sign of zero).
-fn same<T: std::fmt::Debug>(a: &T, b: &T) -> bool {
+pub(crate) fn same<T: std::fmt::Debug>(a: &T, b: &T) -> bool {
     format!("{a:?}") == format!("{b:?}")
 }
 
-fn without_times_imu(mut r: ImuRecord) -> ImuRecord {
+pub(crate) fn without_times_imu(mut r: ImuRecord) -> ImuRecord {
     r.t_mono_ns = 0;
     r.t_wall_ns = 0;
     r
 }
 
-fn without_times_gnss(mut r: GnssRecord) -> GnssRecord {
+pub(crate) fn without_times_gnss(mut r: GnssRecord) -> GnssRecord {
     r.t_mono_ns = 0;
     r.t_wall_ns = 0;
     r
@@ -68,8 +68,12 @@ fn arrival_rate(t_mono_ns: &[i64]) -> f64 {
 }
 
 /// Serves the bench scene (with `faults`) to a daemon built from its configuration, logging
-/// into an HDF5 session; returns what the simulator sent and where the session is.
-async fn serve_and_log(faults: Vec<Fault>) -> (tempfile::TempDir, ServeReport, std::path::PathBuf) {
+/// into an HDF5 session (with the raw journal when `raw_journal`); returns what the simulator
+/// sent and where the session is.
+pub(crate) async fn serve_and_log(
+    faults: Vec<Fault>,
+    raw_journal: bool,
+) -> (tempfile::TempDir, ServeReport, std::path::PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let mut server = Server::start(
         bench_scene(),
@@ -96,7 +100,7 @@ async fn serve_and_log(faults: Vec<Fault>) -> (tempfile::TempDir, ServeReport, s
         ));
     }
     let text = format!(
-        "[session]\noutput_dir = \"{}\"\nname = \"bench\"\nflush_interval_ms = 100\n\n{devices}",
+        "[session]\noutput_dir = \"{}\"\nname = \"bench\"\nflush_interval_ms = 100\nraw_journal = {raw_journal}\n\n{devices}",
         dir.path().display()
     );
     let config = parse(&text, "end-to-end").unwrap_or_else(|e| panic!("{e}"));
@@ -146,7 +150,7 @@ async fn serve_and_log(faults: Vec<Fault>) -> (tempfile::TempDir, ServeReport, s
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn simulated_bench_is_logged_completely_exactly_once_with_its_values() {
-    let (_dir, report, session_dir) = serve_and_log(Vec::new()).await;
+    let (_dir, report, session_dir) = serve_and_log(Vec::new(), false).await;
     let session = Session::open(&session_dir).expect("the session opens");
     assert!(session.problems().is_empty(), "{:?}", session.problems());
     assert!(
@@ -356,7 +360,7 @@ async fn simulator_faults_garbage_and_reopen_cost_only_themselves() {
             down_s: 4.0,
         },
     ];
-    let (_dir, report, session_dir) = serve_and_log(faults).await;
+    let (_dir, report, session_dir) = serve_and_log(faults, false).await;
     let session = Session::open(&session_dir).expect("the session opens");
     let (events, _) = session.events();
     let kinds = |device: &str| -> Vec<EventKind> {

@@ -8,6 +8,7 @@ mod end_to_end;
 mod host_check;
 mod pipeline;
 mod pty;
+mod replay;
 mod serial;
 mod store;
 mod ubx_esf;

@@ -106,3 +106,99 @@ async fn pty_closed_and_reopened_mid_run_resumes_in_the_same_session() {
         .windows(2)
         .all(|w| w[0].t_mono_ns <= w[1].t_mono_ns));
 }
+
+/// A device that returns is reopened when its path appears (the path watch), not at the end
+/// of its back-off delay (4 s here); the samples it buffered while the daemon had it closed
+/// arrive in one burst after the reopen, which an event marks with its rows' arrival times.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_returning_device_is_reopened_at_once_and_its_buffered_burst_is_marked() {
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("imu-test");
+    let mut first = Pty::open();
+    point_link(&link, &first.slave_path);
+    let devices = format!(
+        "[[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = 100\nretry_initial_ms = 4000\nretry_max_ms = 8000\n\
+         serial = {{ port = \"{}\", baud = 115200 }}\n",
+        link.display()
+    );
+    let daemon = start(config(dir.path(), &devices));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let first = tokio::task::spawn_blocking(move || {
+        send(&mut first, 0..30);
+        std::thread::sleep(Duration::from_millis(100));
+        first
+    })
+    .await
+    .unwrap();
+    drop(first);
+    // The daemon sees the vanish and waits (4 s of back-off) for the device.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut second = Pty::open();
+    // 40 samples the device "buffered" while nobody had it open.
+    for seq in 30..70 {
+        second.write(&wit_sample(seq));
+    }
+    let back_mono_ns = imulab::daemon::clock::mono_ns();
+    point_link(&link, &second.slave_path);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let second = tokio::task::spawn_blocking(move || {
+        send(&mut second, 70..100);
+        std::thread::sleep(Duration::from_millis(100));
+        second
+    })
+    .await
+    .unwrap();
+    let store = daemon.stop().await;
+    drop(second);
+
+    let reopen = store
+        .events
+        .iter()
+        .find(|e| e.device == "imu" && e.kind == EventKind::Reconnect)
+        .unwrap_or_else(|| panic!("no reconnect: {:?}", store.events));
+    let late_ms = (reopen.t_mono_ns - back_mono_ns) as f64 * 1e-6;
+    println!(
+        "reopened {late_ms:.1} ms after the path appeared: {}",
+        reopen.detail
+    );
+    assert!(
+        late_ms < 500.0,
+        "reopened {late_ms:.1} ms after the path appeared"
+    );
+    assert!(
+        reopen.detail.contains("at once when its path appeared"),
+        "{}",
+        reopen.detail
+    );
+
+    let seqs: Vec<u64> = store.imu["imu"]
+        .iter()
+        .map(|r| (r.t_sensor * 100.0).round() as u64)
+        .collect();
+    assert_eq!(seqs, (0..100).collect::<Vec<_>>());
+    let bursts: Vec<_> = store
+        .events
+        .iter()
+        .filter(|e| e.device == "imu" && e.detail.starts_with("burst after the open"))
+        .collect();
+    assert_eq!(bursts.len(), 1, "{:?}", store.events);
+    println!("{}", bursts[0].detail);
+    // The buffered samples are the burst's rows (the last may complete with the next read).
+    let range = bursts[0]
+        .detail
+        .split("t_mono_ns ")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .unwrap();
+    let (a, b) = range.split_once("..=").unwrap();
+    let (a, b): (i64, i64) = (a.parse().unwrap(), b.parse().unwrap());
+    let in_burst: Vec<u64> = store.imu["imu"]
+        .iter()
+        .filter(|r| (a..=b).contains(&r.t_mono_ns))
+        .map(|r| (r.t_sensor * 100.0).round() as u64)
+        .collect();
+    assert!(
+        in_burst.len() >= 38 && in_burst.iter().all(|s| (29..70).contains(s)),
+        "burst rows {in_burst:?}"
+    );
+}

@@ -269,3 +269,53 @@ fn covariance_at_the_gnss_rate_matches_covariance_at_the_imu_rate() {
     assert!((s2.nees_mean / s1.nees_mean - 1.0).abs() < 0.1);
     assert!((s2.horizontal.rms / s1.horizontal.rms - 1.0).abs() < 0.05);
 }
+
+/// An output epoch that coincides with a fix carries that fix's update: the first epoch after
+/// an outage reports the corrected solution, not the drift the outage left, so the GNSS-on
+/// figures (which count that epoch) are the filter's accuracy with GNSS.
+#[test]
+fn an_output_at_a_fix_epoch_carries_the_fix_update() {
+    let d = data(4, false);
+    let outages = vec![(60.0, 90.0), (150.0, 180.0)];
+    let (r, s) = run(&d, &config(15), outages.clone(), false);
+    let e = errors(&r.filtered, |t| d.truth_at(t));
+    for &(_, end) in &outages {
+        // The fix at the outage end has the time of an IMU sample and of an output epoch.
+        assert!(d.gnss.iter().any(|f| (f.t_s - end).abs() < 1e-9));
+        let at = e
+            .iter()
+            .find(|x| (x.t_s - end).abs() < 1e-6)
+            .expect("an output epoch at the first fix after the outage");
+        let before = e
+            .iter()
+            .rev()
+            .find(|x| x.t_s < end - 1e-6)
+            .expect("an output epoch inside the outage");
+        let sigma = |t: f64| {
+            let sol = r
+                .filtered
+                .iter()
+                .find(|x| (x.nav.t_s - t).abs() < 1e-6)
+                .expect("solution");
+            (sol.cov_nav[(0, 0)] + sol.cov_nav[(1, 1)]).sqrt()
+        };
+        println!(
+            "outage end {end}: error {:.3} m (σ {:.3}) at the fix, {:.3} m (σ {:.3}) just before",
+            at.horizontal_m(),
+            sigma(at.t_s),
+            before.horizontal_m(),
+            sigma(before.t_s)
+        );
+        assert!(before.horizontal_m() > 0.5, "the outage drifted");
+        // Written before the update, the epoch would keep the outage's σ (ratio ≈ 1).
+        assert!(
+            sigma(at.t_s) < 0.2 * sigma(before.t_s),
+            "the epoch at the fix still carries the outage's state"
+        );
+        assert!(at.horizontal_m() < before.horizontal_m());
+        assert!(at.horizontal_m() < 3.0 * sigma(at.t_s));
+    }
+    // GNSS-on figures count those epochs; with the update in them they stay at the
+    // filter's accuracy with GNSS (0.3 m receiver σ here).
+    assert!(s.horizontal_gnss.rms < 0.5, "{:?}", s.horizontal_gnss);
+}

@@ -108,6 +108,7 @@ fn write_session_with_gap(dir: &Path, gnss_gap_s: Option<(f64, f64)>) {
                 pdop: 1.0,
                 hdop: 0.8,
                 vdop: 1.2,
+                heading_deg: f64::NAN,
             });
         }
         if imu.len() == 1000 {

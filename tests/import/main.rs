@@ -357,9 +357,10 @@ fn truncated_bags_keep_the_messages_before_the_cut() {
         );
         let s = Session::open(&session).unwrap();
         let rows = s.stream_summary("/imu/imu_data").rows;
-        // Everything but the chunk the cut fell in (chunks are under 1 000 messages).
+        // Everything but the chunk the cut fell in: about 60 % of the rows, give or take
+        // how well each chunk compressed.
         assert!(
-            rows > total / 2 && rows < total * 6 / 10,
+            rows > total / 2 && rows < total * 7 / 10,
             "{rows} of {total}"
         );
         let (events, _) = s.events();

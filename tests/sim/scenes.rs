@@ -44,6 +44,8 @@ fn example_scenes_parse() {
         "short_static.toml",
         "short_drive.toml",
         "serve_bench.toml",
+        "tumble_15min.toml",
+        "rate_table.toml",
     ] {
         let scene = Scene::load(&fixture(name)).unwrap_or_else(|e| panic!("{name}: {e:#}"));
         assert!(scene.samples() > 0);

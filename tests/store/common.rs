@@ -76,6 +76,7 @@ pub fn gnss_row(i: usize) -> GnssRecord {
         pdop: 1.2,
         hdop: 0.8,
         vdop: 1.0,
+        heading_deg: (i as f64 * 0.5) % 360.0,
     }
 }
 

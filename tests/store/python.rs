@@ -107,6 +107,19 @@ fn h5py_snippet_reads_what_rust_wrote() {
         w.append_truth_imu("imu_a", &tru).unwrap();
         let nav: Vec<_> = (start / 10..(start + 50) / 10).map(truth_nav).collect();
         w.append_truth_nav(&nav).unwrap();
+        // One fix per 20 IMU rows (0.2 s); every other one without a heading.
+        let fixes: Vec<_> = (start / 20..(start + 50) / 20)
+            .map(|k| {
+                let mut r = gnss_row(k);
+                if k % 2 == 1 {
+                    r.heading_deg = f64::NAN;
+                }
+                r
+            })
+            .collect();
+        if !fixes.is_empty() {
+            w.append_gnss("gps", &fixes).unwrap();
+        }
         for i in start..start + 50 {
             w.append_raw("imu_a", imu_row(0, i).t_mono_ns, &raw_bytes(i))
                 .unwrap();
@@ -158,6 +171,18 @@ fn h5py_snippet_reads_what_rust_wrote() {
             }
             assert_eq!(as_f64(&t["temp"][i]), r.temp);
             assert_eq!(t["status"][i].as_u64().unwrap(), u64::from(r.status));
+        }
+    }
+    // The heading column of the GNSS table, NaN where a fix had none.
+    let gps = &v["gnss/gps"];
+    let headings = gps["heading_deg"].as_array().unwrap();
+    assert_eq!(headings.len(), n / 20);
+    for k in [0, 1, 2, 25, n / 20 - 1] {
+        let h = as_f64(&headings[k]);
+        if k % 2 == 1 {
+            assert!(h.is_nan(), "fix {k}: {h}");
+        } else {
+            assert_eq!(h, gnss_row(k).heading_deg, "fix {k}");
         }
     }
     let nav = &v["truth/nav"];

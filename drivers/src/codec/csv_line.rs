@@ -357,20 +357,49 @@ impl Encoder for CsvLineEncoder {
     }
 }
 
-/// Builds the decoder for `imulab decode --protocol csv`: the column map comes from
-/// `options.config` (TOML, see [`CsvLineConfig`]), else the default layout.
-pub fn open_json(
-    options: &super::DecoderOptions,
-) -> Result<Box<dyn super::JsonDecoder>, super::OpenError> {
-    let fail = |reason: String| super::OpenError {
+fn open_error(reason: String) -> super::OpenError {
+    super::OpenError {
         protocol: "csv",
         reason,
-    };
+    }
+}
+
+/// The decoder of the column map of `options.config` (TOML, see [`CsvLineConfig`]), else
+/// of the default layout.
+fn decoder_of(options: &super::DecoderOptions) -> Result<CsvLineDecoder, super::OpenError> {
     let config = match &options.config {
         None => CsvLineConfig::default(),
         Some(file) => {
-            toml::from_str(&file.text).map_err(|e| fail(format!("{}: {e}", file.name)))?
+            toml::from_str(&file.text).map_err(|e| open_error(format!("{}: {e}", file.name)))?
         }
     };
-    Ok(Box::new(CsvLineDecoder::new(config).map_err(fail)?))
+    CsvLineDecoder::new(config).map_err(open_error)
+}
+
+/// Builds the decoder for `imulab decode --protocol csv`.
+pub fn open_json(
+    options: &super::DecoderOptions,
+) -> Result<Box<dyn super::JsonDecoder>, super::OpenError> {
+    Ok(Box::new(decoder_of(options)?))
+}
+
+/// Readings of CSV lines in the column map of `options`.
+pub fn readings(
+    options: &super::DecoderOptions,
+) -> Result<super::reading::ReadingDecoderFactory, super::OpenError> {
+    let template = decoder_of(options)?;
+    Ok(super::reading::byte_readings(move || template.clone()))
+}
+
+/// The line a CSV IMU sends for one sample, in the column map of `options` (the time
+/// column is the sample's `sensor_time`).
+pub fn encoder(
+    options: &super::DecoderOptions,
+) -> Result<Box<dyn super::reading::ReadingEncoder>, super::OpenError> {
+    let encoder = CsvLineEncoder {
+        config: decoder_of(options)?.config,
+    };
+    Ok(super::reading::imu_encoder(move |sample, _, out| {
+        encoder.encode(sample, out)
+    }))
 }

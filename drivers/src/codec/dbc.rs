@@ -26,8 +26,12 @@ use serde::{Deserialize, Serialize};
 
 use super::can::CanFrame;
 use super::candump::{CandumpDecoder, CandumpRecord};
-use super::slcan::{SlcanDecoder, SlcanMessage};
-use super::{Decoder, DecoderOptions, EncodeError, JsonDecoder, OpenError};
+use super::reading::{
+    byte_readings, imu_encoder, Input, Reading, ReadingDecoder, ReadingDecoderFactory,
+    ReadingEncoder,
+};
+use super::slcan::{SlcanDecoder, SlcanEncoder, SlcanMessage};
+use super::{Decoder, DecoderOptions, EncodeError, Encoder, JsonDecoder, OpenError};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Where one quantity lives in the DBC, and any extra scaling.
@@ -560,6 +564,106 @@ fn slcan_frame(m: &SlcanMessage) -> Option<CanFrame> {
 
 fn candump_frame(r: &CandumpRecord) -> Option<CanFrame> {
     Some(r.frame)
+}
+
+/// A CAN IMU: CAN frames through the DBC mapping into samples (protocol `can-dbc`).
+struct CanImuReadings {
+    imu: DbcImu,
+    ready: Option<ImuSample>,
+    /// Bytes pushed to this CAN decoder.
+    wrong_input: u64,
+}
+
+impl ReadingDecoder for CanImuReadings {
+    fn push(&mut self, input: Input<'_>) {
+        match input {
+            Input::Can(frame) => {
+                if let Some(sample) = self.imu.push_frame(frame) {
+                    // A frame completes at most one sample, polled before the next push.
+                    self.ready = Some(sample);
+                }
+            }
+            Input::Bytes(_) => self.wrong_input += 1,
+        }
+    }
+
+    fn poll(&mut self) -> Option<Reading> {
+        self.ready.take().map(Reading::Imu)
+    }
+
+    fn stats(&self) -> DecoderStats {
+        let mut stats = self.imu.stats();
+        stats.frames_malformed += self.wrong_input;
+        stats
+    }
+
+    fn finish(&mut self) -> Option<Reading> {
+        self.ready
+            .take()
+            .or_else(|| self.imu.finish())
+            .map(Reading::Imu)
+    }
+}
+
+/// The DBC and mapping of a protocol that cannot do without them.
+fn require_dbc(protocol: &'static str, options: &DecoderOptions) -> Result<DbcImu, OpenError> {
+    load_dbc(protocol, options)?.ok_or_else(|| OpenError {
+        protocol,
+        reason: "needs a DBC file and its signal mapping (TOML, see docs/protocols-imu-can.md)"
+            .into(),
+    })
+}
+
+/// Readings of `can-dbc`: CAN frames through the DBC and mapping of `options`.
+pub fn can_readings(options: &DecoderOptions) -> Result<ReadingDecoderFactory, OpenError> {
+    let imu = require_dbc("can-dbc", options)?;
+    Ok(Box::new(move || {
+        Box::new(CanImuReadings {
+            imu: imu.clone(),
+            ready: None,
+            wrong_input: 0,
+        })
+    }))
+}
+
+/// Readings of an slcan byte stream through the DBC and mapping of `options`.
+pub fn slcan_readings(options: &DecoderOptions) -> Result<ReadingDecoderFactory, OpenError> {
+    let imu = require_dbc("slcan", options)?;
+    Ok(byte_readings(move || {
+        DbcStreamDecoder::new(SlcanDecoder::new(), slcan_frame, imu.clone())
+    }))
+}
+
+/// Readings of a candump log through the DBC and mapping of `options`.
+pub fn candump_readings(options: &DecoderOptions) -> Result<ReadingDecoderFactory, OpenError> {
+    let imu = require_dbc("candump", options)?;
+    Ok(byte_readings(move || {
+        DbcStreamDecoder::new(CandumpDecoder::new(), candump_frame, imu.clone())
+    }))
+}
+
+/// The slcan lines an IMU on a CAN bus sends for one sample, through the DBC and mapping of
+/// `options`: its mapped messages as `t`/`T` lines. The time signal carries the clock in µs
+/// wrapping at 2^32 and the status signal the low byte of the status word (the layout of
+/// `fixtures/imu_can.dbc`).
+pub fn slcan_encoder(options: &DecoderOptions) -> Result<Box<dyn ReadingEncoder>, OpenError> {
+    let imu = require_dbc("slcan", options)?;
+    Ok(imu_encoder(move |sample, clock, out| {
+        let us = ((clock.time_s * 1e6).round().max(0.0) as u64) & 0xFFFF_FFFF;
+        let mut sample = *sample;
+        sample.sensor_time = Some(us as f64 * 1e-6);
+        sample.status &= 0xFF;
+        for frame in imu.encode(&sample)? {
+            SlcanEncoder.encode(
+                &SlcanMessage::Frame {
+                    frame,
+                    timestamp_ms: None,
+                },
+                out,
+            )?;
+        }
+        Ok(())
+    }))
 }
 
 /// Loads the DBC (`options.dbc`) and its mapping (`options.config`, TOML), if a DBC is given.

@@ -40,9 +40,10 @@ use std::collections::VecDeque;
 use serde::Serialize;
 
 use super::nmea::{self, Date, NmeaSentence, TimeOfDay};
+use super::reading::{Reading, ToReading};
 use super::ubx::{self, UbxMessage};
-use super::{Decoder, Scan, StreamBuffer};
-use crate::types::{DecoderStats, FixType, GnssFix};
+use super::{Decoder, EncodeError, Scan, StreamBuffer};
+use crate::types::{DecoderStats, FixType, GnssFix, ImuSample};
 
 /// Which protocol an epoch was merged from: `Ubx` when any UBX navigation message
 /// contributed (its fields win), `Nmea` when only NMEA sentences did.
@@ -1020,6 +1021,74 @@ impl Decoder for GnssDecoder {
 
     fn stats(&self) -> DecoderStats {
         self.buffer.stats()
+    }
+}
+
+/// Merged navigation epochs are readings; the raw sentences and messages are not.
+impl ToReading for GnssFrame {
+    fn to_reading(self) -> Option<Reading> {
+        match self {
+            GnssFrame::Fix(epoch) => Some(Reading::Gnss(epoch.fix)),
+            GnssFrame::Nmea(_) | GnssFrame::Ubx(_) => None,
+        }
+    }
+}
+
+/// The epoch of a u-blox receiver with its default output: NMEA GGA and RMC, then UBX
+/// NAV-PVT and NAV-EOE, all for the same fix.
+pub fn encode_fix(fix: &GnssFix, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+    nmea::encode_fix(fix, out)?;
+    ubx::encode_fix(fix, out)
+}
+
+/// The IMU of a u-blox dead-reckoning receiver (NEO-M8L, ZED-F9R) on a port of its own:
+/// ESF-RAW (several samples per message) and ESF-MEAS (one) become [`ImuSample`]s; fixes,
+/// other UBX messages and NMEA on the same port are decoded and dropped.
+#[derive(Debug, Clone, Default)]
+pub struct EsfImuDecoder {
+    gnss: GnssDecoder,
+    ready: VecDeque<ImuSample>,
+}
+
+impl EsfImuDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn take(&mut self, frame: GnssFrame) {
+        match frame {
+            GnssFrame::Ubx(UbxMessage::EsfRaw(raw)) => self.ready.extend(raw.to_imu_samples()),
+            GnssFrame::Ubx(UbxMessage::EsfMeas(meas)) => self.ready.extend(meas.to_imu_sample()),
+            _ => {}
+        }
+    }
+}
+
+impl Decoder for EsfImuDecoder {
+    type Frame = ImuSample;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.gnss.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<ImuSample> {
+        while self.ready.is_empty() {
+            let frame = self.gnss.poll()?;
+            self.take(frame);
+        }
+        self.ready.pop_front()
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.gnss.stats()
+    }
+
+    fn finish(&mut self) -> Option<ImuSample> {
+        while self.ready.is_empty() {
+            let frame = self.gnss.finish()?;
+            self.take(frame);
+        }
+        self.ready.pop_front()
     }
 }
 

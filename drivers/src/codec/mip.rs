@@ -16,6 +16,7 @@
 //! command descriptor, error code) are [`MipPacket::Reply`]; other packets are kept whole
 //! as [`MipPacket::Other`]. Neither is a sample.
 
+use super::reading::{DeviceClock, Reading, ToReading};
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
@@ -459,6 +460,32 @@ impl Encoder for MipEncoder {
         out.extend_from_slice(&ck);
         Ok(())
     }
+}
+
+/// IMU data packets with accelerometer or gyro are readings; command replies are not.
+impl ToReading for MipPacket {
+    fn to_reading(self) -> Option<Reading> {
+        self.to_imu_sample().map(Reading::Imu)
+    }
+}
+
+/// The IMU data packet a MicroStrain sensor sends for one sample: scaled accelerometer (g),
+/// scaled gyro and the shared reference timestamp (the clock, ns). MIP carries no
+/// temperature or status in this data set.
+pub fn encode_sample(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    let data = MipImuData {
+        scaled_accel_g: sample
+            .accel
+            .map(|v| v.map(|x| (x / STANDARD_GRAVITY) as f32)),
+        scaled_gyro: sample.gyro.map(|v| v.map(|x| x as f32)),
+        reference_time_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
+        ..MipImuData::default()
+    };
+    MipEncoder.encode(&MipPacket::Imu(data), out)
 }
 
 /// Auto-detection score: checksummed MIP packets, at least [`DETECT_MIN_FRAMES`].

@@ -5,11 +5,12 @@
 //! (the unconsumed tail of the last push plus at most one partial frame), resynchronise after
 //! garbage and count what they skip in [`DecoderStats`].
 //!
-//! [`PROTOCOLS`] is the protocol table used by `imulab decode`: one line per protocol with its
-//! name, a detector for `auto` and a constructor of a type-erased [`JsonDecoder`]. The daemon
-//! (`src/daemon/source.rs`) and the simulator (`src/sim/wire.rs`) construct the typed decoders
-//! and encoders from the same [`Protocol`] enum; `docs/protocols.md` lists what adding a
-//! protocol touches.
+//! [`PROTOCOLS`] is the one protocol registry: a line per protocol with its name (in
+//! configurations, `session.toml`, scenes and on the command line), what its readings are,
+//! a detector for `auto`, its frames as JSON (`imulab decode`), its [`reading`] decoder (what
+//! `imulogd` logs) and its reading encoder (what `imulab sim --serve` sends). The daemon, the
+//! simulator and `imulab decode` all dispatch through it, so adding a protocol is one codec
+//! module and one table line (`docs/protocols.md`, "Adding a protocol").
 
 pub mod can;
 pub mod candump;
@@ -17,8 +18,10 @@ pub mod csv_line;
 pub mod cycle;
 pub mod dbc;
 pub mod gnss;
+pub mod imu_line;
 pub mod mip;
 pub mod nmea;
+pub mod reading;
 pub mod slcan;
 pub mod ubx;
 pub mod vectornav;
@@ -26,6 +29,9 @@ pub mod witmotion;
 pub mod xbus;
 
 use crate::types::DecoderStats;
+use reading::{
+    byte_readings, gnss_encoder, imu_encoder, Kind, Link, ReadingDecoderFactory, ReadingEncoder,
+};
 
 /// A sans-IO decoder: feed bytes with [`push`](Decoder::push), then call
 /// [`poll`](Decoder::poll) until it returns `None` before pushing again.
@@ -154,8 +160,8 @@ fn write_json<F: serde::Serialize>(frame: Option<F>, out: &mut Vec<u8>) -> bool 
     }
 }
 
-/// Options a protocol may need to build its decoder. Codecs do no I/O: the caller reads
-/// the files and passes their text.
+/// Options a protocol may need to build its decoders and encoder. Codecs do no I/O: the
+/// caller reads the files and passes their text.
 #[derive(Debug, Clone, Default)]
 pub struct DecoderOptions {
     /// DBC file for IMU-over-CAN protocols.
@@ -180,9 +186,9 @@ pub struct OpenError {
     pub reason: String,
 }
 
-/// The protocols the codecs understand.
+/// The protocols the codecs understand, named as in [`PROTOCOLS`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum Protocol {
     /// NMEA 0183 sentences only.
     Nmea,
@@ -190,6 +196,8 @@ pub enum Protocol {
     Ubx,
     /// NMEA and UBX interleaved on one port, merged into navigation epochs.
     Gnss,
+    /// The IMU of a u-blox dead-reckoning receiver: UBX ESF-RAW and ESF-MEAS.
+    UbxEsf,
     /// WitMotion 0x55 packets, assembled into IMU samples.
     Wit,
     /// Xsens Xbus messages (MTData2 decoded).
@@ -200,39 +208,70 @@ pub enum Protocol {
     Slcan,
     /// candump log, optionally through a DBC to IMU samples.
     Candump,
+    /// An IMU on a CAN bus: CAN frames through a DBC to IMU samples.
+    CanDbc,
     /// VectorNav binary output packets and async ASCII sentences.
     Vectornav,
     /// MicroStrain MIP packets (IMU data set decoded).
     Mip,
+    /// `$IMU` ASCII lines (NMEA-style checksum) from a microcontroller IMU.
+    ImuLine,
 }
 
-/// One row of the protocol table.
+/// Builds a decoder of JSON objects (`imulab decode`).
+pub type OpenJson = fn(&DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError>;
+/// Builds the factory of a protocol's reading decoders (what `imulogd` logs).
+pub type OpenReadings = fn(&DecoderOptions) -> Result<ReadingDecoderFactory, OpenError>;
+/// Builds a protocol's reading encoder (what `imulab sim --serve` sends).
+pub type OpenEncoder = fn(&DecoderOptions) -> Result<Box<dyn ReadingEncoder>, OpenError>;
+
+/// One row of the protocol table: everything the daemon, the simulator and `imulab decode`
+/// know of a protocol.
 pub struct ProtocolEntry {
     pub protocol: Protocol,
-    /// Name on the command line and in configuration files.
+    /// Name in configuration files, `session.toml`, scenes and on the command line.
     pub name: &'static str,
     pub summary: &'static str,
+    /// What its readings are: IMU samples or GNSS fixes.
+    pub kind: Kind,
+    /// What its reading decoder takes: bytes or CAN frames.
+    pub link: Link,
+    /// Whether its readings need a DBC file and its signal mapping (`DecoderOptions::dbc`
+    /// and `config`).
+    pub dbc: bool,
     /// Score for auto-detection: number of valid frames found in a sample of the stream
     /// (0 = not this protocol).
     pub detect: fn(&[u8]) -> u32,
-    /// Builds a decoder that yields JSON objects.
-    pub open: fn(&DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError>,
+    /// Its frames as JSON objects; `None` when it is not a byte stream.
+    pub json: Option<OpenJson>,
+    /// Its readings.
+    pub readings: OpenReadings,
+    /// Its encoder of readings; `None` when the simulator does not serve it.
+    pub encoder: Option<OpenEncoder>,
+}
+
+fn never(_: &[u8]) -> u32 {
+    0
 }
 
 /// The protocol table, one line per protocol. Auto-detection prefers the highest score, and
-/// the earlier line on a tie.
+/// the earlier line on a tie: a protocol whose frames another row's decoder also accepts
+/// (`$IMU` lines are NMEA sentences to `gnss` and `nmea`) goes above that row.
 #[rustfmt::skip]
 pub const PROTOCOLS: &[ProtocolEntry] = &[
-    ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", detect: gnss::detect_score, open: |_| Ok(Box::new(gnss::GnssDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", detect: vectornav::detect_score, open: |_| Ok(Box::new(vectornav::VnDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", detect: nmea::detect_score, open: |_| Ok(Box::new(nmea::NmeaDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", detect: ubx::detect_score, open: |_| Ok(Box::new(ubx::UbxDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Wit, name: "wit", summary: "WitMotion serial IMU (0x55 packets) as IMU samples", detect: witmotion::detect_score, open: |_| Ok(Box::new(witmotion::WitImuDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Xbus, name: "xbus", summary: "Xsens MTi Xbus messages, MTData2 decoded", detect: xbus::detect_score, open: |_| Ok(Box::new(xbus::XbusDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", detect: mip::detect_score, open: |_| Ok(Box::new(mip::MipDecoder::new())) },
-    ProtocolEntry { protocol: Protocol::Csv, name: "csv", summary: "ASCII/CSV IMU lines (column map from --config)", detect: |_| 0, open: csv_line::open_json },
-    ProtocolEntry { protocol: Protocol::Slcan, name: "slcan", summary: "slcan ASCII CAN (with --dbc and --config: IMU samples)", detect: slcan::detect_score, open: dbc::open_slcan_json },
-    ProtocolEntry { protocol: Protocol::Candump, name: "candump", summary: "candump log (with --dbc and --config: IMU samples)", detect: candump::detect_score, open: dbc::open_candump_json },
+    ProtocolEntry { protocol: Protocol::ImuLine, name: "imu-line", summary: "$IMU,t,gx,gy,gz,ax,ay,az[,temp]*CS ASCII lines", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: imu_line::detect_score, json: Some(|_| Ok(Box::new(imu_line::ImuLineDecoder::new()))), readings: |_| Ok(byte_readings(imu_line::ImuLineDecoder::new)), encoder: Some(|_| Ok(imu_encoder(imu_line::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: gnss::detect_score, json: Some(|_| Ok(Box::new(gnss::GnssDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(gnss::encode_fix))) },
+    ProtocolEntry { protocol: Protocol::UbxEsf, name: "ubx-esf", summary: "u-blox dead-reckoning receiver's IMU (UBX ESF-RAW, ESF-MEAS) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(|_| Ok(Box::new(gnss::EsfImuDecoder::new()))), readings: |_| Ok(byte_readings(gnss::EsfImuDecoder::new)), encoder: None },
+    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: vectornav::detect_score, json: Some(|_| Ok(Box::new(vectornav::VnDecoder::new()))), readings: |_| Ok(byte_readings(vectornav::VnDecoder::new)), encoder: Some(|_| Ok(imu_encoder(vectornav::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: nmea::detect_score, json: Some(|_| Ok(Box::new(nmea::NmeaDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(nmea::encode_fix))) },
+    ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: ubx::detect_score, json: Some(|_| Ok(Box::new(ubx::UbxDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(ubx::encode_fix))) },
+    ProtocolEntry { protocol: Protocol::Wit, name: "wit", summary: "WitMotion serial IMU (0x55 packets) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: witmotion::detect_score, json: Some(|_| Ok(Box::new(witmotion::WitImuDecoder::new()))), readings: |_| Ok(byte_readings(witmotion::WitImuDecoder::new)), encoder: Some(|_| Ok(imu_encoder(witmotion::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Xbus, name: "xbus", summary: "Xsens MTi Xbus messages, MTData2 decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: xbus::detect_score, json: Some(|_| Ok(Box::new(xbus::XbusDecoder::new()))), readings: |_| Ok(byte_readings(xbus::XbusDecoder::new)), encoder: Some(|_| Ok(imu_encoder(xbus::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: mip::detect_score, json: Some(|_| Ok(Box::new(mip::MipDecoder::new()))), readings: |_| Ok(byte_readings(mip::MipDecoder::new)), encoder: Some(|_| Ok(imu_encoder(mip::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Csv, name: "csv", summary: "ASCII/CSV IMU lines (column map from --config)", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(csv_line::open_json), readings: csv_line::readings, encoder: Some(csv_line::encoder) },
+    ProtocolEntry { protocol: Protocol::Slcan, name: "slcan", summary: "slcan ASCII CAN (with --dbc and --config: IMU samples)", kind: Kind::Imu, link: Link::Bytes, dbc: true, detect: slcan::detect_score, json: Some(dbc::open_slcan_json), readings: dbc::slcan_readings, encoder: Some(dbc::slcan_encoder) },
+    ProtocolEntry { protocol: Protocol::Candump, name: "candump", summary: "candump log (with --dbc and --config: IMU samples)", kind: Kind::Imu, link: Link::Bytes, dbc: true, detect: candump::detect_score, json: Some(dbc::open_candump_json), readings: dbc::candump_readings, encoder: None },
+    ProtocolEntry { protocol: Protocol::CanDbc, name: "can-dbc", summary: "an IMU on a CAN bus (SocketCAN or an slcan adapter) through a DBC file", kind: Kind::Imu, link: Link::Can, dbc: true, detect: never, json: None, readings: dbc::can_readings, encoder: None },
 ];
 
 /// A protocol name that is not in [`PROTOCOLS`].
@@ -273,9 +312,50 @@ impl Protocol {
         self.entry().name
     }
 
-    /// Builds this protocol's decoder.
+    pub fn kind(self) -> Kind {
+        self.entry().kind
+    }
+
+    pub fn link(self) -> Link {
+        self.entry().link
+    }
+
+    /// True for receivers (their readings are GNSS fixes); false for IMUs.
+    pub fn is_gnss(self) -> bool {
+        self.kind() == Kind::Gnss
+    }
+
+    /// True for protocols that arrive as CAN frames (SocketCAN or slcan) rather than bytes.
+    pub fn is_can(self) -> bool {
+        self.link() == Link::Can
+    }
+
+    /// Builds this protocol's decoder of JSON objects.
     pub fn open(self, options: &DecoderOptions) -> Result<Box<dyn JsonDecoder>, OpenError> {
-        (self.entry().open)(options)
+        let entry = self.entry();
+        let open = entry.json.ok_or_else(|| OpenError {
+            protocol: entry.name,
+            reason: "carries CAN frames, not bytes: decode its slcan or candump log with \
+                     `slcan` or `candump` and --dbc"
+                .into(),
+        })?;
+        open(options)
+    }
+
+    /// Builds the factory of this protocol's reading decoders, reading nothing: the files it
+    /// needs are in `options`.
+    pub fn readings(self, options: &DecoderOptions) -> Result<ReadingDecoderFactory, OpenError> {
+        (self.entry().readings)(options)
+    }
+
+    /// Builds this protocol's encoder of readings.
+    pub fn encoder(self, options: &DecoderOptions) -> Result<Box<dyn ReadingEncoder>, OpenError> {
+        let entry = self.entry();
+        let open = entry.encoder.ok_or_else(|| OpenError {
+            protocol: entry.name,
+            reason: "has no encoder of readings (the simulator does not serve it)".into(),
+        })?;
+        open(options)
     }
 }
 

@@ -28,7 +28,7 @@ use std::io::Write as _;
 use serde::{Serialize, Serializer};
 
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
-use crate::types::DecoderStats;
+use crate::types::{DecoderStats, FixType, GnssFix};
 
 /// Longest talker sentence accepted, from `$` to the last checksum digit. The standard says
 /// 82 with CRLF; real receivers exceed it (114-byte GSV lines occur in the gpsd captures),
@@ -1056,6 +1056,130 @@ impl Decoder for NmeaDecoder {
     fn stats(&self) -> DecoderStats {
         self.buffer.stats()
     }
+}
+
+/// The sentences a receiver sends for one epoch: GGA then RMC (talker `GN`), time and date
+/// from the fix's UTC time. Without a position the fields are empty, with quality 0 and
+/// status `V`, as receivers send them. Height above MSL is `height_msl_m`, the geoid
+/// separation `height_m - height_msl_m`.
+pub fn encode_fix(fix: &GnssFix, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+    use chrono::{Datelike, Timelike};
+    let utc_ns = fix.utc_ns.ok_or(EncodeError::Invalid {
+        field: "utc_ns",
+        reason: "an NMEA epoch needs its UTC time",
+    })?;
+    let utc = chrono::DateTime::from_timestamp_nanos(utc_ns);
+    let talker = Talker(*b"GN");
+    let centis = utc.nanosecond() / 10_000_000;
+    let time = Some(TimeOfDay {
+        hour: utc.hour() as u8,
+        minute: utc.minute() as u8,
+        second: Decimal::new(i64::from(utc.second() * 100 + centis.min(99)), 2),
+    });
+    let date = Some(Date {
+        year: utc.year() as u16,
+        month: utc.month() as u8,
+        day: utc.day() as u8,
+    });
+    let valid = fix.has_position();
+    let (lat, lon) = match (valid, fix.lat_deg, fix.lon_deg) {
+        (true, Some(lat), Some(lon)) => (
+            Some(coordinate_of(lat, 'N', 'S')),
+            Some(coordinate_of(lon, 'E', 'W')),
+        ),
+        _ => (None, None),
+    };
+    let quality = match fix.fix {
+        _ if !valid => 0,
+        FixType::Dgnss => 2,
+        FixType::RtkFixed => 4,
+        FixType::RtkFloat => 5,
+        FixType::DeadReckoning | FixType::GnssDeadReckoning => 6,
+        _ => 1,
+    };
+    let opt = |v: Option<f64>, scale| -> Result<Option<Decimal>, EncodeError> {
+        match v {
+            Some(v) if valid => Ok(Some(decimal_of(v, scale)?)),
+            _ => Ok(None),
+        }
+    };
+    let msl = fix.height_msl_m.or(fix.height_m);
+    let separation = match (fix.height_m, msl) {
+        (Some(h), Some(msl)) => Some(h - msl),
+        _ => None,
+    };
+    let gga = Gga {
+        talker,
+        time,
+        lat,
+        lon,
+        quality: Some(quality),
+        num_sats: fix.num_sats,
+        hdop: opt(fix.hdop, 2)?,
+        alt_msl_m: opt(msl, 3)?,
+        geoid_sep_m: opt(separation, 1)?,
+        dgps_age_s: None,
+        dgps_station: None,
+    };
+    let (speed, track) = match fix.vel_ned {
+        Some([n, e, _]) => (
+            Some(n.hypot(e)),
+            Some(e.atan2(n).to_degrees().rem_euclid(360.0)),
+        ),
+        None => (None, None),
+    };
+    let mode = match fix.fix {
+        _ if !valid => 'N',
+        FixType::Dgnss => 'D',
+        FixType::RtkFixed => 'R',
+        FixType::RtkFloat => 'F',
+        FixType::DeadReckoning | FixType::GnssDeadReckoning => 'E',
+        _ => 'A',
+    };
+    let rmc = Rmc {
+        talker,
+        time,
+        status: Some(if valid { 'A' } else { 'V' }),
+        lat,
+        lon,
+        speed_knots: opt(speed.map(|s| s / KNOT_MPS), 3)?,
+        track_deg: opt(track, 2)?,
+        date,
+        mag_var_deg: None,
+        mag_var_dir: None,
+        mode: Some(mode),
+        nav_status: None,
+    };
+    NmeaEncoder.encode(&NmeaSentence::Gga(gga), out)?;
+    NmeaEncoder.encode(&NmeaSentence::Rmc(rmc), out)
+}
+
+/// `ddmm.mmmmmmm` with hemisphere (7 decimals of a minute: 0.2 mm).
+fn coordinate_of(deg: f64, positive: char, negative: char) -> Coordinate {
+    let hemisphere = if deg < 0.0 { negative } else { positive };
+    let abs = deg.abs();
+    let mut whole = abs.trunc() as i64;
+    let mut minutes_e7 = ((abs - whole as f64) * 60.0 * 1e7).round() as i64;
+    if minutes_e7 >= 60 * 10_000_000 {
+        whole += 1;
+        minutes_e7 -= 60 * 10_000_000;
+    }
+    Coordinate {
+        ddmm: Decimal::new(whole * 100 * 10_000_000 + minutes_e7, 7),
+        hemisphere,
+    }
+}
+
+/// `value` with `scale` decimals.
+fn decimal_of(value: f64, scale: u8) -> Result<Decimal, EncodeError> {
+    let m = (value * 10f64.powi(i32::from(scale))).round();
+    if !m.is_finite() || m.abs() > 1e17 {
+        return Err(EncodeError::OutOfRange {
+            field: "nmea number",
+            value,
+        });
+    }
+    Ok(Decimal::new(m as i64, scale))
 }
 
 /// Auto-detection score: number of valid sentences in the sample.

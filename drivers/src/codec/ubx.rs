@@ -18,7 +18,7 @@
 use serde::Serialize;
 
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
-use crate::types::{DecoderStats, ImuSample};
+use crate::types::{DecoderStats, FixType, GnssFix, ImuSample};
 
 /// Largest payload accepted (RXM-RAWX with 255 measurements is 8176 bytes).
 pub const MAX_PAYLOAD: usize = 8192;
@@ -1104,6 +1104,101 @@ impl Decoder for UbxDecoder {
     fn stats(&self) -> DecoderStats {
         self.buffer.stats()
     }
+}
+
+/// UBX-NAV-EOE: class 0x01, id 0x61, payload iTOW.
+const NAV_EOE: (u8, u8) = (0x01, 0x61);
+
+/// The messages a u-blox receiver sends for one epoch: NAV-PVT then NAV-EOE. Without a
+/// position NAV-PVT has fix type 0, zero position and velocity and the largest accuracy
+/// values, as receivers send it.
+pub fn encode_fix(fix: &GnssFix, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+    let pvt = nav_pvt_of(fix)?;
+    UbxEncoder.encode(&UbxMessage::NavPvt(pvt), out)?;
+    UbxEncoder.encode(
+        &UbxMessage::Other(RawMessage {
+            class: NAV_EOE.0,
+            id: NAV_EOE.1,
+            payload: pvt.itow_ms.to_le_bytes().to_vec(),
+        }),
+        out,
+    )
+}
+
+fn nav_pvt_of(fix: &GnssFix) -> Result<NavPvt, EncodeError> {
+    use chrono::{Datelike, Timelike};
+    let utc_ns = fix.utc_ns.ok_or(EncodeError::Invalid {
+        field: "utc_ns",
+        reason: "a NAV-PVT needs its UTC time",
+    })?;
+    let utc = chrono::DateTime::from_timestamp_nanos(utc_ns);
+    let valid = fix.has_position();
+    let (fix_type, carrier_flags) = match fix.fix {
+        _ if !valid => (0, 0),
+        FixType::DeadReckoning => (1, 0),
+        FixType::Fix2D => (2, 0),
+        FixType::GnssDeadReckoning => (4, 0),
+        FixType::TimeOnly => (5, 0),
+        FixType::Dgnss => (3, 0x02),
+        FixType::RtkFloat => (3, 0x02 | 0x40),
+        FixType::RtkFixed => (3, 0x02 | 0x80),
+        _ => (3, 0),
+    };
+    let or = |v: Option<f64>, other: f64| match v {
+        Some(v) if valid => v,
+        _ => other,
+    };
+    let vel = match fix.vel_ned {
+        Some(v) if valid => v,
+        _ => [0.0; 3],
+    };
+    let speed = vel[0].hypot(vel[1]);
+    let heading = vel[1].atan2(vel[0]).to_degrees().rem_euclid(360.0);
+    // Largest accuracy the u32 mm field holds: what receivers report without a fix.
+    let no_accuracy = f64::from(u32::MAX) / 1e3;
+    let s_acc = or(fix.s_acc_mps, no_accuracy);
+    let head_acc = if valid && speed > 0.0 {
+        (s_acc / speed).atan().to_degrees().min(180.0)
+    } else {
+        180.0
+    };
+    let height = or(fix.height_m, 0.0);
+    Ok(NavPvt {
+        itow_ms: (fix.tow_s.unwrap_or(0.0) * 1000.0).round().max(0.0) as u32,
+        year: utc.year() as u16,
+        month: utc.month() as u8,
+        day: utc.day() as u8,
+        hour: utc.hour() as u8,
+        min: utc.minute() as u8,
+        sec: utc.second() as u8,
+        // validDate, validTime, fullyResolved.
+        valid: 0x07,
+        t_acc_ns: 20,
+        nano_ns: utc.nanosecond().min(999_999_999) as i32,
+        fix_type,
+        // gnssFixOK when there is a fix, plus the differential/carrier bits.
+        flags: if valid { 0x01 | carrier_flags } else { 0 },
+        flags2: 0,
+        num_sv: fix.num_sats.unwrap_or(0),
+        lon_deg: or(fix.lon_deg, 0.0),
+        lat_deg: or(fix.lat_deg, 0.0),
+        height_m: height,
+        height_msl_m: or(fix.height_msl_m, height),
+        h_acc_m: or(fix.h_acc_m, no_accuracy),
+        v_acc_m: or(fix.v_acc_m, no_accuracy),
+        vel_n_mps: vel[0],
+        vel_e_mps: vel[1],
+        vel_d_mps: vel[2],
+        ground_speed_mps: speed,
+        head_mot_deg: heading,
+        s_acc_mps: s_acc,
+        head_acc_deg: head_acc,
+        pdop: or(fix.pdop, 99.99),
+        flags3: 0,
+        head_veh_deg: Some(heading),
+        mag_dec_deg: Some(0.0),
+        mag_acc_deg: Some(0.0),
+    })
 }
 
 /// Auto-detection score: number of checksum-valid frames in the sample.

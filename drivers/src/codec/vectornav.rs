@@ -23,6 +23,7 @@
 
 use crc::{Crc, Table, CRC_16_XMODEM};
 
+use super::reading::{DeviceClock, Reading, ToReading};
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
@@ -1027,6 +1028,51 @@ fn encode_text(body: &[u8], checksum: VnChecksum, out: &mut Vec<u8>) -> Result<(
     };
     out.extend_from_slice(tail.as_bytes());
     Ok(())
+}
+
+/// Binary packets and ASCII sentences with angular rate or acceleration are readings;
+/// attitude-only output and register replies are not.
+impl ToReading for VnFrame {
+    fn to_reading(self) -> Option<Reading> {
+        self.to_imu_sample().map(Reading::Imu)
+    }
+}
+
+/// The binary output packet a VectorNav sends for one sample: Common group TimeStartup (the
+/// clock, ns), AngularRate and Accel when the sample has them; IMU group ImuStatus (the low
+/// 16 bits of the status word) and Temp when it has one.
+pub fn encode_sample(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    let f32s = |v: [f64; 3]| v.map(|x| x as f32);
+    let temp = sample.temp_c.map(|t| t as f32);
+    let mut common_fields = common::TIME_STARTUP;
+    if sample.gyro.is_some() {
+        common_fields |= common::ANGULAR_RATE;
+    }
+    if sample.accel.is_some() {
+        common_fields |= common::ACCEL;
+    }
+    let imu_fields = imu::IMU_STATUS | if temp.is_some() { imu::TEMP } else { 0 };
+    let packet = VnBinary {
+        fields: VnOutputFields {
+            common: common_fields,
+            imu: imu_fields,
+            ..VnOutputFields::default()
+        },
+        values: VnValues {
+            time_startup_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
+            angular_rate: sample.gyro.map(f32s),
+            accel: sample.accel.map(f32s),
+            temp_c: temp,
+            imu_status: Some((sample.status & 0xFFFF) as u16),
+            ..VnValues::default()
+        },
+        skipped_fields: 0,
+    };
+    VnEncoder.encode(&VnFrame::Binary(packet), out)
 }
 
 /// Auto-detection score. At least [`DETECT_MIN_FRAMES`] checksummed VectorNav frames, else

@@ -13,6 +13,7 @@
 //! the raw int16 words stay in the [`WitPacket`] so nothing is lost.
 
 use super::cycle::{Action, CycleGrouper};
+use super::reading::DeviceClock;
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
@@ -457,6 +458,47 @@ impl Decoder for WitImuDecoder {
     fn finish(&mut self) -> Option<ImuSample> {
         self.pending.take().or_else(|| self.assembler.finish())
     }
+}
+
+/// The packets a WitMotion IMU sends for one sample: TIME (the wall-clock time of
+/// `clock`, ms resolution), then ACCEL and GYRO for the triads the sample has. Both data
+/// packets carry the temperature, so a sample without one cannot be sent.
+pub fn encode_sample(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    let temp = sample.temp_c.unwrap_or(f64::NAN);
+    WitEncoder.encode(&time_packet(clock.wall_ns)?, out)?;
+    if let Some(a) = sample.accel {
+        WitEncoder.encode(&WitPacket::accel_from_si(a, temp)?, out)?;
+    }
+    if let Some(g) = sample.gyro {
+        WitEncoder.encode(&WitPacket::gyro_from_si(g, temp)?, out)?;
+    }
+    Ok(())
+}
+
+/// The TIME packet of a wall-clock time (ns since the Unix epoch; years 2000 to 2255).
+fn time_packet(wall_ns: i64) -> Result<WitPacket, EncodeError> {
+    use chrono::{Datelike, Timelike};
+    let t = chrono::DateTime::from_timestamp_nanos(wall_ns);
+    let year = t.year() - 2000;
+    if !(0..=255).contains(&year) {
+        return Err(EncodeError::OutOfRange {
+            field: "witmotion year",
+            value: f64::from(t.year()),
+        });
+    }
+    Ok(WitPacket::Time {
+        year: year as u8,
+        month: t.month() as u8,
+        day: t.day() as u8,
+        hour: t.hour() as u8,
+        minute: t.minute() as u8,
+        second: t.second() as u8,
+        millisecond: (t.nanosecond() / 1_000_000).min(999) as u16,
+    })
 }
 
 /// Auto-detection score: packets with a valid checksum in `sample`.

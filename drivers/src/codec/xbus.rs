@@ -10,6 +10,7 @@
 //! the coordinate frame. Values are big-endian and already SI (m/s², rad/s, m/s, °C).
 //! The data id is kept with each value, so the wire form is recoverable exactly.
 
+use super::reading::{DeviceClock, Reading, ToReading};
 use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
@@ -431,6 +432,54 @@ fn encode_into(frame: &XbusMessage, out: &mut Vec<u8>) -> Result<(), EncodeError
     let sum = out[start + 1..].iter().fold(0u8, |s, &b| s.wrapping_add(b));
     out.push(sum.wrapping_neg());
     Ok(())
+}
+
+/// MTData2 messages are readings; other messages (acks, errors) are not.
+impl ToReading for XbusMessage {
+    fn to_reading(self) -> Option<Reading> {
+        match self {
+            XbusMessage::MtData2 { data, .. } => Some(Reading::Imu(data.to_imu_sample())),
+            XbusMessage::Other { .. } => None,
+        }
+    }
+}
+
+/// The MTData2 message an MTi sends for one sample (float32): PacketCounter (the low 16
+/// bits of the sample's `sensor_time`, the device counter), SampleTimeFine (the clock in
+/// 0.1 ms ticks, wrapping at 2^32), temperature, acceleration, rate of turn and status word,
+/// each when the sample has it.
+pub fn encode_sample(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    let ticks = (clock.time_s * SAMPLE_TIME_FINE_HZ).round().max(0.0) as u64;
+    let real = |id: u16| id | data_id::FLOAT32;
+    let data = MtData2 {
+        packet_counter: Some((sample.sensor_time.unwrap_or(0.0) as u64 & 0xFFFF) as u16),
+        sample_time_fine: Some((ticks & 0xFFFF_FFFF) as u32),
+        temperature: sample.temp_c.map(|value| XbusValue {
+            data_id: real(data_id::TEMPERATURE),
+            value,
+        }),
+        acceleration: sample.accel.map(|value| XbusValue {
+            data_id: real(data_id::ACCELERATION),
+            value,
+        }),
+        rate_of_turn: sample.gyro.map(|value| XbusValue {
+            data_id: real(data_id::RATE_OF_TURN),
+            value,
+        }),
+        status_word: Some(sample.status),
+        ..MtData2::default()
+    };
+    XbusEncoder.encode(
+        &XbusMessage::MtData2 {
+            bus_id: BUS_ID_MASTER,
+            data,
+        },
+        out,
+    )
 }
 
 /// Auto-detection score: frames with a valid checksum in `sample`.

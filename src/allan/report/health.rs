@@ -86,7 +86,7 @@ pub fn event_kind_name(kind: EventKind) -> &'static str {
 }
 
 /// The number an event stands for: `count=N` in its detail, else 1.
-fn event_count(detail: &str) -> u64 {
+pub fn event_count(detail: &str) -> u64 {
     detail
         .split(|c: char| c.is_whitespace() || c == ',' || c == ';')
         .find_map(|tok| tok.strip_prefix("count=").and_then(|n| n.parse().ok()))

@@ -1,0 +1,237 @@
+//! Calibration benchmark: recovery of known accelerometer and gyro bias, scale factors and
+//! misalignment from simulated 15-minute, 200 Hz tumbles (30 s still, 60 random poses held
+//! 10 s, 3 s rotations) of each preset over seeds, each seed drawing its own deterministic
+//! errors at the grade's size; the gravity residual before and after; and the time one
+//! calibration takes. Method and tables: docs/bench/calib.md. Run: `cargo bench --bench calib`
+//! (`-- --seeds N` for another number of seeds).
+
+use imulab::calib::recording::Recording;
+use imulab::calib::run::{calibrate, Gravity, Mode, Options};
+use imulab::calib::statics::DetectorOptions;
+use imulab::calib::truth::Truth;
+use imulab::calib::TriadModel;
+use imulab::earth;
+use imulab::sim::outputs::MemorySink;
+use imulab::sim::rng::Stream;
+use imulab::sim::runner::run;
+use imulab::sim::scene::Scene;
+use std::path::Path;
+use std::time::Instant;
+
+/// A grade's deterministic errors: 1σ of scale factor (ppm), misalignment (mrad) and
+/// constant accel bias (mg), and the scale-factor target (ppm).
+struct Grade {
+    preset: &'static str,
+    scale_ppm: f64,
+    misalignment_mrad: f64,
+    bias_mg: f64,
+    scale_target_ppm: f64,
+}
+
+const GRADES: [Grade; 3] = [
+    // MPU-6000: sensitivity tolerance ±3 %, cross-axis ±2 % (as 3σ).
+    Grade {
+        preset: "consumer",
+        scale_ppm: 10_000.0,
+        misalignment_mrad: 7.0,
+        bias_mg: 0.0,
+        scale_target_ppm: 500.0,
+    },
+    Grade {
+        preset: "industrial",
+        scale_ppm: 1_000.0,
+        misalignment_mrad: 1.0,
+        bias_mg: 5.0,
+        scale_target_ppm: 100.0,
+    },
+    // STIM300: scale-factor accuracy ±500 ppm, misalignment ±1 mrad (as 3σ-ish).
+    Grade {
+        preset: "tactical",
+        scale_ppm: 300.0,
+        misalignment_mrad: 0.3,
+        bias_mg: 0.0,
+        scale_target_ppm: 100.0,
+    },
+];
+
+fn draws(stream: &mut Stream, n: usize, sigma: f64) -> String {
+    let v: Vec<String> = (0..n)
+        .map(|_| format!("{:.6}", sigma * stream.normal()))
+        .collect();
+    format!("[{}]", v.join(", "))
+}
+
+fn scene(grade: &Grade, seed: u64) -> String {
+    let mut s = Stream::new(seed, &format!("bench/calib/{}", grade.preset));
+    format!(
+        r#"
+duration_s = 900
+rate_hz = 200
+seed = {seed}
+[location]
+lat_deg = 48.15
+lon_deg = 11.57
+height_m = 520.0
+[motion]
+kind = "tumble"
+first_hold_s = 30
+hold_s = 10
+rotate_s = 3
+poses = 60
+[[imu]]
+name = "imu"
+preset = "{preset}"
+[imu.gyro]
+scale_factor_ppm = {gs}
+misalignment_mrad = {gm}
+[imu.accel]
+bias_mg = {ab}
+scale_factor_ppm = {as_}
+misalignment_mrad = {am}
+[outputs]
+truth_nav = false
+truth_imu = true
+truth_every = 200
+"#,
+        preset = grade.preset,
+        gs = draws(&mut s, 3, grade.scale_ppm),
+        gm = draws(&mut s, 6, grade.misalignment_mrad),
+        ab = draws(&mut s, 3, grade.bias_mg),
+        as_ = draws(&mut s, 3, grade.scale_ppm),
+        am = draws(&mut s, 6, grade.misalignment_mrad),
+    )
+}
+
+/// Per seed: worst scale error (ppm), worst misalignment error (deg), whether every
+/// misalignment is within 0.02° or its 95 % interval, worst bias error.
+struct Recovery {
+    scale_ppm: f64,
+    mis_deg: f64,
+    mis_ok: bool,
+    bias: f64,
+}
+
+fn recovery(fit: &TriadModel, truth: &TriadModel) -> Recovery {
+    let mut r = Recovery {
+        scale_ppm: 0.0,
+        mis_deg: 0.0,
+        mis_ok: true,
+        bias: 0.0,
+    };
+    for i in 0..3 {
+        for j in 0..3 {
+            let e = (fit.matrix[i][j] - truth.matrix[i][j]).abs();
+            if i == j {
+                r.scale_ppm = r.scale_ppm.max(e * 1e6);
+            } else if fit.matrix_sigma[i][j] > 0.0 {
+                r.mis_deg = r.mis_deg.max(e.to_degrees());
+                r.mis_ok &= e.to_degrees() < 0.02 || e < 1.96 * fit.matrix_sigma[i][j];
+            }
+        }
+        r.bias = r.bias.max((fit.bias[i] - truth.bias[i]).abs());
+    }
+    r
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let seeds: u64 = args
+        .iter()
+        .position(|a| a == "--seeds")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(20);
+    println!(
+        "# calibration recovery, {seeds} seeds per preset, 15 min 200 Hz tumbles (60 poses)\n"
+    );
+    println!("| preset | accel scale err p50 / max (ppm) | target | accel mis. err max (°) | mis. ok (0.02° or 95 %) | accel bias err max (mg) | gyro scale err p50 / max (ppm) | gyro mis. err max (°) | gyro mis. ok | g residual before → after (mg) | pose-mean noise (mg) | calibrate time p50 / max (s) |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    for grade in &GRADES {
+        let mut a_scale = Vec::new();
+        let mut g_scale = Vec::new();
+        let (mut a_mis, mut g_mis, mut a_bias) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut a_ok, mut g_ok) = (0, 0);
+        let (mut before, mut after, mut floor) = (Vec::new(), Vec::new(), Vec::new());
+        let mut times = Vec::new();
+        for seed in 0..seeds {
+            let sc = Scene::parse(&scene(grade, seed), Path::new(".")).expect("scene");
+            let mut sink = MemorySink::default();
+            run(&sc, &mut sink).expect("run");
+            let rec = Recording::from_records("imu", &sink.imu["imu"]);
+            let rows = &sink.truth_imu["imu"];
+            let n = rows.len() as f64;
+            let (mut gb, mut ab) = ([0.0; 3], [0.0; 3]);
+            for r in rows {
+                for k in 0..3 {
+                    gb[k] += r.gyro_bias[k] / n;
+                    ab[k] += r.accel_bias[k] / n;
+                }
+            }
+            let truth = Truth::of_spec(&sc.imus[0].spec, gb, ab);
+            let g = earth::normal_gravity(sc.location.lat_deg.to_radians(), sc.location.height_m);
+            let opts = Options {
+                mode: Mode::MultiPosition,
+                detector: DetectorOptions::default(),
+                gravity: Gravity::Value(g),
+            };
+            let start = Instant::now();
+            let o = match calibrate(&rec, &opts) {
+                Ok(o) => o,
+                Err(e) => {
+                    println!("<!-- {} seed {seed}: {e:#} -->", grade.preset);
+                    continue;
+                }
+            };
+            times.push(start.elapsed().as_secs_f64());
+            let c = &o.calibration;
+            let ra = recovery(c.accel.as_ref().unwrap(), &truth.accel);
+            let rg = recovery(c.gyro.as_ref().unwrap(), &truth.gyro);
+            a_scale.push(ra.scale_ppm);
+            g_scale.push(rg.scale_ppm);
+            a_mis = a_mis.max(ra.mis_deg);
+            g_mis = g_mis.max(rg.mis_deg);
+            a_bias = a_bias.max(ra.bias);
+            a_ok += usize::from(ra.mis_ok);
+            g_ok += usize::from(rg.mis_ok);
+            let mg = 1e3 / 9.80665;
+            before.push(c.quality.gravity_residual_before.unwrap() * mg);
+            after.push(c.quality.gravity_residual_after.unwrap() * mg);
+            if let Some(d) = &o.detection {
+                let f: f64 = d
+                    .intervals
+                    .iter()
+                    .map(|p| {
+                        (p.accel_std.iter().map(|s| s * s).sum::<f64>() / 3.0 / p.samples() as f64)
+                            .sqrt()
+                    })
+                    .sum::<f64>()
+                    / d.intervals.len() as f64;
+                floor.push(f * mg);
+            }
+        }
+        let done = times.len();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        println!(
+            "| {} | {:.0} / {:.0} | {:.0} | {:.4} | {a_ok}/{done} | {:.3} | {:.0} / {:.0} | {:.4} | {g_ok}/{done} | {:.2} → {:.4} | {:.4} | {:.3} / {:.3} |",
+            grade.preset,
+            percentile(&mut a_scale, 0.5),
+            percentile(&mut a_scale, 1.0),
+            grade.scale_target_ppm,
+            a_mis,
+            a_bias * 1e3 / 9.80665,
+            percentile(&mut g_scale, 0.5),
+            percentile(&mut g_scale, 1.0),
+            g_mis,
+            mean(&before),
+            mean(&after),
+            mean(&floor),
+            percentile(&mut times, 0.5),
+            percentile(&mut times, 1.0),
+        );
+    }
+}

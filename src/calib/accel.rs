@@ -1,0 +1,118 @@
+//! Accelerometer calibration from gravity magnitude: at rest in any pose the calibrated
+//! specific force has the length of local gravity. With the model raw = M·f + b, M lower
+//! triangular (its frame: x along the accelerometer's x axis, y in its x-y plane; the
+//! rotation a full M would add cannot be seen from magnitudes), the nine parameters come from
+//! a nonlinear least-squares fit over the poses, with standard errors from the covariance.
+//! One robust pass drops poses whose residual is far outside the rest (motion during a
+//! "still" interval) and refits.
+
+use super::lsq::{conditioning, minimise};
+use super::statics::{pose_spread, StaticInterval};
+use super::TriadModel;
+use anyhow::{bail, Result};
+
+/// Fewest poses the nine-parameter fit accepts.
+pub const MIN_POSES: usize = 9;
+
+/// The accelerometer fit and how well the data supported it.
+#[derive(Debug, Clone)]
+pub struct AccelFit {
+    pub model: TriadModel,
+    /// RMS of |raw| − g over the poses used, m/s² (before) and of |corrected| − g (after).
+    pub residual_before: f64,
+    pub residual_after: f64,
+    /// Poses used and the indices (into the intervals given) dropped as outliers.
+    pub poses_used: usize,
+    pub rejected: Vec<usize>,
+    pub converged: bool,
+}
+
+/// Corrected specific force M⁻¹(raw − b) for lower-triangular M given as the fit's
+/// parameters [b (3), m00, m10, m11, m20, m21, m22].
+fn corrected(p: &[f64], raw: &[f64; 3]) -> [f64; 3] {
+    let r = [raw[0] - p[0], raw[1] - p[1], raw[2] - p[2]];
+    let x = r[0] / p[3];
+    let y = (r[1] - p[4] * x) / p[5];
+    let z = (r[2] - p[6] * x - p[7] * y) / p[8];
+    [x, y, z]
+}
+
+fn norm(v: &[f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+const STEPS: [f64; 9] = [1e-6, 1e-6, 1e-6, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7];
+
+/// Fits the accelerometer to the poses' mean specific forces with local gravity `g`.
+pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
+    if poses.len() < MIN_POSES {
+        bail!(
+            "found {} still poses; the accelerometer fit needs at least {MIN_POSES} (12 or more recommended): hold the IMU still in at least 12 different orientations, each for longer than --min-static, with every axis pointing up and down at least once",
+            poses.len()
+        );
+    }
+    let (widest, spread) = pose_spread(poses);
+    if spread < 0.02 {
+        bail!(
+            "the {} poses are too similar to separate bias from scale and misalignment: their gravity directions span {:.0}° and barely leave a plane or an axis (direction spread {spread:.3}, needs > 0.02); turn the IMU so that each axis points up and down at least once",
+            poses.len(),
+            widest.to_degrees()
+        );
+    }
+    let mut used: Vec<usize> = (0..poses.len()).collect();
+    let mut rejected = Vec::new();
+    let x0 = [0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0];
+    let mut fit;
+    loop {
+        let means: Vec<[f64; 3]> = used.iter().map(|&i| poses[i].accel_mean).collect();
+        let f =
+            |p: &[f64]| -> Vec<f64> { means.iter().map(|m| norm(&corrected(p, m)) - g).collect() };
+        let c = conditioning(&f, &x0, &STEPS);
+        if c < 1e-12 {
+            bail!(
+                "the poses cannot separate the accelerometer's bias, scale and misalignment (conditioning {c:.1e}); add poses with each axis up and each axis down"
+            );
+        }
+        fit = minimise(&f, &x0, &STEPS);
+        // One robust pass: residuals beyond 6 scaled MADs (and above the noise a pose
+        // mean can have) are poses that moved.
+        let mut abs: Vec<f64> = fit.residuals.iter().map(|r| r.abs()).collect();
+        let mid = abs.len() / 2;
+        let mad = *abs.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1 * 1.4826;
+        let limit = (6.0 * mad).max(1e-4 * g);
+        let bad: Vec<usize> = fit
+            .residuals
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.abs() > limit)
+            .map(|(k, _)| used[k])
+            .collect();
+        if bad.is_empty() || !rejected.is_empty() || used.len() - bad.len() < MIN_POSES {
+            break;
+        }
+        rejected = bad;
+        used.retain(|i| !rejected.contains(i));
+    }
+    let p = &fit.params;
+    let s = &fit.sigma;
+    let matrix = [[p[3], 0.0, 0.0], [p[4], p[5], 0.0], [p[6], p[7], p[8]]];
+    let matrix_sigma = [[s[3], 0.0, 0.0], [s[4], s[5], 0.0], [s[6], s[7], s[8]]];
+    let before = used
+        .iter()
+        .map(|&i| (norm(&poses[i].accel_mean) - g).powi(2))
+        .sum::<f64>()
+        / used.len() as f64;
+    Ok(AccelFit {
+        model: TriadModel {
+            bias: [p[0], p[1], p[2]],
+            bias_sigma: [s[0], s[1], s[2]],
+            matrix,
+            matrix_sigma,
+        },
+        residual_before: before.sqrt(),
+        residual_after: fit.rms,
+        poses_used: used.len(),
+        rejected,
+        converged: fit.converged,
+    })
+}

@@ -1,0 +1,253 @@
+//! What `imulab calibrate` does with a recording: find the still poses, fit the
+//! accelerometer and the gyro (multi-position), or the six faces (six-position), or the
+//! table rates (rate table), check that the data supports the fit, and assemble the
+//! calibration document with the notes a user must read.
+
+use super::accel::fit_accel;
+use super::file::{Calibration, Quality, TriadModel};
+use super::gyro::fit_gyro;
+use super::rate_table::{fit_rate_table, read_table, segments, Segment};
+use super::recording::Recording;
+use super::six_position::six_position;
+use super::statics::{detect, Detection, DetectorOptions, StaticInterval};
+use crate::earth;
+use crate::sim::imu_model::G0;
+use anyhow::{bail, Result};
+use std::path::PathBuf;
+
+/// The calibration method.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Mode {
+    /// Many poses in any orientation (a hand or cube tumble).
+    MultiPosition,
+    /// Each axis up and down once, on an aligned fixture.
+    SixPosition,
+    /// Table rates (CSV) for the gyro.
+    RateTable(PathBuf),
+}
+
+/// Where local gravity comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Gravity {
+    /// Given, m/s².
+    Value(f64),
+    /// Normal gravity at latitude (deg) and height (m).
+    At { lat_deg: f64, height_m: f64 },
+    /// The session's place if it has one, else standard gravity.
+    Auto,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    pub mode: Mode,
+    pub detector: DetectorOptions,
+    pub gravity: Gravity,
+}
+
+/// A calibration with what was found on the way.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub calibration: Calibration,
+    pub detection: Option<Detection>,
+    /// Rate-table segments used.
+    pub segments: Vec<Segment>,
+    /// Six-position mode: the face each pose was taken as.
+    pub faces: Vec<&'static str>,
+    /// Local gravity used and where it came from.
+    pub gravity: f64,
+    pub gravity_source: String,
+    /// Warnings and advice for the user.
+    pub notes: Vec<String>,
+}
+
+fn local_gravity(rec: &Recording, g: Gravity) -> Result<(f64, String)> {
+    Ok(match g {
+        Gravity::Value(v) => {
+            if !(v.is_finite() && (9.7..=9.9).contains(&v)) {
+                bail!("--gravity {v} m/s² is not a gravity on the earth's surface (9.7-9.9)");
+            }
+            (v, "given with --gravity".into())
+        }
+        Gravity::At { lat_deg, height_m } => {
+            if !(lat_deg.abs() <= 90.0 && height_m.is_finite()) {
+                bail!("--latitude must be within ±90° and --height finite");
+            }
+            (
+                earth::normal_gravity(lat_deg.to_radians(), height_m),
+                format!("normal gravity at {lat_deg}° latitude, {height_m} m"),
+            )
+        }
+        Gravity::Auto => match rec.place {
+            Some((lat, h)) => (
+                earth::normal_gravity(lat, h),
+                format!(
+                    "normal gravity at the session's place ({:.4}°, {h} m)",
+                    lat.to_degrees()
+                ),
+            ),
+            None => (
+                G0,
+                "standard gravity 9.80665 m/s² (no place known: give --latitude/--height or --gravity, or the scale factors carry the difference to local gravity, up to 0.3 %)".into(),
+            ),
+        },
+    })
+}
+
+/// Notes about poses noisier than the initial still period (something moved).
+fn motion_notes(det: &Detection, poses: &[StaticInterval]) -> Vec<String> {
+    let init_std = (det.init_accel_var / 3.0).sqrt();
+    poses
+        .iter()
+        .filter_map(|p| {
+            let s = (p.accel_std.iter().map(|v| v * v).sum::<f64>() / 3.0).sqrt();
+            (s > 2.0 * init_std).then(|| {
+                format!(
+                    "pose {:.1}-{:.1} s is {:.1}× noisier than the initial still period: the IMU may not have been at rest (hold it still, or rest it on something)",
+                    p.t_start,
+                    p.t_end,
+                    s / init_std
+                )
+            })
+        })
+        .collect()
+}
+
+fn bias_only(poses: &[StaticInterval]) -> TriadModel {
+    let n = poses.len().max(1) as f64;
+    let mut bias = [0.0; 3];
+    for p in poses {
+        for (b, g) in bias.iter_mut().zip(&p.gyro_mean) {
+            *b += g / n;
+        }
+    }
+    TriadModel {
+        bias,
+        bias_sigma: [0.0; 3],
+        matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        matrix_sigma: [[0.0; 3]; 3],
+    }
+}
+
+/// Calibrates `rec`.
+pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
+    let (g, gravity_source) = local_gravity(rec, opts.gravity)?;
+    let mut notes = Vec::new();
+    if let Mode::RateTable(path) = &opts.mode {
+        let rows = read_table(path)?;
+        let (segs, rest) = segments(rec, &rows, &opts.detector)?;
+        let (gyro, table) = fit_rate_table(&segs, rest)?;
+        let mut cal = Calibration::new(
+            &rec.device,
+            &rec.source,
+            "rate-table",
+            "the gyro's own axes (only the spindle axis's column of M is measured; the others are the identity's)",
+        );
+        cal.gyro = Some(gyro);
+        cal.rate_table = Some(table);
+        return Ok(Outcome {
+            calibration: cal,
+            detection: None,
+            segments: segs,
+            faces: Vec::new(),
+            gravity: g,
+            gravity_source,
+            notes,
+        });
+    }
+    let det = detect(rec, &opts.detector)?;
+    let poses = det.intervals.clone();
+    if poses
+        .first()
+        .is_none_or(|p| p.t_start > opts.detector.window_s)
+    {
+        bail!(
+            "{}: the recording does not start still (no still interval at its start); it must start with --init-static {} s at rest",
+            rec.source,
+            opts.detector.init_s
+        );
+    }
+    notes.extend(motion_notes(&det, &poses));
+    let six = opts.mode == Mode::SixPosition;
+    let mut quality = Quality::default();
+    let mut faces = Vec::new();
+    let (accel, frame, method) = if six {
+        let (model, labels) = six_position(&poses, g)?;
+        faces = labels;
+        quality.poses = poses.len();
+        let residual = |m: &TriadModel| {
+            (poses
+                .iter()
+                .map(|p| {
+                    let c = m.correct(&p.accel_mean);
+                    ((c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() - g).powi(2)
+                })
+                .sum::<f64>()
+                / poses.len() as f64)
+                .sqrt()
+        };
+        quality.gravity_residual_before = Some(residual(&bias_only(&[])));
+        // (bias_only of no poses is the identity: the raw values.)
+        quality.gravity_residual_after = Some(residual(&model));
+        (
+            model,
+            "the fixture's (the cube faces' axes)",
+            "six-position",
+        )
+    } else {
+        let fit = fit_accel(&poses, g)?;
+        if !fit.converged {
+            notes.push("the accelerometer fit did not report convergence; check the poses".into());
+        }
+        quality.poses = fit.poses_used;
+        quality.rejected_pose_times_s = fit.rejected.iter().map(|&i| poses[i].t_start).collect();
+        for &i in &fit.rejected {
+            notes.push(format!(
+                "pose {:.1}-{:.1} s left out: its gravity magnitude disagrees with the others (the IMU moved during it)",
+                poses[i].t_start, poses[i].t_end
+            ));
+        }
+        quality.gravity_residual_before = Some(fit.residual_before);
+        quality.gravity_residual_after = Some(fit.residual_after);
+        (
+            fit.model,
+            "the accelerometer's (x along its x axis, y in its x-y plane)",
+            "multi-position",
+        )
+    };
+    let used: Vec<StaticInterval> = poses
+        .iter()
+        .filter(|p| !quality.rejected_pose_times_s.contains(&p.t_start))
+        .cloned()
+        .collect();
+    let gyro = match fit_gyro(rec, &used, &accel) {
+        Ok(fit) => {
+            quality.rotations = fit.rotations;
+            quality.rotation_residual_before = Some(fit.residual_before);
+            quality.rotation_residual_after = Some(fit.residual_after);
+            if !fit.converged {
+                notes.push("the gyro fit did not report convergence; check the rotations".into());
+            }
+            fit.model
+        }
+        Err(e) => {
+            notes.push(format!(
+                "gyro: bias only, scale and misalignment not fitted: {e}"
+            ));
+            bias_only(&used)
+        }
+    };
+    let mut cal = Calibration::new(&rec.device, &rec.source, method, frame);
+    cal.gravity = Some(g);
+    cal.accel = Some(accel);
+    cal.gyro = Some(gyro);
+    cal.quality = quality;
+    Ok(Outcome {
+        calibration: cal,
+        detection: Some(det),
+        segments: Vec::new(),
+        faces,
+        gravity: g,
+        gravity_source,
+        notes,
+    })
+}

@@ -1,0 +1,455 @@
+//! Attitude programs at a fixed place: a **tumble** (static poses joined by rotations, as a
+//! person turns an IMU by hand or on a cube) and a **rate table** (constant-rate segments
+//! about one body axis). Each gives the true attitude and the error-free IMU output at any
+//! instant in closed form, so the truth needs no integration.
+//!
+//! A rotation from pose q₀ to pose q₁ turns about the fixed body axis of q₀⁻¹q₁ by its angle θ
+//! with the cycloidal blend of [`super::motion`]: q(t) = q₀ ⊗ exp(u θ s(τ)/2), body rate
+//! u θ s'(τ)/d. A rate-table change of rate from r₀ to r₁ uses the same blend on the rate. The
+//! position stays put: the gyro sees the body rate plus the earth rate, the accelerometer the
+//! reaction to gravity.
+
+use nalgebra::{Unit, UnitQuaternion, Vector3};
+use serde::Deserialize;
+use std::f64::consts::TAU;
+
+use super::motion::{static_truth, TruthSample};
+use super::rng::Stream;
+
+/// The `[motion] kind = "tumble"` table.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TumbleSpec {
+    /// Attitude of the first pose (z-y-x Euler, degrees).
+    #[serde(default)]
+    pub roll_deg: f64,
+    #[serde(default)]
+    pub pitch_deg: f64,
+    #[serde(default)]
+    pub heading_deg: f64,
+    /// The still period at the start (a static detector takes its threshold from it), s.
+    #[serde(default = "default_first_hold")]
+    pub first_hold_s: f64,
+    /// How long each later pose is held still, s.
+    pub hold_s: f64,
+    /// How long each rotation to the next pose takes, s.
+    pub rotate_s: f64,
+    /// Number of random poses after the first (drawn from the scene seed); alternative to
+    /// `orientations`.
+    pub poses: Option<usize>,
+    /// The poses after the first, each `[roll, pitch, heading]` in degrees.
+    pub orientations: Option<Vec<[f64; 3]>>,
+}
+
+fn default_first_hold() -> f64 {
+    30.0
+}
+
+/// One constant-rate step of a rate table.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RateStep {
+    /// Table rate, °/s (positive: right-handed about the spindle axis).
+    pub rate_dps: f64,
+    /// Time at that rate after the ramp to it, s.
+    pub duration_s: f64,
+}
+
+/// The `[motion] kind = "rate_table"` table.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RateTableSpec {
+    /// Mounting attitude at table angle 0 (z-y-x Euler, degrees).
+    #[serde(default)]
+    pub roll_deg: f64,
+    #[serde(default)]
+    pub pitch_deg: f64,
+    #[serde(default)]
+    pub heading_deg: f64,
+    /// Body axis on the spindle: "x", "y", "z", or "-x" … "-z".
+    pub axis: String,
+    /// Still period before the first step, s.
+    #[serde(default = "default_first_hold")]
+    pub first_hold_s: f64,
+    /// Duration of each change of rate, s.
+    pub ramp_s: f64,
+    pub steps: Vec<RateStep>,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Piece {
+    Hold {
+        q: UnitQuaternion<f64>,
+    },
+    Rotate {
+        q0: UnitQuaternion<f64>,
+        axis: Unit<Vector3<f64>>,
+        angle: f64,
+    },
+    /// Rate from `r0` to `r1` (rad/s) with the blend when `ramp`, else constant `r0`;
+    /// `q0` is the attitude at the piece's start.
+    Spin {
+        q0: UnitQuaternion<f64>,
+        axis: Unit<Vector3<f64>>,
+        r0: f64,
+        r1: f64,
+        ramp: bool,
+    },
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Timed {
+    t0: f64,
+    duration: f64,
+    piece: Piece,
+}
+
+/// A planned attitude program: pieces in time order, the last one held for ever.
+#[derive(Debug, Clone)]
+pub struct AttitudeProgram {
+    pieces: Vec<Timed>,
+    lat_rad: f64,
+    lon_rad: f64,
+    height_m: f64,
+    cursor: usize,
+}
+
+fn euler(r: f64, p: f64, h: f64) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_euler_angles(r.to_radians(), p.to_radians(), h.to_radians())
+}
+
+fn positive(what: &str, v: f64) -> Result<f64, String> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{what} must be > 0, got {v}"))
+    }
+}
+
+/// A uniformly distributed random attitude (Shoemake's method from three uniforms).
+fn random_attitude(stream: &mut Stream) -> UnitQuaternion<f64> {
+    let (u1, u2, u3) = (stream.uniform(), stream.uniform(), stream.uniform());
+    let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
+    let q = nalgebra::Quaternion::new(
+        b * (TAU * u3).cos(),
+        a * (TAU * u2).sin(),
+        a * (TAU * u2).cos(),
+        b * (TAU * u3).sin(),
+    );
+    UnitQuaternion::from_quaternion(q)
+}
+
+/// Integral of the blend s over [0, τ]: τ²/2 + (cos 2πτ − 1)/(2π)².
+fn blend_integral(tau: f64) -> f64 {
+    tau * tau / 2.0 + ((TAU * tau).cos() - 1.0) / (TAU * TAU)
+}
+
+fn blend(tau: f64) -> (f64, f64) {
+    let tau = tau.clamp(0.0, 1.0);
+    let (sn, cs) = (TAU * tau).sin_cos();
+    (tau - sn / TAU, 1.0 - cs)
+}
+
+impl AttitudeProgram {
+    /// Plans a tumble; random poses come from `seed`.
+    pub fn tumble(
+        spec: &TumbleSpec,
+        seed: u64,
+        lat_deg: f64,
+        lon_deg: f64,
+        height_m: f64,
+    ) -> Result<Self, String> {
+        let first = positive("first_hold_s", spec.first_hold_s)?;
+        let hold = positive("hold_s", spec.hold_s)?;
+        let rotate = positive("rotate_s", spec.rotate_s)?;
+        let poses: Vec<UnitQuaternion<f64>> = match (spec.poses, &spec.orientations) {
+            (Some(_), Some(_)) => return Err("give either poses or orientations, not both".into()),
+            (None, None) => {
+                return Err(
+                    "give poses = N (random poses) or orientations = [[roll, pitch, heading], ...]"
+                        .into(),
+                )
+            }
+            (Some(n), None) => {
+                let mut stream = Stream::new(seed, "motion/tumble");
+                (0..n).map(|_| random_attitude(&mut stream)).collect()
+            }
+            (None, Some(list)) => {
+                if let Some(bad) = list.iter().find(|o| o.iter().any(|x| !x.is_finite())) {
+                    return Err(format!("orientations: {bad:?} must be finite"));
+                }
+                list.iter().map(|o| euler(o[0], o[1], o[2])).collect()
+            }
+        };
+        let mut q = euler(spec.roll_deg, spec.pitch_deg, spec.heading_deg);
+        let mut pieces = vec![Timed {
+            t0: 0.0,
+            duration: first,
+            piece: Piece::Hold { q },
+        }];
+        let mut t = first;
+        for next in poses {
+            let rel = q.inverse() * next;
+            if let Some((axis, angle)) = rel.axis_angle() {
+                pieces.push(Timed {
+                    t0: t,
+                    duration: rotate,
+                    piece: Piece::Rotate { q0: q, axis, angle },
+                });
+                t += rotate;
+            }
+            pieces.push(Timed {
+                t0: t,
+                duration: hold,
+                piece: Piece::Hold { q: next },
+            });
+            t += hold;
+            q = next;
+        }
+        Ok(Self::at_place(pieces, lat_deg, lon_deg, height_m))
+    }
+
+    /// Plans a rate table run.
+    pub fn rate_table(
+        spec: &RateTableSpec,
+        lat_deg: f64,
+        lon_deg: f64,
+        height_m: f64,
+    ) -> Result<Self, String> {
+        let first = positive("first_hold_s", spec.first_hold_s)?;
+        let ramp = positive("ramp_s", spec.ramp_s)?;
+        let (sign, name) = match spec.axis.strip_prefix('-') {
+            Some(a) => (-1.0, a),
+            None => (1.0, spec.axis.as_str()),
+        };
+        let axis = match name {
+            "x" => Vector3::x(),
+            "y" => Vector3::y(),
+            "z" => Vector3::z(),
+            _ => {
+                return Err(format!(
+                    "axis must be x, y, z, -x, -y or -z, got {:?}",
+                    spec.axis
+                ))
+            }
+        };
+        let axis = Unit::new_normalize(axis * sign);
+        if spec.steps.is_empty() {
+            return Err("steps: give at least one { rate_dps, duration_s }".into());
+        }
+        let mut q = euler(spec.roll_deg, spec.pitch_deg, spec.heading_deg);
+        let mut pieces = vec![Timed {
+            t0: 0.0,
+            duration: first,
+            piece: Piece::Spin {
+                q0: q,
+                axis,
+                r0: 0.0,
+                r1: 0.0,
+                ramp: false,
+            },
+        }];
+        let mut t = first;
+        let mut rate = 0.0;
+        let steps = spec.steps.iter().copied().chain(std::iter::once(RateStep {
+            rate_dps: 0.0,
+            duration_s: 1.0,
+        }));
+        for (i, step) in steps.enumerate() {
+            if !step.rate_dps.is_finite() {
+                return Err(format!("steps[{i}].rate_dps must be finite"));
+            }
+            let hold = positive(&format!("steps[{i}].duration_s"), step.duration_s)?;
+            let r1 = step.rate_dps.to_radians();
+            let angle = |r0: f64, r1: f64, d: f64, ramp: bool| {
+                if ramp {
+                    r0 * d + (r1 - r0) * d * blend_integral(1.0)
+                } else {
+                    r0 * d
+                }
+            };
+            pieces.push(Timed {
+                t0: t,
+                duration: ramp,
+                piece: Piece::Spin {
+                    q0: q,
+                    axis,
+                    r0: rate,
+                    r1,
+                    ramp: true,
+                },
+            });
+            q *= UnitQuaternion::from_axis_angle(&axis, angle(rate, r1, ramp, true));
+            t += ramp;
+            pieces.push(Timed {
+                t0: t,
+                duration: hold,
+                piece: Piece::Spin {
+                    q0: q,
+                    axis,
+                    r0: r1,
+                    r1,
+                    ramp: false,
+                },
+            });
+            q *= UnitQuaternion::from_axis_angle(&axis, angle(r1, r1, hold, false));
+            t += hold;
+            rate = r1;
+        }
+        Ok(Self::at_place(pieces, lat_deg, lon_deg, height_m))
+    }
+
+    fn at_place(pieces: Vec<Timed>, lat_deg: f64, lon_deg: f64, height_m: f64) -> Self {
+        AttitudeProgram {
+            pieces,
+            lat_rad: lat_deg.to_radians(),
+            lon_rad: lon_deg.to_radians(),
+            height_m,
+            cursor: 0,
+        }
+    }
+
+    /// Time at which the last piece ends, s (later times hold its final state).
+    pub fn duration_s(&self) -> f64 {
+        self.pieces.last().map_or(0.0, |p| p.t0 + p.duration)
+    }
+
+    /// The truth at time `t` (s); times should mostly increase (a cursor follows them).
+    pub fn at(&mut self, t: f64) -> TruthSample {
+        while self.cursor + 1 < self.pieces.len() && t >= self.pieces[self.cursor + 1].t0 {
+            self.cursor += 1;
+        }
+        while self.cursor > 0 && t < self.pieces[self.cursor].t0 {
+            self.cursor -= 1;
+        }
+        let p = self.pieces[self.cursor];
+        let tau = ((t - p.t0) / p.duration).clamp(0.0, 1.0);
+        let (q, rate_b) = match p.piece {
+            Piece::Hold { q } => (q, Vector3::zeros()),
+            Piece::Rotate { q0, axis, angle } => {
+                let (s, ds) = blend(tau);
+                (
+                    q0 * UnitQuaternion::from_axis_angle(&axis, angle * s),
+                    axis.into_inner() * (angle * ds / p.duration),
+                )
+            }
+            Piece::Spin {
+                q0,
+                axis,
+                r0,
+                r1,
+                ramp,
+            } => {
+                let elapsed = (t - p.t0).min(p.duration).max(0.0);
+                let (phi, rate) = if ramp {
+                    let (s, _) = blend(tau);
+                    (
+                        r0 * elapsed + (r1 - r0) * p.duration * blend_integral(tau),
+                        r0 + (r1 - r0) * s,
+                    )
+                } else {
+                    // The last piece (table at rest or still) holds its rate for ever.
+                    let e = if self.cursor + 1 == self.pieces.len() {
+                        (t - p.t0).max(0.0)
+                    } else {
+                        elapsed
+                    };
+                    (r0 * e, r0)
+                };
+                (
+                    q0 * UnitQuaternion::from_axis_angle(&axis, phi),
+                    axis.into_inner() * rate,
+                )
+            }
+        };
+        let mut s = static_truth(self.lat_rad, self.lon_rad, self.height_m, q);
+        s.t_s = t;
+        s.gyro_b += rate_b;
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tumble(n: usize) -> AttitudeProgram {
+        let spec = TumbleSpec {
+            roll_deg: 0.0,
+            pitch_deg: 0.0,
+            heading_deg: 0.0,
+            first_hold_s: 10.0,
+            hold_s: 4.0,
+            rotate_s: 2.0,
+            poses: Some(n),
+            orientations: None,
+        };
+        AttitudeProgram::tumble(&spec, 3, 45.0, 7.0, 200.0).unwrap()
+    }
+
+    /// Integrates the body rate (minus the earth rate) with small steps and checks the
+    /// attitude it reaches is the program's own: the rates and attitudes agree.
+    #[test]
+    fn body_rates_integrate_to_the_poses() {
+        let mut p = tumble(6);
+        let rate = 1000.0;
+        let end = p.duration_s();
+        let mut q = p.at(0.0).quat_nb;
+        let mut k = 0u64;
+        while (k as f64) / rate < end {
+            let t = k as f64 / rate;
+            // Midpoint rule on ω_nb^b.
+            let mid = p.at(t + 0.5 / rate);
+            let w_ie = crate::earth::earth_rate_ned(p.lat_rad);
+            let w_nb = mid.gyro_b - mid.quat_nb.inverse() * w_ie;
+            q *= UnitQuaternion::from_scaled_axis(w_nb / rate);
+            k += 1;
+        }
+        let last = p.at(end);
+        assert!(
+            q.angle_to(&last.quat_nb) < 1e-6,
+            "{}",
+            q.angle_to(&last.quat_nb)
+        );
+        assert!(
+            (last.accel_b.norm() - crate::earth::normal_gravity(p.lat_rad, 200.0)).abs() < 1e-9
+        );
+    }
+
+    #[test]
+    fn rate_table_reaches_its_rates() {
+        let spec = RateTableSpec {
+            roll_deg: 0.0,
+            pitch_deg: 0.0,
+            heading_deg: 0.0,
+            axis: "-z".into(),
+            first_hold_s: 5.0,
+            ramp_s: 2.0,
+            steps: vec![
+                RateStep {
+                    rate_dps: 30.0,
+                    duration_s: 10.0,
+                },
+                RateStep {
+                    rate_dps: -90.0,
+                    duration_s: 10.0,
+                },
+            ],
+        };
+        let mut p = AttitudeProgram::rate_table(&spec, 45.0, 7.0, 0.0).unwrap();
+        let w = p.at(12.0).gyro_b;
+        let earth = p.at(0.0).gyro_b;
+        assert!((w.z - earth.z + 30f64.to_radians()).abs() < 1e-4, "{w}");
+        let w = p.at(25.0).gyro_b;
+        assert!((w.z - 90f64.to_radians()).abs() < 1e-3, "{w}");
+        // Spinning about the vertical: gravity stays on z.
+        assert!(p.at(20.0).accel_b.xy().norm() < 1e-9);
+        let bad = RateTableSpec {
+            axis: "w".into(),
+            ..spec
+        };
+        assert!(AttitudeProgram::rate_table(&bad, 45.0, 7.0, 0.0)
+            .unwrap_err()
+            .contains("axis"));
+    }
+}

@@ -1,0 +1,374 @@
+//! Calibration: recovery of the simulator's true bias, scale factors and misalignment from
+//! simulated tumbles, six-position and rate-table runs; the checks that refuse data which
+//! cannot support a fit; and `imulab calibrate` end to end with `--calibration` applied by
+//! `export` and `allan`.
+
+use imulab::calib::recording::Recording;
+use imulab::calib::run::{calibrate, Gravity, Mode, Options, Outcome};
+use imulab::calib::statics::DetectorOptions;
+use imulab::calib::truth::Truth;
+use imulab::calib::TriadModel;
+use imulab::earth;
+use imulab::sim::outputs::MemorySink;
+use imulab::sim::runner::run;
+use imulab::sim::scene::Scene;
+use std::path::Path;
+use std::process::Command;
+
+/// A tumble scene text: `poses` random poses held `hold` s, one IMU `preset` with the given
+/// accel/gyro scale (ppm) and misalignment (mrad) overrides.
+fn tumble_scene(preset: &str, poses: usize, hold: f64, rate: f64, seed: u64) -> String {
+    let duration = 30.0 + poses as f64 * (hold + 3.0) + 5.0;
+    format!(
+        r#"
+duration_s = {duration}
+rate_hz = {rate}
+seed = {seed}
+[location]
+lat_deg = 45.0
+lon_deg = 7.0
+height_m = 250.0
+[motion]
+kind = "tumble"
+first_hold_s = 30
+hold_s = {hold}
+rotate_s = 3
+poses = {poses}
+[[imu]]
+name = "imu"
+preset = "{preset}"
+[imu.gyro]
+scale_factor_ppm = [3000, -2000, 4000]
+misalignment_mrad = [2.0, -3.0, 1.5, 2.5, -1.0, 3.0]
+[imu.accel]
+bias_mg = [20, -15, 25]
+scale_factor_ppm = [2500, -3000, 1800]
+misalignment_mrad = [2.0, -1.5, 3.0, -2.0, 1.0, 2.5]
+[outputs]
+truth_nav = false
+truth_imu = true
+truth_every = 100
+"#
+    )
+}
+
+/// Simulates `text` in memory; returns the recording, the truth and local gravity.
+fn simulate(text: &str) -> (Recording, Truth, f64) {
+    let scene = Scene::parse(text, Path::new(".")).expect("scene");
+    let mut sink = MemorySink::default();
+    run(&scene, &mut sink).expect("run");
+    let rec = Recording::from_records("imu", &sink.imu["imu"]);
+    let truth_rows = &sink.truth_imu["imu"];
+    let n = truth_rows.len() as f64;
+    let mut g = [0.0; 3];
+    let mut a = [0.0; 3];
+    for r in truth_rows {
+        for k in 0..3 {
+            g[k] += r.gyro_bias[k] / n;
+            a[k] += r.accel_bias[k] / n;
+        }
+    }
+    let truth = Truth::of_spec(&scene.imus[0].spec, g, a);
+    let loc = scene.location;
+    let gravity = earth::normal_gravity(loc.lat_deg.to_radians(), loc.height_m);
+    (rec, truth, gravity)
+}
+
+fn options(mode: Mode, g: f64) -> Options {
+    Options {
+        mode,
+        detector: DetectorOptions::default(),
+        gravity: Gravity::Value(g),
+    }
+}
+
+/// Largest |fitted − true| of the scale factors (ppm), the off-diagonals (mrad) and the
+/// biases, each also as a multiple of the stated 1σ.
+fn errors(fit: &TriadModel, truth: &TriadModel) -> (f64, f64, f64) {
+    let mut scale = 0.0f64;
+    let mut mis = 0.0f64;
+    let mut bias = 0.0f64;
+    for i in 0..3 {
+        for j in 0..3 {
+            let e = (fit.matrix[i][j] - truth.matrix[i][j]).abs();
+            if i == j {
+                scale = scale.max(e * 1e6);
+            } else {
+                mis = mis.max(e * 1e3);
+            }
+        }
+        bias = bias.max((fit.bias[i] - truth.bias[i]).abs());
+    }
+    (scale, mis, bias)
+}
+
+fn outcome(text: &str, mode: Mode) -> (Outcome, Truth, f64) {
+    let (rec, truth, g) = simulate(text);
+    let o = calibrate(&rec, &options(mode, g)).expect("calibrate");
+    (o, truth, g)
+}
+
+#[test]
+fn tumble_recovers_accel_and_gyro_of_an_industrial_imu() {
+    let (o, truth, g) = outcome(
+        &tumble_scene("industrial", 24, 8.0, 100.0, 4),
+        Mode::MultiPosition,
+    );
+    let c = &o.calibration;
+    let accel = c.accel.as_ref().unwrap();
+    let gyro = c.gyro.as_ref().unwrap();
+    let (s, m, b) = errors(accel, &truth.accel);
+    // Industrial accel noise 120 µg/√Hz over 8 s poses: scale and misalignment to ~0.1 ‰.
+    assert!(s < 200.0, "accel scale error {s} ppm\n{c:#?}");
+    assert!(m < 0.2, "accel misalignment error {m} mrad");
+    assert!(
+        b < 0.1e-3 * 9.80665,
+        "accel bias error {} mg",
+        b / 9.80665e-3
+    );
+    // Each accel parameter within 4σ of its stated uncertainty.
+    for i in 0..3 {
+        let e = (accel.matrix[i][i] - truth.accel.matrix[i][i]).abs();
+        assert!(
+            e < 4.0 * accel.matrix_sigma[i][i],
+            "axis {i}: {e} vs σ {}",
+            accel.matrix_sigma[i][i]
+        );
+    }
+    let (s, m, _) = errors(gyro, &truth.gyro);
+    assert!(
+        s < 1000.0,
+        "gyro scale error {s} ppm\n{gyro:#?}\n{:#?}",
+        truth.gyro
+    );
+    assert!(m < 1.0, "gyro misalignment error {m} mrad");
+    let q = &c.quality;
+    // Calibration takes the gravity residual from the uncalibrated level to the noise.
+    let (before, after) = (
+        q.gravity_residual_before.unwrap(),
+        q.gravity_residual_after.unwrap(),
+    );
+    assert!(before > 10.0 * after, "{before} {after}");
+    assert!(after < 0.05e-3 * g, "{after}");
+    assert!(q.rotation_residual_after.unwrap() < q.rotation_residual_before.unwrap() / 5.0);
+    assert_eq!(q.poses, 25);
+    assert_eq!(q.rotations, 24);
+}
+
+#[test]
+fn six_position_finds_each_face_and_the_full_matrix() {
+    let text = tumble_scene("industrial", 5, 10.0, 100.0, 2).replace(
+        "poses = 5",
+        "orientations = [[180, 0, 0], [90, 0, 0], [-90, 0, 0], [0, 90, 0], [0, -90, 0]]",
+    );
+    let (o, truth, _) = outcome(&text, Mode::SixPosition);
+    let mut faces = o.faces.clone();
+    faces.sort();
+    assert_eq!(
+        faces,
+        ["+x up", "+y up", "+z up", "-x up", "-y up", "-z up"]
+    );
+    // The fixture's frame is the body frame: compare with the simulator's own M.
+    let a = o.calibration.accel.unwrap();
+    assert!((a.matrix[0][0] - 1.0025).abs() < 3e-4, "{a:?}");
+    assert!((a.matrix[0][1] - 0.002).abs() < 3e-4, "{a:?}");
+    assert!(
+        (a.bias[0] - truth.accel.bias[0]).abs() < 0.2e-3 * 9.8,
+        "{a:?}"
+    );
+}
+
+#[test]
+fn rate_table_measures_scale_factor_on_the_spindle_axis() {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scenes/rate_table.toml"),
+    )
+    .unwrap()
+    .replace("name = \"stim\"", "name = \"imu\"");
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("rates.csv");
+    std::fs::write(&table, "rate_dps\n10\n-10\n50\n-50\n100\n-100\n200\n-200\n").unwrap();
+    let (o, _, _) = outcome(&text, Mode::RateTable(table));
+    let t = o.calibration.rate_table.unwrap();
+    assert_eq!(t.axis, "z");
+    // The scene's z scale factor is 450 ppm; tactical ARW over 20 s segments leaves ~10 ppm.
+    assert!((t.scale_factor_ppm - 450.0).abs() < 30.0, "{t:?}");
+    assert!(t.nonlinearity_ppm_of_full_scale < 50.0, "{t:?}");
+    let g = o.calibration.gyro.unwrap();
+    // Cross-axis: M_xz = 0.3 mrad... the x row's z entry is misalignment xz = -0.3 mrad.
+    assert!((g.matrix[0][2] + 0.3e-3).abs() < 0.05e-3, "{g:?}");
+}
+
+#[test]
+fn too_few_poses_is_refused_with_advice() {
+    let (rec, _, g) = simulate(&tumble_scene("industrial", 5, 8.0, 100.0, 1));
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::MultiPosition, g)).unwrap_err()
+    );
+    assert!(
+        e.contains("found 6 still poses") && e.contains("at least 9"),
+        "{e}"
+    );
+}
+
+#[test]
+fn poses_too_similar_are_refused() {
+    let text = tumble_scene("industrial", 12, 6.0, 100.0, 1).replace(
+        "poses = 12",
+        "orientations = [[3, 0, 0], [0, 3, 10], [-3, 0, 20], [0, -3, 30], [2, 2, 40], [-2, 2, 50], [2, -2, 60], [-2, -2, 70], [4, 0, 80], [0, 4, 90], [-4, 0, 100], [0, -4, 110]]",
+    );
+    let (rec, _, g) = simulate(&text);
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::MultiPosition, g)).unwrap_err()
+    );
+    assert!(
+        e.contains("too similar") && e.contains("up and down"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_recording_that_does_not_start_still_is_refused() {
+    let text = tumble_scene("industrial", 12, 6.0, 100.0, 1)
+        .replace("first_hold_s = 30", "first_hold_s = 1");
+    let (rec, _, g) = simulate(&text);
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::MultiPosition, g)).unwrap_err()
+    );
+    assert!(e.contains("still"), "{e}");
+}
+
+#[test]
+fn six_position_names_the_missing_faces() {
+    let (rec, _, g) = simulate(&tumble_scene("industrial", 5, 8.0, 100.0, 1).replace(
+        "poses = 5",
+        "orientations = [[180, 0, 0], [90, 0, 0], [-90, 0, 0], [0, 90, 0], [0, 90, 0]]",
+    ));
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::SixPosition, g)).unwrap_err()
+    );
+    assert!(e.contains("missing: -x up"), "{e}");
+}
+
+fn imulab(args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .args(args)
+        .output()
+        .expect("run imulab");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr),
+    )
+}
+
+#[test]
+fn calibrate_end_to_end_then_export_and_allan_apply_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("tumble.toml");
+    std::fs::write(&scene, tumble_scene("industrial", 14, 6.0, 100.0, 8)).unwrap();
+    let session = dir.path().join("session");
+    let (ok, text) = imulab(&[
+        "sim",
+        scene.to_str().unwrap(),
+        "-o",
+        session.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let cal = dir.path().join("cal.json");
+    let yaml = dir.path().join("cal.yaml");
+    let m = dir.path().join("cal.m");
+    let (ok, text) = imulab(&[
+        "calibrate",
+        session.to_str().unwrap(),
+        "-o",
+        cal.to_str().unwrap(),
+        "--kalibr",
+        yaml.to_str().unwrap(),
+        "--matlab",
+        m.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(text.contains("still intervals: 15 found"), "{text}");
+    assert!(
+        text.contains("truth"),
+        "the simulated session's truth is shown: {text}"
+    );
+    assert!(
+        text.contains("normal gravity at the session's place"),
+        "{text}"
+    );
+    let c = imulab::calib::Calibration::load(&cal).unwrap();
+    assert_eq!(c.device, "imu");
+    assert!(std::fs::read_to_string(&yaml).unwrap().contains("C_gyro_i"));
+    assert!(std::fs::read_to_string(&m)
+        .unwrap()
+        .contains("cal.accel.M = ["));
+
+    // Export with the calibration: the first (still) rows' specific force has gravity's length.
+    let csv_path = dir.path().join("imu.csv");
+    let (ok, text) = imulab(&[
+        "export",
+        session.to_str().unwrap(),
+        "--device",
+        "imu",
+        "--end",
+        "20",
+        "--calibration",
+        cal.to_str().unwrap(),
+        "-o",
+        csv_path.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let body = std::fs::read_to_string(&csv_path).unwrap();
+    assert!(
+        body.starts_with("# gyro and accel calibrated with"),
+        "{}",
+        &body[..200]
+    );
+    let mut reader = csv::ReaderBuilder::new()
+        .comment(Some(b'#'))
+        .from_reader(body.as_bytes());
+    let (mut sum, mut n) = (0.0, 0.0);
+    for row in reader.records() {
+        let row = row.unwrap();
+        let a: Vec<f64> = (6..9).map(|i| row[i].parse().unwrap()).collect();
+        sum += (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        n += 1.0;
+    }
+    let g = earth::normal_gravity(45f64.to_radians(), 250.0);
+    assert!((sum / n - g).abs() < 0.1e-3 * g, "{} vs {g}", sum / n);
+
+    // allan applies it too; a calibration of another device is refused.
+    let (ok, text) = imulab(&[
+        "allan",
+        session.to_str().unwrap(),
+        "--to",
+        "25",
+        "--calibration",
+        cal.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let (ok, text) = imulab(&[
+        "allan",
+        session.to_str().unwrap(),
+        "--device",
+        "nope",
+        "--calibration",
+        cal.to_str().unwrap(),
+    ]);
+    assert!(!ok && !text.contains("panicked"), "{text}");
+    std::fs::write(&cal, "{\"format\": \"imulab-calibration\", \"version\": 7}").unwrap();
+    let (ok, text) = imulab(&[
+        "export",
+        session.to_str().unwrap(),
+        "--device",
+        "imu",
+        "--calibration",
+        cal.to_str().unwrap(),
+    ]);
+    assert!(!ok && text.contains("not a calibration file"), "{text}");
+}

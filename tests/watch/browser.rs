@@ -1,0 +1,157 @@
+//! A real headless Chromium loads the live page of a session being written and sees its
+//! content and its updates. Skipped, saying why, where `/usr/bin/chromium` is absent (CI
+//! installs Debian's `chromium`). With `IMULAB_WATCH_SCREENSHOT=FILE` the screenshot is
+//! also copied there (how docs/img/watch.png is made).
+
+use super::common::{mono_now, LiveSession, Served, IMUS};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+
+/// Chromium with the flags of a headless, offline, throw-away profile.
+fn chromium(profile: &Path) -> Command {
+    let mut c = Command::new(CHROMIUM);
+    c.args([
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+    ])
+    .arg(format!("--user-data-dir={}", profile.display()))
+    .stdin(Stdio::null());
+    c
+}
+
+/// Runs Chromium to the end, at most 90 s.
+fn run(mut c: Command) -> std::process::Output {
+    let mut child = c
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(90);
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("chromium did not finish within 90 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The `(look N` number of the page's summary line.
+fn look_number(dom: &str) -> u64 {
+    dom.split("(look ")
+        .nth(1)
+        .and_then(|r| r.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no look number in the page"))
+}
+
+/// The rows cell of the first IMU in the health table.
+fn rows_of_first_imu(dom: &str) -> u64 {
+    let row = dom
+        .split(&format!("<tr><td>{}</td>", IMUS[0]))
+        .nth(1)
+        .expect("no health row for the first IMU");
+    row.split("<td>")
+        .nth(2)
+        .and_then(|c| c.split('<').next())
+        .and_then(|n| n.parse().ok())
+        .expect("no rows cell")
+}
+
+#[test]
+fn chromium_shows_the_live_page_and_its_updates() {
+    if !Path::new(CHROMIUM).exists() {
+        eprintln!("skipped: {CHROMIUM} not found (install Debian's `chromium` to run this test)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("run");
+    let mut live = LiveSession::create(&session, mono_now());
+    live.append(120.0);
+    let stop = Arc::new(AtomicBool::new(false));
+    let writer = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            // 10 s of data every 250 ms (40× real time).
+            while !stop.load(Ordering::Relaxed) {
+                live.append(10.0);
+                std::thread::sleep(Duration::from_millis(250));
+            }
+            live.close();
+        })
+    };
+    let served = Served::start(&session, &["--refresh", "1", "--target", "random-walk=2%"]);
+    let url = format!("http://{}/", served.addr);
+    let profile = tempfile::tempdir().unwrap();
+    let dump = || {
+        let mut c = chromium(profile.path());
+        c.args(["--dump-dom", &url]);
+        let out = run(c);
+        assert!(
+            out.status.success(),
+            "chromium: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    let first = dump();
+    std::thread::sleep(Duration::from_secs(3));
+    let second = dump();
+    for dom in [&first, &second] {
+        for text in [
+            "Data health",
+            "When can I stop?",
+            "recording",
+            IMUS[0],
+            IMUS[1],
+            "<svg",
+            "ADEV",
+            "temperature",
+        ] {
+            assert!(dom.contains(text), "the page lacks `{text}`");
+        }
+        assert!(dom.contains("random-walk"), "no targeted term row");
+    }
+    let (a, b) = (look_number(&first), look_number(&second));
+    assert!(b > a, "the page did not update: look {a} then {b}");
+    let (ra, rb) = (rows_of_first_imu(&first), rows_of_first_imu(&second));
+    assert!(rb > ra, "rows did not grow: {ra} then {rb}");
+    // A screenshot of the page as a browser draws it.
+    let shot = dir.path().join("watch.png");
+    let mut c = chromium(profile.path());
+    c.arg(format!("--screenshot={}", shot.display())).args([
+        "--window-size=1280,2200",
+        "--hide-scrollbars",
+        &url,
+    ]);
+    let out = run(c);
+    assert!(
+        out.status.success(),
+        "chromium: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let png = std::fs::read(&shot).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 20_000,
+        "{} bytes",
+        png.len()
+    );
+    if let Ok(target) = std::env::var("IMULAB_WATCH_SCREENSHOT") {
+        std::fs::copy(&shot, target).unwrap();
+    }
+    stop.store(true, Ordering::Relaxed);
+    writer.join().unwrap();
+}
