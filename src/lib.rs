@@ -1,1 +1,25 @@
+//! imulab: bench characterisation of inertial sensors.
+//!
+//! - [`store`]: the session format (manifest + rotating HDF5 chunk files), writer and reader.
+//! - [`bag`]: ROS 1 bags and ROS 2 bags / MCAP files: topics, messages, decoding.
+//! - [`daemon`]: `imulogd`, the acquisition daemon.
+//! - [`allan`]: Allan-family deviations, confidence intervals, noise-term fit and reports.
+//! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
+//! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
+//! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
+//! - [`thermal`]: thermal-chamber characterisation and the compensation model.
+//! - [`calib`]: multi-position, six-position and rate-table calibration and its file.
+//! - [`watch`]: `imulab watch`, the live page of a session being recorded.
+//! - [`cli`]: the `imulab` subcommands.
 
+pub mod allan;
+pub mod bag;
+pub mod calib;
+pub mod cli;
+pub mod daemon;
+pub mod earth;
+pub mod fusion;
+pub mod sim;
+pub mod store;
+pub mod thermal;
+pub mod watch;
