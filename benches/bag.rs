@@ -216,7 +216,8 @@ fn write_ros1(path: &Path) {
     let mut inner = connection.clone();
     let mut pos = out.len() as u64;
     file.write_all(&out).unwrap();
-    let (mut first_t, mut last_t, mut count) = (0i64, 0i64, 0u32);
+    let (mut first_t, mut count) = (0i64, 0u32);
+    let mut last_t: i64;
     for i in 0..MESSAGES {
         let m = imu.next(i);
         let t = log_ns(&m, i);
@@ -323,7 +324,8 @@ fn main() {
     );
     println!("| bag | size [MB] | wall [s] | CPU [s] | peak RSS [MB] | allan_variance_ros scaled [s] | ratio |");
     println!("|---|---|---|---|---|---|---|");
-    let formats: [(&str, &str, fn(&Path)); 2] = [
+    type WriteBag = fn(&Path);
+    let formats: [(&str, &str, WriteBag); 2] = [
         ("mcap", "imu-8h-200hz.mcap", write_mcap),
         ("ros1", "imu-8h-200hz.bag", write_ros1),
     ];

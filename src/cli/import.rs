@@ -479,6 +479,8 @@ fn gnss_record(t: i64, fix: &Fix) -> GnssRecord {
             f64::NAN
         },
         s_acc_mps: f64::NAN,
+        // NavSatFix carries no heading.
+        heading_deg: f64::NAN,
         fix_type: match status {
             s if s < 0 => FixType::NoFix,
             0 => FixType::Fix3D,
