@@ -1,6 +1,7 @@
 //! imulab: bench characterisation of inertial sensors.
 //!
 //! - [`store`]: the session format (manifest + rotating HDF5 chunk files), writer and reader.
+//! - [`bag`]: ROS 1 bags and ROS 2 bags / MCAP files: topics, messages, decoding.
 //! - [`daemon`]: `imulogd`, the acquisition daemon.
 //! - [`allan`]: Allan-family deviations, confidence intervals, noise-term fit and reports.
 //! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
@@ -12,6 +13,7 @@
 //! - [`cli`]: the `imulab` subcommands.
 
 pub mod allan;
+pub mod bag;
 pub mod calib;
 pub mod cli;
 pub mod daemon;

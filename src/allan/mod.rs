@@ -1,6 +1,6 @@
 //! Allan-family deviations, confidence intervals, noise-term fit and reports.
 //!
-//! Pipeline: [`input`] reads per-axis rate series (CSV/TSV, .npy, sessions; [`columns`]
+//! Pipeline: [`input`] reads per-axis rate series (CSV/TSV, .npy, sessions, bags; [`columns`]
 //! tells the roles and units of a file's columns) →
 //! [`numerics::Phase`] integrates one axis into phase with the mean removed →
 //! [`curve::compute_curve`] evaluates a [`deviation::DeviationKind`] over a
@@ -8,6 +8,7 @@
 //! [`fit`] fits the IMU noise model → [`report`] and [`export`] write the results.
 
 pub mod analysis;
+pub mod bag_source;
 pub mod block_sums;
 pub mod columns;
 pub mod curve;

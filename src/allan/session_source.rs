@@ -36,7 +36,7 @@ const SIM_COUNTER_MODULO: i64 = 65_536;
 
 /// What `t_sensor` holds for `device`, by protocol (docs/session-format.md): the simulator's
 /// sample counter (wrapping at the scene's `counter_modulo`), Xsens' SampleTimeFine in
-/// seconds. Other protocols' sensor times (WitMotion's time of day at 1 ms resolution, CSV
+/// seconds, an imported ROS topic's header stamps in seconds. Other protocols' sensor times (WitMotion's time of day at 1 ms resolution, CSV
 /// and CAN fields of user-defined meaning) are not used: `None`, the arrival times decide.
 fn sensor_clock(manifest: &Manifest, device: &str) -> Option<SensorClock> {
     let info = manifest.device(device)?;
@@ -61,6 +61,12 @@ fn sensor_clock(manifest: &Manifest, device: &str) -> Option<SensorClock> {
                 name: "sensor sample counter (t_sensor)".into(),
             })
         }
+        // Imported ROS messages: the header stamp in seconds (docs/import.md).
+        "ros" => Some(SensorClock {
+            unit_s: Some(1.0),
+            wrap: Some(f64::INFINITY),
+            name: "header stamps (t_sensor)".into(),
+        }),
         "xbus" => Some(SensorClock {
             unit_s: Some(1.0),
             wrap: Some(XBUS_WRAP_S),

@@ -3,6 +3,7 @@
 //! (CSV/TSV, .npy). The input options are shared with `imulab report` and `imulab compare`.
 
 use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions, AxisResult};
+use crate::allan::bag_source::BagSource;
 use crate::allan::columns::{
     detect_layout, fmt_sig, infer_time_unit, looks_like_column_group, median_step,
     parse_column_groups, role_of, unit_of_name, ColumnRole, TimeUnit,
@@ -27,6 +28,10 @@ pub struct AnalysisArgs {
     /// in reports (default: the file's stem).
     #[arg(long)]
     pub device: Option<String>,
+    /// Bag (ROS 1 .bag, ROS 2 MCAP): the sensor_msgs/Imu topic to analyse (default: the
+    /// only one). Without it, or with one the bag lacks, the bag's topics are listed.
+    #[arg(long)]
+    pub topic: Option<String>,
     /// Session: start of the analysed range, seconds after the device's first sample.
     #[arg(long)]
     pub from: Option<f64>,
@@ -335,7 +340,17 @@ pub fn open_input(
     device: Option<&str>,
     args: &AnalysisArgs,
 ) -> anyhow::Result<Box<dyn SampleSource>> {
-    let source: Box<dyn SampleSource> = if path.is_dir() {
+    let source: Box<dyn SampleSource> = if crate::bag::looks_like_bag(path) {
+        if args.from.is_some() || args.to.is_some() {
+            bail!("--from/--to select a time range of a session; import the bag (imulab import) to use them");
+        }
+        Box::new(BagSource::open(path, args.topic.as_deref())?)
+    } else if args.topic.is_some() {
+        bail!(
+            "{}: --topic selects a topic of a ROS bag or MCAP file",
+            path.display()
+        );
+    } else if path.is_dir() {
         Box::new(SessionSource::open(path, device, args.from, args.to)?)
     } else {
         if args.from.is_some() || args.to.is_some() {
@@ -408,7 +423,7 @@ fn expand_sessions(
 ) -> anyhow::Result<Vec<(PathBuf, Option<String>)>> {
     let mut out = Vec::new();
     for path in inputs {
-        if !path.is_dir() || args.device.is_some() {
+        if !path.is_dir() || args.device.is_some() || crate::bag::looks_like_bag(path) {
             out.push((path.clone(), args.device.clone()));
             continue;
         }
@@ -623,7 +638,8 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
     for (path, device) in expand_sessions(inputs, args)? {
         let path = &path;
         let source = open_input(path, device.as_deref(), args)?;
-        let is_session = path.is_dir();
+        // Sessions and bags carry their own timing and units.
+        let is_session = source.native_timing().is_some();
         let (timing, temperature, axes) = if is_session {
             if args.rate.is_some() || args.time_column.is_some() {
                 bail!(
@@ -683,7 +699,10 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
             device,
         });
     }
-    let files: Vec<&PlannedInput> = plan.iter().filter(|p| !p.path.is_dir()).collect();
+    let files: Vec<&PlannedInput> = plan
+        .iter()
+        .filter(|p| p.source.native_timing().is_none())
+        .collect();
     for group in parse_column_groups(&args.columns).map_err(|e| anyhow::anyhow!(e))? {
         for c in &group.columns {
             if !files.iter().any(|p| p.source.channel_index(c).is_ok()) {

@@ -22,6 +22,8 @@ pub enum Command {
     Inspect(super::inspect::InspectArgs),
     /// Export one device's rows (CSV), streamed.
     Export(super::export::ExportArgs),
+    /// Write a ROS bag or MCAP file (IMU, GNSS fix, temperature, velocity topics) as a session.
+    Import(super::import::ImportArgs),
     /// Make the partial chunk file of a killed writer readable.
     Recover(super::recover::RecoverArgs),
     /// GNSS/INS replay through the error-state Kalman filter.
@@ -64,6 +66,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Inspect(args) => super::inspect::run(args),
         Command::Export(args) => super::export::run(args),
+        Command::Import(args) => super::import::run(args),
         Command::Recover(args) => super::recover::run(args),
         Command::Replay(args) => super::replay::run(args),
         Command::Study(args) => super::study::run(args),

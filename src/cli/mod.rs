@@ -26,6 +26,7 @@ pub mod decode;
 pub mod demo;
 pub mod errors;
 pub mod export;
+pub mod import;
 pub mod inspect;
 pub mod recover;
 pub mod sim;
