@@ -20,6 +20,6 @@ pub mod daemon;
 pub mod earth;
 pub mod fusion;
 pub mod sim;
-pub mod store;
+pub use imulab_store as store;
 pub mod thermal;
 pub mod watch;
