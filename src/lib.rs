@@ -16,7 +16,7 @@ pub mod allan;
 pub mod bag;
 pub mod calib;
 pub mod cli;
-pub mod daemon;
+pub use imulab_daemon as daemon;
 pub mod earth;
 pub mod fusion;
 pub mod sim;

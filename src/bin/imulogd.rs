@@ -5,13 +5,13 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use clap::Parser;
-use imulab::daemon::{self, args::Args, config, source, writer::FreeSpaceFn, DaemonParts};
+use imulab_daemon::{self as daemon, args::Args, config, source, writer::FreeSpaceFn, DaemonParts};
 
 /// Exit status for a configuration that is rejected.
 const EXIT_BAD_CONFIG: u8 = 2;
 
 fn main() -> ExitCode {
-    imulab::cli::init_logging();
+    daemon::logging::init_logging();
     let args = Args::parse();
     if let Some(path) = args.check_config {
         return check_config(&path);
@@ -38,7 +38,7 @@ fn main() -> ExitCode {
     match run(&config) {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
-            let message = imulab::cli::errors::render(&e);
+            let message = daemon::errors::render(&e);
             tracing::error!("{message}");
             eprintln!("imulogd: {message}");
             ExitCode::FAILURE

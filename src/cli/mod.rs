@@ -1,5 +1,5 @@
-//! The `imulab` subcommands, one module each, plus what the binaries share: the command
-//! line ([`app`]), error printing ([`errors`]) and the logging set-up.
+//! The `imulab` subcommands, one module each, plus the command line ([`app`]). Error printing
+//! ([`errors`]) and the logging set-up are the daemon crate's, which both binaries share.
 
 pub mod allan;
 pub mod app;
@@ -11,20 +11,11 @@ pub mod report;
 pub mod status;
 pub mod study;
 
-/// Logs to stderr through `tracing`, filtered by `RUST_LOG` (default `info`).
-pub fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .try_init();
-}
+pub use imulab_daemon::logging::init_logging;
 
 pub mod decode;
 pub mod demo;
-pub mod errors;
+pub use imulab_daemon::errors;
 pub mod export;
 pub mod import;
 pub mod inspect;

@@ -170,12 +170,12 @@ mod tests {
     #[tokio::test]
     async fn handover_timer_fires_at_the_armed_point_and_once() {
         let timer = HandoverTimer::new().unwrap();
-        let now = crate::daemon::clock::mono_ns();
+        let now = crate::clock::mono_ns();
         timer.arm(now + 30_000_000).unwrap();
         std::future::poll_fn(|cx| timer.poll_fired(cx))
             .await
             .unwrap();
-        let fired = crate::daemon::clock::mono_ns();
+        let fired = crate::clock::mono_ns();
         assert!(
             fired >= now + 30_000_000,
             "fired {} ns early",
@@ -194,11 +194,11 @@ mod tests {
             .await
             .unwrap();
         timer.arm(fired).unwrap();
-        let later = crate::daemon::clock::mono_ns() + 40_000_000;
+        let later = crate::clock::mono_ns() + 40_000_000;
         timer.arm(later).unwrap();
         std::future::poll_fn(|cx| timer.poll_fired(cx))
             .await
             .unwrap();
-        assert!(crate::daemon::clock::mono_ns() >= later);
+        assert!(crate::clock::mono_ns() >= later);
     }
 }

@@ -33,7 +33,7 @@ use tokio::time::{Instant, Sleep};
 
 use super::config::{FileSource, Pace};
 use super::source::{BoxFuture, Connector, Link, Received};
-use crate::store::{Session, TimeRange};
+use imulab_store::{Session, TimeRange};
 
 /// Pieces waiting between the reader thread and the link.
 const CHANNEL_PIECES: usize = 64;

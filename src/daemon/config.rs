@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use imulab_drivers::codec::csv_line::CsvLineConfig;
 use nalgebra::Matrix3;
 
-use crate::store::manifest::MAX_DEVICE_NAME_LEN;
+use imulab_store::manifest::MAX_DEVICE_NAME_LEN;
 use serde::{Deserialize, Serialize};
 
 /// A rejected configuration: where, what, and how to fix it.
@@ -144,7 +144,7 @@ fn default_flush_interval_ms() -> u64 {
 }
 /// The session writer's own default (chosen by measurement: docs/bench/store.md).
 fn default_deflate_level() -> u8 {
-    crate::store::WriterOptions::default().deflate_level
+    imulab_store::WriterOptions::default().deflate_level
 }
 fn default_disk_reserve_mb() -> u64 {
     512
@@ -807,9 +807,9 @@ pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 
         .iter()
         .map(|d| {
             let row = if d.protocol.is_gnss() {
-                std::mem::size_of::<crate::store::GnssRecord>()
+                std::mem::size_of::<imulab_store::GnssRecord>()
             } else {
-                std::mem::size_of::<crate::store::ImuRecord>()
+                std::mem::size_of::<imulab_store::ImuRecord>()
             } as f64;
             let raw = match (&d.transport, d.raw_journal) {
                 (_, false) => 0.0,

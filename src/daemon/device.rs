@@ -23,7 +23,7 @@ use imulab_drivers::transport::TransportError;
 use imulab_drivers::types::DecoderStats;
 use tokio::sync::{mpsc, watch};
 
-use crate::store::{EventKind, EventRecord};
+use imulab_store::{EventKind, EventRecord};
 
 use super::backoff::Backoff;
 use super::cadence::{Cadence, HandoverTimer};

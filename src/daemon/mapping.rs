@@ -4,7 +4,7 @@
 use imulab_drivers::types::{GnssFix, ImuSample};
 use nalgebra::{Matrix3, Vector3};
 
-use crate::store::{GnssRecord, ImuRecord};
+use imulab_store::{GnssRecord, ImuRecord};
 
 use super::clock::Arrival;
 use super::config::DeviceSpec;

@@ -15,6 +15,7 @@
 //! - [`timerel`]: the GNSS-time ↔ host-time relation.
 //! - [`status`]: live counters and the status file.
 //! - [`run`]: signals, systemd notification, start and clean stop.
+//! - [`errors`], [`logging`]: how both binaries print an error and set up logging.
 
 pub mod args;
 pub mod backoff;
@@ -24,7 +25,9 @@ pub mod clock;
 pub mod config;
 pub mod device;
 pub mod disk;
+pub mod errors;
 pub mod gap;
+pub mod logging;
 pub mod mapping;
 pub mod pathwatch;
 pub mod run;

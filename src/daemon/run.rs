@@ -104,7 +104,7 @@ impl Outcome {
             ),
             Outcome::Failed(e) => format!(
                 "stopped on an error: {}",
-                crate::cli::errors::render(e)
+                crate::errors::render(e)
             ),
         }
     }

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use crate::store::{
+use imulab_store::{
     DeviceInfo, DeviceKind, EventRecord, GnssRecord, ImuRecord, Manifest, SessionWriter,
     WriterOptions,
 };

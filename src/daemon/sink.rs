@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use crate::store::{EventRecord, GnssRecord, ImuRecord};
+use imulab_store::{EventRecord, GnssRecord, ImuRecord};
 
 /// A session being written. Only the writer thread calls it, so it may block on disk I/O.
 pub trait RecordSink: Send {
@@ -134,7 +134,7 @@ impl RecordSink for MemorySink {
             t_mono_ns: now.mono_ns,
             t_wall_ns: now.wall_ns,
             device: String::new(),
-            kind: crate::store::EventKind::Rotation,
+            kind: imulab_store::EventKind::Rotation,
             detail,
         });
         Ok(())

@@ -12,7 +12,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord};
+use imulab_store::{EventKind, EventRecord, GnssRecord, ImuRecord};
 
 use super::cadence::{self, Cadence};
 use super::clock;
@@ -262,7 +262,7 @@ pub fn run_writer(
         WriterExit::Failed(e) if super::disk::is_disk_full(e) => {
             "disk full: no space left on device".to_string()
         }
-        WriterExit::Failed(e) => format!("write failed: {}", crate::cli::errors::render(e)),
+        WriterExit::Failed(e) => format!("write failed: {}", crate::errors::render(e)),
     };
     let _ = sink.append_event(&session_event(EventKind::SessionStop, reason));
     if let Err(e) = sink.close() {
@@ -271,10 +271,7 @@ pub fn run_writer(
             // Said once, by whoever reports the outcome (closing on a full disk fails too).
             tracing::debug!("closing the session on a full disk: {e:#}");
         } else {
-            tracing::error!(
-                "closing the session failed: {}",
-                crate::cli::errors::render(&e)
-            );
+            tracing::error!("closing the session failed: {}", crate::errors::render(&e));
         }
         if !failed_before {
             outcome = WriterExit::Failed(e);

@@ -27,6 +27,27 @@ use std::sync::Mutex;
 
 use hdf5::{Dataset, H5Type};
 
+/// The scope the chunks of one read are decoded in: rayon's pool with the `parallel-read`
+/// feature (decoding overlaps the next fetches), else each chunk in turn on this thread.
+#[cfg(feature = "parallel-read")]
+use rayon::in_place_scope as decode_scope;
+
+#[cfg(not(feature = "parallel-read"))]
+fn decode_scope<R>(f: impl FnOnce(&InTurn) -> R) -> R {
+    f(&InTurn)
+}
+
+/// Runs each spawned decoding at once (the `decode_scope` without `parallel-read`).
+#[cfg(not(feature = "parallel-read"))]
+struct InTurn;
+
+#[cfg(not(feature = "parallel-read"))]
+impl InTurn {
+    fn spawn(&self, job: impl FnOnce(&InTurn)) {
+        job(self)
+    }
+}
+
 /// A value stored as its little-endian bytes; `ELEM` is the HDF5 element size the shuffle
 /// filter works on (8 for an `[f64; 3]` row of an N×3 f64 dataset).
 pub(crate) trait Plain: H5Type + Copy {
@@ -646,7 +667,7 @@ impl ColumnReader {
             }
         };
         let used: Mutex<Vec<Vec<u8>>> = Mutex::new(Vec::new());
-        rayon::in_place_scope(|scope| {
+        decode_scope(|scope| {
             let mut row = r.start;
             while row < r.end {
                 let k = row / c;
