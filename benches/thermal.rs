@@ -1,7 +1,7 @@
 //! Thermal analysis benchmark: recovery of known thermal coefficients from simulated
 //! chamber runs over seeds and two grades, and the run time of the whole analysis of a
 //! 24 h, 150 Hz, 6-axis run (one axis in memory at a time). Method and tables:
-//! docs/bench/thermal.md. Run: `cargo bench --bench thermal`.
+//! docs/bench/thermal.md. Run: `cargo bench --bench thermal` (`-- recovery`, `-- scale` or `-- timing` for one part).
 
 use imulab::allan::input::AxisSeries;
 use imulab::allan::units::{RateUnit, SensorKind};
@@ -36,7 +36,7 @@ fn chamber(cycles: u32) -> TemperatureProfile {
     )
 }
 
-/// One axis (x of `sensor`) of `spec` through `profile`: the series with its temperature.
+/// One axis (x of `sensor`) of `spec` through `profile`, level: the series with its temperature.
 fn simulate(
     spec: &ImuSpec,
     sensor: SensorKind,
@@ -44,6 +44,21 @@ fn simulate(
     rate_hz: f64,
     duration_s: f64,
     profile: &TemperatureProfile,
+) -> AxisSeries {
+    simulate_posed(spec, sensor, seed, rate_hz, duration_s, profile, &|_| {
+        Vector3::new(0.0, 0.0, -G0)
+    })
+}
+
+/// As [`simulate`] with the specific force `force(t)` in the sensor frame.
+fn simulate_posed(
+    spec: &ImuSpec,
+    sensor: SensorKind,
+    seed: u64,
+    rate_hz: f64,
+    duration_s: f64,
+    profile: &TemperatureProfile,
+    force: &dyn Fn(f64) -> Vector3<f64>,
 ) -> AxisSeries {
     let channels = match sensor {
         SensorKind::Gyro => Channels {
@@ -57,14 +72,12 @@ fn simulate(
     };
     let mut sim = ImuSimulator::new(spec, "bench", seed, rate_hz, channels).unwrap();
     let n = (duration_s * rate_hz) as usize;
-    let (w, f) = (Vector3::zeros(), Vector3::new(0.0, 0.0, -G0));
+    let w = Vector3::zeros();
     let mut rate = Vec::with_capacity(n);
     let mut temp = Vec::with_capacity(n);
     for k in 0..n {
-        let r = sim
-            .step(&w, &f, profile.at(k as f64 / rate_hz), 0, 0)
-            .record
-            .unwrap();
+        let t = k as f64 / rate_hz;
+        let r = sim.step(&w, &force(t), profile.at(t), 0, 0).record.unwrap();
         rate.push(match sensor {
             SensorKind::Gyro => r.gyro[0],
             SensorKind::Accel => r.accel[0],
@@ -123,14 +136,32 @@ fn quiet_grade() -> ImuSpec {
 }
 
 fn main() {
+    // `-- recovery`, `-- scale` or `-- timing` runs one part; all by default.
+    let parts: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
+    let wants = |part: &str| parts.is_empty() || parts.iter().any(|p| p == part);
+    if wants("recovery") {
+        recovery();
+    }
+    if wants("scale") {
+        scale_recovery();
+    }
+    if wants("timing") {
+        timing();
+    }
+}
+
+fn recovery() {
     let seeds: Vec<u64> = (1..=10).collect();
     let profile = chamber(1);
     let rate = 50.0;
     let duration = 12_000.0;
     println!(
-        "| grade | sensor | term | truth | median error | seeds ok (5 % or in 95 % CI) | worst |"
+        "| grade | sensor | term | truth | median error | median stated σ / truth | seeds ok | worst |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     for (grade, spec) in [
         ("icm20948-thermal", imu_preset("icm20948-thermal").unwrap()),
         ("quiet", quiet_grade()),
@@ -157,6 +188,7 @@ fn main() {
                 ("warm-up τ", tau_w, vec![]),
                 ("thermal lag τ", spec.thermal.time_constant_s, vec![]),
             ];
+            let (mut tau_sigma, mut gap_sigma) = (Vec::new(), Vec::new());
             for &seed in &seeds {
                 let a = analyse(
                     simulate(&spec, sensor, seed, rate, duration, &profile),
@@ -165,16 +197,26 @@ fn main() {
                 );
                 rows[0].2.push(recovered(&a, 1, c1));
                 rows[1].2.push(recovered(&a, 2, c2));
-                let gap = a
-                    .hysteresis
-                    .as_ref()
-                    .map_or(f64::NAN, |h| (h.largest_gap - hyst) / hyst);
-                rows[2].2.push((gap.abs() <= 0.10, gap));
-                let tau = a
-                    .warmup
-                    .as_ref()
-                    .map_or(f64::NAN, |w| (w.time_constant_s - tau_w) / tau_w);
-                rows[3].2.push((tau.abs() <= 0.10, tau));
+                rows[2]
+                    .2
+                    .push(a.hysteresis.as_ref().map_or((false, f64::NAN), |h| {
+                        let error = (h.largest_gap - hyst) / hyst;
+                        let inside = (h.largest_gap - hyst).abs() <= h.largest_gap_ci95;
+                        (error.abs() <= 0.10 || inside, error)
+                    }));
+                rows[3]
+                    .2
+                    .push(a.warmup.as_ref().map_or((false, f64::NAN), |w| {
+                        let error = (w.time_constant_s - tau_w) / tau_w;
+                        let [lo, hi] = w.time_constant_ci95_s;
+                        (error.abs() <= 0.10 || (lo..=hi).contains(&tau_w), error)
+                    }));
+                if let Some(w) = &a.warmup {
+                    tau_sigma.push(w.time_constant_relative_sigma);
+                }
+                if let Some(h) = &a.hysteresis {
+                    gap_sigma.push(h.largest_gap_ci95 / 1.96 / hyst);
+                }
                 let chamber_c: Vec<f64> = a.trace.t_s.iter().map(|&t| profile.at(t)).collect();
                 let lag =
                     imulab::thermal::analysis::fit_lag(&a.trace.t_s, &chamber_c, &a.trace.temp_c)
@@ -183,9 +225,25 @@ fn main() {
                         });
                 rows[4].2.push((lag.abs() <= 0.10, lag));
             }
-            for (term, truth, results) in rows {
-                let mut errors: Vec<f64> = results.iter().map(|r| r.1).collect();
+            let median = |v: &mut Vec<f64>| {
+                v.sort_by(f64::total_cmp);
+                v.get(v.len() / 2).copied().unwrap_or(f64::NAN) * 100.0
+            };
+            let sigma = [
+                String::new(),
+                String::new(),
+                format!("{:.1} %", median(&mut gap_sigma)),
+                format!("{:.1} %", median(&mut tau_sigma)),
+                String::new(),
+            ];
+            for (k, (term, truth, results)) in rows.into_iter().enumerate() {
+                let mut errors: Vec<f64> = results
+                    .iter()
+                    .map(|r| r.1)
+                    .filter(|e| e.is_finite())
+                    .collect();
                 errors.sort_by(f64::total_cmp);
+                let found = errors.len();
                 let ok = results.iter().filter(|r| r.0).count();
                 let worst = errors
                     .iter()
@@ -193,15 +251,87 @@ fn main() {
                     .max_by(|a, b| a.abs().total_cmp(&b.abs()))
                     .unwrap_or(f64::NAN);
                 println!(
-                    "| {grade} | {sensor:?} | {term} | {truth} | {:+.1} % | {ok}/{} | {:+.1} % |",
-                    errors[errors.len() / 2] * 100.0,
+                    "| {grade} | {sensor:?} | {term} | {truth} | {:+.1} % | {} | {ok}/{} | {:+.1} %{} |",
+                    errors.get(errors.len() / 2).copied().unwrap_or(f64::NAN) * 100.0,
+                    sigma[k],
                     results.len(),
-                    worst * 100.0
+                    worst * 100.0,
+                    if found < results.len() {
+                        format!(" (found in {found})")
+                    } else {
+                        String::new()
+                    }
                 );
             }
         }
     }
+}
 
+/// Accelerometer scale factor against temperature: the chamber program of [`recovery`] with
+/// the x axis held up (+1 g) then down (−1 g) for 150 s each at the end of every soak, and a
+/// last 25 °C soak; the scale tempco fitted from the poses against the scene's.
+fn scale_recovery() {
+    // Ends of the soaks of `chamber(1)` (25, 60, −10 °C) and of the soak at 25 °C after it.
+    let soak_ends = [1200.0, 4500.0, 9900.0, 13_200.0];
+    let force = |t: f64| {
+        for end in soak_ends {
+            if (end - 300.0..end - 150.0).contains(&t) {
+                return Vector3::new(G0, 0.0, 0.0);
+            }
+            if (end - 150.0..end).contains(&t) {
+                return Vector3::new(-G0, 0.0, 0.0);
+            }
+        }
+        Vector3::new(0.0, 0.0, -G0)
+    };
+    let profile = chamber(1);
+    println!("\n| grade | term | truth | median error | median 95 % half-width / truth | seeds ok (5 % or in 95 % CI) | worst |");
+    println!("|---|---|---|---|---|---|---|");
+    for (grade, spec) in [
+        ("icm20948-thermal", imu_preset("icm20948-thermal").unwrap()),
+        ("quiet", quiet_grade()),
+    ] {
+        let truth = spec.accel.scale_tempco_ppm_per_c[0];
+        let (mut errors, mut sigmas, mut ok) = (Vec::new(), Vec::new(), 0);
+        for seed in 1..=10u64 {
+            let series = simulate_posed(
+                &spec,
+                SensorKind::Accel,
+                seed,
+                50.0,
+                13_200.0,
+                &profile,
+                &force,
+            );
+            let a = analyse(series, SensorKind::Accel, &profile);
+            let Some(c) = a.scale_factor.as_ref().and_then(|s| s.coefficients.get(1)) else {
+                errors.push(f64::NAN);
+                continue;
+            };
+            let error = (c.value - truth) / truth;
+            if error.abs() <= 0.05 || (c.low..=c.high).contains(&truth) {
+                ok += 1;
+            }
+            errors.push(error);
+            sigmas.push((c.high - c.low) / 2.0 / truth);
+        }
+        let worst = errors
+            .iter()
+            .copied()
+            .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+            .unwrap_or(f64::NAN);
+        errors.sort_by(f64::total_cmp);
+        sigmas.sort_by(f64::total_cmp);
+        println!(
+            "| {grade} | scale tempco c1 (ppm/°C) | {truth} | {:+.2} % | {:.2} % | {ok}/10 | {:+.2} % |",
+            errors[errors.len() / 2] * 100.0,
+            sigmas.get(sigmas.len() / 2).copied().unwrap_or(f64::NAN) * 100.0,
+            worst * 100.0
+        );
+    }
+}
+
+fn timing() {
     // Run time: 24 h at 150 Hz, 6 axes, one axis simulated and analysed at a time.
     let profile = chamber(3);
     let spec = imu_preset("icm20948-thermal").unwrap();

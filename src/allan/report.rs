@@ -799,6 +799,16 @@ pub fn html_report_with_study(report: &AllanReport, title: &str, study: &StudyRe
     )
 }
 
+/// `page` (from [`html_report`]) with `section` (an HTML fragment) before the data health.
+pub fn with_section(page: &str, section: &str) -> String {
+    match page.find(DATA_HEALTH_HEADING) {
+        Some(at) => format!("{}{section}{}", &page[..at], &page[at..]),
+        None => page.replacen("</body>", &format!("{section}</body>"), 1),
+    }
+}
+
+const DATA_HEALTH_HEADING: &str = "<h2>4. Data health</h2>";
+
 /// [`html_report`] with the sessions' health given (an `Err` is shown as that input's
 /// problem line).
 pub fn html_report_with_sessions(
@@ -916,7 +926,7 @@ pub fn html_report_with_sessions(
         }
         html.push_str("</tbody></table></div>");
     }
-    html.push_str("<h2>4. Data health</h2>");
+    html.push_str(DATA_HEALTH_HEADING);
     for s in sessions {
         match s {
             Ok(s) => html.push_str(&session_health_html(s)),

@@ -72,10 +72,14 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
         None if args.study_runs > 0 => own_study(&report, args.study_runs, args.quiet),
         None => None,
     };
-    let page = match &study {
+    let mut page = match &study {
         Some(s) => crate::allan::report::html_report_with_study(&report, &args.title, s),
         None => html_report(&report, &args.title),
     };
+    let thermal = thermal_sections(&args.inputs, &report, args.quiet);
+    if !thermal.is_empty() {
+        page = crate::allan::report::with_section(&page, &thermal);
+    }
     std::fs::write(&args.html, page).with_context(|| format!("writing {}", args.html.display()))?;
     if let Some(path) = &args.json {
         let file =
@@ -94,6 +98,34 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// Sessions whose temperature spans at least this get the thermal section, °C.
+pub const THERMAL_SECTION_SPAN_C: f64 = 5.0;
+
+/// The thermal section (`imulab thermal`'s, with its defaults) of the session inputs when an
+/// analysed IMU's temperature spans at least [`THERMAL_SECTION_SPAN_C`]; a session the
+/// analysis refuses gets one line on stderr saying why.
+fn thermal_sections(inputs: &[PathBuf], report: &AllanReport, quiet: bool) -> String {
+    let spans =
+        report.axes.iter().any(
+            |a| match (a.health.temperature_min, a.health.temperature_max) {
+                (Some(lo), Some(hi)) => hi - lo >= THERMAL_SECTION_SPAN_C,
+                _ => false,
+            },
+        );
+    let mut html = String::new();
+    for input in inputs.iter().filter(|p| spans && p.is_dir()) {
+        match super::thermal::analyse_input(&super::thermal::ThermalArgs::for_session(input)) {
+            Ok(t) => html.push_str(&crate::thermal::report::html_section(&t)),
+            Err(e) => {
+                if !quiet {
+                    eprintln!("{}: no thermal section: {e:#}", input.display());
+                }
+            }
+        }
+    }
+    html
 }
 
 /// The filter-based outage answer for the report's devices: a small study of their fits

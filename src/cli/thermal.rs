@@ -277,7 +277,32 @@ fn analyse_device(
     })
 }
 
-pub fn run(args: ThermalArgs) -> Result<()> {
+impl ThermalArgs {
+    /// The defaults of `imulab thermal DIR` for a session (every IMU, sensor temperature,
+    /// the scene's chamber program), writing nothing.
+    pub fn for_session(dir: &Path) -> Self {
+        ThermalArgs {
+            input: dir.to_path_buf(),
+            device: None,
+            axes: Vec::new(),
+            rate: None,
+            temp_column: "temp".into(),
+            chamber_column: None,
+            order: None,
+            max_order: 3,
+            reference_temp: 25.0,
+            warmup_tolerance: None,
+            plateau_min_s: 900.0,
+            json: None,
+            html: None,
+            model: None,
+            calibration: None,
+        }
+    }
+}
+
+/// The thermal characterisation of `args.input` (a session or a file).
+pub fn analyse_input(args: &ThermalArgs) -> Result<ThermalReport> {
     let input = &args.input;
     let devices = if input.is_dir() {
         let chamber = session_chamber(input)?;
@@ -293,12 +318,12 @@ pub fn run(args: ThermalArgs) -> Result<()> {
             let source = calibrated(
                 Box::new(SessionSource::open(input, Some(&name), None, None)?),
                 &name,
-                &args,
+                args,
             )?;
             out.push(analyse_device(
                 source.as_ref(),
                 &name,
-                &args,
+                args,
                 chamber.as_ref(),
                 true,
             )?);
@@ -314,10 +339,14 @@ pub fn run(args: ThermalArgs) -> Result<()> {
         let name = input
             .file_stem()
             .map_or("file".into(), |s| s.to_string_lossy().into_owned());
-        let source = calibrated(open_file(input)?, &name, &args)?;
-        vec![analyse_device(source.as_ref(), &name, &args, None, false)?]
+        let source = calibrated(open_file(input)?, &name, args)?;
+        vec![analyse_device(source.as_ref(), &name, args, None, false)?]
     };
-    let report = ThermalReport::new(input.display().to_string(), devices);
+    Ok(ThermalReport::new(input.display().to_string(), devices))
+}
+
+pub fn run(args: ThermalArgs) -> Result<()> {
+    let report = analyse_input(&args)?;
     print!("{}", summary_text(&report));
     if let Some(path) = &args.json {
         let file =

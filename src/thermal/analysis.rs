@@ -1,12 +1,14 @@
 //! Thermal characterisation of one axis: bias against the sensor temperature (polynomial,
-//! order from the data, 95 % bands), the rising and falling branches fitted apart (largest
-//! hysteresis gap), the warm-up transient of the first soak, and per-plateau Allan noise
-//! terms; and of one device: the thermal lag of the sensor behind the chamber.
+//! order from the data, 95 % bands), the rising and falling branches fitted jointly (a shared
+//! curve plus a gap polynomial: the hysteresis gap with its 95 % interval), the warm-up
+//! transient of the first soak (nonlinear least squares, τ with its 95 % interval), and
+//! per-plateau Allan noise terms; and of one device: the thermal lag of the sensor behind the
+//! chamber.
 //!
 //! Samples are reduced to block means (1 s by default) before the fits: the fits need the
 //! bias level, not the white noise, and the means keep the work linear in the samples.
 
-use super::polyfit::{fit_polynomial, PolyFit};
+use super::polyfit::{fit_branches, fit_polynomial, PolyFit};
 use crate::allan::analysis::{analyse_axis, AnalysisOptions};
 use crate::allan::deviation::DeviationKind;
 use crate::allan::input::AxisSeries;
@@ -62,15 +64,20 @@ pub struct Coefficient {
     pub unit: String,
 }
 
-/// The rising and falling branches.
+/// The rising and falling branches, fitted jointly: a shared curve of the bias fit's order
+/// plus a gap polynomial (rising minus falling) whose order BIC chooses.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Hysteresis {
     pub rising: PolyFit,
     pub falling: PolyFit,
-    /// Rising minus falling where their difference is largest in magnitude, datasheet unit.
+    /// The gap polynomial, rising minus falling, input unit.
+    pub gap: PolyFit,
+    /// The gap polynomial where it is largest in magnitude over the common range, datasheet unit.
     pub largest_gap: f64,
+    /// 95 % half-width of `largest_gap`.
+    pub largest_gap_ci95: f64,
     pub largest_gap_at_c: f64,
-    /// Mean of rising minus falling over the common range, datasheet unit.
+    /// Mean of the gap polynomial over the common range, datasheet unit.
     pub mean_gap: f64,
     pub unit: String,
 }
@@ -79,8 +86,14 @@ pub struct Hysteresis {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Warmup {
     pub time_constant_s: f64,
+    /// 95 % interval of the time constant (from the Jacobian at the solution), s.
+    pub time_constant_ci95_s: [f64; 2],
+    /// Standard error of the time constant over its value.
+    pub time_constant_relative_sigma: f64,
     /// Datasheet unit.
     pub amplitude: f64,
+    /// 95 % half-width of the amplitude.
+    pub amplitude_ci95: f64,
     pub settled: f64,
     pub tolerance: f64,
     pub unit: String,
@@ -88,6 +101,28 @@ pub struct Warmup {
     pub time_to_tolerance_s: f64,
     /// Length of the soak the fit used, s.
     pub soak_s: f64,
+}
+
+/// The accelerometer scale factor at one temperature, from the poses with the axis along and
+/// against gravity: (mean up − mean down) / 2 g₀ − 1, the bias cancelling.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScalePoint {
+    pub temperature_c: f64,
+    /// Scale-factor error, ppm (against standard gravity).
+    pub scale_ppm: f64,
+    /// Time in the up and the down poses, s.
+    pub up_s: f64,
+    pub down_s: f64,
+}
+
+/// Scale factor against temperature from gravity.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScaleFactor {
+    pub points: Vec<ScalePoint>,
+    /// Scale-factor error (ppm) against the sensor temperature.
+    pub fit: PolyFit,
+    /// Its coefficients: ppm, ppm/degC, ppm/degC^2 with 95 % intervals.
+    pub coefficients: Vec<Coefficient>,
 }
 
 /// Noise terms on one temperature plateau.
@@ -122,6 +157,9 @@ pub struct AxisThermal {
     pub chamber_fit: Option<PolyFit>,
     pub hysteresis: Option<Hysteresis>,
     pub warmup: Option<Warmup>,
+    /// Accelerometers: scale factor against temperature from ±1 g poses, where the run holds them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale_factor: Option<ScaleFactor>,
     pub plateaus: Vec<PlateauNoise>,
     /// What could not be computed and why, and data problems skipped.
     pub notes: Vec<String>,
@@ -166,6 +204,10 @@ fn coefficient_unit(base: &str, order: usize) -> String {
         k => format!("{base}/degC^{k}"),
     }
 }
+
+/// A reading unchanged for at least this long is checked against the chamber for a stuck
+/// sensor, s (no chamber moves 5 °C in less: that is 30 °C/min).
+pub const STUCK_MIN_S: f64 = 10.0;
 
 /// Checks the temperature channel: the error says what is wrong. Returns the number of
 /// invalid readings (NaN or outside [`VALID_TEMPERATURE_C`]).
@@ -216,6 +258,10 @@ pub fn check_temperature(
                 continue;
             }
             let (t0, t1) = (run_start as f64 * tau0, (i - 1) as f64 * tau0);
+            if t1 - t0 < STUCK_MIN_S {
+                run_start = i;
+                continue;
+            }
             let (c0, c1) = (chamber(t0), chamber(t1));
             let (lo, hi) = sample_range(chamber, t0, t1);
             if hi - lo > 5.0 {
@@ -301,13 +347,28 @@ fn temperature_rate(b: &Blocks, half_window_s: f64) -> Vec<f64> {
     out
 }
 
-/// Fits settled + A e^(−t/τ) to `(t, y)`: τ by golden-section search on log τ, the others
-/// by linear least squares. Returns (τ, A, settled, A's standard error, rms).
-fn fit_exponential(t: &[f64], y: &[f64]) -> Option<(f64, f64, f64, f64, f64)> {
+/// A fitted turn-on transient y = settled + A e^(−t/τ), with standard errors from the
+/// Jacobian at the solution (the Cramér–Rao bound for the residual noise, inflated for its
+/// lag-1 correlation).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ExponentialFit {
+    tau: f64,
+    amplitude: f64,
+    settled: f64,
+    se_tau: f64,
+    se_amplitude: f64,
+}
+
+/// Fits settled + A e^(−t/τ) to `(t, y)` by Levenberg–Marquardt on (settled, A, τ), started
+/// from the best τ of a log-spaced scan (settled and A linear for each τ).
+fn fit_exponential(t: &[f64], y: &[f64]) -> Option<ExponentialFit> {
+    use nalgebra::{Matrix3, Vector3};
     let span = t.last()? - t.first()?;
+    if t.len() < 6 || span <= 0.0 {
+        return None;
+    }
+    let n = t.len() as f64;
     let linear = |tau: f64| -> (f64, f64, f64) {
-        // y = c + A e; closed-form two-parameter least squares.
-        let n = t.len() as f64;
         let (mut se, mut see, mut sy, mut sey) = (0.0, 0.0, 0.0, 0.0);
         for (&ti, &yi) in t.iter().zip(y) {
             let e = (-ti / tau).exp();
@@ -329,36 +390,85 @@ fn fit_exponential(t: &[f64], y: &[f64]) -> Option<(f64, f64, f64, f64, f64)> {
             .sum();
         (a, c, rss)
     };
-    let (mut lo, mut hi) = ((span / 1000.0).max(1e-3).ln(), span.ln());
-    // Coarse scan first: the RSS in τ need not be unimodal over the whole range.
-    let grid = 40;
-    let best = (0..=grid)
-        .map(|k| lo + (hi - lo) * k as f64 / grid as f64)
-        .min_by(|a, b| linear(a.exp()).2.total_cmp(&linear(b.exp()).2))?;
-    let step = (hi - lo) / grid as f64;
-    (lo, hi) = (best - step, best + step);
-    let g = (5f64.sqrt() - 1.0) / 2.0;
-    for _ in 0..60 {
-        let a = hi - g * (hi - lo);
-        let b = lo + g * (hi - lo);
-        if linear(a.exp()).2 < linear(b.exp()).2 {
-            hi = b;
+    let (lo, hi) = ((span / 1000.0).max(1e-3).ln(), span.ln());
+    let grid = 60;
+    let start = (0..=grid)
+        .map(|k| (lo + (hi - lo) * k as f64 / grid as f64).exp())
+        .min_by(|a, b| linear(*a).2.total_cmp(&linear(*b).2))?;
+    let (a0, c0, _) = linear(start);
+    let rss_of = |p: &Vector3<f64>| -> f64 {
+        t.iter()
+            .zip(y)
+            .map(|(&ti, &yi)| (yi - p[0] - p[1] * (-ti / p[2]).exp()).powi(2))
+            .sum()
+    };
+    let normal = |p: &Vector3<f64>| -> (Matrix3<f64>, Vector3<f64>) {
+        let mut jtj = Matrix3::zeros();
+        let mut jtr = Vector3::zeros();
+        for (&ti, &yi) in t.iter().zip(y) {
+            let e = (-ti / p[2]).exp();
+            let j = Vector3::new(1.0, e, p[1] * ti / (p[2] * p[2]) * e);
+            let r = yi - p[0] - p[1] * e;
+            jtj += j * j.transpose();
+            jtr += j * r;
+        }
+        (jtj, jtr)
+    };
+    let mut p = Vector3::new(c0, a0, start);
+    let mut rss = rss_of(&p);
+    let mut lambda = 1e-3;
+    for _ in 0..100 {
+        let (jtj, jtr) = normal(&p);
+        let mut damped = jtj;
+        for k in 0..3 {
+            damped[(k, k)] += lambda * jtj[(k, k)].max(1e-300);
+        }
+        let Some(step) = damped.cholesky().map(|c| c.solve(&jtr)) else {
+            lambda *= 10.0;
+            continue;
+        };
+        let trial = p + step;
+        let trial_rss = if trial[2] > 0.0 {
+            rss_of(&trial)
         } else {
-            lo = a;
+            f64::INFINITY
+        };
+        if trial_rss < rss {
+            let converged = (rss - trial_rss) <= 1e-12 * rss;
+            p = trial;
+            rss = trial_rss;
+            lambda = (lambda / 10.0).max(1e-12);
+            if converged {
+                break;
+            }
+        } else {
+            lambda *= 10.0;
+            if lambda > 1e12 {
+                break;
+            }
         }
     }
-    let tau = ((lo + hi) / 2.0).exp();
-    let (a, c, rss) = linear(tau);
-    let n = t.len() as f64;
-    let sigma2 = rss / (n - 3.0).max(1.0);
-    let (mut se, mut see) = (0.0, 0.0);
-    for &ti in t {
-        let e = (-ti / tau).exp();
-        se += e;
-        see += e * e;
-    }
-    let var_a = sigma2 * n / (n * see - se * se).max(1e-300);
-    Some((tau, a, c, var_a.sqrt(), (rss / n).sqrt()))
+    let residuals: Vec<f64> = t
+        .iter()
+        .zip(y)
+        .map(|(&ti, &yi)| yi - p[0] - p[1] * (-ti / p[2]).exp())
+        .collect();
+    let den: f64 = residuals.iter().map(|r| r * r).sum();
+    let rho = if den > 0.0 {
+        (residuals.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / den).clamp(0.0, 0.999)
+    } else {
+        0.0
+    };
+    let sigma2 = rss / (n - 3.0).max(1.0) * (1.0 + rho) / (1.0 - rho);
+    let (jtj, _) = normal(&p);
+    let cov = jtj.try_inverse()? * sigma2;
+    Some(ExponentialFit {
+        tau: p[2],
+        amplitude: p[1],
+        settled: p[0],
+        se_tau: cov[(2, 2)].max(0.0).sqrt(),
+        se_amplitude: cov[(1, 1)].max(0.0).sqrt(),
+    })
 }
 
 /// The first-order time constant and offset of `sensor` following `chamber` (block series),
@@ -405,6 +515,149 @@ pub fn fit_lag(t_s: &[f64], chamber: &[f64], sensor: &[f64]) -> Option<(f64, f64
     Some((tau, offset, (rss / t_s.len() as f64).sqrt()))
 }
 
+/// A block holds gravity along the axis when its mean is within this fraction of 1 g.
+pub const POSE_GRAVITY_FRACTION: f64 = 0.1;
+/// Blocks next to a pose are left out too (the rotation into and out of it), blocks.
+pub const POSE_MARGIN_BLOCKS: usize = 3;
+/// Poses whose temperatures lie within this of each other form one scale-factor point, °C.
+pub const POSE_GROUP_C: f64 = 1.0;
+
+/// Per block: +1 when an accelerometer axis reads +1 g (within [`POSE_GRAVITY_FRACTION`]),
+/// −1 for −1 g, else 0 (and all 0 for a gyro).
+fn gravity_poses(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<i8> {
+    let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
+    bias.iter()
+        .map(|&b| {
+            if sensor != SensorKind::Accel || ((b.abs() - g) / g).abs() > POSE_GRAVITY_FRACTION {
+                0
+            } else if b > 0.0 {
+                1
+            } else {
+                -1
+            }
+        })
+        .collect()
+}
+
+/// `true` within `margin` blocks of a non-zero entry.
+fn dilate(pose: &[i8], margin: usize) -> Vec<bool> {
+    let mut out = vec![false; pose.len()];
+    for (i, _) in pose.iter().enumerate().filter(|(_, &p)| p != 0) {
+        let (lo, hi) = (i.saturating_sub(margin), (i + margin + 1).min(pose.len()));
+        out[lo..hi].iter_mut().for_each(|o| *o = true);
+    }
+    out
+}
+
+/// The scale factor per group of poses at one temperature, and its polynomial in temperature.
+/// Each pose is a run of blocks of one sign, less [`POSE_MARGIN_BLOCKS`] at either end.
+fn scale_from_gravity(
+    b: &Blocks,
+    pose: &[i8],
+    fit_from: f64,
+    unit: RateUnit,
+    options: &ThermalOptions,
+) -> Result<ScaleFactor, String> {
+    let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
+    // Runs: (sign, first, end).
+    let mut runs = Vec::new();
+    let mut i = 0;
+    while i < pose.len() {
+        let sign = pose[i];
+        let mut end = i + 1;
+        while end < pose.len() && pose[end] == sign {
+            end += 1;
+        }
+        let (s, e) = (
+            i + POSE_MARGIN_BLOCKS,
+            end.saturating_sub(POSE_MARGIN_BLOCKS),
+        );
+        if sign != 0 && e >= s + 5 && b.t_s[s] >= fit_from {
+            runs.push((sign, s, e));
+        }
+        i = end;
+    }
+    // Groups of consecutive poses at one temperature, each needing both signs.
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let mut points = Vec::new();
+    let mut k = 0;
+    while k < runs.len() {
+        let t_first = mean(&b.temp_c[runs[k].1..runs[k].2]);
+        let mut end = k + 1;
+        while end < runs.len()
+            && (mean(&b.temp_c[runs[end].1..runs[end].2]) - t_first).abs() <= POSE_GROUP_C
+        {
+            end += 1;
+        }
+        let (mut up, mut down) = ((0.0, 0usize, 0.0), (0.0, 0usize, 0.0));
+        let mut temp = (0.0, 0usize);
+        for &(sign, s, e) in &runs[k..end] {
+            let acc = if sign > 0 { &mut up } else { &mut down };
+            acc.0 += b.bias[s..e].iter().sum::<f64>();
+            acc.1 += e - s;
+            acc.2 += b.t_s[e - 1] - b.t_s[s] + (b.t_s[e - 1] - b.t_s[s]) / (e - s - 1) as f64;
+            temp.0 += b.temp_c[s..e].iter().sum::<f64>();
+            temp.1 += e - s;
+        }
+        if up.1 > 0 && down.1 > 0 {
+            let (m_up, m_down) = (up.0 / up.1 as f64, down.0 / down.1 as f64);
+            points.push(ScalePoint {
+                temperature_c: temp.0 / temp.1 as f64,
+                scale_ppm: ((m_up - m_down) / (2.0 * g) - 1.0) * 1e6,
+                up_s: up.2,
+                down_s: down.2,
+            });
+        }
+        k = end;
+    }
+    let temps: Vec<f64> = points.iter().map(|p| p.temperature_c).collect();
+    let ppm: Vec<f64> = points.iter().map(|p| p.scale_ppm).collect();
+    if points.is_empty() {
+        return Err(
+            "the ±1 g poses never hold both the up and the down direction at one temperature"
+                .into(),
+        );
+    }
+    let fit = fit_polynomial(
+        &temps,
+        &ppm,
+        options.reference_c,
+        None,
+        options.max_order.min(2),
+    )
+    .map_err(|e| {
+        format!(
+            "{} temperatures with up and down poses ({}): {e}",
+            points.len(),
+            temps
+                .iter()
+                .map(|t| format!("{t:.1} °C"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
+    let coefficients = (0..=fit.order)
+        .map(|k| Coefficient {
+            order: k,
+            value: fit.coefficients[k],
+            low: fit.coefficients[k] - fit.ci95[k],
+            high: fit.coefficients[k] + fit.ci95[k],
+            unit: coefficient_unit("ppm", k),
+        })
+        .collect();
+    Ok(ScaleFactor {
+        points,
+        fit,
+        coefficients,
+    })
+}
+
+/// A transient stands out: its amplitude is at least 3 standard errors and its time constant
+/// leaves at least half the soak to show the settled value.
+fn transient_found(f: &ExponentialFit, soak_s: f64) -> bool {
+    f.amplitude.abs() > 3.0 * f.se_amplitude && f.tau < soak_s / 2.0
+}
+
 /// Runs of blocks whose temperature stays within `tolerance` of the run's first block and
 /// that last at least `min_s`: (first block, end block).
 fn plateaus(b: &Blocks, tolerance: f64, min_s: f64) -> Vec<(usize, usize)> {
@@ -434,7 +687,7 @@ pub struct TemperatureTrace {
 /// temperature at a time (s from the first sample) where the session has it.
 pub fn analyse_axis_thermal(
     device: &str,
-    series: AxisSeries,
+    mut series: AxisSeries,
     sensor: SensorKind,
     unit: RateUnit,
     chamber: Option<&dyn Fn(f64) -> f64>,
@@ -446,7 +699,12 @@ pub fn analyse_axis_thermal(
         .temperature
         .as_ref()
         .ok_or_else(|| format!("{device} {axis}: no temperature channel was read"))?;
-    let rate: Vec<f64> = series.segments.concat();
+    // One segment is taken as it is (no copy); several are joined.
+    let rate: Vec<f64> = if series.segments.len() == 1 {
+        series.segments.pop().unwrap_or_default()
+    } else {
+        std::mem::take(&mut series.segments).concat()
+    };
     let mut notes = Vec::new();
     let invalid = check_temperature(temperature, tau0, chamber)
         .map_err(|e| format!("{device} {axis}: {e}"))?;
@@ -465,11 +723,19 @@ pub fn analyse_axis_thermal(
         ));
     }
 
-    // Warm-up: the first soak, if the run starts with one.
+    // Accelerometer poses that hold gravity along the axis (a tumble at each soak): they give
+    // the scale factor against temperature and stay out of the bias fits.
+    let pose = gravity_poses(&blocks.bias, sensor, unit);
+    let in_pose = dilate(&pose, POSE_MARGIN_BLOCKS);
+    let before_pose = |(s, e): (usize, usize)| -> (usize, usize) {
+        (s, (s..e).find(|&i| in_pose[i]).unwrap_or(e))
+    };
+    // Warm-up: the first soak, if the run starts with one (up to its first pose).
     let soak = plateaus(&blocks, options.plateau_tolerance_c, 0.0)
         .first()
         .copied()
-        .filter(|&(s, e)| s == 0 && blocks.t_s[e - 1] - blocks.t_s[0] >= 300.0);
+        .map(before_pose)
+        .filter(|&(s, e)| s == 0 && e > s + 1 && blocks.t_s[e - 1] - blocks.t_s[0] >= 300.0);
     // A first fit of the transient sets how much of the soak the temperature fit skips;
     // the reported one is refitted after removing the fitted temperature dependence.
     let fit_from = soak
@@ -477,12 +743,12 @@ pub fn analyse_axis_thermal(
             let t0 = blocks.t_s[s];
             let t: Vec<f64> = blocks.t_s[s..e].iter().map(|t| t - t0).collect();
             fit_exponential(&t, &blocks.bias[s..e])
-                .filter(|&(tau, a, _, se_a, _)| a.abs() > 5.0 * se_a && tau < t[t.len() - 1] / 2.0)
-                .map(|(tau, ..)| t0 + 5.0 * tau)
+                .filter(|f| transient_found(f, t[t.len() - 1]))
+                .map(|f| t0 + 5.0 * f.tau)
         })
         .unwrap_or(0.0);
     let keep: Vec<usize> = (0..blocks.t_s.len())
-        .filter(|&i| blocks.t_s[i] >= fit_from)
+        .filter(|&i| blocks.t_s[i] >= fit_from && !in_pose[i])
         .collect();
     let pick = |v: &[f64]| keep.iter().map(|&i| v[i]).collect::<Vec<f64>>();
     let (temps, bias) = (pick(&blocks.temp_c), pick(&blocks.bias));
@@ -509,30 +775,38 @@ pub fn analyse_axis_thermal(
                 .map(|i| blocks.bias[i] - (fit.eval(blocks.temp_c[i]) - base))
                 .collect();
             match fit_exponential(&t, &corrected) {
-                Some((tau, a, c, se_a, _rms))
-                    if a.abs() > 5.0 * se_a && tau < t[t.len() - 1] / 2.0 =>
-                {
+                Some(f) if transient_found(&f, t[t.len() - 1]) => {
+                    let a = f.amplitude;
                     let tolerance = options.warmup_tolerance.unwrap_or(0.05 * a.abs());
                     let to_tol = if a.abs() > tolerance {
-                        tau * (a.abs() / tolerance).ln()
+                        f.tau * (a.abs() / tolerance).ln()
                     } else {
                         0.0
                     };
+                    let z = 1.96;
                     Some(Warmup {
-                        time_constant_s: tau,
+                        time_constant_s: f.tau,
+                        time_constant_ci95_s: [
+                            (f.tau - z * f.se_tau).max(0.0),
+                            f.tau + z * f.se_tau,
+                        ],
+                        time_constant_relative_sigma: f.se_tau / f.tau,
                         amplitude: a * to_ds,
-                        settled: c * to_ds,
+                        amplitude_ci95: z * f.se_amplitude * to_ds,
+                        settled: f.settled * to_ds,
                         tolerance: tolerance * to_ds,
                         unit: ds_unit.to_string(),
                         time_to_tolerance_s: to_tol + t0,
                         soak_s: t[t.len() - 1],
                     })
                 }
-                Some((_, a, _, se_a, _)) => {
+                Some(f) => {
                     notes.push(format!(
-                        "no warm-up transient on the first soak (amplitude {:.3} ± {:.3} {ds_unit})",
-                        a * to_ds,
-                        se_a * to_ds
+                        "no warm-up transient on the first soak (amplitude {:.3} ± {:.3} {ds_unit}, τ {:.0} s on a {:.0} s soak)",
+                        f.amplitude * to_ds,
+                        f.se_amplitude * to_ds,
+                        f.tau,
+                        t[t.len() - 1]
                     ));
                     None
                 }
@@ -577,69 +851,42 @@ pub fn analyse_axis_thermal(
             }
         })
         .collect();
-    let side = |which: i8| -> (Vec<f64>, Vec<f64>) {
-        keep.iter()
-            .filter(|&&i| branch[i] == which)
-            .map(|&i| (blocks.temp_c[i], blocks.bias[i]))
-            .unzip()
-    };
-    let (up_t, up_b) = side(1);
-    let (down_t, down_b) = side(-1);
-    let hysteresis = match (
-        fit_polynomial(
-            &up_t,
-            &up_b,
-            options.reference_c,
-            Some(fit.order),
-            fit.order,
-        ),
-        fit_polynomial(
-            &down_t,
-            &down_b,
-            options.reference_c,
-            Some(fit.order),
-            fit.order,
-        ),
+    let on_branch: Vec<usize> = keep.iter().copied().filter(|&i| branch[i] != 0).collect();
+    let branch_t: Vec<f64> = on_branch.iter().map(|&i| blocks.temp_c[i]).collect();
+    let branch_b: Vec<f64> = on_branch.iter().map(|&i| blocks.bias[i]).collect();
+    let branch_up: Vec<bool> = on_branch.iter().map(|&i| branch[i] > 0).collect();
+    let hysteresis = match fit_branches(
+        &branch_t,
+        &branch_b,
+        &branch_up,
+        options.reference_c,
+        fit.order,
+        fit.order,
     ) {
-        (Ok(rising), Ok(falling)) => {
-            let lo = rising.range_c[0].max(falling.range_c[0]);
-            let hi = rising.range_c[1].min(falling.range_c[1]);
-            if hi > lo {
-                let grid: Vec<f64> = (0..=200)
-                    .map(|k| lo + (hi - lo) * k as f64 / 200.0)
-                    .collect();
-                let gaps: Vec<f64> = grid
-                    .iter()
-                    .map(|&t| rising.eval(t) - falling.eval(t))
-                    .collect();
-                let (i, &g) = gaps
-                    .iter()
-                    .enumerate()
-                    .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-                    .unwrap_or((0, &0.0));
-                Some(Hysteresis {
-                    largest_gap: g * to_ds,
-                    largest_gap_at_c: grid[i],
-                    mean_gap: gaps.iter().sum::<f64>() / gaps.len() as f64 * to_ds,
-                    unit: ds_unit.to_string(),
-                    rising,
-                    falling,
-                })
-            } else {
-                notes.push(
-                    "no hysteresis: the rising and falling branches share no temperature range"
-                        .into(),
-                );
-                None
-            }
+        Ok(joint) => {
+            let [lo, hi] = joint.gap.range_c;
+            let grid: Vec<f64> = (0..=200)
+                .map(|k| lo + (hi - lo) * k as f64 / 200.0)
+                .collect();
+            let gaps: Vec<f64> = grid.iter().map(|&t| joint.gap.eval(t)).collect();
+            let (i, &g) = gaps
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                .unwrap_or((0, &0.0));
+            Some(Hysteresis {
+                largest_gap: g * to_ds,
+                largest_gap_ci95: joint.gap.band(grid[i]) * to_ds,
+                largest_gap_at_c: grid[i],
+                mean_gap: gaps.iter().sum::<f64>() / gaps.len() as f64 * to_ds,
+                unit: ds_unit.to_string(),
+                rising: joint.rising,
+                falling: joint.falling,
+                gap: joint.gap,
+            })
         }
-        (up, down) => {
-            let why = up.err().or(down.err()).unwrap_or_default();
-            notes.push(format!(
-                "no hysteresis: the run needs both rising and falling ramps ({} rising, {} falling blocks; {why})",
-                up_t.len(),
-                down_t.len()
-            ));
+        Err(e) => {
+            notes.push(format!("no hysteresis: {e}"));
             None
         }
     };
@@ -648,6 +895,10 @@ pub fn analyse_axis_thermal(
     let mut plateau_noise = Vec::new();
     let block_len = ((options.block_s / tau0).round() as usize).max(1);
     for (s, e) in plateaus(&blocks, options.plateau_tolerance_c, options.plateau_min_s) {
+        let (s, e) = before_pose((s, e));
+        if e <= s {
+            continue;
+        }
         let first = blocks.start[s].max((fit_from / tau0) as usize);
         let last = (blocks.start[e - 1] + block_len).min(rate.len());
         if last <= first || (last - first) as f64 * tau0 < options.plateau_min_s {
@@ -686,6 +937,24 @@ pub fn analyse_axis_thermal(
         ));
     }
 
+    let scale_factor = if pose.iter().any(|&p| p != 0) {
+        match scale_from_gravity(&blocks, &pose, fit_from, unit, options) {
+            Ok(sf) => Some(sf),
+            Err(e) => {
+                notes.push(format!("no scale factor against temperature: {e}"));
+                None
+            }
+        }
+    } else {
+        None
+    };
+    if scale_factor.is_some() {
+        notes.push(
+            "blocks holding gravity along the axis (±1 g poses) were left out of the bias fits"
+                .into(),
+        );
+    }
+
     let step = (blocks.t_s.len() / 2000).max(1);
     let trace = Trace {
         t_s: blocks.t_s.iter().step_by(step).copied().collect(),
@@ -717,6 +986,7 @@ pub fn analyse_axis_thermal(
             chamber_fit,
             hysteresis,
             warmup,
+            scale_factor,
             plateaus: plateau_noise,
             notes,
             trace,
@@ -737,9 +1007,13 @@ mod tests {
             .enumerate()
             .map(|(i, t)| 1.0 + 2.0 * (-t / 300.0).exp() + if i % 2 == 0 { 0.01 } else { -0.01 })
             .collect();
-        let (tau, a, c, se, _) = fit_exponential(&t, &y).unwrap();
-        assert!((tau - 300.0).abs() < 3.0, "{tau}");
-        assert!((a - 2.0).abs() < 0.01 && (c - 1.0).abs() < 0.01 && se < 0.01);
+        let f = fit_exponential(&t, &y).unwrap();
+        assert!((f.tau - 300.0).abs() < 3.0, "{f:?}");
+        assert!((f.amplitude - 2.0).abs() < 0.01 && (f.settled - 1.0).abs() < 0.01);
+        assert!(
+            f.se_amplitude < 0.01 && f.se_tau > 0.0 && f.se_tau < 3.0,
+            "{f:?}"
+        );
         let chamber: Vec<f64> = t
             .iter()
             .map(|&t| if t < 100.0 { 20.0 } else { 40.0 })
@@ -782,5 +1056,50 @@ mod tests {
         let mut some_nan: Vec<f32> = (0..100).map(|i| 20.0 + i as f32 * 0.1).collect();
         some_nan[5] = f32::NAN;
         assert_eq!(check_temperature(&some_nan, 1.0, None).unwrap(), 1);
+    }
+
+    #[test]
+    fn scale_factor_comes_from_the_gravity_poses() {
+        // 1 Hz accel in m/s²: soaks at 25, 60 and −10 °C, each ending in 100 s up and 100 s
+        // down; scale 200 ppm/°C about 25 °C, bias 0.01 m/s² + 0.001 m/s²/°C.
+        let g = crate::allan::units::STANDARD_GRAVITY;
+        let (mut rate, mut temp) = (Vec::new(), Vec::new());
+        for (k, soak_c) in [25.0, 60.0, -10.0].into_iter().enumerate() {
+            for i in 0..1000 {
+                let t_c: f64 = soak_c;
+                let pose = match i {
+                    800..=899 => 1.0,
+                    900..=999 => -1.0,
+                    _ => 0.0,
+                };
+                let scale = 1.0 + 200e-6 * (t_c - 25.0);
+                let wobble = if (i + k) % 2 == 0 { 1e-4 } else { -1e-4 };
+                rate.push(0.01 + 0.001 * (t_c - 25.0) + scale * g * pose + wobble);
+                temp.push(t_c as f32 + 0.001 * (i % 7) as f32);
+            }
+        }
+        let mut series = AxisSeries::one_segment("accel_x", 1.0, rate);
+        series.temperature = Some(temp);
+        let options = ThermalOptions {
+            plateau_min_s: 1e9,
+            ..ThermalOptions::default()
+        };
+        let (a, _) = analyse_axis_thermal(
+            "dut",
+            series,
+            SensorKind::Accel,
+            RateUnit::MetrePerSecondSquared,
+            None,
+            &options,
+        )
+        .unwrap();
+        let sf = a.scale_factor.expect("no scale factor");
+        assert_eq!(sf.points.len(), 3, "{:?}", sf.points);
+        assert_eq!(sf.fit.order, 1);
+        assert!((sf.coefficients[1].value - 200.0).abs() < 1.0, "{sf:?}");
+        assert_eq!(sf.coefficients[1].unit, "ppm/degC");
+        // The poses stay out of the bias fit: its slope is the bias tempco.
+        let c1 = a.fit.coefficients[1];
+        assert!((c1 - 0.001).abs() < 1e-5, "bias c1 {c1}");
     }
 }

@@ -246,6 +246,246 @@ pub fn fit_polynomial(
     })
 }
 
+/// The rising and falling branches fitted jointly: one shared curve plus a gap polynomial,
+/// rising = shared + gap/2, falling = shared − gap/2.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BranchFit {
+    /// Rising minus falling, with its covariance and 95 % factor.
+    pub gap: PolyFit,
+    pub rising: PolyFit,
+    pub falling: PolyFit,
+}
+
+/// Fits `y` against temperature `x` on two branches at once (`rising[i]`: point `i` is on the
+/// rising branch, else on the falling one; time order): a shared polynomial of `shared_order`
+/// and a gap polynomial of the order (0 to `max_gap_order`) with the lowest BIC. The common
+/// temperature range of the branches is each fit's `range_c`. Standard errors are inflated for
+/// the lag-1 correlation of the residuals as in [`fit_polynomial`].
+pub fn fit_branches(
+    x: &[f64],
+    y: &[f64],
+    rising: &[bool],
+    reference_c: f64,
+    shared_order: usize,
+    max_gap_order: usize,
+) -> Result<BranchFit, String> {
+    let n = x.len().min(y.len()).min(rising.len());
+    let (x, y, rising) = (&x[..n], &y[..n], &rising[..n]);
+    let ups = rising.iter().filter(|&&r| r).count();
+    if ups == 0 || ups == n {
+        return Err(format!(
+            "the hysteresis fit needs both rising and falling ramps ({ups} rising, {} falling points)",
+            n - ups
+        ));
+    }
+    let side_range = |up: bool| {
+        x.iter()
+            .zip(rising)
+            .filter(|(_, &r)| r == up)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (&t, _)| {
+                (lo.min(t), hi.max(t))
+            })
+    };
+    let (up_lo, up_hi) = side_range(true);
+    let (down_lo, down_hi) = side_range(false);
+    let (lo, hi) = (up_lo.max(down_lo), up_hi.min(down_hi));
+    if hi <= lo || hi.is_nan() || lo.is_nan() {
+        return Err(format!(
+            "the rising ({up_lo:.1} to {up_hi:.1} °C) and falling ({down_lo:.1} to {down_hi:.1} °C) branches share no temperature range"
+        ));
+    }
+    let distinct = |up: bool| {
+        let t: Vec<f64> = x
+            .iter()
+            .zip(rising)
+            .filter(|(_, &r)| r == up)
+            .map(|(&t, _)| t)
+            .collect();
+        distinct_temperatures(&t)
+    };
+    let (d_up, d_down) = (distinct(true), distinct(false));
+    if d_up.min(d_down) < shared_order + 2 {
+        return Err(format!(
+            "an order-{shared_order} fit of each branch needs {} distinct temperatures ({DISTINCT_BIN_C} °C apart) on both; rising has {d_up}, falling {d_down}",
+            shared_order + 2
+        ));
+    }
+    let (all_lo, all_hi) = x
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &t| {
+            (lo.min(t), hi.max(t))
+        });
+    let scale = ((all_hi - all_lo) / 2.0).max(1e-6);
+    let max_gap_order = max_gap_order.min(shared_order);
+    let solved: Vec<(usize, Solved)> = (0..=max_gap_order)
+        .filter_map(|q| {
+            let p = shared_order + 1;
+            let columns = p + q + 1;
+            let fill = |i: usize, row: &mut [f64]| {
+                let u = (x[i] - reference_c) / scale;
+                let half = if rising[i] { 0.5 } else { -0.5 };
+                let mut power = 1.0;
+                for k in 0..p {
+                    row[k] = power;
+                    if k <= q {
+                        row[p + k] = half * power;
+                    }
+                    power *= u;
+                }
+            };
+            let scales: Vec<f64> = (0..p).chain(0..=q).map(|k| scale.powi(k as i32)).collect();
+            solve_design(n, columns, fill, y, &scales).map(|s| (q, s))
+        })
+        .collect();
+    let Some((_, highest)) = solved.last() else {
+        return Err("the branch fit's normal equations are singular".into());
+    };
+    let rho = lag1(&highest.residuals);
+    let n_eff = (n as f64 * (1.0 - rho) / (1.0 + rho)).max(2.0);
+    let chosen = solved
+        .iter()
+        .enumerate()
+        .map(|(i, (q, s))| {
+            let mean_sq = (s.rss / n as f64).max(f64::MIN_POSITIVE);
+            let params = shared_order + 1 + q + 1;
+            (i, n_eff * mean_sq.ln() + params as f64 * n_eff.ln(), *q)
+        })
+        .collect::<Vec<_>>();
+    let bic: Vec<(usize, f64)> = chosen.iter().map(|&(_, b, q)| (q, b)).collect();
+    let best = chosen
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(0, |c| c.0);
+    let (q, s) = &solved[best];
+    let p = shared_order + 1;
+    let columns = p + q + 1;
+    let rho_k = lag1(&s.residuals);
+    let inflation = (1.0 + rho_k) / (1.0 - rho_k);
+    let n_eff_k = (n as f64 / inflation).max(columns as f64 + 1.0);
+    let sigma2 = s.rss / n.saturating_sub(columns).max(1) as f64;
+    let cov: Vec<Vec<f64>> = s
+        .inverse
+        .iter()
+        .map(|row| row.iter().map(|v| v * sigma2 * inflation).collect())
+        .collect();
+    let dof = (n_eff_k - columns as f64).max(1.0);
+    let t95 = StudentsT::new(0.0, 1.0, dof)
+        .map(|d| d.inverse_cdf(0.975))
+        .unwrap_or(1.96);
+    // Each reported curve is a linear map of the parameters: curve_k = Σ_j m[k][j] θ_j.
+    let curve = |map: Vec<Vec<f64>>, order: usize, bic: Vec<(usize, f64)>| -> PolyFit {
+        let coefficients: Vec<f64> = map
+            .iter()
+            .map(|m| m.iter().zip(&s.coefficients).map(|(a, b)| a * b).sum())
+            .collect();
+        let covariance: Vec<Vec<f64>> = map
+            .iter()
+            .map(|mj| {
+                map.iter()
+                    .map(|mk| {
+                        let mut v = 0.0;
+                        for (a, ca) in mj.iter().zip(&cov) {
+                            for (b, cab) in mk.iter().zip(ca) {
+                                v += a * b * cab;
+                            }
+                        }
+                        v
+                    })
+                    .collect()
+            })
+            .collect();
+        let ci95 = (0..=order).map(|k| t95 * covariance[k][k].sqrt()).collect();
+        PolyFit {
+            reference_c,
+            order,
+            coefficients,
+            ci95,
+            covariance,
+            residual_rms: (s.rss / n as f64).sqrt(),
+            points: n,
+            effective_points: n_eff_k,
+            residual_lag1: rho_k,
+            range_c: [lo, hi],
+            bic,
+            t95,
+        }
+    };
+    let unit = |k: usize| -> Vec<f64> {
+        let mut v = vec![0.0; columns];
+        v[k] = 1.0;
+        v
+    };
+    let gap_map: Vec<Vec<f64>> = (0..=*q).map(|k| unit(p + k)).collect();
+    let branch_map = |sign: f64| -> Vec<Vec<f64>> {
+        (0..p)
+            .map(|k| {
+                let mut v = unit(k);
+                if k <= *q {
+                    v[p + k] = sign * 0.5;
+                }
+                v
+            })
+            .collect()
+    };
+    Ok(BranchFit {
+        gap: curve(gap_map, *q, bic),
+        rising: curve(branch_map(1.0), shared_order, Vec::new()),
+        falling: curve(branch_map(-1.0), shared_order, Vec::new()),
+    })
+}
+
+/// Least squares of `y` on `columns` regressors (`fill(i, row)` writes point `i`'s row, in
+/// scaled units; `scales[j]` converts coefficient `j` back).
+fn solve_design(
+    n: usize,
+    columns: usize,
+    fill: impl Fn(usize, &mut [f64]),
+    y: &[f64],
+    scales: &[f64],
+) -> Option<Solved> {
+    let mut ata = DMatrix::<f64>::zeros(columns, columns);
+    let mut aty = DVector::<f64>::zeros(columns);
+    let mut row = vec![0.0; columns];
+    for (i, &v) in y.iter().enumerate().take(n) {
+        fill(i, &mut row);
+        for j in 0..columns {
+            aty[j] += row[j] * v;
+            for k in 0..=j {
+                ata[(j, k)] += row[j] * row[k];
+            }
+        }
+    }
+    for j in 0..columns {
+        for k in 0..j {
+            ata[(k, j)] = ata[(j, k)];
+        }
+    }
+    let chol = ata.cholesky()?;
+    let b = chol.solve(&aty);
+    let inv = chol.inverse();
+    let coefficients: Vec<f64> = (0..columns).map(|k| b[k] / scales[k]).collect();
+    let inverse = (0..columns)
+        .map(|j| {
+            (0..columns)
+                .map(|k| inv[(j, k)] / (scales[j] * scales[k]))
+                .collect()
+        })
+        .collect();
+    let residuals: Vec<f64> = (0..n)
+        .map(|i| {
+            fill(i, &mut row);
+            y[i] - row.iter().zip(b.iter()).map(|(r, c)| r * c).sum::<f64>()
+        })
+        .collect();
+    let rss = residuals.iter().map(|r| r * r).sum();
+    Some(Solved {
+        coefficients,
+        inverse,
+        rss,
+        residuals,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -293,5 +533,34 @@ mod tests {
         let x: Vec<f64> = (0..100).map(|i| 25.0 + (i % 3) as f64).collect();
         let e = fit_polynomial(&x, &y, 25.0, Some(2), 3).unwrap_err();
         assert!(e.contains("--order 2 needs at least 4"), "{e}");
+    }
+
+    #[test]
+    fn joint_branches_recover_a_constant_gap_with_its_interval() {
+        // Up −10 → 60 °C, down 60 → −10 °C; rising lies 0.5 above falling.
+        let mut x = Vec::new();
+        let mut y = Vec::new();
+        let mut up = Vec::new();
+        for i in 0..7000 {
+            let (t, r) = if i < 3500 {
+                (-10.0 + 70.0 * i as f64 / 3500.0, true)
+            } else {
+                (60.0 - 70.0 * (i - 3500) as f64 / 3500.0, false)
+            };
+            let base = 0.8 * (t - 25.0) + 0.004 * (t - 25.0).powi(2);
+            x.push(t);
+            y.push(base + if r { 0.25 } else { -0.25 } + 0.05 * noise(i));
+            up.push(r);
+        }
+        let f = fit_branches(&x, &y, &up, 25.0, 2, 2).unwrap();
+        assert_eq!(f.gap.order, 0, "{:?}", f.gap.bic);
+        assert!((f.gap.coefficients[0] - 0.5).abs() < 0.01, "{:?}", f.gap);
+        assert!((f.gap.coefficients[0] - 0.5).abs() <= f.gap.ci95[0] * 3.0);
+        assert!((f.rising.eval(40.0) - f.falling.eval(40.0) - 0.5).abs() < 0.01);
+        assert!((f.rising.coefficients[1] - 0.8).abs() < 1e-3);
+        let only_up = vec![true; x.len()];
+        assert!(fit_branches(&x, &y, &only_up, 25.0, 2, 2)
+            .unwrap_err()
+            .contains("0 falling points"));
     }
 }

@@ -100,6 +100,14 @@ fn coefficient_text(a: &AxisThermal, order: usize) -> String {
     }
 }
 
+fn scale_text(sf: &super::analysis::ScaleFactor) -> String {
+    sf.coefficients
+        .iter()
+        .map(|c| format!("{:.2} [{:.2}, {:.2}] {}", c.value, c.low, c.high, c.unit))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 fn noise_text(p: &super::analysis::PlateauNoise) -> String {
     let mut parts = Vec::new();
     for t in &p.terms {
@@ -156,15 +164,23 @@ pub fn summary_text(report: &ThermalReport) -> String {
             if let Some(h) = &a.hysteresis {
                 let _ = writeln!(
                     s,
-                    "    hysteresis: largest gap (rising − falling) {:+.4} {} at {:.1} °C, mean {:+.4}",
-                    h.largest_gap, h.unit, h.largest_gap_at_c, h.mean_gap
+                    "    hysteresis (joint fit, gap order {}): largest gap (rising − falling) {:+.4} ± {:.4} {} at {:.1} °C, mean {:+.4}",
+                    h.gap.order, h.largest_gap, h.largest_gap_ci95, h.unit, h.largest_gap_at_c, h.mean_gap
                 );
             }
             if let Some(w) = &a.warmup {
                 let _ = writeln!(
                     s,
-                    "    warm-up: τ = {:.1} s, amplitude {:+.4} {}, within {:.4} {} of the settled value after {:.0} s",
-                    w.time_constant_s, w.amplitude, w.unit, w.tolerance, w.unit, w.time_to_tolerance_s
+                    "    warm-up: τ = {:.1} s [{:.1}, {:.1}], amplitude {:+.4} ± {:.4} {}, within {:.4} {} of the settled value after {:.0} s",
+                    w.time_constant_s, w.time_constant_ci95_s[0], w.time_constant_ci95_s[1], w.amplitude, w.amplitude_ci95, w.unit, w.tolerance, w.unit, w.time_to_tolerance_s
+                );
+            }
+            if let Some(sf) = &a.scale_factor {
+                let _ = writeln!(
+                    s,
+                    "    scale factor from ±1 g poses at {} temperatures: {}",
+                    sf.points.len(),
+                    scale_text(sf)
                 );
             }
             for p in &a.plateaus {
@@ -209,29 +225,37 @@ pub fn html_section(report: &ThermalReport) -> String {
                 None => "Thermal lag: not available without the chamber temperature.".into(),
             }
         );
-        h.push_str("<table><tr><th>axis</th><th>order</th><th>c1 [95 %]</th><th>c2 [95 %]</th><th>hysteresis: largest gap</th><th>warm-up τ, amplitude, time to tolerance</th></tr>\n");
+        h.push_str("<table><tr><th>axis</th><th>order</th><th>c1 [95 %]</th><th>c2 [95 %]</th><th>hysteresis: largest gap</th><th>warm-up τ [95 %], amplitude, time to tolerance</th><th>scale factor from ±1 g poses</th></tr>\n");
         for a in &d.axes {
             let hyst = a.hysteresis.as_ref().map_or("—".to_string(), |x| {
                 format!(
-                    "{:+.4} {} at {:.1} °C",
-                    x.largest_gap, x.unit, x.largest_gap_at_c
+                    "{:+.4} ± {:.4} {} at {:.1} °C",
+                    x.largest_gap, x.largest_gap_ci95, x.unit, x.largest_gap_at_c
                 )
             });
             let warm = a.warmup.as_ref().map_or("—".to_string(), |w| {
                 format!(
-                    "{:.1} s, {:+.4} {}, {:.0} s (±{:.4})",
-                    w.time_constant_s, w.amplitude, w.unit, w.time_to_tolerance_s, w.tolerance
+                    "{:.1} s [{:.1}, {:.1}], {:+.4} {}, {:.0} s (±{:.4})",
+                    w.time_constant_s,
+                    w.time_constant_ci95_s[0],
+                    w.time_constant_ci95_s[1],
+                    w.amplitude,
+                    w.unit,
+                    w.time_to_tolerance_s,
+                    w.tolerance
                 )
             });
+            let scale = a.scale_factor.as_ref().map_or("—".to_string(), scale_text);
             let _ = writeln!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                 esc(&a.axis),
                 a.fit.order,
                 esc(&coefficient_text(a, 1)),
                 esc(&coefficient_text(a, 2)),
                 esc(&hyst),
-                esc(&warm)
+                esc(&warm),
+                esc(&scale)
             );
         }
         h.push_str("</table>\n");

@@ -423,3 +423,91 @@ fn bad_temperature_input_is_explained() {
         "stuck at 30 °C",
     );
 }
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+
+/// `imulab report` of a chamber session carries the thermal section with both plots; a real
+/// headless Chromium renders it (skipped, saying why, without `/usr/bin/chromium`). With
+/// `IMULAB_THERMAL_SCREENSHOT=FILE` the screenshot is copied there (docs/img/report-thermal.png).
+#[test]
+fn report_shows_the_thermal_section() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = simulate(dir.path());
+    let html = dir.path().join("report.html");
+    let out = imulab(&[
+        "report",
+        session.to_str().unwrap(),
+        "--html",
+        html.to_str().unwrap(),
+        "--study-runs",
+        "0",
+        "--quiet",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let page = std::fs::read_to_string(&html).unwrap();
+    let section = page
+        .split("<section id=\"thermal\">")
+        .nth(1)
+        .expect("no thermal section in the report");
+    assert!(section.contains("Thermal characterisation"));
+    assert!(section.contains("bias against sensor temperature"));
+    assert!(section.contains("temperature and bias against time"));
+    assert!(section.contains("rising") && section.contains("falling"));
+    assert!(
+        page.find("<section id=\"thermal\">") < page.find("Data health"),
+        "the thermal section comes before the data health"
+    );
+
+    if !Path::new(CHROMIUM).exists() {
+        eprintln!("skipped the browser check: {CHROMIUM} not found (install Debian's `chromium`)");
+        return;
+    }
+    let profile = tempfile::tempdir().unwrap();
+    let shot = dir.path().join("report.png");
+    let run = |extra: &[String]| -> Output {
+        Command::new(CHROMIUM)
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--no-first-run",
+            ])
+            .arg(format!("--user-data-dir={}", profile.path().display()))
+            .args(extra)
+            .arg(format!("file://{}#thermal", html.display()))
+            .stdin(std::process::Stdio::null())
+            .output()
+            .expect("run chromium")
+    };
+    let dom = run(&["--dump-dom".to_string()]);
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    assert!(
+        dom.contains("id=\"thermal\"") && dom.contains("bias against sensor temperature"),
+        "chromium's DOM lacks the thermal section"
+    );
+    let out = run(&[
+        format!("--screenshot={}", shot.display()),
+        "--window-size=1200,1600".to_string(),
+    ]);
+    let png = std::fs::read(&shot).unwrap_or_else(|e| {
+        panic!(
+            "no screenshot ({e}): {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 10_000,
+        "{} bytes",
+        png.len()
+    );
+    if let Ok(copy) = std::env::var("IMULAB_THERMAL_SCREENSHOT") {
+        std::fs::copy(&shot, copy).unwrap();
+    }
+}
