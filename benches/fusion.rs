@@ -350,15 +350,30 @@ const NEES_SCENE: &str = "fixtures/scenes/drive_30min_open_sky.toml";
 const NEES_OUTAGE_EVERY_S: f64 = 180.0;
 const NEES_OUTAGE_S: f64 = 60.0;
 
-/// Per-second NEES of the 9 navigation states of one simulated run (index = whole second
-/// since the session start; NaN before the filter starts), and whether the second lies in
-/// a withheld outage.
-fn nees_run(
+/// NEES of one epoch: the 9 navigation states together, then position, velocity and
+/// attitude (3 each) on their own blocks of the covariance.
+fn block_nees(solution: &imulab::fusion::navigator::NavSolution, truth: &NavState) -> [f64; 4] {
+    let e = imulab::fusion::metrics::epoch_error(solution, truth);
+    let block = |i: usize, v: &Vector3<f64>| {
+        let p = solution.cov_nav.fixed_view::<3, 3>(i, i).into_owned();
+        nalgebra::Cholesky::new(p).map_or(f64::NAN, |c| v.dot(&c.solve(v)))
+    };
+    [
+        e.nees,
+        block(0, &e.pos_ned),
+        block(3, &e.vel_ned),
+        block(6, &e.att),
+    ]
+}
+
+/// Per-second NEES ([`block_nees`]) of one simulated run (index = whole second since the
+/// session start; NaN before the filter starts).
+fn nees_run<const N: usize>(
     drive: &imulab::fusion::study::StudyDrive,
     spec: &imulab::sim::imu_model::ImuSpec,
     config: &FusionConfig,
     seed: u64,
-) -> Vec<f64> {
+) -> Vec<[f64; 4]> {
     use imulab::fusion::navigator::Navigator;
     let end = drive.end_s();
     let outages: Vec<(f64, f64)> = (1..)
@@ -376,7 +391,7 @@ fn nees_run(
         outages,
         ..Default::default()
     };
-    let mut nav = Navigator::<15>::new(config, options);
+    let mut nav = Navigator::<N>::new(config, options);
     let mut fixes = fixes.iter().peekable();
     for r in drive.imu_records(spec, seed).expect("imu") {
         let sample = ImuInput::Rates {
@@ -391,14 +406,14 @@ fn nees_run(
     }
     let r = nav.finish();
     let truth = drive.truth_nav();
-    let mut nees = vec![f64::NAN; end as usize + 1];
+    let mut nees = vec![[f64::NAN; 4]; end as usize + 1];
     for s in &r.filtered {
         let k = s.nav.t_s.round();
         if (s.nav.t_s - k).abs() > 1e-6 || k < 0.0 || k as usize >= nees.len() {
             continue;
         }
         if let Some(t) = imulab::fusion::session::truth_at(truth, s.nav.t_s) {
-            nees[k as usize] = imulab::fusion::metrics::epoch_error(s, &t).nees;
+            nees[k as usize] = block_nees(s, &t);
         }
     }
     nees
@@ -410,17 +425,41 @@ fn nees_table() {
     use rayon::prelude::*;
     let scene = imulab::sim::scene::Scene::load(std::path::Path::new(NEES_SCENE)).expect("scene");
     let drive = imulab::fusion::study::StudyDrive::new(&scene).expect("drive");
-    let grades = ["consumer", "bench-cheap", "industrial", "tactical"];
+    // `-- nees GRADE… --runs=N` narrows the table to some presets and fewer seeds.
+    let args: Vec<String> = std::env::args().collect();
+    let all = ["consumer", "bench-cheap", "industrial", "tactical"];
+    let picked: Vec<&str> = all
+        .into_iter()
+        .filter(|g| args.iter().any(|a| a == g))
+        .collect();
+    let grades = if picked.is_empty() {
+        all.to_vec()
+    } else {
+        picked
+    };
+    let runs_per_row = args
+        .iter()
+        .find_map(|a| a.strip_prefix("--runs=")?.parse::<usize>().ok())
+        .filter(|n| *n > 0)
+        .unwrap_or(NEES_RUNS);
+    // The receiver's correlated position error, as the filter's GNSS model (`-- nees
+    // white` leaves it out: fixes white with the reported σ, inflated by the default
+    // correlation time).
+    let gnss_error = if args.iter().any(|a| a == "white") {
+        None
+    } else {
+        imulab::fusion::noise::gnss_error_from_spec(&scene.gnss[0].spec)
+    };
     let sets: [(&str, bool, bool); 3] = [
         ("GNSS only", false, false),
         ("NHC", true, false),
         ("NHC + ZUPT + ZARU", true, true),
     ];
     println!(
-        "\nNEES consistency: {NEES_SCENE}, {NEES_RUNS} seeds per row, GNSS withheld {NEES_OUTAGE_S:.0} s every {NEES_OUTAGE_EVERY_S:.0} s, 15 states, NEES of the 9 navigation states once a second from the filter start\n"
+        "\nNEES consistency: {NEES_SCENE}, {runs_per_row} seeds per row, GNSS withheld {NEES_OUTAGE_S:.0} s every {NEES_OUTAGE_EVERY_S:.0} s, 15 states, NEES of the 9 navigation states once a second from the filter start\n"
     );
-    println!("| IMU preset | constraints | ANEES (9 expected) | 95 % band of one epoch | epochs inside / below / above | largest epoch ANEES | verdict |");
-    println!("|---|---|---:|---:|---:|---:|---|");
+    println!("| IMU preset | constraints | ANEES (9 expected) | 95 % band of one epoch | epochs inside / below / above | largest epoch ANEES | position / velocity / attitude ANEES (3 each) | verdict |");
+    println!("|---|---|---:|---:|---:|---:|---:|---|");
     for grade in grades {
         let spec = imulab::sim::presets::imu_preset(grade).expect("preset");
         let noise = imulab::fusion::noise::model_from_spec(&spec, grade).expect("noise");
@@ -433,14 +472,26 @@ fn nees_table() {
             config.nhc.enabled = nhc;
             config.zupt.enabled = still;
             config.zaru.enabled = still;
+            if let Some(e) = gnss_error {
+                config.gnss.position_error = e;
+            }
             let seed0 = scene.seed;
-            let runs: Vec<Vec<f64>> = (0..NEES_RUNS as u64)
+            let runs: Vec<Vec<[f64; 4]>> = (0..runs_per_row as u64)
                 .into_par_iter()
-                .map(|k| nees_run(&drive, &spec, &config, seed0 + k))
+                .map(|k| match config.filter_states() {
+                    18 => nees_run::<18>(&drive, &spec, &config, seed0 + k),
+                    _ => nees_run::<15>(&drive, &spec, &config, seed0 + k),
+                })
                 .collect();
-            match anees(&runs, 9) {
+            let part = |i: usize| -> Vec<Vec<f64>> {
+                runs.iter()
+                    .map(|r| r.iter().map(|e| e[i]).collect())
+                    .collect()
+            };
+            let blocks = [1, 2, 3].map(|i| anees(&part(i), 3).map_or(f64::NAN, |a| a.mean));
+            match anees(&part(0), 9) {
                 Some(a) => println!(
-                    "| {grade} | {name} | {:.2} | [{:.2}, {:.2}] | {:.0} / {:.0} / {:.0} % | {:.1} | {} |",
+                    "| {grade} | {name} | {:.2} | [{:.2}, {:.2}] | {:.0} / {:.0} / {:.0} % | {:.1} | {:.2} / {:.2} / {:.2} | {} |",
                     a.mean,
                     a.band.0,
                     a.band.1,
@@ -448,6 +499,9 @@ fn nees_table() {
                     100.0 * a.below,
                     100.0 * a.above,
                     a.max,
+                    blocks[0],
+                    blocks[1],
+                    blocks[2],
                     if a.mean < a.band.0 {
                         "cautious"
                     } else if a.mean > a.band.1 {
@@ -456,7 +510,7 @@ fn nees_table() {
                         "consistent"
                     }
                 ),
-                None => println!("| {grade} | {name} | no common epochs | | | | |"),
+                None => println!("| {grade} | {name} | no common epochs | | | | | |"),
             }
         }
     }

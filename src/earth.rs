@@ -26,25 +26,18 @@ const SOMIGLIANA_K: f64 = 0.001_931_852_652_41;
 
 /// Meridian (north-south) radius of curvature R_N at geodetic latitude `lat` (rad), m.
 pub fn meridian_radius(lat: f64) -> f64 {
-    let s2 = lat.sin().powi(2);
-    // d^1.5 as d·√d: a square root instead of `powf` (a tenth of a replay's time).
-    let d = 1.0 - E2 * s2;
-    A * (1.0 - E2) / (d * d.sqrt())
+    Latitude::new(lat).meridian_radius()
 }
 
 /// Prime-vertical (east-west) radius of curvature R_E at latitude `lat` (rad), m.
 pub fn prime_vertical_radius(lat: f64) -> f64 {
-    let s2 = lat.sin().powi(2);
-    A / (1.0 - E2 * s2).sqrt()
+    Latitude::new(lat).prime_vertical_radius()
 }
 
 /// Magnitude of normal gravity (gravitation plus centrifugal) at latitude `lat` (rad) and
 /// ellipsoidal height `h` (m), m/s².
 pub fn normal_gravity(lat: f64, h: f64) -> f64 {
-    let s2 = lat.sin().powi(2);
-    let g0 = GAMMA_E * (1.0 + SOMIGLIANA_K * s2) / (1.0 - E2 * s2).sqrt();
-    let m = OMEGA_IE * OMEGA_IE * A * A * B / GM;
-    g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 / (A * A) * h * h)
+    Latitude::new(lat).normal_gravity(h)
 }
 
 /// Gravity vector in NED (down positive), m/s².
@@ -54,14 +47,83 @@ pub fn gravity_ned(lat: f64, h: f64) -> Vector3<f64> {
 
 /// Earth rotation rate expressed in NED at latitude `lat`, rad/s.
 pub fn earth_rate_ned(lat: f64) -> Vector3<f64> {
-    Vector3::new(OMEGA_IE * lat.cos(), 0.0, -OMEGA_IE * lat.sin())
+    Latitude::new(lat).earth_rate_ned()
 }
 
 /// Transport rate (rotation of NED relative to the earth) for velocity `v_ned` at `lat`, `h`.
 pub fn transport_rate_ned(lat: f64, h: f64, v_ned: &Vector3<f64>) -> Vector3<f64> {
-    let re = prime_vertical_radius(lat) + h;
-    let rn = meridian_radius(lat) + h;
-    Vector3::new(v_ned.y / re, -v_ned.x / rn, -v_ned.y * lat.tan() / re)
+    Latitude::new(lat).transport_rate_ned(h, v_ned)
+}
+
+/// Largest latitude step, rad, that [`Latitude::shifted`] takes by its Taylor series
+/// (error below d³/6 = 1.7·10⁻¹⁶); larger steps evaluate the sine and cosine anew.
+pub const LATITUDE_SERIES_MAX_RAD: f64 = 1e-5;
+
+/// Sine and cosine of a geodetic latitude, and the earth-model terms that depend on it. A
+/// strapdown step needs them at several latitudes within a few 10⁻⁸ rad of each other:
+/// [`Latitude::shifted`] gets those from one `sin_cos` to within rounding.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Latitude {
+    pub rad: f64,
+    pub sin: f64,
+    pub cos: f64,
+}
+
+impl Latitude {
+    pub fn new(lat: f64) -> Self {
+        let (sin, cos) = lat.sin_cos();
+        Self { rad: lat, sin, cos }
+    }
+
+    /// The latitude `d` rad further north: second-order Taylor series of the sine and
+    /// cosine for |d| ≤ [`LATITUDE_SERIES_MAX_RAD`], a new `sin_cos` beyond.
+    pub fn shifted(&self, d: f64) -> Self {
+        if !(d.abs() <= LATITUDE_SERIES_MAX_RAD) {
+            return Self::new(self.rad + d);
+        }
+        let c2 = 1.0 - 0.5 * d * d;
+        Self {
+            rad: self.rad + d,
+            sin: self.sin * c2 + self.cos * d,
+            cos: self.cos * c2 - self.sin * d,
+        }
+    }
+
+    /// Meridian radius of curvature R_N, m.
+    pub fn meridian_radius(&self) -> f64 {
+        // d^1.5 as d·√d: a square root instead of `powf` (a tenth of a replay's time).
+        let d = 1.0 - E2 * self.sin * self.sin;
+        A * (1.0 - E2) / (d * d.sqrt())
+    }
+
+    /// Prime-vertical radius of curvature R_E, m.
+    pub fn prime_vertical_radius(&self) -> f64 {
+        A / (1.0 - E2 * self.sin * self.sin).sqrt()
+    }
+
+    /// Normal gravity at ellipsoidal height `h` (m), m/s².
+    pub fn normal_gravity(&self, h: f64) -> f64 {
+        let s2 = self.sin * self.sin;
+        let g0 = GAMMA_E * (1.0 + SOMIGLIANA_K * s2) / (1.0 - E2 * s2).sqrt();
+        let m = OMEGA_IE * OMEGA_IE * A * A * B / GM;
+        g0 * (1.0 - 2.0 / A * (1.0 + F + m - 2.0 * F * s2) * h + 3.0 / (A * A) * h * h)
+    }
+
+    /// Earth rotation rate in NED, rad/s.
+    pub fn earth_rate_ned(&self) -> Vector3<f64> {
+        Vector3::new(OMEGA_IE * self.cos, 0.0, -OMEGA_IE * self.sin)
+    }
+
+    /// Transport rate for velocity `v_ned` at height `h`, rad/s.
+    pub fn transport_rate_ned(&self, h: f64, v_ned: &Vector3<f64>) -> Vector3<f64> {
+        let re = self.prime_vertical_radius() + h;
+        let rn = self.meridian_radius() + h;
+        Vector3::new(
+            v_ned.y / re,
+            -v_ned.x / rn,
+            -v_ned.y * (self.sin / self.cos) / re,
+        )
+    }
 }
 
 /// Geodetic latitude, longitude (rad) and height (m) to ECEF, m.
@@ -98,6 +160,21 @@ pub fn ecef_to_lla(p: &Vector3<f64>) -> (f64, f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Latitude terms reached by the series equal those evaluated anew, within rounding,
+    /// and a large step evaluates anew.
+    #[test]
+    fn shifted_latitude_matches_direct_evaluation() {
+        let base = Latitude::new(0.84);
+        for d in [0.0, 1e-9, -3e-8, 5e-7, 9e-6, -2e-4, 0.1] {
+            let s = base.shifted(d);
+            let e = Latitude::new(0.84 + d);
+            assert!((s.sin - e.sin).abs() < 4e-16, "{d}: sin");
+            assert!((s.cos - e.cos).abs() < 4e-16, "{d}: cos");
+            assert!((s.meridian_radius() - meridian_radius(0.84 + d)).abs() < 1e-8);
+            assert!((s.normal_gravity(500.0) - normal_gravity(0.84 + d, 500.0)).abs() < 1e-14);
+        }
+    }
 
     #[test]
     fn gravity_matches_published_values() {

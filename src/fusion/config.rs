@@ -181,6 +181,38 @@ pub struct GnssOptions {
     /// time since the previous used fix, at least 1), so the fixes within one correlation
     /// time together carry about one fix's worth of information.
     pub position_correlation_s: f64,
+    /// The receiver's slowly varying position error, carried as three filter states when
+    /// its σ is positive (then `position_correlation_s` is not used).
+    pub position_error: GnssPositionError,
+}
+
+/// The slowly varying part of a receiver's position error (atmosphere, orbit and clock
+/// errors, multipath): a first-order Gauss-Markov process on each NED axis with 1σ
+/// `horizontal_m` (north and east each) and `vertical_m` and correlation time `tau_s`.
+/// Over a drive shorter than a few τ it is nearly a bias that no number of fixes averages
+/// out; a filter that takes the fixes as white noise of the receiver's total σ (or inflates
+/// them by a correlation time) ends up believing its position better than the receiver's
+/// bias. With a σ > 0 the filter estimates the process as three more states (18 or 24 in
+/// all) and takes only the rest of the receiver's reported variance, √(σ_reported² − σ²)
+/// (at least `min_position_sigma_m`), as white. σ = 0 on both (the default) leaves it out.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GnssPositionError {
+    pub horizontal_m: f64,
+    pub vertical_m: f64,
+    pub tau_s: f64,
+}
+
+impl GnssPositionError {
+    /// Whether the filter carries the error as states.
+    pub fn enabled(&self) -> bool {
+        self.horizontal_m > 0.0 || self.vertical_m > 0.0
+    }
+
+    /// 1σ on north, east and down, m.
+    pub fn sigma_ned(&self) -> [f64; 3] {
+        [self.horizontal_m, self.horizontal_m, self.vertical_m]
+    }
 }
 
 impl Default for GnssOptions {
@@ -192,6 +224,7 @@ impl Default for GnssOptions {
             min_velocity_sigma_mps: 0.005,
             innovation_gate: 0.0,
             position_correlation_s: 60.0,
+            position_error: GnssPositionError::default(),
         }
     }
 }
@@ -435,6 +468,19 @@ pub struct FusionConfig {
     pub output_interval_s: f64,
 }
 
+impl FusionConfig {
+    /// States of the filter: `states` (15 or 21) plus 3 for the GNSS position error when
+    /// it is modelled ([`GnssPositionError`]): 15, 18, 21 or 24.
+    pub fn filter_states(&self) -> usize {
+        self.states
+            + if self.gnss.position_error.enabled() {
+                3
+            } else {
+                0
+            }
+    }
+}
+
 impl Default for FusionConfig {
     fn default() -> Self {
         Self {
@@ -575,6 +621,27 @@ impl FusionConfig {
             self.gnss.position_correlation_s >= 0.0,
             nonneg,
         )?;
+        let e = &self.gnss.position_error;
+        check(
+            "gnss.position_error.horizontal_m",
+            e.horizontal_m,
+            e.horizontal_m >= 0.0,
+            nonneg,
+        )?;
+        check(
+            "gnss.position_error.vertical_m",
+            e.vertical_m,
+            e.vertical_m >= 0.0,
+            nonneg,
+        )?;
+        if e.enabled() {
+            check(
+                "gnss.position_error.tau_s",
+                e.tau_s,
+                e.tau_s > 0.0,
+                "must be positive and finite when a σ is set",
+            )?;
+        }
         for (i, l) in self.gnss.lever_arm_m.iter().enumerate() {
             let key = [
                 "gnss.lever_arm_m[0]",

@@ -336,6 +336,7 @@ impl KfGinsConfig {
                 accel_bias: k.vec3("initaccbias")?.unwrap_or(zero) * MGAL,
                 gyro_scale: k.vec3("initgyrscale")?.unwrap_or(zero) * PPM,
                 accel_scale: k.vec3("initaccscale")?.unwrap_or(zero) * PPM,
+                gnss_position_error: zero,
             },
             initial_pos_std_m: k.req_vec3("initposstd")?,
             initial_vel_std_mps: k.req_vec3("initvelstd")?,

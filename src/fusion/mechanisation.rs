@@ -78,12 +78,34 @@ impl NavState {
 
 /// Wraps an angle into (−π, π].
 pub fn wrap_pi(a: f64) -> f64 {
+    if a > -std::f64::consts::PI && a <= std::f64::consts::PI {
+        return a;
+    }
     let w = a.rem_euclid(std::f64::consts::TAU);
     if w > std::f64::consts::PI {
         w - std::f64::consts::TAU
     } else {
         w
     }
+}
+
+/// Rotation angle, rad, below which [`rotation`] uses its power series (truncation error of
+/// the half-angle sine and cosine below 10⁻²⁴).
+pub const ROTATION_SERIES_MAX_RAD: f64 = 1e-2;
+
+/// The unit quaternion of rotation vector `v` (axis × angle), as
+/// `UnitQuaternion::from_scaled_axis`; the small rotations of one IMU step take the power
+/// series of cos(θ/2) and sin(θ/2)/θ instead of a norm, a sine and a cosine.
+pub fn rotation(v: &Vector3<f64>) -> UnitQuaternion<f64> {
+    let t2 = v.norm_squared();
+    if !(t2 < ROTATION_SERIES_MAX_RAD * ROTATION_SERIES_MAX_RAD) {
+        return UnitQuaternion::from_scaled_axis(*v);
+    }
+    // x = θ/2: cos x and sin x / (2x) to the x⁸ and x⁶ terms.
+    let x2 = 0.25 * t2;
+    let w = 1.0 - x2 / 2.0 * (1.0 - x2 / 12.0 * (1.0 - x2 / 30.0 * (1.0 - x2 / 56.0)));
+    let s = 0.5 * (1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0)));
+    UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(w, s * v.x, s * v.y, s * v.z))
 }
 
 /// Order of the numerical integration.
@@ -254,48 +276,48 @@ impl Mechaniser {
         let dt = c.dt;
         let second = self.options.order == IntegrationOrder::Second;
         let (lat0, h0, v0) = (nav.lat_rad, nav.height_m, nav.vel_ned);
-        let (rn0, _) = nav.radii();
+        // One sine and cosine per step: the other latitudes of the step are within a few
+        // 10⁻⁸ rad of the start and are reached by `Latitude::shifted`.
+        let start = earth::Latitude::new(lat0);
+        let rm_start = start.meridian_radius();
 
         // Velocity: forces at mid-interval (extrapolated) for second order.
-        let (lat_m, h_m, v_m) = if second {
+        let (mid, h_m, v_m) = if second {
             let v_prev = self.prev_vel.unwrap_or(v0);
             (
-                lat0 + 0.5 * dt * v0.x / rn0,
+                start.shifted(0.5 * dt * v0.x / (rm_start + h0)),
                 h0 - 0.5 * dt * v0.z,
                 v0 + 0.5 * (v0 - v_prev),
             )
         } else {
-            (lat0, h0, v0)
+            (start, h0, v0)
         };
-        let w_ie = earth::earth_rate_ned(lat_m);
-        let w_en = earth::transport_rate_ned(lat_m, h_m, &v_m);
+        let w_ie = mid.earth_rate_ned();
+        let w_en = mid.transport_rate_ned(h_m, &v_m);
         let zeta = (w_ie + w_en) * dt;
         let dv_n = nav.quat_nb * c.dvel_rot;
         let dv_n = dv_n - 0.5 * zeta.cross(&dv_n);
-        let g = earth::gravity_ned(lat_m, h_m);
+        let g = Vector3::new(0.0, 0.0, mid.normal_gravity(h_m));
         let v1 = v0 + dv_n + (g - (2.0 * w_ie + w_en).cross(&v_m)) * dt;
 
         // Position.
         let v_pos = if second { 0.5 * (v0 + v1) } else { v0 };
         let h1 = h0 - v_pos.z * dt;
         let h_avg = if second { 0.5 * (h0 + h1) } else { h0 };
-        let lat_half = lat0 + 0.5 * dt * v_pos.x / (earth::meridian_radius(lat0) + h_avg);
-        let lat_ref = if second { lat_half } else { lat0 };
-        let lat1 = lat0 + dt * v_pos.x / (earth::meridian_radius(lat_ref) + h_avg);
+        let half = start.shifted(0.5 * dt * v_pos.x / (rm_start + h_avg));
+        let reference = if second { half } else { start };
+        let lat1 = lat0 + dt * v_pos.x / (reference.meridian_radius() + h_avg);
         let lon1 = nav.lon_rad
-            + dt * v_pos.y / ((earth::prime_vertical_radius(lat_ref) + h_avg) * lat_ref.cos());
+            + dt * v_pos.y / ((reference.prime_vertical_radius() + h_avg) * reference.cos);
 
         // Attitude: n-frame rotation at mid-interval (now known) for second order.
         let zeta = if second {
             let v_avg = 0.5 * (v0 + v1);
-            (earth::earth_rate_ned(lat_half) + earth::transport_rate_ned(lat_half, h_avg, &v_avg))
-                * dt
+            (half.earth_rate_ned() + half.transport_rate_ned(h_avg, &v_avg)) * dt
         } else {
             zeta
         };
-        let q = UnitQuaternion::from_scaled_axis(-zeta)
-            * nav.quat_nb
-            * UnitQuaternion::from_scaled_axis(c.rotation);
+        let q = rotation(&(-zeta)) * nav.quat_nb * rotation(&c.rotation);
 
         self.prev_vel = Some(v0);
         nav.t_s = input.t_s();
@@ -309,5 +331,40 @@ impl Mechaniser {
             gyro_b: c.dtheta / dt,
             accel_b: c.dvel / dt,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The series rotation equals nalgebra's exact one over the range it covers, and beyond
+    /// it is nalgebra's.
+    #[test]
+    fn rotation_series_matches_exact_quaternion() {
+        for angle in [0.0, 1e-9, 1e-6, 1e-4, 3e-3, 9.9e-3, 0.02, 0.5] {
+            let v = Vector3::new(0.3, -0.8, 0.52).normalize() * angle;
+            let exact = UnitQuaternion::from_scaled_axis(v);
+            let series = rotation(&v);
+            assert!(
+                (series.coords - exact.coords).amax() < 1e-16,
+                "{angle}: {} vs {}",
+                series.coords,
+                exact.coords
+            );
+            assert!((series.coords.norm() - 1.0).abs() < 1e-15);
+        }
+        // A wrong series term would show at the top of the range.
+        let v = Vector3::new(0.0, 0.0, 9e-3);
+        let w = 1.0 - v.z * v.z / 8.0;
+        assert!((rotation(&v).w - w).abs() > 1e-12);
+    }
+
+    #[test]
+    fn wrap_pi_keeps_the_range_and_wraps_outside() {
+        assert_eq!(wrap_pi(1.0), 1.0);
+        assert_eq!(wrap_pi(std::f64::consts::PI), std::f64::consts::PI);
+        assert!((wrap_pi(3.0 * std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
+        assert!((wrap_pi(-4.0) - (2.0 * std::f64::consts::PI - 4.0)).abs() < 1e-12);
     }
 }

@@ -4,6 +4,9 @@
 //! `δr` NED position error (m) 0..3, `δv` NED velocity error 3..6, `φ` attitude error 6..9
 //! defined by C_b^n(est) = (I − [φ×]) C_b^n(true), gyro bias error 9..12 (rad/s), accel bias
 //! error 12..15 (m/s²), and with 21 states gyro 15..18 and accel 18..21 scale-factor errors.
+//! With the GNSS position error modelled (`config::GnssPositionError`) three more states
+//! follow, the last three (15..18 of 18, 21..24 of 24): the error of the receiver's
+//! correlated position-error estimate (estimate minus truth, NED, m).
 //! The sensors are modelled as ω̃ = (I + diag s_g) ω + b_g + noise, f̃ likewise.
 //!
 //! The continuous error dynamics are the usual ψ-angle model in NED (Titterton & Weston,
@@ -22,6 +25,20 @@ pub const BG: usize = 9;
 pub const BA: usize = 12;
 pub const SG: usize = 15;
 pub const SA: usize = 18;
+
+/// Whether a filter of `n` states carries the scale factors (21 or 24 states).
+pub const fn has_scale_factors(n: usize) -> bool {
+    n >= 21
+}
+
+/// First of the three GNSS position-error states of a filter of `n` states (18 or 24).
+pub const fn gnss_error_index(n: usize) -> Option<usize> {
+    if n == 18 || n == 24 {
+        Some(n - 3)
+    } else {
+        None
+    }
+}
 
 /// Skew-symmetric cross-product matrix [v×].
 pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -95,7 +112,13 @@ pub fn dynamics_matrix<const N: usize>(
         f[(BG + i, BG + i)] = -gyro_decay;
         f[(BA + i, BA + i)] = -accel_decay;
     }
-    if N == 21 {
+    if let Some(ge) = gnss_error_index(N) {
+        let decay = 1.0 / config.gnss.position_error.tau_s;
+        for i in 0..3 {
+            f[(ge + i, ge + i)] = -decay;
+        }
+    }
+    if has_scale_factors(N) {
         f.fixed_view_mut::<3, 3>(ATT, SG)
             .copy_from(&(c_bn * Matrix3::from_diagonal(gyro_b)));
         f.fixed_view_mut::<3, 3>(VEL, SA)
@@ -118,9 +141,15 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
         q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
         q[BG + i] = imu.gyro_bias_state().driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
         q[BA + i] = imu.accel_bias_state().driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
-        if N == 21 {
+        if has_scale_factors(N) {
             q[SG + i] = imu.gyro_scale.driving_psd();
             q[SA + i] = imu.accel_scale.driving_psd();
+        }
+    }
+    if let Some(ge) = gnss_error_index(N) {
+        let e = &config.gnss.position_error;
+        for (i, s) in e.sigma_ned().iter().enumerate() {
+            q[ge + i] = 2.0 * s * s / e.tau_s;
         }
     }
     q
@@ -236,21 +265,29 @@ pub struct Measurement<const M: usize, const N: usize> {
     pub r: SMatrix<f64, M, M>,
 }
 
-/// GNSS antenna position: lever arm `lever_b` (m, body), measured lat/lon/height and NED σ.
+/// GNSS antenna position: lever arm `lever_b` (m, body), measured lat/lon/height and NED σ
+/// (of the white part); `receiver_error` is the estimate of the receiver's correlated
+/// position error (NED, m; zero and without states when it is not modelled), which the
+/// measurement model adds to the antenna position.
 pub fn gnss_position<const N: usize>(
     nav: &NavState,
     lever_b: &Vector3<f64>,
+    receiver_error: &Vector3<f64>,
     lat: f64,
     lon: f64,
     height: f64,
     sigma_ned: &Vector3<f64>,
 ) -> Measurement<3, N> {
     let lever_n = nav.quat_nb * lever_b;
-    let z = nav.ned_offset_from(lat, lon, height) + lever_n;
+    let z = nav.ned_offset_from(lat, lon, height) + lever_n + receiver_error;
     let mut h = SMatrix::<f64, 3, N>::zeros();
     h.fixed_view_mut::<3, 3>(0, POS)
         .copy_from(&Matrix3::identity());
     h.fixed_view_mut::<3, 3>(0, ATT).copy_from(&skew(&lever_n));
+    if let Some(ge) = gnss_error_index(N) {
+        h.fixed_view_mut::<3, 3>(0, ge)
+            .copy_from(&Matrix3::identity());
+    }
     Measurement {
         z,
         h,
@@ -414,13 +451,13 @@ mod tests {
         let n = nav();
         let lever = Vector3::new(1.0, -0.5, -1.5);
         let sigma = Vector3::repeat(1.0);
-        let m0 = gnss_position::<15>(&n, &lever, 0.7, 0.1, 100.0, &sigma);
+        let m0 = gnss_position::<15>(&n, &lever, &Vector3::zeros(), 0.7, 0.1, 100.0, &sigma);
         // Attitude error φ: est = (I − [φ×]) true  ⇒  perturbing the estimate by
         // q_est = exp(−φ) q changes z by H_att φ.
         let phi = Vector3::new(1e-4, -2e-4, 3e-4);
         let mut p = n;
         p.quat_nb = UnitQuaternion::from_scaled_axis(-phi) * n.quat_nb;
-        let m1 = gnss_position::<15>(&p, &lever, 0.7, 0.1, 100.0, &sigma);
+        let m1 = gnss_position::<15>(&p, &lever, &Vector3::zeros(), 0.7, 0.1, 100.0, &sigma);
         let predicted = m0.h.fixed_view::<3, 3>(0, ATT) * phi;
         assert!(
             (m1.z - m0.z - predicted).norm() < 1e-7,
@@ -432,7 +469,7 @@ mod tests {
         let d = Vector3::new(0.3, -0.2, 0.1);
         let mut p = n;
         p.shift_position(&d);
-        let m2 = gnss_position::<15>(&p, &lever, 0.7, 0.1, 100.0, &sigma);
+        let m2 = gnss_position::<15>(&p, &lever, &Vector3::zeros(), 0.7, 0.1, 100.0, &sigma);
         assert!((m2.z - m0.z - d).norm() < 1e-6);
     }
 

@@ -10,7 +10,7 @@ use crate::fusion::config::FusionConfig;
 use crate::fusion::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
 use crate::fusion::mechanisation::{ImuInput, NavState};
 use crate::fusion::metrics;
-use crate::fusion::models::{self, BA, BG, SA, SG};
+use crate::fusion::models::{self, has_scale_factors, BA, BG, SA, SG};
 use crate::fusion::smoother;
 use nalgebra::{SMatrix, Vector3};
 
@@ -149,7 +149,7 @@ fn solution_from<const N: usize>(
     p: &SMatrix<f64, N, N>,
 ) -> NavSolution {
     let sigma = |i: usize| {
-        if i + 3 <= N {
+        if i < SG || has_scale_factors(N) {
             Vector3::new(
                 p[(i, i)].sqrt(),
                 p[(i + 1, i + 1)].sqrt(),
@@ -446,21 +446,29 @@ impl<const N: usize> Navigator<N> {
                 fallback
             }
         };
-        // Correlated receiver errors: fixes within one correlation time carry about one
-        // fix's information (see `GnssOptions::position_correlation_s`).
-        let inflation = match self.last_used_fix_t {
-            Some(last) if g.position_correlation_s > 0.0 => (g.position_correlation_s
-                / (fix.t_s - last))
-                .max(1.0)
-                .sqrt(),
-            _ => 1.0,
+        let reported = Vector3::new(
+            floor(fix.sigma_ned_m.x, FALLBACK_SIGMA.0, g.min_position_sigma_m),
+            floor(fix.sigma_ned_m.y, FALLBACK_SIGMA.0, g.min_position_sigma_m),
+            floor(fix.sigma_ned_m.z, FALLBACK_SIGMA.1, g.min_position_sigma_m),
+        );
+        let sigma_pos = if g.position_error.enabled() {
+            // The correlated part is a state: the rest of the reported variance is white.
+            let correlated = Vector3::from(g.position_error.sigma_ned());
+            reported.zip_map(&correlated, |r, c| {
+                (r * r - c * c).max(0.0).sqrt().max(g.min_position_sigma_m)
+            })
+        } else {
+            // Correlated receiver errors: fixes within one correlation time carry about one
+            // fix's information (see `GnssOptions::position_correlation_s`).
+            let inflation = match self.last_used_fix_t {
+                Some(last) if g.position_correlation_s > 0.0 => (g.position_correlation_s
+                    / (fix.t_s - last))
+                    .max(1.0)
+                    .sqrt(),
+                _ => 1.0,
+            };
+            inflation * reported
         };
-        let sigma_pos = inflation
-            * Vector3::new(
-                floor(fix.sigma_ned_m.x, FALLBACK_SIGMA.0, g.min_position_sigma_m),
-                floor(fix.sigma_ned_m.y, FALLBACK_SIGMA.0, g.min_position_sigma_m),
-                floor(fix.sigma_ned_m.z, FALLBACK_SIGMA.1, g.min_position_sigma_m),
-            );
         let sigma_vel = fix
             .sigma_vel_mps
             .map(|s| floor(s, FALLBACK_SIGMA.2, g.min_velocity_sigma_mps));
@@ -479,6 +487,7 @@ impl<const N: usize> Navigator<N> {
         let pos = models::gnss_position::<N>(
             &at_fix,
             &lever,
+            &ins.sensors.gnss_position_error,
             fix.lat_rad,
             fix.lon_rad,
             fix.height_m,
@@ -590,8 +599,10 @@ pub fn replay_with_wheel_speed(
     wheel: impl IntoIterator<Item = (f64, f64)>,
     options: ReplayOptions,
 ) -> ReplayResult {
-    match config.states {
+    match config.filter_states() {
+        24 => run::<24>(config, imu, gnss, wheel, options),
         21 => run::<21>(config, imu, gnss, wheel, options),
+        18 => run::<18>(config, imu, gnss, wheel, options),
         _ => run::<15>(config, imu, gnss, wheel, options),
     }
 }

@@ -35,7 +35,7 @@
 use crate::allan::analysis::AllanReport;
 use crate::allan::fit::{Term, BIAS_INSTABILITY_FACTOR};
 use crate::allan::units::SensorKind;
-use crate::fusion::config::{GaussMarkov, ImuModel};
+use crate::fusion::config::{GaussMarkov, GnssPositionError, ImuModel};
 use crate::sim::imu_model::{ImuSpec, TriadErrors, G0};
 use anyhow::{bail, Context};
 use std::path::Path;
@@ -163,6 +163,18 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
         origin: origin.to_string(),
         warnings,
     })
+}
+
+/// The filter's model of a receiver's correlated position error for a simulator GNSS spec:
+/// the spec's Gauss-Markov position error (σ horizontal per axis, vertical, τ) as it is.
+/// None when the spec has none (white position noise only).
+pub fn gnss_error_from_spec(spec: &crate::sim::gnss_model::GnssSpec) -> Option<GnssPositionError> {
+    let e = GnssPositionError {
+        horizontal_m: spec.horizontal_gm_m,
+        vertical_m: spec.vertical_gm_m,
+        tau_s: spec.position_gm_tau_s,
+    };
+    (e.enabled() && e.tau_s.is_finite() && e.tau_s > 0.0).then_some(e)
 }
 
 /// The filter's IMU model for simulator preset `name`.

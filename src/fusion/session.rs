@@ -195,31 +195,27 @@ pub fn replay_session(
         }
     }
 
-    out.result = match config.states {
-        21 => stream::<21>(
-            ImuStream {
-                session,
-                device: &out.imu_device,
-                t0,
-                thermal: compensator.as_mut(),
-            },
-            config,
-            options,
-            &fixes,
-            &mut out.problems,
-        )?,
-        _ => stream::<15>(
-            ImuStream {
-                session,
-                device: &out.imu_device,
-                t0,
-                thermal: compensator.as_mut(),
-            },
-            config,
-            options,
-            &fixes,
-            &mut out.problems,
-        )?,
+    macro_rules! stream_with {
+        ($n:literal) => {
+            stream::<$n>(
+                ImuStream {
+                    session,
+                    device: &out.imu_device,
+                    t0,
+                    thermal: compensator.as_mut(),
+                },
+                config,
+                options,
+                &fixes,
+                &mut out.problems,
+            )?
+        };
+    }
+    out.result = match config.filter_states() {
+        24 => stream_with!(24),
+        21 => stream_with!(21),
+        18 => stream_with!(18),
+        _ => stream_with!(15),
     };
     out.compensation_warnings = compensator.map(|c| c.warnings()).unwrap_or_default();
     Ok(out)

@@ -744,8 +744,10 @@ fn one_run(
         requirements: &options.requirements_m,
         every: check_every,
     };
-    Ok(match config.states {
+    Ok(match config.filter_states() {
+        24 => replay_run::<24>(imu, gnss, truth, &config, starts, &checks),
         21 => replay_run::<21>(imu, gnss, truth, &config, starts, &checks),
+        18 => replay_run::<18>(imu, gnss, truth, &config, starts, &checks),
         _ => replay_run::<15>(imu, gnss, truth, &config, starts, &checks),
     })
 }
