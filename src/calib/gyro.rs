@@ -4,14 +4,17 @@
 //! direction the calibrated accelerometer gives in the first pose into the one it gives in
 //! the second. The bias during a rotation is taken as the still rate interpolated between
 //! the two poses (which also removes the earth rate and g-sensitivity each pose sees); the
-//! nine entries of M come from a nonlinear least-squares fit over the rotations.
+//! nine entries of M come from a nonlinear least-squares fit over the rotations, with the
+//! Jacobian of each rotation formed analytically in the same pass that integrates it (the
+//! perturbation of every step carried to the end of the rotation), so an iteration
+//! integrates each rotation once rather than once per parameter and direction.
 
-use super::lsq::{conditioning, minimise};
+use super::lsq::{conditioning_of, minimise_with};
 use super::recording::Recording;
 use super::statics::{unit, StaticInterval};
 use super::TriadModel;
 use anyhow::{bail, Result};
-use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, Matrix3, SMatrix, Vector3};
 use rayon::prelude::*;
 
 /// Fewest rotations the nine-parameter fit accepts.
@@ -37,19 +40,95 @@ struct Rotation {
     after: Vector3<f64>,
 }
 
+/// The skew-symmetric matrix [v]× with [v]× w = v × w.
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// The rotation matrix Exp(φ) and the right Jacobian J_r(φ) of SO(3), with Exp(φ + δ) ≈
+/// Exp(φ)·Exp(J_r(φ)·δ).
+fn exp_and_right_jacobian(phi: &Vector3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    let t2 = phi.norm_squared();
+    let (s, c, d) = if t2 < 1e-8 {
+        // Taylor series of sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³.
+        (1.0 - t2 / 6.0, 0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
+    } else {
+        let t = t2.sqrt();
+        (t.sin() / t, (1.0 - t.cos()) / t2, (t - t.sin()) / (t2 * t))
+    };
+    let k = skew(phi);
+    let k2 = k * k;
+    let i = Matrix3::identity();
+    (i + k * s + k2 * c, i - k * c + k2 * d)
+}
+
+/// The rotation matrix Exp(φ) alone.
+fn exp(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let t2 = phi.norm_squared();
+    let (s, c) = if t2 < 1e-8 {
+        (1.0 - t2 / 6.0, 0.5 - t2 / 24.0)
+    } else {
+        let t = t2.sqrt();
+        (t.sin() / t, (1.0 - t.cos()) / t2)
+    };
+    let k = skew(phi);
+    Matrix3::identity() + k * s + k * k * c
+}
+
 impl Rotation {
     /// Gravity direction after the rotation predicted with correction matrix `a` = M⁻¹.
     fn predict(&self, a: &Matrix3<f64>) -> Vector3<f64> {
-        let mut q = UnitQuaternion::identity();
-        for d in &self.increments {
-            q *= UnitQuaternion::from_scaled_axis(a * d);
+        self.predict_with_jacobian(a, false).0
+    }
+
+    /// The predicted direction p = Rᵀ·before, R = Exp(a·d₁)…Exp(a·d_N), and (when `with_jacobian`)
+    /// ∂p/∂a with a's entries row by row. A change δa turns R into R·Exp(ε) with
+    /// ε = Σₖ Sₖᵀ J_r(a·dₖ) δa dₖ (Sₖ the steps after k), so p changes by [p]× ε.
+    fn predict_with_jacobian(
+        &self,
+        a: &Matrix3<f64>,
+        with_jacobian: bool,
+    ) -> (Vector3<f64>, SMatrix<f64, 3, 9>) {
+        let mut suffix = Matrix3::identity();
+        let mut g = SMatrix::<f64, 3, 9>::zeros();
+        for d in self.increments.iter().rev() {
+            let phi = a * d;
+            if with_jacobian {
+                let (e, jr) = exp_and_right_jacobian(&phi);
+                let b: Matrix3<f64> = suffix.transpose() * jr;
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let mut col = g.column_mut(3 * i + j);
+                        col += b.column(i) * d[j];
+                    }
+                }
+                suffix = e * suffix;
+            } else {
+                suffix = exp(&phi) * suffix;
+            }
         }
-        q.inverse_transform_vector(&self.before)
+        let p = suffix.transpose() * self.before;
+        (p, skew(&p) * g)
     }
 }
 
 fn matrix(p: &[f64]) -> Matrix3<f64> {
     Matrix3::from_row_slice(&p[..9])
+}
+
+/// ∂a/∂M for a = M⁻¹, entries of both row by row: ∂a_kl/∂M_ij = −a_ki·a_jl.
+fn inverse_derivative(a: &Matrix3<f64>) -> SMatrix<f64, 9, 9> {
+    let mut t = SMatrix::<f64, 9, 9>::zeros();
+    for k in 0..3 {
+        for l in 0..3 {
+            for i in 0..3 {
+                for j in 0..3 {
+                    t[(3 * k + l, 3 * i + j)] = -a[(k, i)] * a[(j, l)];
+                }
+            }
+        }
+    }
+    t
 }
 
 /// Fits the gyro over the rotations between consecutive `poses` of `rec`, with gravity
@@ -97,9 +176,25 @@ pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -
             .flat_map(|v| [v.x, v.y, v.z])
             .collect()
     };
+    // The residual is after − p, so its Jacobian in M is −∂p/∂a · ∂a/∂M.
+    let jacobian = |p: &[f64]| -> DMatrix<f64> {
+        let Some(a) = matrix(p).try_inverse() else {
+            return DMatrix::from_element(3 * rotations.len(), 9, f64::NAN);
+        };
+        let t = inverse_derivative(&a);
+        let blocks: Vec<SMatrix<f64, 3, 9>> = rotations
+            .par_iter()
+            .map(|r| -(r.predict_with_jacobian(&a, true).1 * t))
+            .collect();
+        let mut j = DMatrix::zeros(3 * rotations.len(), 9);
+        for (k, b) in blocks.iter().enumerate() {
+            j.view_mut((3 * k, 0), (3, 9)).copy_from(b);
+        }
+        j
+    };
     let x0 = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     let steps = [1e-7; 9];
-    let c = conditioning(&residuals, &x0, &steps);
+    let c = conditioning_of(&jacobian(&x0));
     if c < 1e-9 {
         bail!(
             "the rotations between the poses cannot separate the gyro's scale factors and misalignment (conditioning {c:.1e}): turn the IMU about each of its three axes, in both directions, between poses"
@@ -115,7 +210,7 @@ pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -
             .sqrt()
     };
     let before = rms_angle(&residuals(&x0));
-    let fit = minimise(&residuals, &x0, &steps);
+    let fit = minimise_with(&residuals, Some(&jacobian), &x0, &steps);
     let p = &fit.params;
     let s = &fit.sigma;
     let n = poses.len() as f64;
@@ -143,4 +238,56 @@ pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -
         rotations: rotations.len(),
         converged: fit.converged,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rotation() -> Rotation {
+        // A turn of about 100° about a wandering axis in 400 steps.
+        let increments = (0..400)
+            .map(|i| {
+                let t = i as f64 / 400.0;
+                Vector3::new(
+                    0.004 + 0.002 * t,
+                    -0.003 * (6.0 * t).sin(),
+                    0.002 * (3.0 * t).cos(),
+                )
+            })
+            .collect();
+        Rotation {
+            increments,
+            before: Vector3::new(0.1, -0.2, 0.97).normalize(),
+            after: Vector3::zeros(),
+        }
+    }
+
+    #[test]
+    fn analytic_jacobian_matches_central_differences() {
+        let r = rotation();
+        let m = Matrix3::new(
+            1.01, 0.004, -0.006, -0.003, 0.99, 0.005, 0.007, -0.002, 1.015,
+        );
+        let a = m.try_inverse().unwrap();
+        let (p, dp_da) = r.predict_with_jacobian(&a, true);
+        assert!((p - r.predict(&a)).norm() < 1e-14);
+        let analytic = -(dp_da * inverse_derivative(&a));
+        let h = 1e-7;
+        for k in 0..9 {
+            let mut up = m;
+            up[(k / 3, k % 3)] += h;
+            let mut down = m;
+            down[(k / 3, k % 3)] -= h;
+            let numeric = -(r.predict(&up.try_inverse().unwrap())
+                - r.predict(&down.try_inverse().unwrap()))
+                / (2.0 * h);
+            let err = (numeric - analytic.column(k)).norm();
+            assert!(
+                err < 1e-6 * numeric.norm().max(1e-3),
+                "column {k}: numeric {numeric:?} analytic {:?}",
+                analytic.column(k)
+            );
+        }
+    }
 }

@@ -1,7 +1,8 @@
 //! Nonlinear least squares for the calibration fits: the `levenberg-marquardt` crate does
 //! the minimisation; this file adapts a residual function on plain slices to it, forms the
-//! Jacobian by central differences, and turns the Jacobian at the minimum into parameter
-//! standard errors (covariance σ̂²(JᵀJ)⁻¹ with σ̂² = Σr²/(m − n)).
+//! Jacobian by central differences (or takes an analytic one from the caller), and turns the
+//! Jacobian at the minimum into parameter standard errors (covariance σ̂²(JᵀJ)⁻¹ with
+//! σ̂² = Σr²/(m − n)).
 
 use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
 use nalgebra::{DMatrix, DVector};
@@ -26,11 +27,25 @@ pub struct Fit {
     pub termination: String,
 }
 
+/// An analytic Jacobian: rows are residuals, columns parameters.
+pub type JacobianFn<'a> = &'a dyn Fn(&[f64]) -> DMatrix<f64>;
+
 struct Problem<'a> {
     x: Vec<f64>,
     f: &'a dyn Fn(&[f64]) -> Vec<f64>,
     /// Step per parameter for the central differences.
     steps: &'a [f64],
+    /// The caller's Jacobian, used instead of the differences when given.
+    jac: Option<JacobianFn<'a>>,
+}
+
+impl Problem<'_> {
+    fn jacobian_at(&self, x: &[f64]) -> DMatrix<f64> {
+        match self.jac {
+            Some(j) => j(x),
+            None => jacobian(self.f, x, self.steps),
+        }
+    }
 }
 
 impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
@@ -54,7 +69,7 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
     }
 
     fn jacobian(&self) -> Option<LmMatrix<f64>> {
-        let j = jacobian(self.f, &self.x, self.steps);
+        let j = self.jacobian_at(&self.x);
         j.iter()
             .all(|v| v.is_finite())
             .then(|| LmMatrix::from_column_slice(j.nrows(), j.ncols(), j.as_slice()))
@@ -81,20 +96,32 @@ pub fn jacobian(f: &dyn Fn(&[f64]) -> Vec<f64>, x: &[f64], steps: &[f64]) -> DMa
 
 /// Minimises Σ f(x)² from `x0`; `steps` are the difference steps per parameter.
 pub fn minimise(f: &dyn Fn(&[f64]) -> Vec<f64>, x0: &[f64], steps: &[f64]) -> Fit {
+    minimise_with(f, None, x0, steps)
+}
+
+/// Minimises Σ f(x)² from `x0` with the analytic Jacobian `jac` when given (else central
+/// differences with `steps`).
+pub fn minimise_with(
+    f: &dyn Fn(&[f64]) -> Vec<f64>,
+    jac: Option<JacobianFn<'_>>,
+    x0: &[f64],
+    steps: &[f64],
+) -> Fit {
     let problem = Problem {
         x: x0.to_vec(),
         f,
         steps,
+        jac,
     };
     let (problem, report) = LevenbergMarquardt::new()
         .with_patience(200)
         .minimize(problem);
-    let params = problem.x;
-    let residuals = f(&params);
+    let residuals = f(&problem.x);
     let m = residuals.len();
-    let n = params.len();
+    let n = problem.x.len();
     let ssr: f64 = residuals.iter().map(|r| r * r).sum();
-    let j = jacobian(f, &params, steps);
+    let j = problem.jacobian_at(&problem.x);
+    let params = problem.x;
     let dof = m.saturating_sub(n).max(1) as f64;
     let covariance = (j.transpose() * &j)
         .try_inverse()
@@ -115,8 +142,12 @@ pub fn minimise(f: &dyn Fn(&[f64]) -> Vec<f64>, x0: &[f64], steps: &[f64]) -> Fi
 /// Smallest over largest singular value of JᵀJ at `x`: near 0 when the data cannot
 /// separate some parameters.
 pub fn conditioning(f: &dyn Fn(&[f64]) -> Vec<f64>, x: &[f64], steps: &[f64]) -> f64 {
-    let j = jacobian(f, x, steps);
-    let sv = (j.transpose() * &j).singular_values();
+    conditioning_of(&jacobian(f, x, steps))
+}
+
+/// Smallest over largest singular value of JᵀJ for a Jacobian `j`.
+pub fn conditioning_of(j: &DMatrix<f64>) -> f64 {
+    let sv = (j.transpose() * j).singular_values();
     let max = sv.max();
     if max > 0.0 {
         sv.min() / max
