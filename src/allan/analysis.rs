@@ -53,6 +53,7 @@ pub struct AnalysisOptions {
 
 /// Runs the analysis of one axis; the series is consumed so its memory is reused for phase.
 pub fn analyse_axis(device: &str, series: AxisSeries, options: &AnalysisOptions) -> AxisResult {
+    let _whole = super::timings::Stage::start(|| format!("analyse {}", series.name));
     let total: usize = series.sample_count();
     // ADEV and HDEV on an octave grid need no phase (one read of the samples).
     let direct = match series.segments.as_slice() {
@@ -65,7 +66,9 @@ pub fn analyse_axis(device: &str, series: AxisSeries, options: &AnalysisOptions)
             done
         }
         None => {
+            let phase_stage = super::timings::Stage::start(|| format!("phase {}", series.name));
             let phases: Vec<Phase> = series.segments.into_iter().map(Phase::from_rate).collect();
+            drop(phase_stage);
             // Each phase removed its segment's mean; the axis mean weighs them by length.
             let mean = phases
                 .iter()
@@ -76,6 +79,7 @@ pub fn analyse_axis(device: &str, series: AxisSeries, options: &AnalysisOptions)
             (curve, mean)
         }
     };
+    let fit_stage = super::timings::Stage::start(|| format!("fit {}", series.name));
     let (fit, fit_error) = if options.fit {
         match fit_noise_terms(&curve) {
             Ok(f) => (Some(f), None),
@@ -88,6 +92,7 @@ pub fn analyse_axis(device: &str, series: AxisSeries, options: &AnalysisOptions)
         .as_ref()
         .map(|f| fit_in_units(f, options.sensor, options.unit))
         .unwrap_or_default();
+    drop(fit_stage);
     let slopes = options
         .kind
         .is_allan_variance()

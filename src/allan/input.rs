@@ -492,18 +492,15 @@ impl NpySource {
         }
     }
 
-    /// Appends to `out` the values at `raw[k·stride + offset ..]` for every whole `stride`.
-    fn decode_into(&self, raw: &[u8], stride: usize, offset: usize, out: &mut Vec<f64>) {
-        let rows = raw.chunks_exact(stride);
+    /// Appends to `out` the values at `raw[k·stride ..]`, one per (possibly partial last)
+    /// `stride` of `raw`; each holds at least one value.
+    fn decode_into(&self, raw: &[u8], stride: usize, out: &mut Vec<f64>) {
+        let rows = raw.chunks(stride);
         match (self.single, self.big_endian) {
-            (false, false) => out.extend(rows.map(|r| f64::from_le_bytes(bytes8(r, offset)))),
-            (false, true) => out.extend(rows.map(|r| f64::from_be_bytes(bytes8(r, offset)))),
-            (true, false) => {
-                out.extend(rows.map(|r| f64::from(f32::from_le_bytes(bytes4(r, offset)))))
-            }
-            (true, true) => {
-                out.extend(rows.map(|r| f64::from(f32::from_be_bytes(bytes4(r, offset)))))
-            }
+            (false, false) => out.extend(rows.map(|r| f64::from_le_bytes(bytes8(r)))),
+            (false, true) => out.extend(rows.map(|r| f64::from_be_bytes(bytes8(r)))),
+            (true, false) => out.extend(rows.map(|r| f64::from(f32::from_le_bytes(bytes4(r))))),
+            (true, true) => out.extend(rows.map(|r| f64::from(f32::from_be_bytes(bytes4(r))))),
         }
     }
 
@@ -516,15 +513,15 @@ impl NpySource {
     }
 }
 
-fn bytes8(row: &[u8], offset: usize) -> [u8; 8] {
+fn bytes8(row: &[u8]) -> [u8; 8] {
     let mut b = [0u8; 8];
-    b.copy_from_slice(&row[offset..offset + 8]);
+    b.copy_from_slice(&row[..8]);
     b
 }
 
-fn bytes4(row: &[u8], offset: usize) -> [u8; 4] {
+fn bytes4(row: &[u8]) -> [u8; 4] {
     let mut b = [0u8; 4];
-    b.copy_from_slice(&row[offset..offset + 4]);
+    b.copy_from_slice(&row[..4]);
     b
 }
 
@@ -551,20 +548,6 @@ fn npy_data_offset(path: &Path) -> Result<u64, InputError> {
     })
 }
 
-/// Reads until `buf` is full or the file ends; returns the bytes read.
-fn read_full(reader: &mut impl std::io::Read, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut filled = 0;
-    while filled < buf.len() {
-        match reader.read(&mut buf[filled..]) {
-            Ok(0) => break,
-            Ok(n) => filled += n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(filled)
-}
-
 fn open_npy(path: &Path) -> Result<npyz::NpyFile<BufReader<File>>, InputError> {
     let io = |source| InputError::Io {
         path: path.to_path_buf(),
@@ -588,69 +571,82 @@ impl SampleSource for NpySource {
     fn channels(&self) -> &[String] {
         &self.channels
     }
-    /// Whole blocks of rows read as raw bytes and decoded column by column (no per-value
-    /// iterator, no per-row callback).
+    /// Whole blocks of rows from the memory-mapped file (pages populated in one call): a
+    /// contiguous column of native float64 (one column, or any column of a Fortran-order
+    /// array) is handed over as a slice of the mapping itself, with no copy; other layouts
+    /// are decoded column by column per block (no per-value iterator, no per-row callback).
     fn for_each_block(
         &self,
         wanted: &[usize],
         visit: &mut BlockVisitor<'_>,
     ) -> Result<(), InputError> {
-        use std::io::{Seek, SeekFrom};
         let io = |source| InputError::Io {
             path: self.path.clone(),
             source,
         };
-        let open_at = |byte: u64| -> Result<File, InputError> {
-            let mut file = File::open(&self.path).map_err(io)?;
-            file.seek(SeekFrom::Start(byte)).map_err(io)?;
-            Ok(file)
-        };
-        let data = npy_data_offset(&self.path)?;
+        let data = usize::try_from(npy_data_offset(&self.path)?).unwrap_or(usize::MAX);
+        let file = File::open(&self.path).map_err(io)?;
+        // SAFETY: the mapping is read-only and private to this call. Another process
+        // shortening the file while it is mapped would fault the reads (SIGBUS); writing to
+        // it would change the values read, as it would with read(2). Analysing a file that
+        // is being rewritten is outside what this reader supports.
+        let map = unsafe { memmap2::MmapOptions::new().populate().map(&file) }.map_err(io)?;
+        let bytes: &[u8] = map.get(data..).unwrap_or(&[]);
         let item = self.item();
+        let native_f64 = !self.single && self.big_endian == cfg!(target_endian = "big");
+        let rows = usize::try_from(self.rows).unwrap_or(usize::MAX);
         let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(BLOCK_ROWS); wanted.len()];
-        let mut row = 0u64;
-        if self.fortran && self.columns > 1 {
-            // Column-major: every wanted column is a contiguous run with its own reader.
-            let mut readers: Vec<File> = wanted
-                .iter()
-                .map(|&c| open_at(data + c as u64 * self.rows * item as u64))
-                .collect::<Result<_, _>>()?;
-            let mut raw = vec![0u8; BLOCK_ROWS * item];
-            while row < self.rows {
-                let n = (self.rows - row).min(BLOCK_ROWS as u64) as usize;
-                for (reader, column) in readers.iter_mut().zip(columns.iter_mut()) {
-                    let got = read_full(reader, &mut raw[..n * item]).map_err(io)?;
-                    if got < n * item {
-                        return Err(self.truncated(row + (got / item) as u64));
+        let contiguous = self.columns <= 1 || self.fortran;
+        // Byte offset of column c's first value, and the distance between rows.
+        let (column_start, row_bytes) = if contiguous {
+            (rows.saturating_mul(item), item)
+        } else {
+            (item, item * self.columns)
+        };
+        let complete_rows = if contiguous {
+            // The last wanted column ends the file's useful part.
+            let last = wanted.iter().copied().max().unwrap_or(0);
+            (bytes
+                .len()
+                .saturating_sub(last.saturating_mul(column_start))
+                / item)
+                .min(rows)
+        } else {
+            (bytes.len() / row_bytes).min(rows)
+        };
+        let mut row = 0usize;
+        while row < rows {
+            let n = (rows - row).min(BLOCK_ROWS);
+            let complete = complete_rows.saturating_sub(row).min(n);
+            if complete > 0 {
+                let mut zero_copy: Vec<Option<&[f64]>> = Vec::with_capacity(wanted.len());
+                for (column, &c) in columns.iter_mut().zip(wanted) {
+                    let first = c * column_start + row * row_bytes;
+                    let raw = &bytes[first..first + (complete - 1) * row_bytes + item];
+                    if contiguous && native_f64 {
+                        // SAFETY: every bit pattern is a valid f64; `align_to` only hands out
+                        // the correctly aligned middle part (npy data starts 64-byte aligned).
+                        let (head, values, _) = unsafe { raw.align_to::<f64>() };
+                        if head.is_empty() && values.len() == complete {
+                            zero_copy.push(Some(values));
+                            continue;
+                        }
                     }
                     column.clear();
-                    self.decode_into(&raw[..n * item], item, 0, column);
+                    self.decode_into(raw, row_bytes, column);
+                    zero_copy.push(None);
                 }
-                let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
-                visit(row, &slices)?;
-                row += n as u64;
-            }
-            return Ok(());
-        }
-        let row_bytes = item * self.columns.max(1);
-        let mut reader = open_at(data)?;
-        let mut raw = vec![0u8; BLOCK_ROWS * row_bytes];
-        while row < self.rows {
-            let n = (self.rows - row).min(BLOCK_ROWS as u64) as usize;
-            let got = read_full(&mut reader, &mut raw[..n * row_bytes]).map_err(io)?;
-            let complete = got / row_bytes;
-            for (column, &c) in columns.iter_mut().zip(wanted) {
-                column.clear();
-                self.decode_into(&raw[..complete * row_bytes], row_bytes, c * item, column);
-            }
-            if complete > 0 {
-                let slices: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
-                visit(row, &slices)?;
+                let slices: Vec<&[f64]> = zero_copy
+                    .iter()
+                    .zip(&columns)
+                    .map(|(z, c)| z.unwrap_or(c.as_slice()))
+                    .collect();
+                visit(row as u64, &slices)?;
             }
             if complete < n {
-                return Err(self.truncated(row + complete as u64));
+                return Err(self.truncated((row + complete) as u64));
             }
-            row += n as u64;
+            row += n;
         }
         Ok(())
     }
@@ -1094,8 +1090,11 @@ pub fn read_axes(
         .map(|name| {
             let mut builder = SeriesBuilder::new(tau0, policy, name, source.describe());
             builder.clock = timing.clock_name();
-            // Ignoring a failed reservation is fine: the vector then grows as it goes.
-            let _ = builder.current.try_reserve_exact(expected);
+            // Ignoring a failed reservation is fine: the vector then grows as it goes. One
+            // more than the rows: the phase built in place adds a point (no reallocation).
+            if builder.current.try_reserve_exact(expected + 1).is_ok() {
+                super::memory::advise_huge_pages(&mut builder.current);
+            }
             (builder, temperature.map(|_| Vec::new()))
         })
         .collect();

@@ -18,6 +18,7 @@ pub mod export;
 pub mod fit;
 pub mod input;
 mod lanes;
+pub mod memory;
 mod modified;
 pub mod noise_id;
 pub mod numerics;
@@ -26,6 +27,7 @@ pub mod session_source;
 pub mod sweep;
 pub mod taus;
 pub mod thermal;
+pub mod timings;
 pub mod units;
 
 pub use curve::{compute_curve, Curve, CurvePoint};

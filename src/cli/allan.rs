@@ -13,6 +13,7 @@ use crate::allan::input::{
 };
 use crate::allan::session_source::SessionSource;
 use crate::allan::thermal::{bias_versus_temperature, find_plateaus};
+use crate::allan::timings::Stage;
 use crate::allan::units::{RateUnit, SensorKind};
 use crate::allan::{export, report, DeviationKind, TauGrid};
 use anyhow::{bail, Context};
@@ -143,11 +144,14 @@ pub fn run(args: AllanArgs) -> anyhow::Result<()> {
     if args.analysis.device.is_some() && args.inputs.len() > 1 {
         bail!("--device names a single input; with several inputs the file names are used");
     }
+    let _whole = Stage::start(|| "allan command".into());
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
+    let output = Stage::start(|| "output".into());
     print!("{}", summary_text(&report, true));
     for path in write_outputs(&report, &args)? {
         println!("wrote {}", path.display());
     }
+    drop(output);
     Ok(())
 }
 
@@ -634,6 +638,7 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         }
     }
     let sensor = args.sensor.or(args.units.sensor());
+    let planning = Stage::start(|| "open and plan".into());
     let mut plan: Vec<PlannedInput> = Vec::new();
     for (path, device) in expand_sessions(inputs, args)? {
         let path = &path;
@@ -722,6 +727,7 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         .as_deref()
         .map(crate::thermal::model::ThermalModel::load)
         .transpose()?;
+    drop(planning);
     let total: usize = plan.iter().map(|p| p.axes.len()).sum();
     let mut progress = Progress::new(total as u64);
     let mut results = Vec::new();
@@ -737,6 +743,7 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
         let per_pass = axes_per_pass(source.row_count_hint(), args.memory_mib);
         for group in axes.chunks(per_pass) {
             let channels: Vec<usize> = group.iter().map(|a| a.0).collect();
+            let reading = Stage::start(|| format!("read {}", path.display()));
             let mut series = read_axes(
                 source.as_ref(),
                 &channels,
@@ -746,6 +753,7 @@ pub fn analyse_inputs(inputs: &[PathBuf], args: &AnalysisArgs) -> anyhow::Result
                 *temperature,
             )
             .with_context(|| format!("reading {}", path.display()))?;
+            drop(reading);
             if let Some(model) = &model {
                 for (&(_, unit, _), s) in group.iter().zip(series.iter_mut()) {
                     let to_si = unit.to_si();
