@@ -2,8 +2,11 @@
 //! misalignment from simulated 15-minute, 200 Hz tumbles (30 s still, 60 random poses held
 //! 10 s, 3 s rotations) of each preset over seeds, each seed drawing its own deterministic
 //! errors at the grade's size; the gravity residual before and after; and the time one
-//! calibration takes. Method and tables: docs/bench/calib.md. Run: `cargo bench --bench calib`
-//! (`-- --seeds N` for another number of seeds).
+//! calibration takes; and, from the simulator's true bias, how far the accelerometer bias
+//! drifts along gravity between poses during the run (the part of the residual a constant-bias
+//! model cannot remove). Method and tables: docs/bench/calib.md. Run: `cargo bench --bench
+//! calib` (`-- --seeds N` for another number of seeds; `-- --steady-accel` sets the
+//! accelerometers' bias instability and random walk to zero).
 
 use imulab::calib::recording::Recording;
 use imulab::calib::run::{calibrate, Gravity, Mode, Options};
@@ -61,7 +64,7 @@ fn draws(stream: &mut Stream, n: usize, sigma: f64) -> String {
     format!("[{}]", v.join(", "))
 }
 
-fn scene(grade: &Grade, seed: u64) -> String {
+fn scene(grade: &Grade, seed: u64, steady_accel: bool) -> String {
     let mut s = Stream::new(seed, &format!("bench/calib/{}", grade.preset));
     format!(
         r#"
@@ -88,6 +91,7 @@ misalignment_mrad = {gm}
 bias_mg = {ab}
 scale_factor_ppm = {as_}
 misalignment_mrad = {am}
+{steady}
 [outputs]
 truth_nav = false
 truth_imu = true
@@ -99,6 +103,11 @@ truth_every = 200
         ab = draws(&mut s, 3, grade.bias_mg),
         as_ = draws(&mut s, 3, grade.scale_ppm),
         am = draws(&mut s, 6, grade.misalignment_mrad),
+        steady = if steady_accel {
+            "bias_instability_mg = [0.0, 0.0, 0.0]\nrrw_mg_rth = [0.0, 0.0, 0.0]"
+        } else {
+            ""
+        },
     )
 }
 
@@ -146,20 +155,30 @@ fn main() {
         .and_then(|i| args.get(i + 1))
         .and_then(|s| s.parse().ok())
         .unwrap_or(20);
+    let steady_accel = args.iter().any(|a| a == "--steady-accel");
     println!(
-        "# calibration recovery, {seeds} seeds per preset, 15 min 200 Hz tumbles (60 poses)\n"
+        "# calibration recovery, {seeds} seeds per preset, 15 min 200 Hz tumbles (60 poses){}\n",
+        if steady_accel {
+            ", accelerometer bias instability and random walk off"
+        } else {
+            ""
+        }
     );
-    println!("| preset | accel scale err p50 / max (ppm) | target | accel mis. err max (°) | mis. ok (0.02° or 95 %) | accel bias err max (mg) | gyro scale err p50 / max (ppm) | gyro mis. err max (°) | gyro mis. ok | g residual before → after (mg) | pose-mean noise (mg) | calibrate time p50 / max (s) |");
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!("| preset | accel scale err p50 / max (ppm) | target | accel mis. err max (°) | mis. ok (0.02° or 95 %) | accel bias err max (mg) | gyro scale err p50 / max (ppm) | gyro mis. err max (°) | gyro mis. ok | g residual before → after (mg) | pose-mean noise (mg) | bias drift along g (mg) | √(noise² + drift²) (mg) | calibrate time p50 / max (s) |");
+    println!(
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+    );
     for grade in &GRADES {
         let mut a_scale = Vec::new();
         let mut g_scale = Vec::new();
         let (mut a_mis, mut g_mis, mut a_bias) = (0.0f64, 0.0f64, 0.0f64);
         let (mut a_ok, mut g_ok) = (0, 0);
         let (mut before, mut after, mut floor) = (Vec::new(), Vec::new(), Vec::new());
+        let mut drift = Vec::new();
         let mut times = Vec::new();
         for seed in 0..seeds {
-            let sc = Scene::parse(&scene(grade, seed), Path::new(".")).expect("scene");
+            let sc =
+                Scene::parse(&scene(grade, seed, steady_accel), Path::new(".")).expect("scene");
             let mut sink = MemorySink::default();
             run(&sc, &mut sink).expect("run");
             let rec = Recording::from_records("imu", &sink.imu["imu"]);
@@ -212,12 +231,47 @@ fn main() {
                     .sum::<f64>()
                     / d.intervals.len() as f64;
                 floor.push(f * mg);
+                // The true bias averaged over each pose, less its run mean, along that pose's
+                // gravity direction: what a constant bias leaves in the magnitude residual.
+                let t0 = sink.imu["imu"][0].t_mono_ns;
+                let along: Vec<f64> = d
+                    .intervals
+                    .iter()
+                    .filter_map(|p| {
+                        let inside: Vec<_> = rows
+                            .iter()
+                            .filter(|r| {
+                                let t = (r.t_mono_ns - t0) as f64 * 1e-9;
+                                t >= p.t_start && t <= p.t_end
+                            })
+                            .collect();
+                        if inside.is_empty() {
+                            return None;
+                        }
+                        let k = inside.len() as f64;
+                        let a = p.accel_mean;
+                        let norm = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+                        Some(
+                            (0..3)
+                                .map(|j| {
+                                    let b = inside.iter().map(|r| r.accel_bias[j]).sum::<f64>() / k;
+                                    (b - ab[j]) * a[j] / norm
+                                })
+                                .sum::<f64>(),
+                        )
+                    })
+                    .collect();
+                let m = along.iter().sum::<f64>() / along.len().max(1) as f64;
+                let rms = (along.iter().map(|v| (v - m).powi(2)).sum::<f64>()
+                    / along.len().max(1) as f64)
+                    .sqrt();
+                drift.push(rms * mg);
             }
         }
         let done = times.len();
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         println!(
-            "| {} | {:.0} / {:.0} | {:.0} | {:.4} | {a_ok}/{done} | {:.3} | {:.0} / {:.0} | {:.4} | {g_ok}/{done} | {:.2} → {:.4} | {:.4} | {:.3} / {:.3} |",
+            "| {} | {:.0} / {:.0} | {:.0} | {:.4} | {a_ok}/{done} | {:.3} | {:.0} / {:.0} | {:.4} | {g_ok}/{done} | {:.2} → {:.4} | {:.4} | {:.4} | {:.4} | {:.3} / {:.3} |",
             grade.preset,
             percentile(&mut a_scale, 0.5),
             percentile(&mut a_scale, 1.0),
@@ -230,6 +284,8 @@ fn main() {
             mean(&before),
             mean(&after),
             mean(&floor),
+            mean(&drift),
+            (mean(&floor).powi(2) + mean(&drift).powi(2)).sqrt(),
             percentile(&mut times, 0.5),
             percentile(&mut times, 1.0),
         );

@@ -232,7 +232,10 @@ impl Calibration {
                 .collect();
             format!("[{}]", rows.join(", "))
         };
-        let vec = |v: &[f64; 3]| format!("[{:.9e}, {:.9e}, {:.9e}]", v[0], v[1], v[2]);
+        let vec = |v: &[f64; 3]| {
+            let [x, y, z] = v.map(yaml_float);
+            format!("[{x}, {y}, {z}]")
+        };
         if let Some(a) = &self.accel {
             let (l, _) = lq(&a.m());
             let _ = writeln!(
@@ -284,6 +287,16 @@ impl Calibration {
             );
         }
         s
+    }
+}
+
+/// `v` in exponent form with a signed exponent (`9.806650000e+0`): YAML 1.1 readers such as
+/// PyYAML, which Kalibr uses, take `9.8e0` for a string.
+fn yaml_float(v: f64) -> String {
+    let s = format!("{v:.9e}");
+    match s.split_once('e') {
+        Some((mantissa, exp)) if !exp.starts_with('-') => format!("{mantissa}e+{exp}"),
+        _ => s,
     }
 }
 

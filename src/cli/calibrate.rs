@@ -283,7 +283,13 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         },
         gravity,
     };
+    let read_start = Instant::now();
     let rec = Recording::read(&args.input, args.device.as_deref(), args.rate)?;
+    println!(
+        "read {} samples in {:.2} s",
+        rec.len(),
+        read_start.elapsed().as_secs_f64()
+    );
     let start = Instant::now();
     let outcome = calibrate(&rec, &opts)?;
     let seconds = start.elapsed().as_secs_f64();

@@ -372,3 +372,171 @@ fn calibrate_end_to_end_then_export_and_allan_apply_it() {
     ]);
     assert!(!ok && text.contains("not a calibration file"), "{text}");
 }
+
+/// The per-outage `max horizontal drift X m` figures of a replay's output.
+fn outage_drifts(stdout: &str) -> Vec<f64> {
+    stdout
+        .lines()
+        .filter_map(|l| l.split("max horizontal drift ").nth(1))
+        .map(|d| {
+            d.trim_end_matches(" m")
+                .parse()
+                .unwrap_or_else(|_| panic!("drift `{d}` is not a number of metres"))
+        })
+        .collect()
+}
+
+#[test]
+fn the_tumble_calibration_shrinks_the_outage_drift_of_a_drive() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/scenes");
+    let tumble = dir.path().join("tumble");
+    let drive = dir.path().join("drive");
+    for (scene, out) in [("tumble_15min.toml", &tumble), ("drive_calib.toml", &drive)] {
+        let (ok, text) = imulab(&[
+            "sim",
+            &format!("{scenes}/{scene}"),
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{text}");
+    }
+    let cal = dir.path().join("cal.json");
+    let (ok, text) = imulab(&[
+        "calibrate",
+        tumble.to_str().unwrap(),
+        "-o",
+        cal.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let out_dir = dir.path().join("replay");
+    let replay = |extra: &[&str]| -> Vec<f64> {
+        let mut args = vec![
+            "replay",
+            drive.to_str().unwrap(),
+            "--outages",
+            "every:180:60",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (ok, text) = imulab(&args);
+        assert!(ok, "{text}");
+        let drifts = outage_drifts(&text);
+        assert_eq!(drifts.len(), 6, "{text}");
+        drifts
+    };
+    let rms = |v: &[f64]| (v.iter().map(|d| d * d).sum::<f64>() / v.len() as f64).sqrt();
+    let raw = replay(&[]);
+    let calibrated = replay(&["--calibration", cal.to_str().unwrap()]);
+    println!(
+        "per-outage max horizontal drift, raw {raw:.2?} (RMS {:.2} m), calibrated {calibrated:.2?} (RMS {:.2} m)",
+        rms(&raw),
+        rms(&calibrated)
+    );
+    assert!(
+        rms(&calibrated) < 0.7 * rms(&raw),
+        "RMS outage drift {:.2} m raw, {:.2} m calibrated",
+        rms(&raw),
+        rms(&calibrated)
+    );
+    let worse = raw.iter().zip(&calibrated).filter(|(r, c)| c > r).count();
+    assert!(
+        worse <= 1,
+        "calibration made {worse} of 6 outages drift more: raw {raw:?}, calibrated {calibrated:?}"
+    );
+}
+
+/// Kalibr reads its IMU YAML with PyYAML (`yaml.safe_load`); the file read that way gives back
+/// the calibration under Kalibr's measurement model, accel: raw = M·a + b, gyro:
+/// raw = M·C_gyro_i·ω + A·a + b (M lower triangular, C_gyro_i a rotation).
+#[test]
+fn kalibr_yaml_read_as_kalibr_reads_it_gives_back_the_model() {
+    let mut cal = imulab::calib::Calibration::new("imu", "test", "multi-position", "accel");
+    let accel = TriadModel {
+        bias: [1.2, -0.15, 0.3],
+        bias_sigma: [0.0; 3],
+        matrix: [
+            [1.009, 0.0, 0.0],
+            [0.005, 0.988, 0.0],
+            [-0.003, 0.004, 1.006],
+        ],
+        matrix_sigma: [[0.0; 3]; 3],
+    };
+    // A full gyro M: misalignment above and below the diagonal.
+    let gyro = TriadModel {
+        bias: [1e-3, -2e-3, 5e-4],
+        bias_sigma: [0.0; 3],
+        matrix: [
+            [1.012, 0.004, -0.006],
+            [0.003, 0.992, 0.005],
+            [-0.002, 0.007, 1.015],
+        ],
+        matrix_sigma: [[0.0; 3]; 3],
+    };
+    cal.accel = Some(accel.clone());
+    cal.gyro = Some(gyro.clone());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("imu.yaml");
+    std::fs::write(&path, cal.kalibr_yaml(200.0)).unwrap();
+    let out = Command::new("python3")
+        .args([
+            "-c",
+            "import json, sys, yaml; print(json.dumps(yaml.safe_load(open(sys.argv[1]))))",
+            path.to_str().unwrap(),
+        ])
+        .output()
+        .expect("python3 with PyYAML (python3-yaml), the YAML reader Kalibr uses");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let imu = &doc["imu0"];
+    assert_eq!(imu["model"], "scale-misalignment");
+    assert_eq!(imu["update_rate"], 200.0);
+    let mat = |v: &serde_json::Value| {
+        nalgebra::Matrix3::from_fn(|i, j| v[i][j].as_f64().expect("a number"))
+    };
+    let vec3 =
+        |v: &serde_json::Value| nalgebra::Vector3::from_fn(|i, _| v[i].as_f64().expect("a number"));
+    let (m_a, b_a) = (
+        mat(&imu["accelerometers"]["M"]),
+        vec3(&imu["accelerometers"]["bias"]),
+    );
+    let g = &imu["gyroscopes"];
+    let (m_g, c_g, a_g, b_g) = (
+        mat(&g["M"]),
+        mat(&g["C_gyro_i"]),
+        mat(&g["A"]),
+        vec3(&g["bias"]),
+    );
+    for m in [&m_a, &m_g] {
+        assert!(
+            m[(0, 1)] == 0.0 && m[(0, 2)] == 0.0 && m[(1, 2)] == 0.0,
+            "{m}"
+        );
+    }
+    assert!((c_g.transpose() * c_g - nalgebra::Matrix3::identity()).norm() < 1e-8);
+    assert!((c_g.determinant() - 1.0).abs() < 1e-8);
+    assert!((m_a - accel.m()).norm() < 1e-8, "{m_a} vs {}", accel.m());
+    assert!(
+        (m_g * c_g - gyro.m()).norm() < 1e-8,
+        "{} vs {}",
+        m_g * c_g,
+        gyro.m()
+    );
+    assert_eq!(a_g, nalgebra::Matrix3::zeros());
+    // Kalibr's forward model on a true rate and specific force, then imulab's correction.
+    let (w, f) = (
+        nalgebra::Vector3::new(0.3, -0.7, 1.1),
+        nalgebra::Vector3::new(1.5, -2.0, 9.4),
+    );
+    let raw_w = m_g * c_g * w + a_g * f + b_g;
+    let raw_f = m_a * f + b_a;
+    let back_w = nalgebra::Vector3::from(gyro.correct(&raw_w.into()));
+    let back_f = nalgebra::Vector3::from(accel.correct(&raw_f.into()));
+    assert!((back_w - w).norm() < 1e-7, "{back_w} vs {w}");
+    assert!((back_f - f).norm() < 1e-6, "{back_f} vs {f}");
+}
