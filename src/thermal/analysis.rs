@@ -848,7 +848,7 @@ pub fn analyse_axis_thermal(
         .ok()
     };
 
-    // Hysteresis: blocks on a rising or falling sensor temperature, fitted apart.
+    // Hysteresis: blocks on a rising or falling sensor temperature, fitted jointly.
     let rates = temperature_rate(&blocks, 60.0);
     let branch: Vec<i8> = rates
         .iter()
