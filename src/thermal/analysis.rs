@@ -21,6 +21,10 @@ pub const VALID_TEMPERATURE_C: [f64; 2] = [-60.0, 150.0];
 /// A temperature rate above this (°C/min) puts a block on the rising or falling branch.
 pub const BRANCH_RATE_C_PER_MIN: f64 = 0.1;
 
+/// Blocks within this of the temperature where their ramp started stay out of the hysteresis
+/// fit (the bias is still moving between the branches there), °C.
+pub const BRANCH_SETTLE_C: f64 = 5.0;
+
 /// What to compute and how.
 #[derive(Debug, Clone)]
 pub struct ThermalOptions {
@@ -523,10 +527,12 @@ pub const POSE_MARGIN_BLOCKS: usize = 3;
 pub const POSE_GROUP_C: f64 = 1.0;
 
 /// Per block: +1 when an accelerometer axis reads +1 g (within [`POSE_GRAVITY_FRACTION`]),
-/// −1 for −1 g, else 0 (and all 0 for a gyro).
+/// −1 for −1 g, else 0; all 0 for a gyro, and for an axis that never holds both signs (it
+/// stays along gravity: no tumble).
 fn gravity_poses(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<i8> {
     let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
-    bias.iter()
+    let pose: Vec<i8> = bias
+        .iter()
         .map(|&b| {
             if sensor != SensorKind::Accel || ((b.abs() - g) / g).abs() > POSE_GRAVITY_FRACTION {
                 0
@@ -536,7 +542,12 @@ fn gravity_poses(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<i8> {
                 -1
             }
         })
-        .collect()
+        .collect();
+    if pose.contains(&1) && pose.contains(&-1) {
+        pose
+    } else {
+        vec![0; bias.len()]
+    }
 }
 
 /// `true` within `margin` blocks of a non-zero entry.
@@ -837,7 +848,7 @@ pub fn analyse_axis_thermal(
         .ok()
     };
 
-    // Hysteresis: blocks on a rising or falling sensor temperature, fitted apart.
+    // Hysteresis: blocks on a rising or falling sensor temperature, fitted jointly.
     let rates = temperature_rate(&blocks, 60.0);
     let branch: Vec<i8> = rates
         .iter()
@@ -851,7 +862,24 @@ pub fn analyse_axis_thermal(
             }
         })
         .collect();
-    let on_branch: Vec<usize> = keep.iter().copied().filter(|&i| branch[i] != 0).collect();
+    // Right after a turn the bias moves from one branch to the other: a block counts once
+    // the temperature has moved BRANCH_SETTLE_C from where its ramp started.
+    let mut start_c = f64::NAN;
+    let ramp_start_c: Vec<f64> = (0..branch.len())
+        .map(|i| {
+            if i == 0 || branch[i] != branch[i - 1] {
+                start_c = blocks.temp_c[i];
+            }
+            start_c
+        })
+        .collect();
+    let on_branch: Vec<usize> = keep
+        .iter()
+        .copied()
+        .filter(|&i| {
+            branch[i] != 0 && (blocks.temp_c[i] - ramp_start_c[i]).abs() >= BRANCH_SETTLE_C
+        })
+        .collect();
     let branch_t: Vec<f64> = on_branch.iter().map(|&i| blocks.temp_c[i]).collect();
     let branch_b: Vec<f64> = on_branch.iter().map(|&i| blocks.bias[i]).collect();
     let branch_up: Vec<bool> = on_branch.iter().map(|&i| branch[i] > 0).collect();

@@ -439,6 +439,8 @@ fn report_shows_the_thermal_section() {
         session.to_str().unwrap(),
         "--html",
         html.to_str().unwrap(),
+        "--axes",
+        "accel_x,accel_y,accel_z",
         "--study-runs",
         "0",
         "--quiet",
@@ -481,7 +483,7 @@ fn report_shows_the_thermal_section() {
             ])
             .arg(format!("--user-data-dir={}", profile.path().display()))
             .args(extra)
-            .arg(format!("file://{}#thermal", html.display()))
+            .arg(format!("file://{}", html.display()))
             .stdin(std::process::Stdio::null())
             .output()
             .expect("run chromium")
