@@ -78,7 +78,7 @@ impl Latitude {
     /// The latitude `d` rad further north: second-order Taylor series of the sine and
     /// cosine for |d| ≤ [`LATITUDE_SERIES_MAX_RAD`], a new `sin_cos` beyond.
     pub fn shifted(&self, d: f64) -> Self {
-        if !(d.abs() <= LATITUDE_SERIES_MAX_RAD) {
+        if d.is_nan() || d.abs() > LATITUDE_SERIES_MAX_RAD {
             return Self::new(self.rad + d);
         }
         let c2 = 1.0 - 0.5 * d * d;

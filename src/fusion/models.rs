@@ -473,6 +473,49 @@ mod tests {
         assert!((m2.z - m0.z - d).norm() < 1e-6);
     }
 
+    /// With the receiver's error as states (18), the fix predicts antenna position plus the
+    /// estimated error: the Jacobian holds I on those states and matches a perturbation.
+    #[test]
+    fn gnss_position_with_receiver_error_states() {
+        let n = nav();
+        let lever = Vector3::new(1.0, -0.5, -1.5);
+        let sigma = Vector3::repeat(0.7);
+        let e0 = Vector3::new(1.0, -2.0, 0.5);
+        let m0 = gnss_position::<18>(&n, &lever, &e0, 0.7, 0.1, 100.0, &sigma);
+        let de = Vector3::new(0.2, 0.1, -0.3);
+        let m1 = gnss_position::<18>(&n, &lever, &(e0 + de), 0.7, 0.1, 100.0, &sigma);
+        let mut dx = SVector::<f64, 18>::zeros();
+        dx.fixed_rows_mut::<3>(15).copy_from(&de);
+        assert!((m1.z - m0.z - m0.h * dx).norm() < 1e-12);
+        assert_eq!(gnss_error_index(18), Some(15));
+        assert_eq!(gnss_error_index(24), Some(21));
+        assert_eq!(gnss_error_index(21), None);
+        assert!(!has_scale_factors(18) && has_scale_factors(24));
+        // Without the states the estimate is not added (15 states have nowhere to put it).
+        let m15 = gnss_position::<15>(&n, &lever, &Vector3::zeros(), 0.7, 0.1, 100.0, &sigma);
+        assert!((m15.z + e0 - m0.z).norm() < 1e-9);
+        // The error states decay with τ and are driven by 2σ²/τ.
+        let mut config = FusionConfig {
+            states: 15,
+            ..FusionConfig::default()
+        };
+        config.gnss.position_error = crate::fusion::config::GnssPositionError {
+            horizontal_m: 2.0,
+            vertical_m: 3.5,
+            tau_s: 600.0,
+        };
+        assert_eq!(config.filter_states(), 18);
+        let f = dynamics_matrix::<18>(
+            &n,
+            &Vector3::zeros(),
+            &Vector3::new(0.0, 0.0, -9.8),
+            &config,
+        );
+        assert!((f[(15, 15)] + 1.0 / 600.0).abs() < 1e-15 && sensor_rows_diagonal(&f));
+        let q = process_noise_psd::<18>(&config);
+        assert!((q[17] - 2.0 * 3.5 * 3.5 / 600.0).abs() < 1e-15);
+    }
+
     #[test]
     fn nhc_jacobian_matches_perturbation() {
         let n = nav();

@@ -475,7 +475,7 @@ impl<const N: usize> Navigator<N> {
         let lever = Vector3::from(g.lever_arm_m);
 
         let Some(ins) = self.ins.as_mut() else {
-            self.try_align(fix, vel);
+            self.try_align(fix, vel, &sigma_pos);
             return;
         };
         // Predict the state to the fix time (the fix lies within one IMU interval).
@@ -518,7 +518,14 @@ impl<const N: usize> Navigator<N> {
         }
     }
 
-    fn try_align(&mut self, fix: &GnssObservation, vel: Option<Vector3<f64>>) {
+    /// Starts the filter at the fix once a heading is known; `sigma_white` is the fix's
+    /// white position σ (NED, m).
+    fn try_align(
+        &mut self,
+        fix: &GnssObservation,
+        vel: Option<Vector3<f64>>,
+        sigma_white: &Vector3<f64>,
+    ) {
         let a = self.config.alignment;
         let Some((t_imu, _, _)) = self.last_imu else {
             return;
@@ -543,6 +550,18 @@ impl<const N: usize> Navigator<N> {
         nav.shift_position(&-(quat_nb * Vector3::from(self.config.gnss.lever_arm_m)));
         nav.shift_position(&(nav.vel_ned * (t_imu - fix.t_s)));
         self.start(nav);
+        if let (Some(ge), Some(ins)) = (models::gnss_error_index(N), self.ins.as_mut()) {
+            // The position is the fix's, so its error is the receiver's: δr = e + w for a
+            // receiver error e and white noise w, while the error state starts at δe = −e.
+            let correlated = self.config.gnss.position_error.sigma_ned();
+            for (i, c) in correlated.iter().enumerate() {
+                let (var_e, var_w) = (c * c, sigma_white[i] * sigma_white[i]);
+                ins.p[(i, i)] = var_e + var_w;
+                ins.p[(ge + i, ge + i)] = var_e;
+                ins.p[(i, ge + i)] = -var_e;
+                ins.p[(ge + i, i)] = -var_e;
+            }
+        }
         self.last_used_fix_t = Some(fix.t_s);
         self.last_nhc_t = t_imu;
     }
