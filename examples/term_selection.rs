@@ -17,6 +17,7 @@ use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
 use imulab::sim::imu_model::{Channels, ImuSimulator};
 use imulab::sim::presets::{imu_preset, imu_preset_names};
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 #[derive(Parser, Debug)]
 struct Args {
@@ -49,46 +50,51 @@ fn main() -> Result<(), String> {
     for name in imu_preset_names() {
         let spec = imu_preset(name).ok_or(format!("no preset {name}"))?;
         for gyro in [true, false] {
-            let mut reported = [0usize; 5];
-            for seed in 1..=args.seeds {
-                let mut on = [false; 3];
-                on[args.axis] = true;
-                let channels = if gyro {
-                    Channels {
-                        gyro: on,
-                        accel: [false; 3],
-                    }
-                } else {
-                    Channels {
-                        gyro: [false; 3],
-                        accel: on,
-                    }
-                };
-                let mut sim = ImuSimulator::new(&spec, "dut", seed, args.rate, channels)?;
-                let zero = Vector3::zeros();
-                let mut y = Vec::with_capacity(n + 1);
-                for _ in 0..n {
-                    let r = sim
-                        .step(&zero, &zero, spec.reference_temp_c, 0, 0)
-                        .record
-                        .ok_or("dropped sample")?;
-                    y.push(if gyro {
-                        r.gyro[args.axis]
+            // Seeds in parallel (rayon), counted in seed order.
+            let runs: Vec<[bool; 5]> = (1..=args.seeds)
+                .into_par_iter()
+                .map(|seed| -> Result<[bool; 5], String> {
+                    let mut on = [false; 3];
+                    on[args.axis] = true;
+                    let channels = if gyro {
+                        Channels {
+                            gyro: on,
+                            accel: [false; 3],
+                        }
                     } else {
-                        r.accel[args.axis]
-                    });
-                }
-                let curve = compute_curve(
-                    &Phase::from_rate(y),
-                    tau0,
-                    DeviationKind::Oadev,
-                    &TauGrid::Octave,
-                );
-                let fit = fit_noise_terms(&curve).map_err(|e| e.to_string())?;
-                for (j, term) in Term::ALL.iter().enumerate() {
-                    if fit.get(*term).is_some_and(|t| t.value.is_some()) {
-                        reported[j] += 1;
+                        Channels {
+                            gyro: [false; 3],
+                            accel: on,
+                        }
+                    };
+                    let mut sim = ImuSimulator::new(&spec, "dut", seed, args.rate, channels)?;
+                    let zero = Vector3::zeros();
+                    let mut y = Vec::with_capacity(n + 1);
+                    for _ in 0..n {
+                        let r = sim
+                            .step(&zero, &zero, spec.reference_temp_c, 0, 0)
+                            .record
+                            .ok_or("dropped sample")?;
+                        y.push(if gyro {
+                            r.gyro[args.axis]
+                        } else {
+                            r.accel[args.axis]
+                        });
                     }
+                    let curve = compute_curve(
+                        &Phase::from_rate(y),
+                        tau0,
+                        DeviationKind::Oadev,
+                        &TauGrid::Octave,
+                    );
+                    let fit = fit_noise_terms(&curve).map_err(|e| e.to_string())?;
+                    Ok(Term::ALL.map(|term| fit.get(term).is_some_and(|t| t.value.is_some())))
+                })
+                .collect::<Result<_, _>>()?;
+            let mut reported = [0usize; 5];
+            for run in &runs {
+                for (j, &r) in run.iter().enumerate() {
+                    reported[j] += usize::from(r);
                 }
             }
             let cells: Vec<String> = reported.iter().map(|r| format!("{r:>3}")).collect();
