@@ -6,9 +6,11 @@
 //! 1. Real time: the session grows by 1 s of data every second for
 //!    `IMULAB_WATCH_BENCH_REAL_S` seconds (default 120); CPU over that time after the first
 //!    look, and the RSS at the end.
-//! 2. A day: `IMULAB_WATCH_BENCH_DAY_H` hours of data (default 24) written as fast as the
-//!    writer goes while the same process follows; RSS at every few hours of data (the bound
-//!    over a day) and the CPU per hour of data (the part of the cost that grows with rows).
+//! 2. A day: `IMULAB_WATCH_BENCH_DAY_H` hours of data (default 24) written at
+//!    `IMULAB_WATCH_BENCH_SPEEDUP` times real time (default 0: as fast as the writer goes;
+//!    the speed-up reached is printed) while the same process follows; RSS at every few
+//!    hours of data (the bound over a day) and the CPU per hour of data (the part of the
+//!    cost that grows with rows).
 //!
 //! Run: `cargo bench --bench watch` (docs/bench/watch.md).
 
@@ -91,15 +93,17 @@ fn real_time(seconds: f64, refresh_s: f64) {
     let cpu = cpu_s(pid) - cpu0;
     println!(
         "real time: {wall:.0} s of a 2 × 150 Hz IMU + 5 Hz GNSS session, refresh {refresh_s} s: \
-         CPU {:.2} % of one core ({cpu:.2} s), RSS {:.1} MiB (peak {:.1} MiB)",
+         CPU {:.2} % of one core ({cpu:.2} s, {:.1} CPU s per real hour), RSS {:.1} MiB \
+         (peak {:.1} MiB)",
         100.0 * cpu / wall,
+        3600.0 * cpu / wall,
         mem_mib(pid, "VmRSS"),
         mem_mib(pid, "VmHWM")
     );
     live.close();
 }
 
-fn day(hours: f64, refresh_s: f64) {
+fn day(hours: f64, refresh_s: f64, speed_up: f64) {
     let dir = tempfile::tempdir().unwrap();
     let session = dir.path().join("run");
     let mut live = LiveSession::create(&session, mono_now());
@@ -112,8 +116,15 @@ fn day(hours: f64, refresh_s: f64) {
     let mut next_report = 1.0;
     let mut next_fetch = Instant::now();
     println!("a day: data hours, wall s, watch CPU s, RSS MiB, peak MiB");
+    let mut paced = Instant::now();
     loop {
         live.append(60.0);
+        if speed_up > 0.0 {
+            paced += Duration::from_secs_f64(60.0 / speed_up);
+            if let Some(wait) = paced.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
         let data_h = live.rows as f64 / common::RATE_HZ / 3600.0;
         if Instant::now() >= next_fetch {
             fetch_page(&served);
@@ -143,6 +154,12 @@ fn day(hours: f64, refresh_s: f64) {
     let cpu = cpu_s(pid) - cpu0;
     let data_h = live.rows as f64 / common::RATE_HZ / 3600.0;
     println!(
+        "a day: {data_h:.1} h of data in {:.0} s: {:.0}× real time, including the pauses for \
+         the reports",
+        started.elapsed().as_secs_f64(),
+        data_h * 3600.0 / started.elapsed().as_secs_f64()
+    );
+    println!(
         "a day: {data_h:.1} h of data followed with {cpu:.1} CPU s = {:.3} % of one core per \
          real-time hour for the rows (plus the fixed refresh cost of the real-time run)",
         100.0 * cpu / (data_h * 3600.0)
@@ -157,5 +174,9 @@ fn main() {
     }
     let refresh_s = env_f64("IMULAB_WATCH_BENCH_REFRESH_S", 5.0);
     real_time(env_f64("IMULAB_WATCH_BENCH_REAL_S", 120.0), refresh_s);
-    day(env_f64("IMULAB_WATCH_BENCH_DAY_H", 24.0), refresh_s);
+    day(
+        env_f64("IMULAB_WATCH_BENCH_DAY_H", 24.0),
+        refresh_s,
+        env_f64("IMULAB_WATCH_BENCH_SPEEDUP", 0.0),
+    );
 }

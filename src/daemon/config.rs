@@ -689,18 +689,25 @@ impl Config {
             }
         }
         if issues.0.is_empty() {
-            let floor_mb = reserve_floor_mb(&self.session, &devices);
+            let (floor_mb, set_by_fast) = reserve_floor(&self.session, &devices);
             if self.session.disk_reserve_mb < floor_mb {
+                let hint = if set_by_fast {
+                    format!(
+                        "use at least {floor_mb}: a pace = \"fast\" replay writes as fast as the writer goes, so free space is checked after every 1/{RESERVE_CHECKS_PER_RESERVE} of the reserve written, and the reserve must hold {RESERVE_CHECKS_PER_RESERVE} of the largest batches a device hands over (or play at a factor, e.g. pace = 50, whose floor follows from the rates)"
+                    )
+                } else {
+                    format!(
+                        "use at least {floor_mb}: rows (HDF5 and journal) and raw bytes at the configured rates times each replay's pace factor over max(flush_interval_ms, {} ms); below that the disk can fill before the daemon stops",
+                        RESERVE_CHECK_INTERVAL_MS
+                    )
+                };
                 issues.add(
                     "session.disk_reserve_mb",
                     format!(
                         "{} MB is less than the {floor_mb} MB the configured devices can write between two free-space checks",
                         self.session.disk_reserve_mb
                     ),
-                    &format!(
-                        "use at least {floor_mb}: rows (HDF5 and journal) and raw bytes at the configured rates over max(flush_interval_ms, {} ms); below that the disk can fill before the daemon stops",
-                        RESERVE_CHECK_INTERVAL_MS
-                    ),
+                    &hint,
                 );
                 return Err(issues.0);
             }
@@ -794,18 +801,51 @@ impl Config {
 
 /// How often the daemon checks free space.
 pub const RESERVE_CHECK_INTERVAL_MS: u64 = 1000;
+/// Free space is also checked after every `reserve / RESERVE_CHECKS_PER_RESERVE` bytes
+/// written, whatever the rate ([`super::writer::WriterSettings::disk_check_bytes`]).
+pub const RESERVE_CHECKS_PER_RESERVE: u64 = 4;
 
-/// The smallest safe `disk_reserve_mb`: what every device can write, at its configured rate,
-/// in the longest time between two free-space checks. A row is counted twice (its HDF5
-/// dataset and the write-ahead journal) at its in-memory size (no compression assumed:
-/// `deflate_level` may be 0); with a device's `raw_journal`, a serial line adds its top byte rate
-/// (baud / 10, 8N1), other transports their row rate × the largest frame.
-pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 {
+/// How many times its configured rate a device can deliver: a file source's pace factor
+/// (`Some(1)` for a live device), `None` for `pace = "fast"` (no rate bounds it).
+fn speed_up(transport: &Transport) -> Option<f64> {
+    match transport {
+        Transport::File(FileSource {
+            pace: Pace::Fast, ..
+        }) => None,
+        Transport::File(FileSource {
+            pace: Pace::Factor(x),
+            ..
+        }) => Some(*x),
+        _ => Some(1.0),
+    }
+}
+
+/// The smallest safe `disk_reserve_mb`, and whether a `pace = "fast"` replay set it.
+///
+/// What every device can write in the longest time between two timed free-space checks, at
+/// its configured rate times its replay speed-up (a file source's `pace` factor). A row is
+/// counted twice (its HDF5 dataset and the write-ahead journal) at its in-memory size (no
+/// compression assumed: `deflate_level` may be 0); with a device's `raw_journal`, a serial
+/// line adds its top byte rate (baud / 10, 8N1), other transports their row rate × the
+/// largest frame.
+///
+/// A `pace = "fast"` replay has no rate: the writer goes as fast as it can. For it the
+/// writer's check by volume (free space looked at after every quarter of the reserve
+/// written) is what holds, and that needs the reserve to take four of the largest batches a
+/// device hands over ([`super::device::max_batch_disk_bytes`]): between two checks at most a
+/// quarter of the reserve and one batch are written, so half the reserve is still free when
+/// the daemon stops, for what is queued and for closing.
+pub fn reserve_floor(session: &SessionConfig, devices: &[DeviceSpec]) -> (u64, bool) {
     const LARGEST_FRAME_BYTES: f64 = 256.0;
     let window_s = session.flush_interval_ms.max(RESERVE_CHECK_INTERVAL_MS) as f64 / 1000.0;
+    let mut fast = false;
     let bytes_per_s: f64 = devices
         .iter()
         .map(|d| {
+            let Some(speed_up) = speed_up(&d.transport) else {
+                fast = true;
+                return 0.0;
+            };
             let row = if d.protocol.is_gnss() {
                 std::mem::size_of::<imulab_store::GnssRecord>()
             } else {
@@ -815,12 +855,26 @@ pub fn reserve_floor_mb(session: &SessionConfig, devices: &[DeviceSpec]) -> u64 
                 (_, false) => 0.0,
                 (Transport::Serial(s), true) => f64::from(s.baud) / 10.0,
                 (Transport::Slcan(s), true) => f64::from(s.baud) / 10.0,
+                (
+                    Transport::File(FileSource {
+                        baud: Some(baud), ..
+                    }),
+                    true,
+                ) => f64::from(*baud) / 10.0,
                 (_, true) => d.rate_hz * LARGEST_FRAME_BYTES,
             };
-            2.0 * d.rate_hz * row + raw
+            speed_up * (2.0 * d.rate_hz * row + raw)
         })
         .sum();
-    (bytes_per_s * window_s / f64::from(1u32 << 20)).ceil() as u64
+    let mib = f64::from(1u32 << 20);
+    let by_rate = (bytes_per_s * window_s / mib).ceil() as u64;
+    if !fast {
+        return (by_rate, false);
+    }
+    let by_volume =
+        (RESERVE_CHECKS_PER_RESERVE as f64 * super::device::max_batch_disk_bytes() as f64 / mib)
+            .ceil() as u64;
+    (by_rate.max(by_volume), by_volume >= by_rate)
 }
 
 /// Checks that every `{...}` in a session name is a known placeholder.

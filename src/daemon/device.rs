@@ -47,6 +47,19 @@ pub const BATCH_WINDOW_MAX: Duration = Duration::from_millis(250);
 const BATCH_MAX_ROWS: u64 = 1024;
 /// ...or this many raw journal bytes (so the queue's memory stays bounded at any rate).
 const BATCH_MAX_RAW_BYTES: usize = 64 * 1024;
+/// Fewest bytes of input a decoded row takes in any protocol (a WitMotion packet is 11
+/// bytes and a row takes several; CSV, NMEA, MIP, VectorNav and UBX frames are longer).
+const MIN_INPUT_BYTES_PER_ROW: usize = 8;
+
+/// The most one batch can put on disk by [`super::writer::Batch::disk_bytes`]'s count: a batch
+/// is handed over once it holds [`BATCH_MAX_ROWS`] rows or [`BATCH_MAX_RAW_BYTES`] raw bytes,
+/// so it holds at most that and one more read ([`READ_BUFFER_BYTES`]).
+pub fn max_batch_disk_bytes() -> u64 {
+    let rows = BATCH_MAX_ROWS as usize + READ_BUFFER_BYTES / MIN_INPUT_BYTES_PER_ROW;
+    let row_bytes = std::mem::size_of::<crate::store::ImuRecord>()
+        .max(std::mem::size_of::<crate::store::GnssRecord>());
+    (2 * rows * row_bytes + BATCH_MAX_RAW_BYTES + READ_BUFFER_BYTES) as u64
+}
 
 /// The hand-over period for a flush interval: [`BATCH_WINDOW_MAX`], or a quarter of the
 /// flush interval when that is shorter. The store gets the rest of the interval

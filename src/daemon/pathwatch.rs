@@ -7,9 +7,11 @@
 //! creating it, and the first open may fail before that). When that directory does not exist
 //! (`/dev/serial/by-id` goes away with the last USB serial adapter), the nearest existing
 //! ancestor is watched for the missing directory, and the watch moves down as the
-//! directories appear. Events are only a reason to try again: the back-off still bounds the
-//! wait, so a file system without inotify events (devpts does not report new ptys) loses
-//! nothing but the speed-up.
+//! directories appear. A bare pty path (`/dev/pts/N`) is watched the same way: devpts
+//! reports a new pty's entry to inotify, so when the kernel hands the number to a new pty it
+//! is reopened at once (`tests/daemon/pty.rs`). Events are only a reason to try again: the
+//! back-off still bounds the wait, so a file system without inotify events loses nothing but
+//! the speed-up.
 
 use std::ffi::OsString;
 use std::io;

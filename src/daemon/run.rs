@@ -176,6 +176,8 @@ pub async fn run(
         handover,
         reserve_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20),
         disk_check_interval: DISK_CHECK_INTERVAL,
+        disk_check_bytes: config.session.disk_reserve_mb.saturating_mul(1 << 20)
+            / super::config::RESERVE_CHECKS_PER_RESERVE,
         drain_budget: WRITER_DRAIN_BUDGET,
         watchdog: watchdog.clone(),
         status: StatusFile {

@@ -79,6 +79,15 @@ impl Batch {
     pub fn rows(&self) -> u64 {
         (self.imu.len() + self.gnss.len()) as u64
     }
+
+    /// What writing the batch puts on disk, counted as the disk reserve's floor counts it
+    /// ([`super::config::reserve_floor`]): every row twice (its HDF5 dataset and the
+    /// journal) at its in-memory size, and the raw bytes.
+    pub fn disk_bytes(&self) -> u64 {
+        let imu = self.imu.len() * std::mem::size_of::<ImuRecord>();
+        let gnss = self.gnss.len() * std::mem::size_of::<GnssRecord>();
+        (2 * (imu + gnss) + self.raw_bytes.len()) as u64
+    }
 }
 
 /// The writer thread is gone; the device task should stop.
@@ -171,6 +180,11 @@ pub struct WriterSettings {
     /// Stop cleanly when free space falls below this many bytes.
     pub reserve_bytes: u64,
     pub disk_check_interval: Duration,
+    /// Free space is also checked as soon as this much has been written since the last
+    /// check ([`Batch::disk_bytes`]), so a device writing faster than its configured rate (a
+    /// `pace = "fast"` replay, a simulator run at a speed-up) cannot fill the disk between
+    /// two timed checks.
+    pub disk_check_bytes: u64,
     /// Detail of the `session_start` event (config summary).
     pub start_detail: String,
     /// Once stopping, how long the writer may spend writing what is still queued; batches
@@ -227,6 +241,7 @@ pub fn run_writer(
         tracker,
         last_status: None,
         status_failing: false,
+        written_since_check: 0,
     };
     state.reported_drops = vec![(0, 0, 0); state.devices.len()];
     {
@@ -246,7 +261,7 @@ pub fn run_writer(
     // Whatever stopped us, keep what is already queued (bounded: the queue's capacity plus
     // what the device tasks send while they stop).
     let mut outcome = match outcome {
-        Ok(exit) => match state.drain(&mut *sink, &rx, settings.drain_budget) {
+        Ok(exit) => match state.drain(&mut *sink, &rx, &settings, &mut free_space) {
             Ok(()) => exit,
             Err(e) => WriterExit::Failed(e),
         },
@@ -302,6 +317,8 @@ struct WriterState {
     last_status: Option<Instant>,
     /// The last status write failed (said once, not every second).
     status_failing: bool,
+    /// [`Batch::disk_bytes`] written since free space was last checked.
+    written_since_check: u64,
 }
 
 impl WriterState {
@@ -329,8 +346,11 @@ impl WriterState {
             if control.stop.load(Ordering::SeqCst) {
                 return Ok(WriterExit::Clean);
             }
-            if last_disk_check.is_none_or(|t| t.elapsed() + early >= settings.disk_check_interval) {
+            if last_disk_check.is_none_or(|t| t.elapsed() + early >= settings.disk_check_interval)
+                || self.written_since_check >= settings.disk_check_bytes
+            {
                 last_disk_check = Some(Instant::now());
+                self.written_since_check = 0;
                 match free_space() {
                     Ok(free_bytes) => {
                         self.shared.counters().free_bytes = Some(free_bytes);
@@ -380,10 +400,14 @@ impl WriterState {
                 Ok(batch) => {
                     self.write(sink, batch)?;
                     caught_up = false;
-                    // More of a backlog, for up to one turn before stop, rotation, disk and
-                    // watchdog are looked at again.
+                    // More of a backlog, for up to one turn (or until the next free-space
+                    // check is due by volume) before stop, rotation, disk and watchdog are
+                    // looked at again.
                     let turn = Instant::now();
-                    while turn.elapsed() < TURN && !control.stop.load(Ordering::SeqCst) {
+                    while turn.elapsed() < TURN
+                        && self.written_since_check < settings.disk_check_bytes
+                        && !control.stop.load(Ordering::SeqCst)
+                    {
                         match rx.try_recv() {
                             Ok(batch) => self.write(sink, batch)?,
                             Err(_) => {
@@ -456,25 +480,50 @@ impl WriterState {
             sink.append_event(event)?;
         }
         self.shared.counters().rows_written += batch.rows();
+        self.written_since_check += batch.disk_bytes();
         Ok(())
     }
 
-    /// Writes what is still queued, for up to `budget`; what is left after that (a writer far
-    /// behind, e.g. on a starved machine) is dropped, counted per device and written as a
-    /// `queue_overflow` event, so the session still closes within the stop deadline.
+    /// Writes what is still queued, for up to the drain budget and while free space stays
+    /// above half the reserve (checked after every eighth of the reserve written: a fast
+    /// replay's full queue could otherwise fill the disk after the reserve stopped it); what
+    /// is left after that (a writer far behind, e.g. on a starved machine) is dropped,
+    /// counted per device and written as a `queue_overflow` event, so the session still
+    /// closes within the stop deadline and with room to close.
     fn drain(
         &mut self,
         sink: &mut dyn RecordSink,
         rx: &Receiver<Batch>,
-        budget: Duration,
+        settings: &WriterSettings,
+        free_space: &mut FreeSpaceFn,
     ) -> anyhow::Result<()> {
         let started = Instant::now();
-        while started.elapsed() < budget {
+        let check_bytes = settings.disk_check_bytes / 2;
+        let why = loop {
+            if started.elapsed() >= settings.drain_budget {
+                break format!(
+                    "still queued after {} ms of writing",
+                    settings.drain_budget.as_millis()
+                );
+            }
+            if self.written_since_check >= check_bytes {
+                self.written_since_check = 0;
+                match free_space() {
+                    Ok(free) if free < settings.reserve_bytes / 2 => {
+                        self.shared.counters().free_bytes = Some(free);
+                        break format!(
+                            "still queued with {free} bytes free, below half the reserve"
+                        );
+                    }
+                    Ok(free) => self.shared.counters().free_bytes = Some(free),
+                    Err(e) => tracing::warn!("cannot read free disk space: {e}"),
+                }
+            }
             match rx.try_recv() {
                 Ok(batch) => self.write(sink, batch)?,
                 Err(_) => return Ok(()),
             }
-        }
+        };
         let mut left = vec![(0u64, 0u64, 0u64); self.devices.len()];
         while let Ok(batch) = rx.try_recv() {
             if let Some(l) = left.get_mut(batch.device) {
@@ -500,12 +549,8 @@ impl WriterState {
                 (c.dropped_batches, c.dropped_rows, c.dropped_events)
             };
             let detail = format!(
-                "stopping: {} batches ({} rows, {} events) still queued after {} ms of writing were dropped; {} rows in total",
-                l.0,
-                l.1,
-                l.2,
-                budget.as_millis(),
-                total.1
+                "stopping: {} batches ({} rows, {} events) {why} were dropped; {} rows in total",
+                l.0, l.1, l.2, total.1
             );
             tracing::warn!(device = %device.name, "{detail}");
             let mut event = session_event(EventKind::QueueOverflow, detail);

@@ -12,7 +12,8 @@ use std::fmt::Write;
 /// Extra style of the watch page.
 const WATCH_STYLE: &str = ".live{color:#1a7f37;font-weight:bold}.done{color:#555;font-weight:bold}\
 .warn{background:#fff4d6}.stale{color:#b00;font-weight:bold}#conn{color:#b00}\
-.temp svg{width:100%;max-width:720px;height:auto;border:1px solid #eee}";
+.temp svg{width:100%;max-width:720px;height:auto;border:1px solid #eee}\
+.health td.wrap{white-space:normal;min-width:8em;max-width:14em;text-align:left}";
 
 /// The whole page. `refresh_s`: the live page fetches a new fragment this often; `None`
 /// writes a static page.
@@ -122,10 +123,12 @@ pub fn fragment(s: &Snapshot) -> String {
 }
 
 fn health_table(out: &mut String, s: &Snapshot) {
+    // Two-line cells (a figure, then its detail in small type) keep the table within 1200 px
+    // with two IMUs and a receiver, live or finished.
     out.push_str(
-        "<h2>Data health</h2><div class=\"scroll\"><table class=\"health\" id=\"health\"><tr><th>device</th><th>kind</th>\
-         <th>rows</th><th>span</th><th>rate now (10 s)</th><th>mean rate</th><th>nominal</th>\
-         <th>last sample</th><th>gaps (missing)</th><th>resyncs</th><th>checksum errors</th>\
+        "<h2>Data health</h2><div class=\"scroll\"><table class=\"health\" id=\"health\"><tr><th>device</th>\
+         <th>rows</th><th>span</th><th>rate now<br>(10 s)</th><th>mean<br>rate</th><th>nominal</th>\
+         <th>last sample<br>age</th><th>gaps<br>(missing)</th><th>resyncs</th><th>checksum<br>errors</th>\
          <th>other events</th><th>temperature</th></tr>",
     );
     for d in &s.devices {
@@ -138,7 +141,7 @@ fn health_table(out: &mut String, s: &Snapshot) {
         let rate = |r: Option<f64>| r.map_or("–".to_string(), |r| format!("{r:.2} Hz"));
         let age = match (&d.daemon, d.last_sample_age_s) {
             (Some(x), Some(file)) => format!(
-                "{} (daemon), {file:.1} s in the files",
+                "{} <small>(daemon)</small><br><small>{file:.1} s in the files</small>",
                 x.last_sample_age_s
                     .map_or("–".into(), |a| format!("{a:.1} s"))
             ),
@@ -156,12 +159,14 @@ fn health_table(out: &mut String, s: &Snapshot) {
             .collect();
         let gaps = d.gaps + event("gap");
         let temp = match (d.temperature.last(), temperature_range(d)) {
-            (Some(last), Some((lo, hi))) => format!("{:.2} °C (range {lo:.2}–{hi:.2})", last.1),
+            (Some(last), Some((lo, hi))) => {
+                format!("{:.2} °C<br><small>range {lo:.2}–{hi:.2}</small>", last.1)
+            }
             _ => "–".to_string(),
         };
         let _ = write!(
             out,
-            "<tr><td>{}</td><td>{} {}</td><td>{}</td><td>{}</td>{}{}<td>{:.2} Hz</td>{}{}{}{}<td>{}</td><td>{temp}</td></tr>",
+            "<tr><td>{}<br><small>{} {}</small></td><td>{}</td><td>{}</td>{}{}<td>{:.2} Hz</td>{}{}{}{}<td class=\"wrap\">{}</td><td>{temp}</td></tr>",
             escape(&d.name),
             escape(&d.kind),
             escape(&d.model),

@@ -354,3 +354,75 @@ fn a_reserve_below_what_one_check_interval_can_write_is_refused_with_the_floor()
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// A replay's speed-up is part of the floor: a capture played at 50× its recorded pace can
+/// write 50 times what its rate says, and `pace = "fast"` (no rate at all) needs the reserve
+/// the writer's check by volume takes.
+#[test]
+fn a_replay_faster_than_recorded_raises_the_reserve_floor() {
+    let dir = tempfile::tempdir().unwrap();
+    let capture = dir.path().join("wit.bin");
+    std::fs::write(&capture, [0x55u8; 64]).unwrap();
+    let device = |pace: &str| {
+        format!(
+            "[[device]]\nname = \"imu-a\"\nprotocol = \"wit\"\nrate_hz = 1000\n\
+             file = {{ path = \"{}\", baud = 921600, pace = {pace} }}\n",
+            capture.display()
+        )
+    };
+    let session = |reserve: u64| {
+        format!(
+            "output_dir = \"{}\"\nraw_journal = true\ndisk_reserve_mb = {reserve}",
+            dir.path().display()
+        )
+    };
+    // 1000 rows/s (HDF5 and journal) and 92160 raw bytes/s over the 1 s check interval.
+    let row = std::mem::size_of::<imulab::store::ImuRecord>() as f64;
+    let per_s = 92_160.0 + 2.0 * 1000.0 * row;
+    let mib = f64::from(1u32 << 20);
+    let at_recorded = (per_s / mib).ceil() as u64;
+    let at_50 = (50.0 * per_s / mib).ceil() as u64;
+    assert!(at_50 > 2 * at_recorded, "{at_recorded} {at_50}");
+    for (pace, floor) in [("\"recorded\"", at_recorded), ("50", at_50)] {
+        let config = write_config(dir.path(), &session(floor - 1), &device(pace));
+        assert_refused(
+            &config,
+            dir.path(),
+            &[
+                "session.disk_reserve_mb",
+                &format!("{} MB is less than the {floor} MB", floor - 1),
+                "times each replay's pace factor",
+            ],
+        );
+        let config = write_config(dir.path(), &session(floor), &device(pace));
+        let out = imulogd("--check-config", &config);
+        assert!(
+            out.status.success(),
+            "pace {pace}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // As fast as the writer goes: no rate bounds it, the volume check does.
+    let config = write_config(dir.path(), &session(1), &device("\"fast\""));
+    let out = imulogd("--check-config", &config);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("1 MB is less than the") && stderr.contains("pace = \"fast\" replay"),
+        "{stderr}"
+    );
+    let floor: u64 = stderr
+        .split("use at least ")
+        .nth(1)
+        .and_then(|r| r.split(':').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no floor in {stderr}"));
+    assert!(floor > 1, "{stderr}");
+    let config = write_config(dir.path(), &session(floor), &device("\"fast\""));
+    let out = imulogd("--check-config", &config);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

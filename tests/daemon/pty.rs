@@ -202,3 +202,89 @@ async fn a_returning_device_is_reopened_at_once_and_its_buffered_burst_is_marked
         "burst rows {in_burst:?}"
     );
 }
+
+/// A device configured by its bare pty path (`/dev/pts/N`, no symlink): when the pty goes
+/// away and the kernel hands the same number to a new one, the watch on `/dev/pts` (devpts
+/// reports new entries to inotify) reopens it at once, not at the end of the 4 s back-off.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bare_pts_path_given_to_a_new_pty_is_reopened_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut first = Pty::open();
+    let path = first.slave_path.clone();
+    assert!(path.starts_with("/dev/pts"), "{}", path.display());
+    let devices = format!(
+        "[[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = 100\nretry_initial_ms = 4000\nretry_max_ms = 8000\n\
+         serial = {{ port = \"{}\", baud = 115200 }}\n",
+        path.display()
+    );
+    let daemon = start(config(dir.path(), &devices));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let first = tokio::task::spawn_blocking(move || {
+        send(&mut first, 0..30);
+        std::thread::sleep(Duration::from_millis(100));
+        first
+    })
+    .await
+    .unwrap();
+    drop(first);
+    // The daemon sees the vanish and closes its end, which frees the number.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    // The kernel gives the lowest free number: open ptys until ours comes back (others may
+    // hold lower numbers for a while; keep them so each try gets a new number).
+    let mut held = Vec::new();
+    let mut second = None;
+    for _ in 0..64 {
+        let pty = Pty::open();
+        if pty.slave_path == path {
+            second = Some(pty);
+            break;
+        }
+        held.push(pty);
+    }
+    let back_mono_ns = imulab::daemon::clock::mono_ns();
+    let Some(mut second) = second else {
+        let _ = daemon.stop().await;
+        println!(
+            "SKIPPED a_bare_pts_path_given_to_a_new_pty: {} was not handed out again in 64 tries (another process holds it)",
+            path.display()
+        );
+        return;
+    };
+    drop(held);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let second = tokio::task::spawn_blocking(move || {
+        send(&mut second, 30..60);
+        std::thread::sleep(Duration::from_millis(100));
+        second
+    })
+    .await
+    .unwrap();
+    let store = daemon.stop().await;
+    drop(second);
+
+    let reopen = store
+        .events
+        .iter()
+        .find(|e| e.device == "imu" && e.kind == EventKind::Reconnect)
+        .unwrap_or_else(|| panic!("no reconnect: {:?}", store.events));
+    let late_ms = (reopen.t_mono_ns - back_mono_ns) as f64 * 1e-6;
+    println!(
+        "{} reopened {late_ms:.1} ms after the new pty got its number: {}",
+        path.display(),
+        reopen.detail
+    );
+    assert!(
+        reopen.detail.contains("at once when its path appeared"),
+        "{}",
+        reopen.detail
+    );
+    assert!(
+        late_ms < 1000.0,
+        "reopened {late_ms:.1} ms after the path appeared"
+    );
+    let seqs: Vec<u64> = store.imu["imu"]
+        .iter()
+        .map(|r| (r.t_sensor * 100.0).round() as u64)
+        .collect();
+    assert_eq!(seqs, (0..60).collect::<Vec<_>>(), "{:?}", store.events);
+}

@@ -61,11 +61,11 @@ fn look_number(dom: &str) -> u64 {
 /// The rows cell of the first IMU in the health table.
 fn rows_of_first_imu(dom: &str) -> u64 {
     let row = dom
-        .split(&format!("<tr><td>{}</td>", IMUS[0]))
+        .split(&format!("<tr><td>{}<br>", IMUS[0]))
         .nth(1)
         .expect("no health row for the first IMU");
     row.split("<td>")
-        .nth(2)
+        .nth(1)
         .and_then(|c| c.split('<').next())
         .and_then(|n| n.parse().ok())
         .expect("no rows cell")
@@ -133,7 +133,7 @@ fn chromium_shows_the_live_page_and_its_updates() {
     let shot = dir.path().join("watch.png");
     let mut c = chromium(profile.path());
     c.arg(format!("--screenshot={}", shot.display())).args([
-        "--window-size=1280,2200",
+        "--window-size=1200,2200",
         "--hide-scrollbars",
         &url,
     ]);
@@ -154,4 +154,64 @@ fn chromium_shows_the_live_page_and_its_updates() {
     }
     stop.store(true, Ordering::Relaxed);
     writer.join().unwrap();
+}
+
+/// The health table of two IMUs and a receiver fits a 1200 px wide window: Chromium lays out
+/// the static page (`--once --html`) with a line of script added that writes the table's
+/// right edge into the DOM it dumps.
+#[test]
+fn chromium_lays_the_health_table_out_within_1200_px() {
+    if !Path::new(CHROMIUM).exists() {
+        eprintln!("skipped: {CHROMIUM} not found (install Debian's `chromium` to run this test)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("run");
+    let mut live = LiveSession::create(&session, mono_now());
+    live.append(300.0);
+    live.event(IMUS[0], imulab::store::EventKind::Resync, "count=2");
+    live.event(IMUS[1], imulab::store::EventKind::Reconnect, "reopened");
+    live.append(30.0);
+    let html = dir.path().join("page.html");
+    let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .arg("watch")
+        .arg(&session)
+        .arg("--once")
+        .arg("--html")
+        .arg(&html)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    live.close();
+    let page = std::fs::read_to_string(&html).unwrap();
+    let measure = "<script>const t=document.getElementById('health');\
+         document.body.setAttribute('data-health-right',Math.ceil(t.getBoundingClientRect().right));\
+         document.body.setAttribute('data-page-width',document.documentElement.scrollWidth);</script></body>";
+    std::fs::write(&html, page.replace("</body>", measure)).unwrap();
+    let profile = tempfile::tempdir().unwrap();
+    let mut c = chromium(profile.path());
+    c.args(["--window-size=1200,900", "--dump-dom"])
+        .arg(format!("file://{}", html.display()));
+    let out = run(c);
+    assert!(
+        out.status.success(),
+        "chromium: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let attribute = |name: &str| -> f64 {
+        dom.split(&format!("{name}=\""))
+            .nth(1)
+            .and_then(|r| r.split('"').next())
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("no {name} in the dumped page"))
+    };
+    let (right, width) = (attribute("data-health-right"), attribute("data-page-width"));
+    println!("health table right edge {right} px, page width {width} px in a 1200 px window");
+    assert!(right <= 1200.0, "the health table ends at {right} px");
+    assert!(width <= 1200.0, "the page is {width} px wide");
 }
