@@ -56,8 +56,8 @@ const MIN_INPUT_BYTES_PER_ROW: usize = 8;
 /// so it holds at most that and one more read ([`READ_BUFFER_BYTES`]).
 pub fn max_batch_disk_bytes() -> u64 {
     let rows = BATCH_MAX_ROWS as usize + READ_BUFFER_BYTES / MIN_INPUT_BYTES_PER_ROW;
-    let row_bytes = std::mem::size_of::<crate::store::ImuRecord>()
-        .max(std::mem::size_of::<crate::store::GnssRecord>());
+    let row_bytes = std::mem::size_of::<imulab_store::ImuRecord>()
+        .max(std::mem::size_of::<imulab_store::GnssRecord>());
     (2 * rows * row_bytes + BATCH_MAX_RAW_BYTES + READ_BUFFER_BYTES) as u64
 }
 
