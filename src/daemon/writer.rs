@@ -183,7 +183,7 @@ pub struct WriterSettings {
     /// Free space is also checked as soon as this much has been written since the last
     /// check ([`Batch::disk_bytes`]), so a device writing faster than its configured rate (a
     /// `pace = "fast"` replay, a simulator run at a speed-up) cannot fill the disk between
-    /// two timed checks.
+    /// two timed checks; near the reserve, after every batch (`WriterState::check_due_by_volume`).
     pub disk_check_bytes: u64,
     /// Detail of the `session_start` event (config summary).
     pub start_detail: String,
@@ -517,8 +517,9 @@ impl WriterState {
     }
 
     /// Writes what is still queued, for up to the drain budget and while free space stays
-    /// above half the reserve (checked after every eighth of the reserve written: a fast
-    /// replay's full queue could otherwise fill the disk after the reserve stopped it); what
+    /// above half the reserve (checked after every eighth of the reserve written, and after
+    /// every batch near the reserve: a fast replay's full queue could otherwise fill the
+    /// disk after the reserve stopped it); what
     /// is left after that (a writer far behind, e.g. on a starved machine) is dropped,
     /// counted per device and written as a `queue_overflow` event, so the session still
     /// closes within the stop deadline and with room to close.
