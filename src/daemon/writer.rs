@@ -183,7 +183,7 @@ pub struct WriterSettings {
     /// Free space is also checked as soon as this much has been written since the last
     /// check ([`Batch::disk_bytes`]), so a device writing faster than its configured rate (a
     /// `pace = "fast"` replay, a simulator run at a speed-up) cannot fill the disk between
-    /// two timed checks.
+    /// two timed checks; near the reserve, after every batch (`WriterState::check_due_by_volume`).
     pub disk_check_bytes: u64,
     /// Detail of the `session_start` event (config summary).
     pub start_detail: String,
@@ -242,6 +242,8 @@ pub fn run_writer(
         last_status: None,
         status_failing: false,
         written_since_check: 0,
+        free_seen: None,
+        largest_drop: 0,
     };
     state.reported_drops = vec![(0, 0, 0); state.devices.len()];
     {
@@ -319,9 +321,38 @@ struct WriterState {
     status_failing: bool,
     /// [`Batch::disk_bytes`] written since free space was last checked.
     written_since_check: u64,
+    /// Free space at the last check.
+    free_seen: Option<u64>,
+    /// The most free space has fallen between two checks: what the files really grew by
+    /// (HDF5 chunks and metadata, the journal), which the rows' count leaves out.
+    largest_drop: u64,
 }
 
 impl WriterState {
+    /// Notes a free-space reading: the free space and how much it fell since the last one.
+    fn saw_free(&mut self, free_bytes: u64) {
+        if let Some(before) = self.free_seen {
+            self.largest_drop = self.largest_drop.max(before.saturating_sub(free_bytes));
+        }
+        self.free_seen = Some(free_bytes);
+        self.shared.counters().free_bytes = Some(free_bytes);
+    }
+
+    /// Whether free space is due to be read again because of what was written since the last
+    /// reading: after `check_bytes` of [`Batch::disk_bytes`], and after every batch once the
+    /// last reading was within twice the reserve plus twice the largest real fall seen
+    /// between two readings, so that the reserve is crossed by at most one batch whatever
+    /// the store allocates besides the rows (one statvfs per batch, only near the reserve).
+    fn check_due_by_volume(&self, reserve_bytes: u64, check_bytes: u64) -> bool {
+        if self.written_since_check == 0 {
+            return false;
+        }
+        let near = reserve_bytes
+            .saturating_mul(2)
+            .saturating_add(self.largest_drop.saturating_mul(2));
+        self.written_since_check >= check_bytes || self.free_seen.is_some_and(|f| f < near)
+    }
+
     fn main_loop(
         &mut self,
         sink: &mut dyn RecordSink,
@@ -347,13 +378,13 @@ impl WriterState {
                 return Ok(WriterExit::Clean);
             }
             if last_disk_check.is_none_or(|t| t.elapsed() + early >= settings.disk_check_interval)
-                || self.written_since_check >= settings.disk_check_bytes
+                || self.check_due_by_volume(settings.reserve_bytes, settings.disk_check_bytes)
             {
                 last_disk_check = Some(Instant::now());
                 self.written_since_check = 0;
                 match free_space() {
                     Ok(free_bytes) => {
-                        self.shared.counters().free_bytes = Some(free_bytes);
+                        self.saw_free(free_bytes);
                         if free_bytes < settings.reserve_bytes {
                             let detail = format!(
                                 "{free_bytes} bytes free, below the reserve of {} bytes: closing the session",
@@ -405,7 +436,8 @@ impl WriterState {
                     // looked at again.
                     let turn = Instant::now();
                     while turn.elapsed() < TURN
-                        && self.written_since_check < settings.disk_check_bytes
+                        && !self
+                            .check_due_by_volume(settings.reserve_bytes, settings.disk_check_bytes)
                         && !control.stop.load(Ordering::SeqCst)
                     {
                         match rx.try_recv() {
@@ -485,8 +517,9 @@ impl WriterState {
     }
 
     /// Writes what is still queued, for up to the drain budget and while free space stays
-    /// above half the reserve (checked after every eighth of the reserve written: a fast
-    /// replay's full queue could otherwise fill the disk after the reserve stopped it); what
+    /// above half the reserve (checked after every eighth of the reserve written, and after
+    /// every batch near the reserve: a fast replay's full queue could otherwise fill the
+    /// disk after the reserve stopped it); what
     /// is left after that (a writer far behind, e.g. on a starved machine) is dropped,
     /// counted per device and written as a `queue_overflow` event, so the session still
     /// closes within the stop deadline and with room to close.
@@ -506,16 +539,16 @@ impl WriterState {
                     settings.drain_budget.as_millis()
                 );
             }
-            if self.written_since_check >= check_bytes {
+            if self.check_due_by_volume(settings.reserve_bytes, check_bytes) {
                 self.written_since_check = 0;
                 match free_space() {
                     Ok(free) if free < settings.reserve_bytes / 2 => {
-                        self.shared.counters().free_bytes = Some(free);
+                        self.saw_free(free);
                         break format!(
                             "still queued with {free} bytes free, below half the reserve"
                         );
                     }
-                    Ok(free) => self.shared.counters().free_bytes = Some(free),
+                    Ok(free) => self.saw_free(free),
                     Err(e) => tracing::warn!("cannot read free disk space: {e}"),
                 }
             }

@@ -86,6 +86,14 @@ const GROW_AHEAD_CHUNKS: usize = 64;
 /// 64 KiB is 2048 rows of an N×4 f64 column, more than 10 s at rates up to 200 Hz.
 const MAX_CHUNK_BYTES: usize = 64 << 10;
 
+/// Bytes of rows in complete chunks (and of raw reads) that may wait in memory for the data
+/// time of a flush interval to pass. Rows stamped faster than they are timed (a replay at
+/// `pace = "fast"` hands over minutes of data in a fraction of a second of arrival time)
+/// would otherwise all wait until the file is closed and reach the disk at once, past any
+/// free-space check of the caller's (tests/daemon/disk.rs); past this they are journaled
+/// and written at the next append, so what a file takes grows with what was appended.
+const MAX_WAITING_BYTES: usize = 1 << 20;
+
 /// One table being appended: its datasets, chunk size and encoder, rows in the HDF5 file,
 /// rows the datasets extend to, rows buffered (not yet in the HDF5 file) and how many of
 /// those are already in the journal.
@@ -201,6 +209,11 @@ impl<R: Row> Table<R> {
             return 0;
         }
         to_boundary + (self.buf.len() - to_boundary) / chunk_rows * chunk_rows
+    }
+
+    /// Bytes of the buffered rows in complete chunks.
+    fn complete_bytes(&self) -> usize {
+        self.complete_rows() * std::mem::size_of::<R>()
     }
 
     /// Whether the incomplete chunk (the rows past the complete chunks) is due to be written
@@ -545,7 +558,8 @@ impl ChunkFile {
         let early = (timer || !use_journal).then(|| Early::new(now, flush_ns, chunk_ns));
         let journal_due = self
             .oldest_unjournaled()
-            .is_some_and(|t| now.saturating_sub(t) >= flush_ns);
+            .is_some_and(|t| now.saturating_sub(t) >= flush_ns)
+            || self.waiting_bytes() >= MAX_WAITING_BYTES;
         let incomplete_due = early.as_ref().is_some_and(|e| self.incomplete_due(e))
             || self.events_due(now, chunk_ns.max(flush_ns));
         if !journal_due && !incomplete_due {
@@ -604,6 +618,28 @@ impl ChunkFile {
             .chain(self.raw.values().map(|r| r.index.oldest_unjournaled()))
             .chain(std::iter::once(self.events.oldest_unjournaled()));
         tables.flatten().min()
+    }
+
+    /// Bytes waiting in memory that can be written now: rows of complete chunks and raw
+    /// reads (see [`MAX_WAITING_BYTES`]).
+    fn waiting_bytes(&self) -> usize {
+        self.imu.values().map(Table::complete_bytes).sum::<usize>()
+            + self.gnss.values().map(Table::complete_bytes).sum::<usize>()
+            + self
+                .truth_imu
+                .values()
+                .map(Table::complete_bytes)
+                .sum::<usize>()
+            + self
+                .truth_nav
+                .iter()
+                .map(Table::complete_bytes)
+                .sum::<usize>()
+            + self
+                .raw
+                .values()
+                .map(|r| r.bytes_buf.len() + r.index.buf.len() * std::mem::size_of::<RawIndexRow>())
+                .sum::<usize>()
     }
 
     /// Whether any data table's incomplete chunk is due (events and raw reads come at no
@@ -715,7 +751,11 @@ impl ChunkFile {
             let stale =
                 |first: Option<i64>| first.is_some_and(|t| now.saturating_sub(t) >= max_age_ns);
             for r in self.raw.values_mut() {
-                if force || wrote || stale(r.index.buf.first().map(|row| row.t_mono_ns)) {
+                if force
+                    || wrote
+                    || r.bytes_buf.len() >= MAX_WAITING_BYTES
+                    || stale(r.index.buf.first().map(|row| row.t_mono_ns))
+                {
                     wrote |= r.write_all()?.is_some();
                 }
             }

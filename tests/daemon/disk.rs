@@ -6,6 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use crate::common::daemon::parts_for;
+use crate::common::encode::wit_sample;
 use crate::common::{encode_imu, LineDecoder, QueueConnector};
 use imulab::daemon::config::parse;
 use imulab::daemon::session::open_session_sink;
@@ -242,4 +244,95 @@ async fn a_full_disk_says_disk_full_once_and_the_session_recovers() {
     }
     println!("{next} rows recovered");
     assert!(next > 1000, "{next} rows");
+}
+
+/// A capture replayed as fast as the writer goes (`pace = "fast"`) onto a small file system:
+/// the store's own allocation (HDF5 chunks and metadata, the journal's growth) must not carry
+/// the session past the reserve into a full disk. It stops at the reserve with exit status 3,
+/// closes cleanly and keeps every row written before the stop, in order.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fast_replay_stops_at_the_reserve_not_at_a_full_disk() {
+    let fs = match SmallFs::mount(12) {
+        Ok(fs) => fs,
+        Err(reason) => {
+            println!("SKIPPED a_fast_replay_stops_at_the_reserve: {reason}");
+            return;
+        }
+    };
+    // The capture lives off the small file system.
+    let source_dir = tempfile::tempdir().unwrap();
+    let capture = source_dir.path().join("wit.bin");
+    let samples = 200_000u64;
+    let bytes: Vec<u8> = (0..samples).flat_map(wit_sample).collect();
+    std::fs::write(&capture, &bytes).unwrap();
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nflush_interval_ms = 100\nraw_journal = true\n\
+         disk_reserve_mb = 4\n\
+         [[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = 100\n\
+         file = {{ path = \"{}\", pace = \"fast\" }}\n",
+        fs.path().display(),
+        capture.display()
+    );
+    let config = parse(&text, "test").unwrap_or_else(|e| panic!("{e}"));
+    let session_dir: PathBuf = fs.path().join("session");
+    let sink = Box::new(open_session_sink(&config, &session_dir).expect("session created"));
+    let mut parts = parts_for(&config, sink, session_dir.clone());
+    let space_dir = session_dir.clone();
+    parts.free_space = Box::new(move || disk::free_bytes(&space_dir));
+    parts.status_path = fs.path().join("status.json");
+    let (_stop, stop_rx) = tokio::sync::watch::channel(false);
+    let t = Instant::now();
+    let outcome = tokio::time::timeout(Duration::from_secs(60), run(&config, parts, stop_rx))
+        .await
+        .expect("the daemon stops by itself");
+    println!("stopped after {:?}: {outcome:?}", t.elapsed());
+    match &outcome {
+        Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => assert!(free_bytes < reserve_bytes),
+        other => panic!("expected the disk reserve to stop the replay, got {other:?}"),
+    }
+    assert_eq!(outcome.exit_code(), 3);
+
+    let session = Session::open(&session_dir).expect("session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    assert!(
+        session.files().iter().all(|f| !f.partial),
+        "{:?}",
+        session.files()
+    );
+    // Every row written before the stop, in capture order: one sample every 10 ms of
+    // sensor time from the first.
+    let mut rows = 0u64;
+    let mut first = None;
+    for block in session.imu_blocks("imu", TimeRange::all(), 4096).unwrap() {
+        let block = block.unwrap();
+        for s in &block.t_sensor {
+            let first = *first.get_or_insert(*s);
+            let want = first + 0.01 * rows as f64;
+            assert!(
+                (s - want).abs() < 1e-3,
+                "row {rows}: t_sensor {s}, expected {want}"
+            );
+            rows += 1;
+        }
+    }
+    println!("{rows} of {samples} rows kept");
+    assert!(rows > 10_000 && rows < samples, "{rows} rows");
+    let (events, _) = session.events();
+    let low: Vec<_> = events
+        .iter()
+        .filter(|e| e.kind == EventKind::DiskLow)
+        .collect();
+    assert_eq!(low.len(), 1, "{events:?}");
+    let stop = events
+        .iter()
+        .find(|e| e.kind == EventKind::SessionStop)
+        .unwrap();
+    assert!(
+        stop.detail.contains("disk reserve reached"),
+        "{}",
+        stop.detail
+    );
 }

@@ -4,8 +4,6 @@
 //! status, a slow writer's losses are counted and logged, and the disk reserve stops the
 //! session cleanly with a non-zero exit.
 
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::common::{encode_gnss, encode_imu, LineDecoder, QueueConnector};
@@ -433,11 +431,17 @@ async fn disk_reserve_closes_the_session_and_exits_non_zero() {
     let imu = QueueConnector::default();
     let mut port = imu.plug();
     let sink = MemorySink::new();
-    // Free space shrinks by 4 MiB per check (checks are 1 s apart) from 18 MiB.
-    let free = Arc::new(AtomicU64::new(18 << 20));
-    let free_in = free.clone();
-    let free_space: FreeSpaceFn =
-        Box::new(move || Ok(free_in.fetch_sub(4 << 20, Ordering::SeqCst)));
+    // Free space shrinks by 4 MiB a second from 18 MiB, in steps, from the first check on
+    // (near the reserve the writer checks after every batch, so the count of checks says
+    // nothing about time).
+    let mut first_check: Option<Instant> = None;
+    let free_space: FreeSpaceFn = Box::new(move || {
+        let seconds = first_check
+            .get_or_insert_with(Instant::now)
+            .elapsed()
+            .as_secs();
+        Ok((18u64 << 20).saturating_sub(seconds.saturating_mul(4 << 20)))
+    });
     let running = start(config, sink.clone(), vec![imu], free_space);
     let sender = tokio::spawn(async move {
         send_imu(&mut port, 0..400, 100.0, &[], b"").await;

@@ -9,7 +9,8 @@ use std::time::Duration;
 use crate::common::*;
 use imulab::store::recover::repair_partial;
 use imulab::store::{
-    recover, EventKind, EventRecord, GnssRecord, ImuRecord, Session, TimeRange, WriterOptions,
+    recover, EventKind, EventRecord, GnssRecord, ImuRecord, Session, SessionWriter, TimeRange,
+    WriterOptions,
 };
 
 const CHILD_ENV: &str = "IMULAB_STORE_TEST_JOURNAL_CHILD_DIR";
@@ -336,4 +337,48 @@ fn stalled_device_reaches_the_file_on_the_timer_only() {
             "{test}: {report:?}"
         );
     }
+}
+
+/// Rows stamped far faster than their data time (a replay as fast as the writer goes: here
+/// 40 000 rows within 40 ms) reach the disk as they are appended, not all at the close:
+/// complete chunks wait in memory for at most about 1 MiB, whatever their timestamps say.
+#[test]
+fn rows_stamped_faster_than_a_flush_interval_reach_the_disk_as_they_come() {
+    if std::env::var(CHILD_ENV).is_ok() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("fast");
+    // Uncompressed, so the file's size says how many rows it holds.
+    let opts = WriterOptions {
+        deflate_level: 0,
+        ..fast_opts()
+    };
+    let mut w = SessionWriter::create(&dir, manifest(), opts).unwrap();
+    let rows: Vec<ImuRecord> = (0..40_000)
+        .map(|i| ImuRecord {
+            t_mono_ns: SECOND + i as i64 * 1000,
+            ..imu_row(0, i)
+        })
+        .collect();
+    for block in rows.chunks(1000) {
+        w.append_imu("imu_a", block).unwrap();
+    }
+    let appended = (rows.len() * std::mem::size_of::<ImuRecord>()) as u64;
+    let on_disk: u64 = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().metadata().unwrap().len())
+        .sum();
+    assert!(
+        on_disk + (2 << 20) > appended,
+        "{on_disk} bytes on disk before the close for {appended} bytes of rows appended"
+    );
+    w.close().unwrap();
+    let session = Session::open(&dir).unwrap();
+    let mut read = Vec::new();
+    for block in session.imu_blocks("imu_a", TimeRange::all(), 4096).unwrap() {
+        read.extend(block.unwrap().t_mono_ns.iter().copied());
+    }
+    let want: Vec<i64> = rows.iter().map(|r| r.t_mono_ns).collect();
+    assert_eq!(read, want);
 }
