@@ -344,7 +344,7 @@ async fn nmea_hdt_heading_is_stored_with_its_epoch() {
             "import h5py, sys, math\n\
              f = h5py.File(sys.argv[1], 'r')\n\
              d = f['gnss/rx/heading_deg']\n\
-             print(d.attrs['units'], ' '.join('nan' if math.isnan(x) else repr(x) for x in d[:4]))",
+             print(d.attrs['units'], ' '.join('nan' if math.isnan(x) else repr(float(x)) for x in d[:4]))",
         ])
         .arg(&chunk)
         .output()
