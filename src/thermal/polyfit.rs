@@ -86,56 +86,18 @@ struct Solved {
     residuals: Vec<f64>,
 }
 
+/// Least squares of `y` on the powers 0..=`order` of `(x - reference) / scale`.
 fn solve(x: &[f64], y: &[f64], reference: f64, scale: f64, order: usize) -> Option<Solved> {
-    let p = order + 1;
-    let mut ata = DMatrix::<f64>::zeros(p, p);
-    let mut aty = DVector::<f64>::zeros(p);
-    let mut row = vec![0.0; p];
-    for (&t, &v) in x.iter().zip(y) {
-        let u = (t - reference) / scale;
+    let scales: Vec<f64> = (0..=order).map(|k| scale.powi(k as i32)).collect();
+    let fill = |i: usize, row: &mut [f64]| {
+        let u = (x[i] - reference) / scale;
         let mut power = 1.0;
         for r in row.iter_mut() {
             *r = power;
             power *= u;
         }
-        for j in 0..p {
-            aty[j] += row[j] * v;
-            for k in 0..=j {
-                ata[(j, k)] += row[j] * row[k];
-            }
-        }
-    }
-    for j in 0..p {
-        for k in 0..j {
-            ata[(k, j)] = ata[(j, k)];
-        }
-    }
-    let chol = ata.cholesky()?;
-    let b = chol.solve(&aty);
-    let inv = chol.inverse();
-    let coefficients: Vec<f64> = (0..p).map(|k| b[k] / scale.powi(k as i32)).collect();
-    let inverse = (0..p)
-        .map(|j| {
-            (0..p)
-                .map(|k| inv[(j, k)] / scale.powi((j + k) as i32))
-                .collect()
-        })
-        .collect();
-    let residuals: Vec<f64> = x
-        .iter()
-        .zip(y)
-        .map(|(&t, &v)| {
-            let u = t - reference;
-            v - coefficients.iter().rev().fold(0.0, |acc, c| acc * u + c)
-        })
-        .collect();
-    let rss = residuals.iter().map(|r| r * r).sum();
-    Some(Solved {
-        coefficients,
-        inverse,
-        rss,
-        residuals,
-    })
+    };
+    solve_design(x.len().min(y.len()), order + 1, fill, y, &scales)
 }
 
 fn lag1(residuals: &[f64]) -> f64 {
