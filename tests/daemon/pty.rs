@@ -19,6 +19,10 @@ fn print_pty_paths(old: &Path, new: &Path) {
     );
 }
 
+/// The tests here take turns: the bare-path test opens ptys until the kernel hands its number
+/// out again, which takes numbers from under a test running beside it.
+static PTY_TESTS: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 fn send(pty: &mut Pty, range: std::ops::Range<u64>) {
     for seq in range {
         pty.write(&wit_sample(seq));
@@ -26,52 +30,76 @@ fn send(pty: &mut Pty, range: std::ops::Range<u64>) {
     }
 }
 
+/// Sends the samples `range` on a blocking thread, lets the daemon read them, and hands the
+/// pty back.
+async fn stream(mut pty: Pty, range: std::ops::Range<u64>) -> Pty {
+    tokio::task::spawn_blocking(move || {
+        send(&mut pty, range);
+        std::thread::sleep(Duration::from_millis(100));
+        pty
+    })
+    .await
+    .unwrap()
+}
+
+/// One WitMotion device named `imu` on the serial `port`.
+fn wit_device(port: &Path, rate_hz: u32, retry_initial_ms: u32, retry_max_ms: u32) -> String {
+    format!(
+        "[[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = {rate_hz}\nretry_initial_ms = {retry_initial_ms}\nretry_max_ms = {retry_max_ms}\n\
+         serial = {{ port = \"{}\", baud = 115200 }}\n",
+        port.display()
+    )
+}
+
+/// `imu`'s reconnect event and how long after `since_mono_ns` it came, in ms.
+fn reconnect_after(
+    store: &imulab::daemon::sink::MemoryStore,
+    since_mono_ns: i64,
+) -> (&imulab::store::EventRecord, f64) {
+    let reopen = store
+        .events
+        .iter()
+        .find(|e| e.device == "imu" && e.kind == EventKind::Reconnect)
+        .unwrap_or_else(|| panic!("no reconnect: {:?}", store.events));
+    (reopen, (reopen.t_mono_ns - since_mono_ns) as f64 * 1e-6)
+}
+
+/// The sample numbers of `imu`'s rows: sensor time is the time of day in the time packet,
+/// seq × 10 ms.
+fn sensor_seqs(store: &imulab::daemon::sink::MemoryStore) -> Vec<u64> {
+    store.imu["imu"]
+        .iter()
+        .map(|r| (r.t_sensor * 100.0).round() as u64)
+        .collect()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pty_closed_and_reopened_mid_run_resumes_in_the_same_session() {
+    let _one_at_a_time = PTY_TESTS.lock().await;
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("imu-test");
-    let mut first = Pty::open();
+    let first = Pty::open();
     point_link(&link, &first.slave_path);
-    let devices = format!(
-        "[[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = 200\nretry_initial_ms = 20\nretry_max_ms = 100\n\
-         serial = {{ port = \"{}\", baud = 115200 }}\n",
-        link.display()
-    );
+    let devices = wit_device(&link, 200, 20, 100);
     let daemon = start(config(dir.path(), &devices));
 
     // Let the daemon open the port, then stream, then pull the plug.
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let first = tokio::task::spawn_blocking(move || {
-        send(&mut first, 0..50);
-        std::thread::sleep(Duration::from_millis(100));
-        first
-    })
-    .await
-    .unwrap();
+    let first = stream(first, 0..50).await;
     let old_path = first.slave_path.clone();
     drop(first);
     tokio::time::sleep(Duration::from_millis(300)).await;
 
-    let mut second = Pty::open();
+    let second = Pty::open();
     // The kernel may hand out the same pts number again once every holder closed it.
     print_pty_paths(&old_path, &second.slave_path);
     point_link(&link, &second.slave_path);
     tokio::time::sleep(Duration::from_millis(400)).await;
-    let second = tokio::task::spawn_blocking(move || {
-        send(&mut second, 50..100);
-        std::thread::sleep(Duration::from_millis(100));
-        second
-    })
-    .await
-    .unwrap();
+    let second = stream(second, 50..100).await;
     let store = daemon.stop().await;
     drop(second);
 
-    // Sensor time is the time of day in the time packet: seq × 10 ms.
-    let seqs: Vec<u64> = store.imu["imu"]
-        .iter()
-        .map(|r| (r.t_sensor * 100.0).round() as u64)
-        .collect();
+    let seqs: Vec<u64> = sensor_seqs(&store);
     assert_eq!(
         seqs,
         (0..100).collect::<Vec<_>>(),
@@ -112,24 +140,15 @@ async fn pty_closed_and_reopened_mid_run_resumes_in_the_same_session() {
 /// arrive in one burst after the reopen, which an event marks with its rows' arrival times.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_returning_device_is_reopened_at_once_and_its_buffered_burst_is_marked() {
+    let _one_at_a_time = PTY_TESTS.lock().await;
     let dir = tempfile::tempdir().unwrap();
     let link = dir.path().join("imu-test");
-    let mut first = Pty::open();
+    let first = Pty::open();
     point_link(&link, &first.slave_path);
-    let devices = format!(
-        "[[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = 100\nretry_initial_ms = 4000\nretry_max_ms = 8000\n\
-         serial = {{ port = \"{}\", baud = 115200 }}\n",
-        link.display()
-    );
+    let devices = wit_device(&link, 100, 4000, 8000);
     let daemon = start(config(dir.path(), &devices));
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let first = tokio::task::spawn_blocking(move || {
-        send(&mut first, 0..30);
-        std::thread::sleep(Duration::from_millis(100));
-        first
-    })
-    .await
-    .unwrap();
+    let first = stream(first, 0..30).await;
     drop(first);
     // The daemon sees the vanish and waits (4 s of back-off) for the device.
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -141,22 +160,11 @@ async fn a_returning_device_is_reopened_at_once_and_its_buffered_burst_is_marked
     let back_mono_ns = imulab::daemon::clock::mono_ns();
     point_link(&link, &second.slave_path);
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let second = tokio::task::spawn_blocking(move || {
-        send(&mut second, 70..100);
-        std::thread::sleep(Duration::from_millis(100));
-        second
-    })
-    .await
-    .unwrap();
+    let second = stream(second, 70..100).await;
     let store = daemon.stop().await;
     drop(second);
 
-    let reopen = store
-        .events
-        .iter()
-        .find(|e| e.device == "imu" && e.kind == EventKind::Reconnect)
-        .unwrap_or_else(|| panic!("no reconnect: {:?}", store.events));
-    let late_ms = (reopen.t_mono_ns - back_mono_ns) as f64 * 1e-6;
+    let (reopen, late_ms) = reconnect_after(&store, back_mono_ns);
     println!(
         "reopened {late_ms:.1} ms after the path appeared: {}",
         reopen.detail
@@ -171,10 +179,7 @@ async fn a_returning_device_is_reopened_at_once_and_its_buffered_burst_is_marked
         reopen.detail
     );
 
-    let seqs: Vec<u64> = store.imu["imu"]
-        .iter()
-        .map(|r| (r.t_sensor * 100.0).round() as u64)
-        .collect();
+    let seqs: Vec<u64> = sensor_seqs(&store);
     assert_eq!(seqs, (0..100).collect::<Vec<_>>());
     let bursts: Vec<_> = store
         .events
@@ -208,24 +213,15 @@ async fn a_returning_device_is_reopened_at_once_and_its_buffered_burst_is_marked
 /// reports new entries to inotify) reopens it at once, not at the end of the 4 s back-off.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_bare_pts_path_given_to_a_new_pty_is_reopened_at_once() {
+    let _one_at_a_time = PTY_TESTS.lock().await;
     let dir = tempfile::tempdir().unwrap();
-    let mut first = Pty::open();
+    let first = Pty::open();
     let path = first.slave_path.clone();
     assert!(path.starts_with("/dev/pts"), "{}", path.display());
-    let devices = format!(
-        "[[device]]\nname = \"imu\"\nprotocol = \"wit\"\nrate_hz = 100\nretry_initial_ms = 4000\nretry_max_ms = 8000\n\
-         serial = {{ port = \"{}\", baud = 115200 }}\n",
-        path.display()
-    );
+    let devices = wit_device(&path, 100, 4000, 8000);
     let daemon = start(config(dir.path(), &devices));
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let first = tokio::task::spawn_blocking(move || {
-        send(&mut first, 0..30);
-        std::thread::sleep(Duration::from_millis(100));
-        first
-    })
-    .await
-    .unwrap();
+    let first = stream(first, 0..30).await;
     drop(first);
     // The daemon sees the vanish and closes its end, which frees the number.
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -242,7 +238,7 @@ async fn a_bare_pts_path_given_to_a_new_pty_is_reopened_at_once() {
         held.push(pty);
     }
     let back_mono_ns = imulab::daemon::clock::mono_ns();
-    let Some(mut second) = second else {
+    let Some(second) = second else {
         let _ = daemon.stop().await;
         println!(
             "SKIPPED a_bare_pts_path_given_to_a_new_pty: {} was not handed out again in 64 tries (another process holds it)",
@@ -252,22 +248,11 @@ async fn a_bare_pts_path_given_to_a_new_pty_is_reopened_at_once() {
     };
     drop(held);
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let second = tokio::task::spawn_blocking(move || {
-        send(&mut second, 30..60);
-        std::thread::sleep(Duration::from_millis(100));
-        second
-    })
-    .await
-    .unwrap();
+    let second = stream(second, 30..60).await;
     let store = daemon.stop().await;
     drop(second);
 
-    let reopen = store
-        .events
-        .iter()
-        .find(|e| e.device == "imu" && e.kind == EventKind::Reconnect)
-        .unwrap_or_else(|| panic!("no reconnect: {:?}", store.events));
-    let late_ms = (reopen.t_mono_ns - back_mono_ns) as f64 * 1e-6;
+    let (reopen, late_ms) = reconnect_after(&store, back_mono_ns);
     println!(
         "{} reopened {late_ms:.1} ms after the new pty got its number: {}",
         path.display(),
@@ -282,9 +267,6 @@ async fn a_bare_pts_path_given_to_a_new_pty_is_reopened_at_once() {
         late_ms < 1000.0,
         "reopened {late_ms:.1} ms after the path appeared"
     );
-    let seqs: Vec<u64> = store.imu["imu"]
-        .iter()
-        .map(|r| (r.t_sensor * 100.0).round() as u64)
-        .collect();
+    let seqs: Vec<u64> = sensor_seqs(&store);
     assert_eq!(seqs, (0..60).collect::<Vec<_>>(), "{:?}", store.events);
 }
