@@ -107,22 +107,7 @@ async fn a_filling_disk_stops_the_session_cleanly_with_exit_status_3() {
         .unwrap();
     sender.abort();
     println!("stopped after {:?}: {outcome:?}", t.elapsed());
-    match &outcome {
-        Outcome::DiskReserve {
-            free_bytes,
-            reserve_bytes,
-        } => assert!(free_bytes < reserve_bytes),
-        other => panic!("expected the disk reserve to stop the daemon, got {other:?}"),
-    }
-    assert_eq!(outcome.exit_code(), 3);
-
-    let session = Session::open(&session_dir).expect("session opens");
-    assert!(session.problems().is_empty(), "{:?}", session.problems());
-    assert!(
-        session.files().iter().all(|f| !f.partial),
-        "{:?}",
-        session.files()
-    );
+    let session = stopped_by_the_reserve(&outcome, &session_dir, "daemon");
     let mut rows = 0usize;
     let mut next = 0u64;
     for block in session.imu_blocks("imu", TimeRange::all(), 4096).unwrap() {
@@ -286,22 +271,7 @@ async fn a_fast_replay_stops_at_the_reserve_not_at_a_full_disk() {
         .await
         .expect("the daemon stops by itself");
     println!("stopped after {:?}: {outcome:?}", t.elapsed());
-    match &outcome {
-        Outcome::DiskReserve {
-            free_bytes,
-            reserve_bytes,
-        } => assert!(free_bytes < reserve_bytes),
-        other => panic!("expected the disk reserve to stop the replay, got {other:?}"),
-    }
-    assert_eq!(outcome.exit_code(), 3);
-
-    let session = Session::open(&session_dir).expect("session opens");
-    assert!(session.problems().is_empty(), "{:?}", session.problems());
-    assert!(
-        session.files().iter().all(|f| !f.partial),
-        "{:?}",
-        session.files()
-    );
+    let session = stopped_by_the_reserve(&outcome, &session_dir, "replay");
     // Every row written before the stop, in capture order: one sample every 10 ms of
     // sensor time from the first.
     let mut rows = 0u64;
@@ -335,4 +305,25 @@ async fn a_fast_replay_stops_at_the_reserve_not_at_a_full_disk() {
         "{}",
         stop.detail
     );
+}
+
+/// Checks that the disk reserve stopped `what` (exit 3) and that the session it left opens
+/// whole, every chunk file closed; returns that session.
+fn stopped_by_the_reserve(outcome: &Outcome, session_dir: &Path, what: &str) -> Session {
+    match outcome {
+        Outcome::DiskReserve {
+            free_bytes,
+            reserve_bytes,
+        } => assert!(free_bytes < reserve_bytes),
+        other => panic!("expected the disk reserve to stop the {what}, got {other:?}"),
+    }
+    assert_eq!(outcome.exit_code(), 3);
+    let session = Session::open(session_dir).expect("session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    assert!(
+        session.files().iter().all(|f| !f.partial),
+        "{:?}",
+        session.files()
+    );
+    session
 }
