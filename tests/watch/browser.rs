@@ -12,6 +12,15 @@ use std::time::Duration;
 
 const CHROMIUM: &str = "/usr/bin/chromium";
 
+/// Whether Chromium is absent, said on stderr: the browser tests then skip.
+fn chromium_missing() -> bool {
+    let missing = !Path::new(CHROMIUM).exists();
+    if missing {
+        eprintln!("skipped: {CHROMIUM} not found (install Debian's `chromium` to run this test)");
+    }
+    missing
+}
+
 /// Chromium with the flags of a headless, offline, throw-away profile.
 fn chromium(profile: &Path) -> Command {
     let mut c = Command::new(CHROMIUM);
@@ -73,8 +82,7 @@ fn rows_of_first_imu(dom: &str) -> u64 {
 
 #[test]
 fn chromium_shows_the_live_page_and_its_updates() {
-    if !Path::new(CHROMIUM).exists() {
-        eprintln!("skipped: {CHROMIUM} not found (install Debian's `chromium` to run this test)");
+    if chromium_missing() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -161,8 +169,7 @@ fn chromium_shows_the_live_page_and_its_updates() {
 /// right edge into the DOM it dumps.
 #[test]
 fn chromium_lays_the_health_table_out_within_1200_px() {
-    if !Path::new(CHROMIUM).exists() {
-        eprintln!("skipped: {CHROMIUM} not found (install Debian's `chromium` to run this test)");
+    if chromium_missing() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
