@@ -221,7 +221,8 @@ fn killed_at_many_points_recover_keeps_all_but_the_last_flush_interval() {
     }
     eprintln!(
         "fault injection: {KILL_POINTS} kill points, at most {max_lost_rows} rows of an IMU \
-         lost (100 Hz, 1 s flush interval), {rebuilt} chunks rebuilt from the journal"
+         lost (100 Hz, 1 s flush interval); {rebuilt} partial files needed a rebuild from \
+         the journal (a kill leaves the HDF5 file repairable)"
     );
 }
 
@@ -287,6 +288,12 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
         .unwrap()
         .rows_from_journal as usize;
     let base_rows = read_all(&base).imu[0].len();
+    // Rows of each table of the partial file after the undamaged recovery.
+    let base_tables: Vec<(String, u64)> = report.files[0]
+        .tables
+        .iter()
+        .map(|t| (t.group.clone(), t.rows_kept))
+        .collect();
     assert!(from_journal > 0 && last_t - imu_row(0, base_rows - 1).t_mono_ns <= FLUSH_NS);
     let journal_first = base_rows - from_journal;
 
@@ -302,6 +309,8 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
         }
     }
     let (mut truncations, mut overwrites, mut max_lost, mut rebuilt) = (0, 0, 0, 0);
+    // Per rebuilt partial file: the damage, and the most rows of a table it lost.
+    let mut rebuilds: Vec<(Damage, u64)> = Vec::new();
     for (n, (file, how)) in cases.iter().enumerate() {
         let case = format!("{} {how:?}", file.display());
         let dir = tmp.path().join(format!("case{n}"));
@@ -326,8 +335,60 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
             imulab_within_watchdog(&["allan", d, "--device", "imu_a", "--kind", "oadev"]);
         }
         let _ = err;
+        // The partial file without its superblock (cut or overwritten at its start) is
+        // beyond repair: it must be rebuilt from the journal, and the CLI says so with each
+        // table's rows saved and lost.
+        let beyond_repair =
+            file == &partial && matches!(how, Damage::Truncate(0 | 9 | 40) | Damage::Overwrite(0));
+        if beyond_repair && matches!(how, Damage::Truncate(40)) {
+            let copy = tmp.path().join(format!("case{n}-cli"));
+            copy_dir(&dir, &copy);
+            let out = Command::new(env!("CARGO_BIN_EXE_imulab"))
+                .arg("recover")
+                .arg(&copy)
+                .output()
+                .unwrap();
+            let said = String::from_utf8_lossy(&out.stdout);
+            eprintln!("imulab recover ({case}):\n{}", said.trim_end());
+            assert!(
+                out.status.success(),
+                "{case}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            assert!(said.contains("rebuilt from the journal"), "{case}: {said}");
+            for name in IMUS {
+                let line = said
+                    .lines()
+                    .find(|l| l.contains(&format!("/imu/{name} ")))
+                    .unwrap_or_else(|| panic!("{case}: no line for {name}: {said}"));
+                assert!(line.contains("saved") && line.contains("lost"), "{line}");
+            }
+        }
         let report = recover(&dir).unwrap_or_else(|e| panic!("{case}: recover: {e}"));
         rebuilt += report.files.iter().filter(|f| f.rebuilt.is_some()).count();
+        if let Some(f) = report.files.iter().find(|f| f.rebuilt.is_some()) {
+            // Every table of the rebuilt file holds the journal's rows, and the rows it had
+            // in the undamaged recovery are either saved or counted as lost.
+            let mut most_lost = 0;
+            for (group, base_kept) in &base_tables {
+                let t = f
+                    .tables
+                    .iter()
+                    .find(|t| &t.group == group)
+                    .unwrap_or_else(|| panic!("{case}: rebuilt without /{group}"));
+                assert_eq!(t.rows_kept, t.rows_from_journal, "{case}: /{group}");
+                assert_eq!(t.rows_kept + t.rows_dropped, *base_kept, "{case}: /{group}");
+                if group.starts_with("imu/") {
+                    most_lost = most_lost.max(t.rows_dropped);
+                }
+            }
+            rebuilds.push((*how, most_lost));
+        } else {
+            assert!(
+                !beyond_repair,
+                "{case}: not rebuilt from the journal ({report:?})"
+            );
+        }
         let r = read_all(&dir);
         check_values(&r);
         if file != &completed {
@@ -354,12 +415,25 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
             max_lost = max_lost.max(base_rows - r.imu[0].len());
         }
     }
+    let rebuilt_truncations: Vec<u64> = rebuilds
+        .iter()
+        .filter_map(|(how, _)| match how {
+            Damage::Truncate(at) => Some(*at),
+            Damage::Overwrite(_) => None,
+        })
+        .collect();
+    let rebuilt_lost = rebuilds.iter().map(|(_, lost)| *lost).max().unwrap_or(0);
     eprintln!(
         "fault injection: {truncations} truncations and {overwrites} overwrites of 64 bytes \
          (partial file, completed file, journal); {rebuilt} partial files rebuilt from the \
-         journal; at most {max_lost} of {base_rows} rows of an IMU lost against the undamaged \
-         recovery"
+         journal ({} truncations, at offsets {rebuilt_truncations:?}, and {} overwrites), \
+         each rebuilt IMU table losing at most {rebuilt_lost} of its rows (those the HDF5 file \
+         held and the journal no longer did); at most {max_lost} of {base_rows} rows of an IMU \
+         lost against the undamaged recovery",
+        rebuilt_truncations.len(),
+        rebuilds.len() - rebuilt_truncations.len(),
     );
+    assert!(rebuilt >= 4, "{rebuilt} rebuilt");
 }
 
 fn layout_name(index: u32, partial: bool) -> String {
