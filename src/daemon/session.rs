@@ -148,6 +148,10 @@ impl RecordSink for StoreSink {
         Ok(self.writer()?.maybe_flush_and_rotate(now_mono_ns)?)
     }
 
+    fn write_buffered(&mut self) -> anyhow::Result<()> {
+        Ok(self.writer()?.flush()?)
+    }
+
     fn rotate(&mut self) -> anyhow::Result<()> {
         Ok(self.writer()?.rotate()?)
     }

@@ -3,7 +3,8 @@
 //! the queue has no room for is dropped, counted per device and written as a
 //! `queue_overflow` event. The writer also flushes on the hand-over grid
 //! ([`super::cadence`]), rotates on request and stops the session cleanly before the disk
-//! reserve is reached. Between those it sleeps until the next batch, flush or disk check is
+//! reserve is reached; a run that ends by itself is checked against the reserve once more
+//! after its last rows are written. Between those it sleeps until the next batch, flush or disk check is
 //! due; it does not poll.
 
 use std::io;
@@ -270,6 +271,17 @@ pub fn run_writer(
         Err(e) => WriterExit::Failed(e),
     };
     let _ = state.report_drops(&mut *sink);
+    // A run that ends by itself (every source done, or a stop) may have taken free space
+    // below the reserve after the last check: with its last batches, or with the rows the
+    // store still buffers (a short fast replay writes its chunks at the end). Those rows are
+    // written now and free space read once more, so a session that ends below the reserve
+    // says so (`disk_low`, exit status 3) whichever came first, the end or the check.
+    if matches!(outcome, WriterExit::Clean) {
+        outcome = match state.check_after_the_last_batch(&mut *sink, &settings, &mut free_space) {
+            Ok(exit) => exit,
+            Err(e) => WriterExit::Failed(e),
+        };
+    }
     let reason = match &outcome {
         WriterExit::Clean => "stopped".to_string(),
         WriterExit::DiskReserve {
@@ -381,24 +393,10 @@ impl WriterState {
                 || self.check_due_by_volume(settings.reserve_bytes, settings.disk_check_bytes)
             {
                 last_disk_check = Some(Instant::now());
-                self.written_since_check = 0;
-                match free_space() {
-                    Ok(free_bytes) => {
-                        self.saw_free(free_bytes);
-                        if free_bytes < settings.reserve_bytes {
-                            let detail = format!(
-                                "{free_bytes} bytes free, below the reserve of {} bytes: closing the session",
-                                settings.reserve_bytes
-                            );
-                            tracing::error!("{detail}");
-                            sink.append_event(&session_event(EventKind::DiskLow, detail))?;
-                            return Ok(WriterExit::DiskReserve {
-                                free_bytes,
-                                reserve_bytes: settings.reserve_bytes,
-                            });
-                        }
-                    }
-                    Err(e) => tracing::warn!("cannot read free disk space: {e}"),
+                if let Some(exit) =
+                    self.check_reserve(sink, settings, free_space, "closing the session")?
+                {
+                    return Ok(exit);
                 }
             }
             // No wake-up of its own: the writer turns over at every grid point.
@@ -472,6 +470,54 @@ impl WriterState {
                 w.current_file = sink.current_file();
             }
         }
+    }
+
+    /// Reads free space; below the reserve, writes the `disk_low` event (its detail ending
+    /// with `then`) and returns the exit that stops the session.
+    fn check_reserve(
+        &mut self,
+        sink: &mut dyn RecordSink,
+        settings: &WriterSettings,
+        free_space: &mut FreeSpaceFn,
+        then: &str,
+    ) -> anyhow::Result<Option<WriterExit>> {
+        self.written_since_check = 0;
+        let free_bytes = match free_space() {
+            Ok(free_bytes) => free_bytes,
+            Err(e) => {
+                tracing::warn!("cannot read free disk space: {e}");
+                return Ok(None);
+            }
+        };
+        self.saw_free(free_bytes);
+        if free_bytes >= settings.reserve_bytes {
+            return Ok(None);
+        }
+        let detail = format!(
+            "{free_bytes} bytes free, below the reserve of {} bytes: {then}",
+            settings.reserve_bytes
+        );
+        tracing::error!("{detail}");
+        sink.append_event(&session_event(EventKind::DiskLow, detail))?;
+        Ok(Some(WriterExit::DiskReserve {
+            free_bytes,
+            reserve_bytes: settings.reserve_bytes,
+        }))
+    }
+
+    /// Once the run has ended by itself: writes every row the sink still buffers, then
+    /// checks the reserve a last time ([`Self::check_reserve`]).
+    fn check_after_the_last_batch(
+        &mut self,
+        sink: &mut dyn RecordSink,
+        settings: &WriterSettings,
+        free_space: &mut FreeSpaceFn,
+    ) -> anyhow::Result<WriterExit> {
+        sink.write_buffered()?;
+        let then = "the last batches of the run took it there";
+        Ok(self
+            .check_reserve(sink, settings, free_space, then)?
+            .unwrap_or(WriterExit::Clean))
     }
 
     /// Writes the status file; a failure is logged, never fatal.
@@ -626,4 +672,196 @@ impl WriterState {
 /// A queue pair sized for `capacity` batches.
 pub fn queue(capacity: usize) -> (SyncSender<Batch>, Receiver<Batch>) {
     std::sync::mpsc::sync_channel(capacity)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicU64;
+    use std::sync::Mutex;
+
+    /// Bytes one IMU row takes on the fake disk.
+    const ROW_BYTES: u64 = 100;
+    const RESERVE: u64 = 1 << 20;
+
+    /// A sink on a fake disk of `capacity` bytes that, like the store, may keep rows
+    /// buffered until `write_buffered` or `close` (when `buffers`), or writes them at once.
+    struct FakeDisk {
+        capacity: u64,
+        used: Arc<AtomicU64>,
+        pending: u64,
+        buffers: bool,
+        events: Arc<Mutex<Vec<EventRecord>>>,
+    }
+
+    impl FakeDisk {
+        fn free_space(&self) -> FreeSpaceFn {
+            let (capacity, used) = (self.capacity, self.used.clone());
+            Box::new(move || Ok(capacity.saturating_sub(used.load(Ordering::SeqCst))))
+        }
+
+        fn land(&mut self) {
+            self.used.fetch_add(self.pending, Ordering::SeqCst);
+            self.pending = 0;
+        }
+    }
+
+    impl RecordSink for FakeDisk {
+        fn append_imu(&mut self, _: &str, rows: &[ImuRecord]) -> anyhow::Result<()> {
+            self.pending += rows.len() as u64 * ROW_BYTES;
+            if !self.buffers {
+                self.land();
+            }
+            Ok(())
+        }
+        fn append_gnss(&mut self, _: &str, _: &[GnssRecord]) -> anyhow::Result<()> {
+            Ok(())
+        }
+        fn append_event(&mut self, event: &EventRecord) -> anyhow::Result<()> {
+            self.events.lock().unwrap().push(event.clone());
+            Ok(())
+        }
+        fn append_raw(&mut self, _: &str, _: i64, _: &[u8]) -> anyhow::Result<()> {
+            Ok(())
+        }
+        fn flush(&mut self, _: i64) -> anyhow::Result<()> {
+            Ok(())
+        }
+        fn write_buffered(&mut self) -> anyhow::Result<()> {
+            self.land();
+            Ok(())
+        }
+        fn rotate(&mut self) -> anyhow::Result<()> {
+            Ok(())
+        }
+        fn close(&mut self) -> anyhow::Result<()> {
+            self.land();
+            Ok(())
+        }
+        fn current_file(&self) -> Option<std::path::PathBuf> {
+            None
+        }
+    }
+
+    fn row(k: usize) -> ImuRecord {
+        ImuRecord {
+            t_mono_ns: k as i64 * 1_000_000,
+            t_wall_ns: 0,
+            t_sensor: k as f64,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+            temp: f64::NAN,
+            status: 0,
+        }
+    }
+
+    /// Runs the writer over `batches` batches of 100 rows (10 000 bytes each) already
+    /// queued, on a fake disk whose free space at the start is the reserve plus `above`.
+    /// With `stop`, a stop is requested before the writer starts (it drains the queue);
+    /// without, the sources have ended (the queue is closed). Returns the exit, the bytes
+    /// free at the end and the `disk_low` events.
+    fn run_on_fake_disk(
+        batches: usize,
+        above: u64,
+        buffers: bool,
+        stop: bool,
+    ) -> (WriterExit, u64, Vec<String>) {
+        let dir = tempfile::tempdir().unwrap();
+        let events = Arc::new(Mutex::new(Vec::new()));
+        let sink = FakeDisk {
+            capacity: RESERVE + above,
+            used: Arc::new(AtomicU64::new(0)),
+            pending: 0,
+            buffers,
+            events: events.clone(),
+        };
+        let free_space = sink.free_space();
+        let mut free_at_end = sink.free_space();
+        let (tx, rx) = queue(batches + 1);
+        for b in 0..batches {
+            let mut batch = Batch::new(0);
+            batch.imu = (b * 100..(b + 1) * 100).map(row).collect();
+            tx.send(batch).unwrap();
+        }
+        drop(tx);
+        let control = Arc::new(WriterControl::default());
+        if stop {
+            control.request_stop();
+        }
+        let settings = WriterSettings {
+            handover: Cadence::new(Instant::now(), Duration::from_millis(25)),
+            reserve_bytes: RESERVE,
+            disk_check_interval: Duration::from_secs(1),
+            disk_check_bytes: RESERVE / 4,
+            start_detail: "test".into(),
+            drain_budget: Duration::from_secs(5),
+            status: StatusFile {
+                path: dir.path().join("status.json"),
+                interval: Duration::from_secs(1),
+                lock: Arc::default(),
+            },
+            watchdog: None,
+        };
+        let exit = run_writer(
+            Box::new(sink),
+            rx,
+            vec![DeviceShared::new("imu", "csv", "test", 1000.0)],
+            Arc::new(WriterShared::default()),
+            control,
+            settings,
+            free_space,
+        );
+        let low = events
+            .lock()
+            .unwrap()
+            .iter()
+            .filter(|e| e.kind == EventKind::DiskLow)
+            .map(|e| e.detail.clone())
+            .collect();
+        (exit, free_at_end().unwrap(), low)
+    }
+
+    /// The sources end with the store still buffering their last rows, which take free
+    /// space below the reserve when written: the session says so and stops as by the
+    /// reserve (exit status 3), not as a clean stop.
+    #[test]
+    fn rows_written_at_the_end_that_pass_the_reserve_are_a_reserve_stop() {
+        // 20 batches = 200 000 bytes on 100 000 above the reserve.
+        let (exit, free, low) = run_on_fake_disk(20, 100_000, true, false);
+        assert_eq!(free, RESERVE - 100_000);
+        match exit {
+            WriterExit::DiskReserve {
+                free_bytes,
+                reserve_bytes,
+            } => assert_eq!((free_bytes, reserve_bytes), (RESERVE - 100_000, RESERVE)),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(low.len(), 1, "{low:?}");
+        assert!(
+            low[0].contains("below the reserve") && low[0].contains("last batches"),
+            "{}",
+            low[0]
+        );
+    }
+
+    /// A stop with a backlog that the drain writes past the reserve (but not past half of
+    /// it, where the drain itself would stop): the same reserve stop.
+    #[test]
+    fn a_drained_backlog_that_passes_the_reserve_is_a_reserve_stop() {
+        let (exit, free, low) = run_on_fake_disk(20, 100_000, false, true);
+        assert_eq!(free, RESERVE - 100_000);
+        assert!(matches!(exit, WriterExit::DiskReserve { .. }), "{exit:?}");
+        assert_eq!(low.len(), 1, "{low:?}");
+    }
+
+    /// A run that ends above the reserve is a clean stop with no `disk_low`.
+    #[test]
+    fn a_run_that_ends_above_the_reserve_is_a_clean_stop() {
+        for (buffers, stop) in [(true, false), (false, true)] {
+            let (exit, free, low) = run_on_fake_disk(20, 300_000, buffers, stop);
+            assert_eq!(free, RESERVE + 100_000);
+            assert!(matches!(exit, WriterExit::Clean), "{exit:?}");
+            assert!(low.is_empty(), "{low:?}");
+        }
+    }
 }
