@@ -1,9 +1,10 @@
 //! Fault injection, the way SQLite tests crash safety. A child writer is SIGKILLed at many
 //! points of a run (between appends, inside them, across rotations and the journal's
 //! fsyncs); the files of a killed session are truncated and overwritten at many offsets.
-//! After each fault no reader hangs (a watchdog fails the test; it times nothing), `recover`
-//! succeeds, and every row older than one flush interval that the fault did not destroy is
-//! kept, with its exact values. The counts are printed (`--nocapture`) for BENCHMARKS.md.
+//! After each fault no reader hangs (`inspect` every time; `export` and `allan` every sixth
+//! case, `report`, `watch --once` and `replay` every twelfth; a watchdog fails the test, it
+//! times nothing), `recover` succeeds, and every row older than one flush interval that the
+//! fault did not destroy is kept, with its exact values. The counts are printed (`--nocapture`) for BENCHMARKS.md.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -333,6 +334,20 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
         if n.is_multiple_of(6) {
             imulab_within_watchdog(&["export", d, "--device", "imu_a"]);
             imulab_within_watchdog(&["allan", d, "--device", "imu_a", "--kind", "oadev"]);
+        }
+        if n.is_multiple_of(12) {
+            let out = tmp.path().join(format!("case{n}-out"));
+            std::fs::create_dir_all(&out).unwrap();
+            let html = out.join("report.html");
+            let json = out.join("watch.json");
+            let (html, json, out) = (
+                html.to_str().unwrap(),
+                json.to_str().unwrap(),
+                out.to_str().unwrap(),
+            );
+            imulab_within_watchdog(&["report", d, "--html", html, "--study-runs", "0"]);
+            imulab_within_watchdog(&["watch", d, "--once", "--json", json]);
+            imulab_within_watchdog(&["replay", d, "--imu", "imu_a", "--gnss", "gps", "--out", out]);
         }
         let _ = err;
         // The partial file without its superblock (cut or overwritten at its start) is
