@@ -72,6 +72,11 @@ pub fn batch_window(flush_interval: Duration) -> Duration {
 /// Length of one GNSS-time ↔ host-time window.
 const TIME_RELATION_WINDOW_S: f64 = 60.0;
 
+/// Quick retries of an open that failed right after the device path appeared, and their
+/// spacing (see [`DeviceTask::run`]).
+const QUICK_RETRIES: u32 = 10;
+const QUICK_RETRY_DELAY: Duration = Duration::from_millis(50);
+
 /// Frames that were waiting in a buffer (the kernel's, a USB adapter's, the device's) when a
 /// device was opened arrive together in the first reads after the open, all stamped at read
 /// time: their arrival times say nothing about when they were sampled. A read is part of
@@ -319,8 +324,10 @@ impl DeviceTask {
                 None
             }
         });
-        // Whether the last wait ended because the device path changed.
+        // Whether the last wait ended because the device path changed (or is a quick retry
+        // after such a wake-up), and how many quick retries are left.
         let mut woken_by_watch = false;
+        let mut quick_left: u32 = 0;
         loop {
             if let Some(w) = &mut path_watch {
                 w.clear();
@@ -329,6 +336,7 @@ impl DeviceTask {
                 r = self.connector.connect() => r,
                 _ = stopped(&mut shutdown) => break,
             };
+            let open_failed = opened.is_err();
             match opened {
                 Ok(stream) => {
                     self.settle();
@@ -457,7 +465,18 @@ impl DeviceTask {
                     self.settle();
                 }
             }
-            let delay = backoff.next_delay();
+            // A path that has just appeared may not open yet (a new pty is locked until its
+            // creator unlocks it, udev sets a node's mode after creating it, and neither
+            // need raise another event): a failed open after a wake-up is tried again soon,
+            // a few times, before the back-off resumes.
+            let quick = open_failed && quick_left > 0;
+            let delay = if quick {
+                quick_left -= 1;
+                QUICK_RETRY_DELAY
+            } else {
+                quick_left = 0;
+                backoff.next_delay()
+            };
             // The back-off bounds the wait; the device path appearing ends it at once.
             let appeared = async {
                 match &mut path_watch {
@@ -465,10 +484,12 @@ impl DeviceTask {
                     None => std::future::pending().await,
                 }
             };
-            woken_by_watch = false;
             tokio::select! {
-                _ = tokio::time::sleep(delay) => {}
-                _ = appeared => woken_by_watch = true,
+                _ = tokio::time::sleep(delay) => woken_by_watch &= quick,
+                _ = appeared => {
+                    woken_by_watch = true;
+                    quick_left = QUICK_RETRIES;
+                }
                 _ = stopped(&mut shutdown) => break,
             }
         }
