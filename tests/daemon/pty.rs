@@ -270,3 +270,70 @@ async fn a_bare_pts_path_given_to_a_new_pty_is_reopened_at_once() {
     let seqs: Vec<u64> = sensor_seqs(&store);
     assert_eq!(seqs, (0..60).collect::<Vec<_>>(), "{:?}", store.events);
 }
+
+/// A device path that appears before it can be opened (a new pty stays locked until its
+/// creator unlocks it, and unlocking raises no inotify event): the failed open right after
+/// the wake-up is tried again soon, so the device is reopened once unlocked, not at the end
+/// of the 4 s back-off.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_path_that_appears_locked_is_reopened_once_it_unlocks() {
+    use nix::fcntl::OFlag;
+    use nix::pty::{grantpt, posix_openpt, ptsname_r, unlockpt};
+
+    let _one_at_a_time = PTY_TESTS.lock().await;
+    let dir = tempfile::tempdir().unwrap();
+    let link = dir.path().join("imu-test");
+    let first = Pty::open();
+    point_link(&link, &first.slave_path);
+    let devices = wit_device(&link, 100, 4000, 8000);
+    let daemon = start(config(dir.path(), &devices));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let first = stream(first, 0..30).await;
+    drop(first);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+
+    // A pty whose slave is still locked: opening it fails (EIO) until `unlockpt`.
+    let master = posix_openpt(OFlag::O_RDWR | OFlag::O_NOCTTY).expect("posix_openpt");
+    grantpt(&master).expect("grantpt");
+    let slave_path = std::path::PathBuf::from(ptsname_r(&master).expect("ptsname"));
+    assert!(
+        std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&slave_path)
+            .is_err(),
+        "a locked pty opened"
+    );
+    point_link(&link, &slave_path);
+    // The daemon wakes on the link, fails to open the locked pty, and tries again soon.
+    tokio::time::sleep(Duration::from_millis(150)).await;
+    let unlocked_mono_ns = imulab::daemon::clock::mono_ns();
+    unlockpt(&master).expect("unlockpt");
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let mut master = std::fs::File::from(std::os::fd::OwnedFd::from(master));
+    let second = tokio::task::spawn_blocking(move || {
+        for seq in 30..60 {
+            std::io::Write::write_all(&mut master, &wit_sample(seq)).unwrap();
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        master
+    })
+    .await
+    .unwrap();
+    let store = daemon.stop().await;
+    drop(second);
+
+    let (reopen, late_ms) = reconnect_after(&store, unlocked_mono_ns);
+    println!(
+        "reopened {late_ms:.1} ms after the pty was unlocked: {}",
+        reopen.detail
+    );
+    assert!(
+        reopen.detail.contains("at once when its path appeared"),
+        "{}",
+        reopen.detail
+    );
+    assert!(late_ms < 300.0, "reopened {late_ms:.1} ms after the unlock");
+    assert_eq!(sensor_seqs(&store), (0..60).collect::<Vec<_>>());
+}
