@@ -368,7 +368,7 @@ impl BitSink<'_> {
 }
 
 /// Writes `values` at row `start` of `ds`, which must already extend that far (the writer
-/// grows its tables ahead, see `writer::Table`): the whole chunks among them directly
+/// grows its tables ahead, see `chunkfile::Table`): the whole chunks among them directly
 /// (encoded by `enc`), a partial chunk at either end through HDF5's filter pipeline (it may
 /// have to merge with rows already on disk).
 pub(crate) fn put_rows<T: Plain>(

@@ -3,10 +3,12 @@
 //!
 //! - [`manifest`]: `session.toml` (what was recorded, with which devices and config).
 //! - [`writer`]: [`SessionWriter`], rotating SWMR chunk files with crash-safe flushing.
+//! - `chunkfile`: the chunk file being written, its tables and its journal.
 //! - [`reader`]: [`Session`], the only way analyses read data: time-ordered blocks per device.
 //! - `journal`: the write-ahead journal beside the chunk file being written.
 //! - [`recover`]: makes the `*.partial` chunk of a killed writer readable and final.
 
+mod chunkfile;
 mod chunkio;
 mod columns;
 mod error;

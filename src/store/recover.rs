@@ -783,7 +783,7 @@ fn rebuild(
 ) -> Result<(Vec<TableRecovery>, u64), StoreError> {
     let contents = journal::read(journal)?;
     let raw = contents.records.iter().any(|r| r.id.starts_with("raw/"));
-    super::writer::create_empty_chunk(work, index, manifest, raw)?;
+    super::chunkfile::create_empty_chunk(work, index, manifest, raw)?;
     let tables = repair_file(work, &contents.records)?;
     Ok((tables, contents.dropped_bytes))
 }
