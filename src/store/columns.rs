@@ -7,7 +7,7 @@ use std::ops::Range;
 use hdf5::types::{FixedAscii, FixedUnicode, VarLenUnicode};
 use hdf5::{Dataset, Group, H5Type, Location};
 
-use super::chunkio::{put_rows, ChunkEncoder};
+use super::chunkio::{put_rows, ChunkEncoder, Plain};
 use super::journal::{put_str, Cursor};
 use super::layout::{ATTR_DESCRIPTION, ATTR_SCHEMA_VERSION, ATTR_UNITS};
 use super::records::{
@@ -417,10 +417,6 @@ impl ChunkSink {
     }
 }
 
-fn gather<R, T>(rows: &[R], f: impl Fn(&R) -> T) -> Vec<T> {
-    rows.iter().map(f).collect()
-}
-
 /// A record type stored as one table. `write` puts `rows` at row `start` of the table's
 /// datasets (given in `COLUMNS` order, already extended past the rows), writing `t_mono_ns` last so that a valid time implies
 /// the rest of the row was handed to HDF5 before it.
@@ -434,193 +430,6 @@ pub(crate) trait Row: Clone {
     fn encode(&self, out: &mut Vec<u8>);
     /// Reads back one row written by [`Row::encode`].
     fn decode(c: &mut Cursor<'_>) -> Result<Self, String>;
-}
-
-fn put_f64s(out: &mut Vec<u8>, v: &[f64]) {
-    for x in v {
-        out.extend_from_slice(&x.to_le_bytes());
-    }
-}
-
-impl Row for ImuRecord {
-    const COLUMNS: &'static [Column] = IMU_COLUMNS;
-    fn t_mono_ns(&self) -> i64 {
-        self.t_mono_ns
-    }
-    fn write(
-        rows: &[Self],
-        ds: &[Dataset],
-        start: usize,
-        sink: &mut ChunkSink,
-    ) -> hdf5::Result<()> {
-        sink.put(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
-        sink.put(&ds[2], start, &gather(rows, |r| r.t_sensor))?;
-        sink.put(&ds[3], start, &gather(rows, |r| r.gyro))?;
-        sink.put(&ds[4], start, &gather(rows, |r| r.accel))?;
-        sink.put(&ds[5], start, &gather(rows, |r| r.temp))?;
-        sink.put(&ds[6], start, &gather(rows, |r| r.status))?;
-        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
-    }
-    fn encode(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
-        out.extend_from_slice(&self.t_wall_ns.to_le_bytes());
-        put_f64s(out, &[self.t_sensor]);
-        put_f64s(out, &self.gyro);
-        put_f64s(out, &self.accel);
-        put_f64s(out, &[self.temp]);
-        out.extend_from_slice(&self.status.to_le_bytes());
-    }
-    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
-        Ok(ImuRecord {
-            t_mono_ns: c.i64()?,
-            t_wall_ns: c.i64()?,
-            t_sensor: c.f64()?,
-            gyro: c.f64s()?,
-            accel: c.f64s()?,
-            temp: c.f64()?,
-            status: c.u32()?,
-        })
-    }
-}
-
-impl Row for GnssRecord {
-    const COLUMNS: &'static [Column] = GNSS_COLUMNS;
-    fn t_mono_ns(&self) -> i64 {
-        self.t_mono_ns
-    }
-    fn write(
-        rows: &[Self],
-        ds: &[Dataset],
-        start: usize,
-        sink: &mut ChunkSink,
-    ) -> hdf5::Result<()> {
-        sink.put(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
-        sink.put(&ds[2], start, &gather(rows, |r| r.week))?;
-        sink.put(&ds[3], start, &gather(rows, |r| r.tow_s))?;
-        sink.put(&ds[4], start, &gather(rows, |r| r.utc_ns))?;
-        sink.put(&ds[5], start, &gather(rows, |r| r.lat_deg))?;
-        sink.put(&ds[6], start, &gather(rows, |r| r.lon_deg))?;
-        sink.put(&ds[7], start, &gather(rows, |r| r.height_m))?;
-        sink.put(&ds[8], start, &gather(rows, |r| r.vel_ned))?;
-        sink.put(&ds[9], start, &gather(rows, |r| r.h_acc_m))?;
-        sink.put(&ds[10], start, &gather(rows, |r| r.v_acc_m))?;
-        sink.put(&ds[11], start, &gather(rows, |r| r.s_acc_mps))?;
-        sink.put(&ds[12], start, &gather(rows, |r| r.fix_type as u8))?;
-        sink.put(&ds[13], start, &gather(rows, |r| r.num_sats))?;
-        sink.put(&ds[14], start, &gather(rows, |r| r.pdop))?;
-        sink.put(&ds[15], start, &gather(rows, |r| r.hdop))?;
-        sink.put(&ds[16], start, &gather(rows, |r| r.vdop))?;
-        sink.put(&ds[17], start, &gather(rows, |r| r.heading_deg))?;
-        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
-    }
-    fn encode(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
-        out.extend_from_slice(&self.t_wall_ns.to_le_bytes());
-        out.extend_from_slice(&self.week.to_le_bytes());
-        put_f64s(out, &[self.tow_s]);
-        out.extend_from_slice(&self.utc_ns.to_le_bytes());
-        put_f64s(out, &[self.lat_deg, self.lon_deg, self.height_m]);
-        put_f64s(out, &self.vel_ned);
-        put_f64s(out, &[self.h_acc_m, self.v_acc_m, self.s_acc_mps]);
-        out.push(self.fix_type as u8);
-        out.push(self.num_sats);
-        put_f64s(out, &[self.pdop, self.hdop, self.vdop]);
-        put_f64s(out, &[self.heading_deg]);
-    }
-    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
-        Ok(GnssRecord {
-            t_mono_ns: c.i64()?,
-            t_wall_ns: c.i64()?,
-            week: c.u16()?,
-            tow_s: c.f64()?,
-            utc_ns: c.i64()?,
-            lat_deg: c.f64()?,
-            lon_deg: c.f64()?,
-            height_m: c.f64()?,
-            vel_ned: c.f64s()?,
-            h_acc_m: c.f64()?,
-            v_acc_m: c.f64()?,
-            s_acc_mps: c.f64()?,
-            fix_type: fix_type_from_code(c.u8()?),
-            num_sats: c.u8()?,
-            pdop: c.f64()?,
-            hdop: c.f64()?,
-            vdop: c.f64()?,
-            // Journal records of version 1 have no heading.
-            heading_deg: if c.version >= 2 { c.f64()? } else { f64::NAN },
-        })
-    }
-}
-
-impl Row for TruthNavRecord {
-    const COLUMNS: &'static [Column] = TRUTH_NAV_COLUMNS;
-    fn t_mono_ns(&self) -> i64 {
-        self.t_mono_ns
-    }
-    fn write(
-        rows: &[Self],
-        ds: &[Dataset],
-        start: usize,
-        sink: &mut ChunkSink,
-    ) -> hdf5::Result<()> {
-        sink.put(&ds[1], start, &gather(rows, |r| r.lat_deg))?;
-        sink.put(&ds[2], start, &gather(rows, |r| r.lon_deg))?;
-        sink.put(&ds[3], start, &gather(rows, |r| r.height_m))?;
-        sink.put(&ds[4], start, &gather(rows, |r| r.vel_ned))?;
-        sink.put(&ds[5], start, &gather(rows, |r| r.quat_nb))?;
-        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
-    }
-    fn encode(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
-        put_f64s(out, &[self.lat_deg, self.lon_deg, self.height_m]);
-        put_f64s(out, &self.vel_ned);
-        put_f64s(out, &self.quat_nb);
-    }
-    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
-        Ok(TruthNavRecord {
-            t_mono_ns: c.i64()?,
-            lat_deg: c.f64()?,
-            lon_deg: c.f64()?,
-            height_m: c.f64()?,
-            vel_ned: c.f64s()?,
-            quat_nb: c.f64s()?,
-        })
-    }
-}
-
-impl Row for TruthImuRecord {
-    const COLUMNS: &'static [Column] = TRUTH_IMU_COLUMNS;
-    fn t_mono_ns(&self) -> i64 {
-        self.t_mono_ns
-    }
-    fn write(
-        rows: &[Self],
-        ds: &[Dataset],
-        start: usize,
-        sink: &mut ChunkSink,
-    ) -> hdf5::Result<()> {
-        sink.put(&ds[1], start, &gather(rows, |r| r.gyro_bias))?;
-        sink.put(&ds[2], start, &gather(rows, |r| r.accel_bias))?;
-        sink.put(&ds[3], start, &gather(rows, |r| r.gyro_true))?;
-        sink.put(&ds[4], start, &gather(rows, |r| r.accel_true))?;
-        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
-    }
-    fn encode(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
-        put_f64s(out, &self.gyro_bias);
-        put_f64s(out, &self.accel_bias);
-        put_f64s(out, &self.gyro_true);
-        put_f64s(out, &self.accel_true);
-    }
-    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
-        Ok(TruthImuRecord {
-            t_mono_ns: c.i64()?,
-            gyro_bias: c.f64s()?,
-            accel_bias: c.f64s()?,
-            gyro_true: c.f64s()?,
-            accel_true: c.f64s()?,
-        })
-    }
 }
 
 /// An event converted to its fixed-size on-disk strings (checked when appended, so a
@@ -696,51 +505,6 @@ pub(crate) fn event_kind_from_name(name: &str) -> Option<EventKind> {
         .map(|(k, _)| *k)
 }
 
-impl Row for EventRow {
-    const COLUMNS: &'static [Column] = EVENT_COLUMNS;
-    fn t_mono_ns(&self) -> i64 {
-        self.t_mono_ns
-    }
-    fn write(
-        rows: &[Self],
-        ds: &[Dataset],
-        start: usize,
-        _sink: &mut ChunkSink,
-    ) -> hdf5::Result<()> {
-        write_1d(&ds[1], start, &gather(rows, |r| r.t_wall_ns))?;
-        write_1d(&ds[2], start, &gather(rows, |r| r.device))?;
-        write_1d(&ds[3], start, &gather(rows, |r| r.kind))?;
-        write_1d(&ds[4], start, &gather(rows, |r| r.detail))?;
-        write_1d(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
-    }
-    fn encode(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
-        out.extend_from_slice(&self.t_wall_ns.to_le_bytes());
-        put_str(out, self.device.as_str());
-        put_str(out, self.kind.as_str());
-        put_str(out, self.detail.as_str());
-    }
-    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
-        let t_mono_ns = c.i64()?;
-        let t_wall_ns = c.i64()?;
-        let device =
-            DeviceStr::from_ascii(c.str()?.as_bytes()).map_err(|e| format!("event device: {e}"))?;
-        let kind =
-            KindStr::from_ascii(c.str()?.as_bytes()).map_err(|e| format!("event kind: {e}"))?;
-        let detail = c
-            .str()?
-            .parse::<DetailStr>()
-            .map_err(|e| format!("event detail: {e}"))?;
-        Ok(EventRow {
-            t_mono_ns,
-            t_wall_ns,
-            device,
-            kind,
-            detail,
-        })
-    }
-}
-
 /// One read of undecoded bytes: where it sits in the device's `bytes` dataset.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct RawIndexRow {
@@ -749,34 +513,232 @@ pub(crate) struct RawIndexRow {
     pub len: u32,
 }
 
-impl Row for RawIndexRow {
-    const COLUMNS: &'static [Column] = RAW_INDEX_COLUMNS;
-    fn t_mono_ns(&self) -> i64 {
-        self.t_mono_ns
-    }
-    fn write(
-        rows: &[Self],
-        ds: &[Dataset],
-        start: usize,
+/// How one field of a record is stored: the element of its dataset, how a run of them is
+/// written (through the table's [`ChunkSink`]), and its bytes in the write-ahead journal
+/// (little-endian; strings as a u16 length and their bytes).
+trait Field: Sized {
+    type Disk: H5Type;
+    fn disk(&self) -> Self::Disk;
+    fn put(
         sink: &mut ChunkSink,
+        ds: &Dataset,
+        start: usize,
+        values: &[Self::Disk],
+    ) -> hdf5::Result<()>;
+    fn encode(&self, out: &mut Vec<u8>);
+    fn decode(c: &mut Cursor<'_>) -> Result<Self, String>;
+}
+
+macro_rules! plain_field {
+    ($($t:ty => $read:ident),* $(,)?) => {$(
+        impl Field for $t {
+            type Disk = $t;
+            fn disk(&self) -> $t {
+                *self
+            }
+            fn put(sink: &mut ChunkSink, ds: &Dataset, start: usize, values: &[$t])
+                -> hdf5::Result<()> {
+                sink.put(ds, start, values)
+            }
+            fn encode(&self, out: &mut Vec<u8>) {
+                self.put_le(out);
+            }
+            fn decode(c: &mut Cursor<'_>) -> Result<$t, String> {
+                c.$read()
+            }
+        }
+    )*};
+}
+plain_field!(i64 => i64, u64 => u64, f64 => f64, u32 => u32, u16 => u16, u8 => u8);
+
+impl<const W: usize> Field for [f64; W]
+where
+    [f64; W]: H5Type,
+{
+    type Disk = [f64; W];
+    fn disk(&self) -> [f64; W] {
+        *self
+    }
+    fn put(
+        sink: &mut ChunkSink,
+        ds: &Dataset,
+        start: usize,
+        values: &[[f64; W]],
     ) -> hdf5::Result<()> {
-        sink.put(&ds[1], start, &gather(rows, |r| r.offset))?;
-        sink.put(&ds[2], start, &gather(rows, |r| r.len))?;
-        sink.put(&ds[0], start, &gather(rows, |r| r.t_mono_ns))
+        sink.put(ds, start, values)
     }
     fn encode(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.t_mono_ns.to_le_bytes());
-        out.extend_from_slice(&self.offset.to_le_bytes());
-        out.extend_from_slice(&self.len.to_le_bytes());
+        self.put_le(out);
     }
-    fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
-        Ok(RawIndexRow {
-            t_mono_ns: c.i64()?,
-            offset: c.u64()?,
-            len: c.u32()?,
-        })
+    fn decode(c: &mut Cursor<'_>) -> Result<[f64; W], String> {
+        c.f64s()
     }
 }
+
+/// A fix type is stored as its code.
+impl Field for FixType {
+    type Disk = u8;
+    fn disk(&self) -> u8 {
+        *self as u8
+    }
+    fn put(sink: &mut ChunkSink, ds: &Dataset, start: usize, values: &[u8]) -> hdf5::Result<()> {
+        sink.put(ds, start, values)
+    }
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.push(*self as u8);
+    }
+    fn decode(c: &mut Cursor<'_>) -> Result<FixType, String> {
+        Ok(fix_type_from_code(c.u8()?))
+    }
+}
+
+/// The events table's fixed strings go through HDF5's own pipeline (no direct chunks).
+macro_rules! string_field {
+    ($($t:ty => $parse:expr),* $(,)?) => {$(
+        impl Field for $t {
+            type Disk = $t;
+            fn disk(&self) -> $t {
+                *self
+            }
+            fn put(_: &mut ChunkSink, ds: &Dataset, start: usize, values: &[$t])
+                -> hdf5::Result<()> {
+                write_1d(ds, start, values)
+            }
+            fn encode(&self, out: &mut Vec<u8>) {
+                put_str(out, self.as_str());
+            }
+            fn decode(c: &mut Cursor<'_>) -> Result<$t, String> {
+                let text = c.str()?;
+                $parse(text).map_err(|e| format!("{}: {e}", stringify!($t)))
+            }
+        }
+    )*};
+}
+string_field!(
+    DeviceStr => |t: &str| DeviceStr::from_ascii(t.as_bytes()),
+    KindStr => |t: &str| KindStr::from_ascii(t.as_bytes()),
+    DetailStr => |t: &str| t.parse::<DetailStr>(),
+);
+
+/// Writes one field of `rows` into `ds` (the next dataset of the table).
+fn put_field<R, F: Field>(
+    sink: &mut ChunkSink,
+    ds: Option<&Dataset>,
+    start: usize,
+    rows: &[R],
+    field: impl Fn(&R) -> &F,
+) -> hdf5::Result<()> {
+    let ds = ds.ok_or("a table has fewer datasets than its record has fields")?;
+    let values: Vec<F::Disk> = rows.iter().map(|r| field(r).disk()).collect();
+    F::put(sink, ds, start, &values)
+}
+
+/// True when `columns` are named `fields`, in order (checked when the build compiles).
+const fn columns_are(columns: &[Column], fields: &[&str]) -> bool {
+    if columns.len() != fields.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < fields.len() {
+        let (a, b) = (columns[i].name.as_bytes(), fields[i].as_bytes());
+        if a.len() != b.len() {
+            return false;
+        }
+        let mut j = 0;
+        while j < a.len() {
+            if a[j] != b[j] {
+                return false;
+            }
+            j += 1;
+        }
+        i += 1;
+    }
+    true
+}
+
+/// Implements [`Row`] for a record from its field list, which is its table's column list
+/// (`t_mono_ns` first, then every column in order; the build fails if they differ). A field
+/// added to the journal in a later record version is `field since VERSION else MISSING`.
+macro_rules! row {
+    ($record:ident, $columns:ident { $($field:ident $(since $version:literal else $missing:expr)?),* $(,)? }) => {
+        const _: () = assert!(
+            columns_are($columns, &["t_mono_ns", $(stringify!($field)),*]),
+            concat!(stringify!($record), "'s fields are not the columns of ", stringify!($columns))
+        );
+        impl Row for $record {
+            const COLUMNS: &'static [Column] = $columns;
+            fn t_mono_ns(&self) -> i64 {
+                self.t_mono_ns
+            }
+            fn write(rows: &[Self], ds: &[Dataset], start: usize, sink: &mut ChunkSink)
+                -> hdf5::Result<()> {
+                let mut rest = ds.iter().skip(1);
+                $(put_field(sink, rest.next(), start, rows, |r| &r.$field)?;)*
+                put_field(sink, ds.first(), start, rows, |r| &r.t_mono_ns)
+            }
+            fn encode(&self, out: &mut Vec<u8>) {
+                self.t_mono_ns.encode(out);
+                $(self.$field.encode(out);)*
+            }
+            fn decode(c: &mut Cursor<'_>) -> Result<Self, String> {
+                Ok($record {
+                    t_mono_ns: Field::decode(c)?,
+                    $($field: row!(@decode c $(, $version, $missing)?),)*
+                })
+            }
+        }
+    };
+    (@decode $c:ident) => { Field::decode($c)? };
+    (@decode $c:ident, $version:literal, $missing:expr) => {
+        if $c.version >= $version { Field::decode($c)? } else { $missing }
+    };
+}
+
+row!(
+    ImuRecord,
+    IMU_COLUMNS {
+        t_wall_ns,
+        t_sensor,
+        gyro,
+        accel,
+        temp,
+        status
+    }
+);
+row!(GnssRecord, GNSS_COLUMNS {
+    t_wall_ns, week, tow_s, utc_ns, lat_deg, lon_deg, height_m, vel_ned, h_acc_m, v_acc_m,
+    s_acc_mps, fix_type, num_sats, pdop, hdop, vdop,
+    heading_deg since 2 else f64::NAN,
+});
+row!(
+    TruthNavRecord,
+    TRUTH_NAV_COLUMNS {
+        lat_deg,
+        lon_deg,
+        height_m,
+        vel_ned,
+        quat_nb
+    }
+);
+row!(
+    TruthImuRecord,
+    TRUTH_IMU_COLUMNS {
+        gyro_bias,
+        accel_bias,
+        gyro_true,
+        accel_true
+    }
+);
+row!(
+    EventRow,
+    EVENT_COLUMNS {
+        t_wall_ns,
+        device,
+        kind,
+        detail
+    }
+);
+row!(RawIndexRow, RAW_INDEX_COLUMNS { offset, len });
 
 // ---------------------------------------------------------------------------------------
 // Reading: blocks are struct-of-arrays, the same shape as on disk.
@@ -1085,4 +1047,96 @@ impl Block for TimeBlock {
 
 pub(crate) fn read_bytes(ds: &Dataset, r: Range<usize>) -> hdf5::Result<Vec<u8>> {
     get_1d(ds, r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The journal bytes of a row are its fields in column order, little-endian: the format
+    /// journals already on disk were written in.
+    #[test]
+    fn journal_rows_are_their_fields_in_column_order() {
+        let imu = ImuRecord {
+            t_mono_ns: 1,
+            t_wall_ns: 2,
+            t_sensor: 3.0,
+            gyro: [4.0, 5.0, 6.0],
+            accel: [7.0, 8.0, 9.0],
+            temp: 10.0,
+            status: 11,
+        };
+        let mut out = Vec::new();
+        imu.encode(&mut out);
+        let mut expected = Vec::new();
+        expected.extend_from_slice(&1i64.to_le_bytes());
+        expected.extend_from_slice(&2i64.to_le_bytes());
+        for v in [3.0f64, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0] {
+            expected.extend_from_slice(&v.to_le_bytes());
+        }
+        expected.extend_from_slice(&11u32.to_le_bytes());
+        assert_eq!(out, expected);
+        let back = ImuRecord::decode(&mut Cursor {
+            bytes: &out,
+            version: 2,
+        })
+        .unwrap();
+        assert_eq!(back, imu);
+
+        let gnss = GnssRecord {
+            t_mono_ns: 5,
+            t_wall_ns: 6,
+            week: 2300,
+            tow_s: 1.5,
+            utc_ns: 7,
+            lat_deg: 48.0,
+            lon_deg: 11.0,
+            height_m: 500.0,
+            vel_ned: [1.0, 2.0, 3.0],
+            h_acc_m: 0.5,
+            v_acc_m: 0.8,
+            s_acc_mps: 0.1,
+            fix_type: FixType::Fix3D,
+            num_sats: 9,
+            pdop: 1.1,
+            hdop: 1.2,
+            vdop: 1.3,
+            heading_deg: 90.0,
+        };
+        let mut v2 = Vec::new();
+        gnss.encode(&mut v2);
+        assert_eq!(
+            v2.len(),
+            8 + 8 + 2 + 8 + 8 + 3 * 8 + 3 * 8 + 3 * 8 + 1 + 1 + 3 * 8 + 8
+        );
+        assert_eq!(v2[8 + 8 + 2 + 8 + 8 + 72], FixType::Fix3D as u8);
+        // A version-1 record has no heading: it reads back as NaN.
+        let v1 = &v2[..v2.len() - 8];
+        let old = GnssRecord::decode(&mut Cursor {
+            bytes: v1,
+            version: 1,
+        })
+        .unwrap();
+        assert!(old.heading_deg.is_nan());
+        assert_eq!(old.num_sats, 9);
+
+        let event = EventRow::from_record(&EventRecord {
+            t_mono_ns: 1,
+            t_wall_ns: 2,
+            device: "imu".into(),
+            kind: EventKind::Gap,
+            detail: "gap of 3 samples".into(),
+        })
+        .unwrap();
+        let mut ev = Vec::new();
+        event.encode(&mut ev);
+        assert_eq!(&ev[16..18], &3u16.to_le_bytes());
+        assert_eq!(&ev[18..21], b"imu");
+        let back = EventRow::decode(&mut Cursor {
+            bytes: &ev,
+            version: 2,
+        })
+        .unwrap();
+        assert_eq!(back.detail.as_str(), "gap of 3 samples");
+    }
 }
