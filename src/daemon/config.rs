@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use imulab_drivers::codec::csv_line::CsvLineConfig;
 use nalgebra::Matrix3;
 
+use imulab_ingest::mapping::ImuMapping;
 use imulab_store::manifest::MAX_DEVICE_NAME_LEN;
 use serde::{Deserialize, Serialize};
 
@@ -448,6 +449,17 @@ pub struct DeviceSpec {
     pub retry_max_ms: u64,
     /// Whether this device's undecoded bytes are kept (`/raw/<name>`).
     pub raw_journal: bool,
+}
+
+impl DeviceSpec {
+    /// How this device's frames become rows (its axis rotation and unit scales).
+    pub fn imu_mapping(&self) -> ImuMapping {
+        ImuMapping {
+            body_from_sensor: self.body_from_sensor,
+            gyro_scale: self.gyro_scale,
+            accel_scale: self.accel_scale,
+        }
+    }
 }
 
 /// The validated configuration the daemon runs from.

@@ -298,7 +298,7 @@ impl DeviceTask {
             Duration::from_millis(self.spec.retry_initial_ms),
             Duration::from_millis(self.spec.retry_max_ms),
         );
-        let mapping = ImuMapping::for_device(&self.spec);
+        let mapping = self.spec.imu_mapping();
         let mut gaps = GapDetector::new(self.spec.rate_hz, self.spec.gap_factor);
         let mut time_relation = TimeRelationTracker::new(TIME_RELATION_WINDOW_S);
         let mut decoding = Decoding {

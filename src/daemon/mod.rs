@@ -10,7 +10,8 @@
 //!   CAN frames) and the drivers' codecs behind [`source::FrameDecoder`].
 //! - [`capture`]: captures (raw bytes, candump logs, a session's raw record) played back as a
 //!   device.
-//! - [`mapping`]: frames to rows, units and the axis rotation into the body frame.
+//! - [`clock`], [`mapping`]: arrival stamps and frames to rows (crate `imulab-ingest`, shared
+//!   with the simulator).
 //! - [`pathwatch`]: inotify on a device path, so a returning device is reopened at once.
 //! - [`timerel`]: the GNSS-time ↔ host-time relation.
 //! - [`status`]: live counters and the status file.
@@ -21,14 +22,14 @@ pub mod args;
 pub mod backoff;
 pub mod cadence;
 pub mod capture;
-pub mod clock;
+pub use imulab_ingest::clock;
 pub mod config;
 pub mod device;
 pub mod disk;
 pub mod errors;
 pub mod gap;
 pub mod logging;
-pub mod mapping;
+pub use imulab_ingest::mapping;
 pub mod pathwatch;
 pub mod run;
 pub mod session;

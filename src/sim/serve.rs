@@ -88,9 +88,9 @@ use super::rng::Stream;
 use super::runner;
 use super::scene::{Scene, START_MONO_NS};
 use super::wire::{GnssWire, ImuWire};
-use crate::daemon::clock::Arrival;
-use crate::daemon::mapping::{gnss_record, ImuMapping};
 use crate::store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
+use imulab_ingest::clock::Arrival;
+use imulab_ingest::mapping::{gnss_record, ImuMapping};
 
 /// Most bytes kept per endpoint for a reader that does not keep up (paced mode); frames
 /// beyond are dropped and counted, as a UART overrun would lose them.

@@ -7,7 +7,6 @@ use nalgebra::{Matrix3, Vector3};
 use imulab_store::{GnssRecord, ImuRecord};
 
 use super::clock::Arrival;
-use super::config::DeviceSpec;
 
 /// Per-device conversion from sensor frame and units to body frame and SI.
 #[derive(Debug, Clone, PartialEq)]
@@ -18,14 +17,6 @@ pub struct ImuMapping {
 }
 
 impl ImuMapping {
-    pub fn for_device(spec: &DeviceSpec) -> Self {
-        ImuMapping {
-            body_from_sensor: spec.body_from_sensor,
-            gyro_scale: spec.gyro_scale,
-            accel_scale: spec.accel_scale,
-        }
-    }
-
     fn apply(&self, v: Option<[f64; 3]>, scale: f64) -> [f64; 3] {
         match v {
             Some(v) => {
