@@ -3,7 +3,9 @@
 //! - [`store`]: the session format (manifest + rotating HDF5 chunk files), writer and reader.
 //! - [`bag`]: ROS 1 bags and ROS 2 bags / MCAP files: topics, messages, decoding.
 //! - [`daemon`]: `imulogd`, the acquisition daemon.
-//! - [`allan`]: Allan-family deviations, confidence intervals, noise-term fit and reports.
+//! - [`allan`]: Allan-family deviations, confidence intervals and the noise-term fit.
+//! - [`report`]: the HTML page, plots, CSV and datasheet table of an analysis, with outage
+//!   answers and the data's health.
 //! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
@@ -19,6 +21,7 @@ pub mod cli;
 pub use imulab_daemon as daemon;
 pub mod earth;
 pub mod fusion;
+pub mod report;
 pub mod sim;
 pub use imulab_store as store;
 pub mod thermal;

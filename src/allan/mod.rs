@@ -5,7 +5,8 @@
 //! [`numerics::Phase`] integrates one axis into phase with the mean removed →
 //! [`curve::compute_curve`] evaluates a [`deviation::DeviationKind`] over a
 //! [`taus::TauGrid`] with [`edf`] confidence intervals and [`noise_id`] noise types →
-//! [`fit`] fits the IMU noise model → [`report`] and [`export`] write the results.
+//! [`fit`] fits the IMU noise model → [`export`] writes the results (the report page is
+//! [`crate::report`]).
 
 pub mod analysis;
 pub mod bag_source;
@@ -22,7 +23,6 @@ pub mod memory;
 mod modified;
 pub mod noise_id;
 pub mod numerics;
-pub mod report;
 pub mod session_source;
 pub mod sweep;
 pub mod taus;

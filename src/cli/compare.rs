@@ -5,11 +5,11 @@
 
 use super::allan::{analyse_inputs, AnalysisArgs};
 use crate::allan::analysis::AxisResult;
-use crate::allan::report::{
+use crate::allan::units::SensorKind;
+use crate::report::{
     datasheet_table_html, datasheet_table_text, plot_groups, summary_html, svg_plot, PAGE_STYLE,
     SVG_NAMESPACE,
 };
-use crate::allan::units::SensorKind;
 use anyhow::{bail, Context};
 use std::path::PathBuf;
 

@@ -24,14 +24,14 @@
 
 use crate::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions};
 use crate::allan::input::{read_axes, DataKind, GapPolicy, SampleSource, Timing};
-use crate::allan::report::{
-    datasheet_table_text, html_report, html_report_with_study, plot_groups, write_png_axes,
-};
 use crate::allan::session_source::SessionSource;
 use crate::allan::units::TermInUnits;
 use crate::allan::{DeviationKind, TauGrid};
 use crate::daemon::status::{read_status_file, DeviceState};
 use crate::fusion::study::{fit_study, StudyResult};
+use crate::report::{
+    datasheet_table_text, html_report, html_report_with_study, plot_groups, write_png_axes,
+};
 use crate::sim::scene::Scene;
 use crate::sim::serve::{ServeOptions, ServeReport, Server, Speed, StartWhen};
 use crate::store::{EventKind, Session, TimeRange};

@@ -7,7 +7,7 @@
 
 use super::allan::{analyse_inputs, summary_text, AnalysisArgs};
 use crate::allan::analysis::AllanReport;
-use crate::allan::report::{html_report, plot_groups, write_png_axes};
+use crate::report::{html_report, plot_groups, write_png_axes};
 use anyhow::Context;
 use std::path::{Path, PathBuf};
 
@@ -73,12 +73,12 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
         None => None,
     };
     let mut page = match &study {
-        Some(s) => crate::allan::report::html_report_with_study(&report, &args.title, s),
+        Some(s) => crate::report::html_report_with_study(&report, &args.title, s),
         None => html_report(&report, &args.title),
     };
     let thermal = thermal_sections(&args.inputs, &report, args.quiet);
     if !thermal.is_empty() {
-        page = crate::allan::report::with_section(&page, &thermal);
+        page = crate::report::with_section(&page, &thermal);
     }
     std::fs::write(&args.html, page).with_context(|| format!("writing {}", args.html.display()))?;
     if let Some(path) = &args.json {

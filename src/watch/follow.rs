@@ -9,9 +9,9 @@
 
 use super::allan::AxisAllan;
 use super::trend::Trend;
-use crate::allan::report::health::event_count;
-use crate::allan::report::health::event_kind_name;
 use crate::allan::units::SensorKind;
+use crate::report::health::event_count;
+use crate::report::health::event_kind_name;
 use crate::store::{
     DeviceInfo, DeviceKind, ImuColumnSet, ImuColumns, Manifest, Session, StoreError, TimeRange,
 };

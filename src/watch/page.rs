@@ -5,8 +5,8 @@
 
 use super::snapshot::{AxisView, DeviceView, Snapshot, TermView};
 use super::stop::Prediction;
-use crate::allan::report::{escape, svg_plot, LINE_STYLE_NOTE, PAGE_STYLE};
 use crate::allan::units::SensorKind;
+use crate::report::{escape, svg_plot, LINE_STYLE_NOTE, PAGE_STYLE};
 use std::fmt::Write;
 
 /// Extra style of the watch page.

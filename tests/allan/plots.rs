@@ -4,9 +4,9 @@
 use imulab::allan::analysis::{analyse_axis, AllanReport, AnalysisOptions};
 use imulab::allan::fit::Term;
 use imulab::allan::input::AxisSeries;
-use imulab::allan::report::{html_report, svg_plot, term_lines, write_png};
 use imulab::allan::units::RateUnit;
 use imulab::allan::{DeviationKind, TauGrid};
+use imulab::report::{html_report, svg_plot, term_lines, write_png};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -70,7 +70,7 @@ fn each_identified_term_has_its_own_labelled_line() {
         .find(|l| l.term == Term::RateRandomWalk)
         .unwrap();
     // Slopes −1/2 and +1/2 on log-log axes; N dominates short τ, K long τ.
-    let slope = |l: &imulab::allan::report::TermLine| (l.to.1 / l.from.1).ln() / (hi / lo).ln();
+    let slope = |l: &imulab::report::TermLine| (l.to.1 / l.from.1).ln() / (hi / lo).ln();
     assert!((slope(n) + 0.5).abs() < 1e-12 && (slope(k) - 0.5).abs() < 1e-12);
     assert!(n.label_at.0 < k.label_at.0);
 

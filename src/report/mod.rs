@@ -9,10 +9,10 @@
 //! The SVG is written by hand because plotters' text layout needs system fonts, which a
 //! report must not depend on; PNG output uses plotters.
 
-use super::analysis::{AllanReport, AxisResult};
-use super::fit::{NoiseFit, Term};
-use super::thermal::ThermalSummary;
-use super::units::{thermal_coefficient_in_units, SensorKind};
+use crate::allan::analysis::{AllanReport, AxisResult};
+use crate::allan::fit::{NoiseFit, Term};
+use crate::allan::thermal::ThermalSummary;
+use crate::allan::units::{thermal_coefficient_in_units, SensorKind};
 use crate::fusion::study::{Bridge, StudyResult};
 use health::SessionHealth;
 use std::fmt::Write as _;
@@ -391,10 +391,10 @@ pub fn pretty_unit(unit: &str) -> String {
 /// input has none.
 pub fn deviation_unit(a: &AxisResult) -> String {
     let base = match a.unit {
-        super::units::RateUnit::Unspecified => "input units".to_string(),
+        crate::allan::units::RateUnit::Unspecified => "input units".to_string(),
         unit => pretty_unit(unit.symbol()),
     };
-    if a.curve.kind == super::DeviationKind::Tdev {
+    if a.curve.kind == crate::allan::DeviationKind::Tdev {
         format!("{base}·s")
     } else {
         base
