@@ -14,8 +14,8 @@
 //! - [`watch`]: `imulab watch`, the live page of a session being recorded.
 //! - [`cli`]: the `imulab` subcommands.
 
-pub mod allan;
-pub mod bag;
+pub use imulab_allan as allan;
+pub use imulab_bag as bag;
 pub mod calib;
 pub mod cli;
 pub use imulab_daemon as daemon;

@@ -1,5 +1,5 @@
 //! Bag input: a [`SampleSource`] over one `sensor_msgs/Imu` topic of a ROS bag or MCAP file
-//! ([`crate::bag`]), streamed message by message into blocks, so memory is one chunk of the
+//! ([`imulab_bag`]), streamed message by message into blocks, so memory is one chunk of the
 //! file and one block of rows. Channels as for sessions: `t` (receive time, seconds from the
 //! first message), `gyro_x…z` (`angular_velocity`, rad/s), `accel_x…z`
 //! (`linear_acceleration`, m/s²) and `t_sensor` (the header stamp, seconds from the first
@@ -10,8 +10,8 @@ use super::input::{
     BlockVisitor, InputError, RowVisitor, SampleSource, SensorClock, Timing, BLOCK_ROWS,
 };
 use super::units::RateUnit;
-use crate::bag::messages::{decode, MessageType, Reading};
-use crate::bag::{Bag, BagError};
+use imulab_bag::messages::{decode, MessageType, Reading};
+use imulab_bag::{Bag, BagError};
 use std::cell::Cell;
 use std::path::Path;
 

@@ -956,10 +956,10 @@ fn transpose_avx(block: &[f64], lane_len: usize, offset: f64, out: &mut [V]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::allan::deviation::variances_with;
-    use crate::allan::noise_id::identify_alphas;
-    use crate::allan::noise_id::tests::textbook_lag1;
-    use crate::allan::numerics::Phase;
+    use crate::deviation::variances_with;
+    use crate::noise_id::identify_alphas;
+    use crate::noise_id::tests::textbook_lag1;
+    use crate::numerics::Phase;
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
     use rand_xoshiro::Xoshiro256PlusPlus;
@@ -1059,7 +1059,7 @@ mod tests {
         }
     }
 
-    use crate::allan::deviation::variance_at;
+    use crate::deviation::variance_at;
 
     #[test]
     fn both_instruction_set_paths_give_identical_bits() {

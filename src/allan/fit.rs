@@ -404,8 +404,8 @@ pub fn slope_readings(curve: &Curve) -> SlopeReadings {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::allan::curve::point_with_interval;
-    use crate::allan::DeviationKind;
+    use crate::curve::point_with_interval;
+    use crate::DeviationKind;
 
     fn synthetic_curve(n: f64, b: f64, k: f64) -> Curve {
         let points = (0..24)

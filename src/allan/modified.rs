@@ -596,8 +596,8 @@ unsafe fn column_levels<V: Lanes>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::allan::deviation::modified_sum;
-    use crate::allan::numerics::Phase;
+    use crate::deviation::modified_sum;
+    use crate::numerics::Phase;
 
     /// Deterministic white plus random-walk rate noise on a large offset.
     fn phase(n: usize, seed: u64) -> Phase {

@@ -895,7 +895,7 @@ pub(crate) mod tests {
                 y
             })
             .collect();
-        crate::allan::numerics::Phase::from_rate(rate).points
+        crate::numerics::Phase::from_rate(rate).points
     }
 
     #[test]
@@ -930,8 +930,8 @@ pub(crate) mod tests {
 
     #[test]
     fn fused_alphas_equal_the_per_factor_alphas_on_simulated_imu_series() {
-        use crate::allan::deviation::DeviationKind;
-        use crate::allan::taus::TauGrid;
+        use crate::deviation::DeviationKind;
+        use crate::taus::TauGrid;
         let grids = [
             TauGrid::Octave,
             TauGrid::Decade,

@@ -5,9 +5,9 @@
 
 use super::input::{BlockVisitor, InputError, RowVisitor, SampleSource, SensorClock, Timing};
 use super::units::RateUnit;
-use crate::store::manifest::DeviceKind;
-use crate::store::Manifest;
-use crate::store::{ImuColumnSet, ImuColumns, Session, TimeRange};
+use imulab_store::manifest::DeviceKind;
+use imulab_store::Manifest;
+use imulab_store::{ImuColumnSet, ImuColumns, Session, TimeRange};
 use std::path::{Path, PathBuf};
 
 const CHANNELS: [&str; 9] = [
@@ -166,7 +166,7 @@ impl SampleSource for SessionSource {
         // All rows of the device (the time range can only make it fewer).
         let summary = self
             .session
-            .stream_summary(&crate::store::layout::imu_path(&self.device));
+            .stream_summary(&imulab_store::layout::imu_path(&self.device));
         Some(summary.rows)
     }
 

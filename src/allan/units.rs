@@ -256,7 +256,7 @@ pub fn fit_in_units(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::allan::fit::TermEstimate;
+    use crate::fit::TermEstimate;
 
     #[test]
     fn arw_conversion_matches_hand_calculation() {

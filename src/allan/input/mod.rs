@@ -117,7 +117,7 @@ pub trait SampleSource {
     }
 
     /// The physical unit of a channel when the source knows it (sessions do).
-    fn channel_unit(&self, _channel: usize) -> Option<crate::allan::units::RateUnit> {
+    fn channel_unit(&self, _channel: usize) -> Option<crate::units::RateUnit> {
         None
     }
 
@@ -153,7 +153,7 @@ fn refuse_hdf5(path: &Path) -> Result<(), InputError> {
         return Ok(());
     }
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
-    let message = if crate::store::layout::parse_chunk_file_name(name).is_some() {
+    let message = if imulab_store::layout::parse_chunk_file_name(name).is_some() {
         let dir = path.parent().unwrap_or(Path::new("."));
         format!(
             "an HDF5 chunk file of an imulab session; give the session directory instead: \

@@ -285,7 +285,7 @@ pub fn read_axes(
             // Ignoring a failed reservation is fine: the vector then grows as it goes. One
             // more than the rows: the phase built in place adds a point (no reallocation).
             if builder.current.try_reserve_exact(expected + 1).is_ok() {
-                crate::allan::memory::advise_huge_pages(&mut builder.current);
+                crate::memory::advise_huge_pages(&mut builder.current);
             }
             (builder, temperature.map(|_| Vec::new()))
         })
