@@ -21,9 +21,9 @@ use clap::Parser;
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
 use imulab::allan::fit::{fit_noise_terms, Term};
 use imulab::allan::input::AxisSeries;
+use imulab::allan::pipeline::{analyse_inputs, AsRecorded, Options};
 use imulab::allan::units::RateUnit;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
-use imulab::cli::allan::{analyse_inputs, AnalysisArgs};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -292,7 +292,13 @@ fn main() {
         3,
         || (),
         |()| {
-            analyse_inputs(std::slice::from_ref(&npy), &cli.analysis).expect("analyse the npy file")
+            analyse_inputs(
+                std::slice::from_ref(&npy),
+                &cli.analysis,
+                &AsRecorded,
+                &mut (),
+            )
+            .expect("analyse the npy file")
         },
     );
     println!(
@@ -312,8 +318,13 @@ fn main() {
         3,
         || (),
         |()| {
-            analyse_inputs(std::slice::from_ref(&session), &cli.analysis)
-                .expect("analyse the session")
+            analyse_inputs(
+                std::slice::from_ref(&session),
+                &cli.analysis,
+                &AsRecorded,
+                &mut (),
+            )
+            .expect("analyse the session")
         },
     );
     println!(
@@ -478,7 +489,7 @@ fn main() {
 #[derive(clap::Parser)]
 struct AnalysisCli {
     #[command(flatten)]
-    analysis: AnalysisArgs,
+    analysis: Options,
 }
 
 fn max_rel(a: &imulab::allan::Curve, b: &imulab::allan::Curve) -> f64 {
@@ -799,8 +810,13 @@ fn session_read_benchmark(flush_s: u64) {
         3,
         || (),
         |()| {
-            analyse_inputs(std::slice::from_ref(&session), &cli.analysis)
-                .expect("analyse the session")
+            analyse_inputs(
+                std::slice::from_ref(&session),
+                &cli.analysis,
+                &AsRecorded,
+                &mut (),
+            )
+            .expect("analyse the session")
         },
     );
     println!(

@@ -24,6 +24,7 @@ pub mod memory;
 mod modified;
 pub mod noise_id;
 pub mod numerics;
+pub mod pipeline;
 pub mod session_source;
 pub mod sweep;
 pub mod taus;

@@ -30,11 +30,11 @@ pub struct CompareArgs {
 }
 
 pub fn run(mut args: CompareArgs) -> anyhow::Result<()> {
-    if !args.analysis.kind.is_allan_variance() {
+    if !args.analysis.options.kind.is_allan_variance() {
         bail!("compare fits the noise model: use --kind adev, oadev or totdev");
     }
-    args.analysis.fit = true;
-    args.analysis.device = None;
+    args.analysis.options.fit = true;
+    args.analysis.options.device = None;
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
     let mut devices: Vec<&str> = report.axes.iter().map(|a| a.device.as_str()).collect();
     devices.sort_unstable();

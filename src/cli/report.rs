@@ -53,14 +53,15 @@ pub struct ReportArgs {
 
 pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
     // A report always carries the noise terms.
-    args.analysis.fit = args.analysis.kind.is_allan_variance();
-    if args.analysis.device.is_some() && args.inputs.len() > 1 {
+    args.analysis.options.fit = args.analysis.options.kind.is_allan_variance();
+    if args.analysis.options.device.is_some() && args.inputs.len() > 1 {
         anyhow::bail!("--device names a single input; with several inputs the file names are used");
     }
     // The health section shows each IMU's temperature: read it with the rates (same pass)
     // when every input is a session (they all have a `temp` channel).
-    if args.analysis.temperature_column.is_none() && args.inputs.iter().all(|p| p.is_dir()) {
-        args.analysis.temperature_column = Some("temp".into());
+    if args.analysis.options.temperature_column.is_none() && args.inputs.iter().all(|p| p.is_dir())
+    {
+        args.analysis.options.temperature_column = Some("temp".into());
     }
     let given = match &args.study {
         Some(p) => Some(crate::fusion::study::StudyResult::from_json_file(p)?),

@@ -4,9 +4,9 @@
 
 use clap::Parser;
 use imulab::allan::input::{read_axes, read_axis, DataKind, GapPolicy, SampleSource, Timing};
+use imulab::allan::pipeline::{analyse_inputs, AsRecorded, Options, Progress};
 use imulab::allan::session_source::SessionSource;
 use imulab::allan::{compute_curve, DeviationKind, Phase, TauGrid};
-use imulab::cli::allan::{analyse_inputs, AnalysisArgs};
 use imulab::store::{DeviceInfo, DeviceKind, ImuRecord, Manifest, SessionWriter, WriterOptions};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -178,7 +178,23 @@ fn session_gap_is_detected_and_cli_runs() {
 #[derive(clap::Parser)]
 struct AnalysisCli {
     #[command(flatten)]
-    analysis: AnalysisArgs,
+    options: Options,
+}
+
+/// Counts what the pipeline says of its progress.
+#[derive(Default)]
+struct Counted {
+    planned: usize,
+    analysed: Vec<String>,
+}
+
+impl Progress for Counted {
+    fn planned(&mut self, axes: usize) {
+        self.planned = axes;
+    }
+    fn analysed(&mut self, label: &str) {
+        self.analysed.push(label.to_string());
+    }
 }
 
 #[test]
@@ -227,16 +243,21 @@ fn one_reading_pass_for_all_axes_equals_one_pass_per_axis() {
     assert_eq!(together[1].segments.len(), 3);
     assert_eq!(together[0].segments.len(), 2);
 
-    // Through the command: a budget too small for two axes reads one axis per pass; the
-    // document is identical to the single pass.
+    // Through the pipeline: a budget too small for two axes reads one axis per pass; the
+    // document is identical to the single pass, and each axis is reported as analysed.
     let input = vec![session_dir.clone()];
     let parse = |extra: &[&str]| {
         let mut argv = vec!["test", "--gaps", "split", "--fit"];
         argv.extend_from_slice(extra);
-        AnalysisCli::parse_from(argv).analysis
+        AnalysisCli::parse_from(argv).options
     };
-    let one_pass = analyse_inputs(&input, &parse(&[])).unwrap();
-    let per_axis = analyse_inputs(&input, &parse(&["--memory-mib", "0"])).unwrap();
+    let mut progress = Counted::default();
+    let one_pass = analyse_inputs(&input, &parse(&[]), &AsRecorded, &mut progress).unwrap();
+    assert_eq!(progress.planned, 6);
+    assert_eq!(progress.analysed.len(), 6);
+    assert_eq!(progress.analysed[0], "imu0 gyro_x");
+    let per_axis =
+        analyse_inputs(&input, &parse(&["--memory-mib", "0"]), &AsRecorded, &mut ()).unwrap();
     assert_eq!(
         serde_json::to_value(&one_pass.axes).unwrap(),
         serde_json::to_value(&per_axis.axes).unwrap()
