@@ -889,7 +889,7 @@ pub fn analyse_axis_thermal(
         &branch_up,
         options.reference_c,
         fit.order,
-        fit.order,
+        0..=fit.order,
     ) {
         Ok(joint) => {
             let [lo, hi] = joint.gap.range_c;
