@@ -1,7 +1,8 @@
 //! Thermal analysis benchmark: recovery of known thermal coefficients from simulated
 //! chamber runs over seeds and two grades, and the run time of the whole analysis of a
 //! 24 h, 150 Hz, 6-axis run (one axis in memory at a time). Method and tables:
-//! docs/bench/thermal.md. Run: `cargo bench --bench thermal` (`-- recovery`, `-- scale` or `-- timing` for one part).
+//! docs/bench/thermal.md. Run: `cargo bench --bench thermal` (`-- recovery`, `-- scale` or `-- timing` for one part;
+//! `-- recovery --seeds N` for seeds 1..=N, 10 by default).
 
 use imulab::allan::input::AxisSeries;
 use imulab::allan::units::{RateUnit, SensorKind};
@@ -137,13 +138,32 @@ fn quiet_grade() -> ImuSpec {
 
 fn main() {
     // `-- recovery`, `-- scale` or `-- timing` runs one part; all by default.
-    let parts: Vec<String> = std::env::args()
-        .skip(1)
-        .filter(|a| !a.starts_with('-'))
-        .collect();
+    // `--seeds N`: seeds 1..=N of `recovery` (10 by default).
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut seeds = 10u64;
+    let mut parts = Vec::new();
+    let mut i = 0;
+    while i < args.len() {
+        if args[i] == "--seeds" {
+            let value = args.get(i + 1).map(String::as_str).unwrap_or("");
+            seeds = match value.parse() {
+                Ok(n) if n > 0 => n,
+                _ => {
+                    eprintln!("--seeds needs a positive whole number, got {value:?}");
+                    std::process::exit(2);
+                }
+            };
+            i += 2;
+            continue;
+        }
+        if !args[i].starts_with('-') {
+            parts.push(args[i].clone());
+        }
+        i += 1;
+    }
     let wants = |part: &str| parts.is_empty() || parts.iter().any(|p| p == part);
     if wants("recovery") {
-        recovery();
+        recovery(seeds);
     }
     if wants("scale") {
         scale_recovery();
@@ -153,8 +173,8 @@ fn main() {
     }
 }
 
-fn recovery() {
-    let seeds: Vec<u64> = (1..=10).collect();
+fn recovery(seed_count: u64) {
+    let seeds: Vec<u64> = (1..=seed_count).collect();
     let profile = chamber(1);
     let rate = 50.0;
     let duration = 12_000.0;

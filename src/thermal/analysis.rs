@@ -5,9 +5,14 @@
 //! per-plateau Allan noise terms; and of one device: the thermal lag of the sensor behind the
 //! chamber.
 //!
+//! The plateau noise terms are fitted before the warm-up and the hysteresis: their bias
+//! instability and rate random walk give the slow drift ([`super::drift`]) that the
+//! intervals of the gap and of the warm-up add to the white-noise ones.
+//!
 //! Samples are reduced to block means (1 s by default) before the fits: the fits need the
 //! bias level, not the white noise, and the means keep the work linear in the samples.
 
+use super::drift::{Drift, PlateauCurve};
 use super::polyfit::{fit_branches, fit_polynomial, PolyFit};
 use crate::allan::analysis::{analyse_axis, AnalysisOptions};
 use crate::allan::deviation::DeviationKind;
@@ -37,7 +42,7 @@ pub struct ThermalOptions {
     pub block_s: f64,
     /// Warm-up tolerance in the input unit (`None`: 5 % of the amplitude).
     pub warmup_tolerance: Option<f64>,
-    /// A plateau: the temperature stays within this of its first value, °C.
+    /// A plateau: the temperature stays in a band of ± this (highest − lowest ≤ 2×), °C.
     pub plateau_tolerance_c: f64,
     /// Shortest plateau analysed for noise terms, s.
     pub plateau_min_s: f64,
@@ -213,6 +218,11 @@ fn coefficient_unit(base: &str, order: usize) -> String {
 /// sensor, s (no chamber moves 5 °C in less: that is 30 °C/min).
 pub const STUCK_MIN_S: f64 = 10.0;
 
+/// A reading counts when it is finite and within [`VALID_TEMPERATURE_C`].
+fn valid_temperature(t: f64) -> bool {
+    t.is_finite() && (VALID_TEMPERATURE_C[0]..=VALID_TEMPERATURE_C[1]).contains(&t)
+}
+
 /// Checks the temperature channel: the error says what is wrong. Returns the number of
 /// invalid readings (NaN or outside [`VALID_TEMPERATURE_C`]).
 pub fn check_temperature(
@@ -220,10 +230,7 @@ pub fn check_temperature(
     tau0: f64,
     chamber: Option<&dyn Fn(f64) -> f64>,
 ) -> Result<usize, String> {
-    let valid = |t: f32| {
-        let t = f64::from(t);
-        t.is_finite() && (VALID_TEMPERATURE_C[0]..=VALID_TEMPERATURE_C[1]).contains(&t)
-    };
+    let valid = |t: f32| valid_temperature(f64::from(t));
     let invalid = temperature.iter().filter(|&&t| !valid(t)).count();
     if invalid == temperature.len() {
         let example = temperature.first().copied().unwrap_or(f32::NAN);
@@ -308,10 +315,7 @@ fn block_means(
         let (mut n, mut sr, mut st) = (0usize, 0.0, 0.0);
         for (&y, &temp) in r.iter().zip(t) {
             let temp = f64::from(temp);
-            if y.is_finite()
-                && temp.is_finite()
-                && (VALID_TEMPERATURE_C[0]..=VALID_TEMPERATURE_C[1]).contains(&temp)
-            {
+            if y.is_finite() && valid_temperature(temp) {
                 n += 1;
                 sr += y;
                 st += temp;
@@ -353,14 +357,17 @@ fn temperature_rate(b: &Blocks, half_window_s: f64) -> Vec<f64> {
 
 /// A fitted turn-on transient y = settled + A e^(−t/τ), with standard errors from the
 /// Jacobian at the solution (the Cramér–Rao bound for the residual noise, inflated for its
-/// lag-1 correlation).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// lag-1 correlation), and the linearised weights of τ̂ and Â in the observations
+/// (d τ̂ / d yᵢ, rows of (JᵀJ)⁻¹Jᵀ: they sum to 0, the settled value taking any offset).
+#[derive(Debug, Clone, PartialEq)]
 struct ExponentialFit {
     tau: f64,
     amplitude: f64,
     settled: f64,
     se_tau: f64,
     se_amplitude: f64,
+    tau_weights: Vec<f64>,
+    amplitude_weights: Vec<f64>,
 }
 
 /// Fits settled + A e^(−t/τ) to `(t, y)` by Levenberg–Marquardt on (settled, A, τ), started
@@ -465,13 +472,23 @@ fn fit_exponential(t: &[f64], y: &[f64]) -> Option<ExponentialFit> {
     };
     let sigma2 = rss / (n - 3.0).max(1.0) * (1.0 + rho) / (1.0 - rho);
     let (jtj, _) = normal(&p);
-    let cov = jtj.try_inverse()? * sigma2;
+    let inverse = jtj.try_inverse()?;
+    let cov = inverse * sigma2;
+    let (mut tau_weights, mut amplitude_weights) = (Vec::with_capacity(t.len()), Vec::new());
+    for &ti in t {
+        let e = (-ti / p[2]).exp();
+        let row = inverse * Vector3::new(1.0, e, p[1] * ti / (p[2] * p[2]) * e);
+        amplitude_weights.push(row[1]);
+        tau_weights.push(row[2]);
+    }
     Some(ExponentialFit {
         tau: p[2],
         amplitude: p[1],
         settled: p[0],
         se_tau: cov[(2, 2)].max(0.0).sqrt(),
         se_amplitude: cov[(1, 1)].max(0.0).sqrt(),
+        tau_weights,
+        amplitude_weights,
     })
 }
 
@@ -669,14 +686,20 @@ fn transient_found(f: &ExponentialFit, soak_s: f64) -> bool {
     f.amplitude.abs() > 3.0 * f.se_amplitude && f.tau < soak_s / 2.0
 }
 
-/// Runs of blocks whose temperature stays within `tolerance` of the run's first block and
-/// that last at least `min_s`: (first block, end block).
+/// Runs of blocks whose temperature stays in a band of ±`tolerance` (highest minus lowest
+/// at most 2·`tolerance`) and that last at least `min_s`: (first block, end block).
 fn plateaus(b: &Blocks, tolerance: f64, min_s: f64) -> Vec<(usize, usize)> {
     let mut out = Vec::new();
     let mut start = 0;
     while start < b.t_s.len() {
         let mut end = start + 1;
-        while end < b.t_s.len() && (b.temp_c[end] - b.temp_c[start]).abs() <= tolerance {
+        let (mut lo, mut hi) = (b.temp_c[start], b.temp_c[start]);
+        while end < b.t_s.len() {
+            let t = b.temp_c[end];
+            if t.max(hi) - t.min(lo) > 2.0 * tolerance {
+                break;
+            }
+            (lo, hi) = (t.min(lo), t.max(hi));
             end += 1;
         }
         if b.t_s[end - 1] - b.t_s[start] >= min_s {
@@ -771,6 +794,80 @@ pub fn analyse_axis_thermal(
         options.max_order,
     )
     .map_err(|e| format!("{device} {axis}: {e}"))?;
+    // Noise terms per plateau (the warm-up part excluded), on the rate less the fitted
+    // bias(T): they also give the slow bias drift the warm-up and hysteresis intervals hold.
+    let mut plateau_noise = Vec::new();
+    let mut plateau_fits = Vec::new();
+    let block_len = ((options.block_s / tau0).round() as usize).max(1);
+    for (s, e) in plateaus(&blocks, options.plateau_tolerance_c, options.plateau_min_s) {
+        let (s, e) = before_pose((s, e));
+        if e <= s {
+            continue;
+        }
+        let first = blocks.start[s].max((fit_from / tau0) as usize);
+        let last = (blocks.start[e - 1] + block_len).min(rate.len());
+        if last <= first || (last - first) as f64 * tau0 < options.plateau_min_s {
+            continue;
+        }
+        let piece: Vec<f64> = rate[first..last]
+            .iter()
+            .zip(&temperature[first..last])
+            .filter_map(|(&y, &temp)| {
+                let temp = f64::from(temp);
+                (y.is_finite() && valid_temperature(temp)).then(|| y - fit.eval(temp))
+            })
+            .collect();
+        let duration = piece.len() as f64 * tau0;
+        let result = analyse_axis(
+            device,
+            AxisSeries::one_segment(axis.clone(), tau0, piece),
+            &AnalysisOptions {
+                kind: DeviationKind::Oadev,
+                grid: TauGrid::Octave,
+                fit: true,
+                unit,
+                sensor: Some(sensor),
+            },
+        );
+        let temperature_c = blocks.temp_c[s..e].iter().sum::<f64>() / (e - s) as f64;
+        plateau_noise.push(PlateauNoise {
+            temperature_c,
+            start_s: first as f64 * tau0,
+            duration_s: duration,
+            terms: result.terms,
+            fit_error: result.fit_error,
+        });
+        if let Some(noise_fit) = result.fit {
+            plateau_fits.push((result.curve, noise_fit, duration));
+        }
+    }
+    if plateau_noise.is_empty() {
+        notes.push(format!(
+            "no plateau of at least {:.0} s within ±{} °C: no noise terms against temperature",
+            options.plateau_min_s, options.plateau_tolerance_c
+        ));
+    }
+    let drift = Drift::from_plateaus(
+        &plateau_fits
+            .iter()
+            .map(|(curve, fit, duration_s)| PlateauCurve {
+                curve,
+                fit,
+                duration_s: *duration_s,
+            })
+            .collect::<Vec<_>>(),
+    );
+    if drift.is_none() {
+        notes.push(
+            "the warm-up and hysteresis intervals leave out the slow bias drift: no plateau noise fit measures it"
+                .into(),
+        );
+    }
+    // Standard deviation of the drift in a combination of block means.
+    let drift_sigma = |times: &[f64], weights: &[f64]| {
+        drift.map_or(0.0, |d| d.sigma(times, weights, options.block_s))
+    };
+
     let warmup = match soak {
         None => {
             notes.push(
@@ -785,8 +882,17 @@ pub fn analyse_axis_thermal(
             let corrected: Vec<f64> = (s..e)
                 .map(|i| blocks.bias[i] - (fit.eval(blocks.temp_c[i]) - base))
                 .collect();
+            // Found against the white noise of the blocks; the intervals add the drift.
             match fit_exponential(&t, &corrected) {
                 Some(f) if transient_found(&f, t[t.len() - 1]) => {
+                    let times = &blocks.t_s[s..e];
+                    let f = ExponentialFit {
+                        se_tau: f.se_tau.hypot(drift_sigma(times, &f.tau_weights)),
+                        se_amplitude: f
+                            .se_amplitude
+                            .hypot(drift_sigma(times, &f.amplitude_weights)),
+                        ..f
+                    };
                     let a = f.amplitude;
                     let tolerance = options.warmup_tolerance.unwrap_or(0.05 * a.abs());
                     let to_tol = if a.abs() > tolerance {
@@ -883,14 +989,33 @@ pub fn analyse_axis_thermal(
     let branch_t: Vec<f64> = on_branch.iter().map(|&i| blocks.temp_c[i]).collect();
     let branch_b: Vec<f64> = on_branch.iter().map(|&i| blocks.bias[i]).collect();
     let branch_up: Vec<bool> = on_branch.iter().map(|&i| branch[i] > 0).collect();
-    let hysteresis = match fit_branches(
-        &branch_t,
-        &branch_b,
-        &branch_up,
-        options.reference_c,
-        fit.order,
-        fit.order,
-    ) {
+    let branch_times: Vec<f64> = on_branch.iter().map(|&i| blocks.t_s[i]).collect();
+    let fit_gap = |orders| {
+        fit_branches(
+            &branch_t,
+            &branch_b,
+            &branch_up,
+            options.reference_c,
+            fit.order,
+            orders,
+        )
+    };
+    let mut joint = fit_gap(0..=fit.order);
+    // The gap order comes down while its top coefficient lies within its interval widened
+    // by the drift (BIC sees only the white residuals).
+    while let Ok(j) = &joint {
+        let q = j.gap.order;
+        if q == 0 {
+            break;
+        }
+        let weights = j.gap_coefficient_weights(&branch_t, &branch_up, q);
+        let bound = j.gap.ci95[q].hypot(1.96 * drift_sigma(&branch_times, &weights));
+        if j.gap.coefficients[q].abs() >= bound {
+            break;
+        }
+        joint = fit_gap(q - 1..=q - 1);
+    }
+    let hysteresis = match joint {
         Ok(joint) => {
             let [lo, hi] = joint.gap.range_c;
             let grid: Vec<f64> = (0..=200)
@@ -904,7 +1029,12 @@ pub fn analyse_axis_thermal(
                 .unwrap_or((0, &0.0));
             Some(Hysteresis {
                 largest_gap: g * to_ds,
-                largest_gap_ci95: joint.gap.band(grid[i]) * to_ds,
+                largest_gap_ci95: joint.gap.band(grid[i]).hypot(
+                    1.96 * drift_sigma(
+                        &branch_times,
+                        &joint.gap_weights(&branch_t, &branch_up, grid[i]),
+                    ),
+                ) * to_ds,
                 largest_gap_at_c: grid[i],
                 mean_gap: gaps.iter().sum::<f64>() / gaps.len() as f64 * to_ds,
                 unit: ds_unit.to_string(),
@@ -918,52 +1048,6 @@ pub fn analyse_axis_thermal(
             None
         }
     };
-
-    // Noise terms per plateau (the warm-up part excluded).
-    let mut plateau_noise = Vec::new();
-    let block_len = ((options.block_s / tau0).round() as usize).max(1);
-    for (s, e) in plateaus(&blocks, options.plateau_tolerance_c, options.plateau_min_s) {
-        let (s, e) = before_pose((s, e));
-        if e <= s {
-            continue;
-        }
-        let first = blocks.start[s].max((fit_from / tau0) as usize);
-        let last = (blocks.start[e - 1] + block_len).min(rate.len());
-        if last <= first || (last - first) as f64 * tau0 < options.plateau_min_s {
-            continue;
-        }
-        let piece: Vec<f64> = rate[first..last]
-            .iter()
-            .copied()
-            .filter(|v| v.is_finite())
-            .collect();
-        let duration = piece.len() as f64 * tau0;
-        let result = analyse_axis(
-            device,
-            AxisSeries::one_segment(axis.clone(), tau0, piece),
-            &AnalysisOptions {
-                kind: DeviationKind::Oadev,
-                grid: TauGrid::Octave,
-                fit: true,
-                unit,
-                sensor: Some(sensor),
-            },
-        );
-        let temperature_c = blocks.temp_c[s..e].iter().sum::<f64>() / (e - s) as f64;
-        plateau_noise.push(PlateauNoise {
-            temperature_c,
-            start_s: first as f64 * tau0,
-            duration_s: duration,
-            terms: result.terms,
-            fit_error: result.fit_error,
-        });
-    }
-    if plateau_noise.is_empty() {
-        notes.push(format!(
-            "no plateau of at least {:.0} s within ±{} °C: no noise terms against temperature",
-            options.plateau_min_s, options.plateau_tolerance_c
-        ));
-    }
 
     let scale_factor = if pose.iter().any(|&p| p != 0) {
         match scale_from_gravity(&blocks, &pose, fit_from, unit, options) {
@@ -1057,6 +1141,30 @@ mod tests {
         let (tau, offset, rms) = fit_lag(&t, &chamber, &sensor).unwrap();
         assert!((tau - 120.0).abs() < 1.0, "{tau}");
         assert!(offset.abs() < 0.05 && rms < 0.05, "{offset} {rms}");
+    }
+
+    #[test]
+    fn a_plateau_is_a_band_of_twice_the_tolerance() {
+        // 25.0 → 25.5 °C over 1000 s (within ±0.3 °C of its middle), then 30 °C for 500 s.
+        let temp_c: Vec<f64> = (0..1500)
+            .map(|i| {
+                if i < 1000 {
+                    25.0 + 0.5 * i as f64 / 1000.0
+                } else {
+                    30.0
+                }
+            })
+            .collect();
+        let blocks = Blocks {
+            t_s: (0..1500).map(|i| i as f64 + 0.5).collect(),
+            bias: vec![0.0; 1500],
+            chamber_c: Vec::new(),
+            start: (0..1500).collect(),
+            temp_c,
+        };
+        assert_eq!(plateaus(&blocks, 0.3, 400.0), vec![(0, 1000), (1000, 1500)]);
+        // ±0.2 °C: the band holds 0.4 °C of the 0.5 °C/1000 s drift, the first 801 blocks.
+        assert_eq!(plateaus(&blocks, 0.2, 400.0), vec![(0, 801), (1000, 1500)]);
     }
 
     #[test]

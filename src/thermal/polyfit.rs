@@ -216,20 +216,23 @@ pub struct BranchFit {
     pub gap: PolyFit,
     pub rising: PolyFit,
     pub falling: PolyFit,
+    /// (XᵀX)⁻¹ of the joint design (shared coefficients, then gap coefficients; unscaled).
+    inverse: Vec<Vec<f64>>,
 }
 
 /// Fits `y` against temperature `x` on two branches at once (`rising[i]`: point `i` is on the
 /// rising branch, else on the falling one; time order): a shared polynomial of `shared_order`
-/// and a gap polynomial of the order (0 to `max_gap_order`) with the lowest BIC. The common
-/// temperature range of the branches is each fit's `range_c`. Standard errors are inflated for
-/// the lag-1 correlation of the residuals as in [`fit_polynomial`].
+/// and a gap polynomial of the order in `gap_orders` (at most `shared_order`) with the lowest
+/// BIC (a single order: `q..=q`). The common temperature range of the branches is each fit's
+/// `range_c`. Standard errors are inflated for the lag-1 correlation of the residuals as in
+/// [`fit_polynomial`].
 pub fn fit_branches(
     x: &[f64],
     y: &[f64],
     rising: &[bool],
     reference_c: f64,
     shared_order: usize,
-    max_gap_order: usize,
+    gap_orders: std::ops::RangeInclusive<usize>,
 ) -> Result<BranchFit, String> {
     let n = x.len().min(y.len()).min(rising.len());
     let (x, y, rising) = (&x[..n], &y[..n], &rising[..n]);
@@ -278,8 +281,9 @@ pub fn fit_branches(
             (lo.min(t), hi.max(t))
         });
     let scale = ((all_hi - all_lo) / 2.0).max(1e-6);
-    let max_gap_order = max_gap_order.min(shared_order);
-    let solved: Vec<(usize, Solved)> = (0..=max_gap_order)
+    let lowest_gap_order = (*gap_orders.start()).min(shared_order);
+    let highest_gap_order = (*gap_orders.end()).min(shared_order);
+    let solved: Vec<(usize, Solved)> = (lowest_gap_order..=highest_gap_order)
         .filter_map(|q| {
             let p = shared_order + 1;
             let columns = p + q + 1;
@@ -393,7 +397,60 @@ pub fn fit_branches(
         gap: curve(gap_map, *q, bic),
         rising: curve(branch_map(1.0), shared_order, Vec::new()),
         falling: curve(branch_map(-1.0), shared_order, Vec::new()),
+        inverse: s.inverse.clone(),
     })
+}
+
+impl BranchFit {
+    /// The weights wᵢ with Σ wᵢ yᵢ = the fitted gap at `t_c`, for the points `x`, `rising`
+    /// the fit was made on. They sum to 0 (the shared curve's constant absorbs any offset).
+    pub fn gap_weights(&self, x: &[f64], rising: &[bool], t_c: f64) -> Vec<f64> {
+        let u = t_c - self.gap.reference_c;
+        let gap: Vec<f64> = (0..=self.gap.order).map(|k| u.powi(k as i32)).collect();
+        self.weights_of(x, rising, &gap)
+    }
+
+    /// The weights wᵢ with Σ wᵢ yᵢ = the gap polynomial's coefficient of order `k`; they sum
+    /// to 0.
+    pub fn gap_coefficient_weights(&self, x: &[f64], rising: &[bool], k: usize) -> Vec<f64> {
+        let mut gap = vec![0.0; self.gap.order + 1];
+        if let Some(g) = gap.get_mut(k) {
+            *g = 1.0;
+        }
+        self.weights_of(x, rising, &gap)
+    }
+
+    /// Weights of the gap combination Σ_k gap[k]·c_k: row aᵀ(XᵀX)⁻¹Xᵀ of the design.
+    fn weights_of(&self, x: &[f64], rising: &[bool], gap: &[f64]) -> Vec<f64> {
+        let p = self.rising.order + 1;
+        let columns = self.inverse.len();
+        let mut a = vec![0.0; columns];
+        for (k, g) in gap.iter().enumerate() {
+            if let Some(slot) = a.get_mut(p + k) {
+                *slot = *g;
+            }
+        }
+        let v: Vec<f64> = (0..columns)
+            .map(|j| (0..columns).map(|l| a[l] * self.inverse[l][j]).sum())
+            .collect();
+        x.iter()
+            .zip(rising)
+            .map(|(&t, &up)| {
+                let u = t - self.gap.reference_c;
+                let half = if up { 0.5 } else { -0.5 };
+                let mut power = 1.0;
+                let mut w = 0.0;
+                for k in 0..p {
+                    w += v[k] * power;
+                    if p + k < columns {
+                        w += v[p + k] * half * power;
+                    }
+                    power *= u;
+                }
+                w
+            })
+            .collect()
+    }
 }
 
 /// Least squares of `y` on `columns` regressors (`fill(i, row)` writes point `i`'s row, in
@@ -514,14 +571,30 @@ mod tests {
             y.push(base + if r { 0.25 } else { -0.25 } + 0.05 * noise(i));
             up.push(r);
         }
-        let f = fit_branches(&x, &y, &up, 25.0, 2, 2).unwrap();
+        let f = fit_branches(&x, &y, &up, 25.0, 2, 0..=2).unwrap();
         assert_eq!(f.gap.order, 0, "{:?}", f.gap.bic);
         assert!((f.gap.coefficients[0] - 0.5).abs() < 0.01, "{:?}", f.gap);
         assert!((f.gap.coefficients[0] - 0.5).abs() <= f.gap.ci95[0] * 3.0);
         assert!((f.rising.eval(40.0) - f.falling.eval(40.0) - 0.5).abs() < 0.01);
         assert!((f.rising.coefficients[1] - 0.8).abs() < 1e-3);
+        // The linear weights reproduce the fitted gap and cancel a constant offset.
+        for at in [0.0, 40.0] {
+            let w = f.gap_weights(&x, &up, at);
+            let by_weights: f64 = w.iter().zip(&y).map(|(a, b)| a * b).sum();
+            assert!((by_weights - f.gap.eval(at)).abs() < 1e-9, "{by_weights}");
+            assert!(w.iter().sum::<f64>().abs() < 1e-9);
+        }
+        let c0 = f.gap_coefficient_weights(&x, &up, 0);
+        let by_weights: f64 = c0.iter().zip(&y).map(|(a, b)| a * b).sum();
+        assert!((by_weights - f.gap.coefficients[0]).abs() < 1e-9);
+        let quadratic = fit_branches(&x, &y, &up, 25.0, 2, 2..=2).unwrap();
+        assert_eq!(quadratic.gap.order, 2);
+        let w = quadratic.gap_weights(&x, &up, 50.0);
+        let by_weights: f64 = w.iter().zip(&y).map(|(a, b)| a * b).sum();
+        assert!((by_weights - quadratic.gap.eval(50.0)).abs() < 1e-9);
+        assert!(w.iter().sum::<f64>().abs() < 1e-9);
         let only_up = vec![true; x.len()];
-        assert!(fit_branches(&x, &y, &only_up, 25.0, 2, 2)
+        assert!(fit_branches(&x, &y, &only_up, 25.0, 2, 0..=2)
             .unwrap_err()
             .contains("0 falling points"));
     }
