@@ -8,6 +8,7 @@
 //!   answers and the data's health.
 //! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
+//! - [`noise`]: the IMU noise model's terms, shared by the Allan fit, the simulator and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
 //! - [`thermal`]: thermal-chamber characterisation and the compensation model.
 //! - [`calib`]: multi-position, six-position and rate-table calibration and its file.
@@ -19,10 +20,11 @@ pub use imulab_bag as bag;
 pub mod calib;
 pub mod cli;
 pub use imulab_daemon as daemon;
-pub mod earth;
+pub use imulab_earth as earth;
+pub use imulab_noise as noise;
 pub mod fusion;
 pub mod report;
-pub mod sim;
+pub use imulab_sim as sim;
 pub use imulab_store as store;
 pub mod thermal;
 pub mod watch;

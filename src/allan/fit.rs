@@ -14,55 +14,7 @@ use super::edf::edf;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
-/// The five terms of the model, in base units of the input rate `u` (rad/s or m/s²).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Term {
-    /// Q: quantization noise, u·s.
-    Quantization,
-    /// N: angle / velocity random walk (white rate noise density), u·√s = u/√Hz.
-    RandomWalk,
-    /// B: bias instability (flicker floor), u.
-    BiasInstability,
-    /// K: rate / acceleration random walk, u/√s.
-    RateRandomWalk,
-    /// R: rate ramp, u/s.
-    RateRamp,
-}
-
-impl Term {
-    pub const ALL: [Term; 5] = [
-        Term::Quantization,
-        Term::RandomWalk,
-        Term::BiasInstability,
-        Term::RateRandomWalk,
-        Term::RateRamp,
-    ];
-
-    /// The term's contribution to σ²(τ) per unit of its squared coefficient.
-    fn basis(self, tau: f64) -> f64 {
-        match self {
-            Term::Quantization => 3.0 / (tau * tau),
-            Term::RandomWalk => 1.0 / tau,
-            Term::BiasInstability => BIAS_INSTABILITY_FACTOR * BIAS_INSTABILITY_FACTOR,
-            Term::RateRandomWalk => tau / 3.0,
-            Term::RateRamp => tau * tau / 2.0,
-        }
-    }
-
-    pub fn symbol(self) -> &'static str {
-        match self {
-            Term::Quantization => "Q",
-            Term::RandomWalk => "N",
-            Term::BiasInstability => "B",
-            Term::RateRandomWalk => "K",
-            Term::RateRamp => "R",
-        }
-    }
-}
-
-/// √(2 ln 2 / π) ≈ 0.664: the flicker floor of σ(τ) relative to B.
-pub const BIAS_INSTABILITY_FACTOR: f64 = 0.664_282_670_936_177_3;
+pub use imulab_noise::{Term, BIAS_INSTABILITY_FACTOR};
 
 /// One fitted term.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -95,7 +47,7 @@ impl NoiseFit {
     pub fn model_deviation(&self, tau: f64) -> f64 {
         self.terms
             .iter()
-            .filter_map(|t| t.value.map(|v| v * v * t.term.basis(tau)))
+            .filter_map(|t| t.value.map(|v| v * v * t.term.allan_variance(tau)))
             .sum::<f64>()
             .sqrt()
     }
@@ -103,7 +55,7 @@ impl NoiseFit {
     /// σ(τ) contribution of one term alone (for plotting the fitted lines).
     pub fn term_deviation(&self, term: Term, tau: f64) -> Option<f64> {
         let v = self.get(term)?.value?;
-        Some(v * term.basis(tau).sqrt())
+        Some(v * term.allan_variance(tau).sqrt())
     }
 }
 
@@ -159,7 +111,7 @@ pub fn fit_noise_terms(curve: &Curve) -> Result<NoiseFit, FitError> {
             let model: f64 = free
                 .iter()
                 .zip(solution.iter())
-                .map(|(&j, &v)| v / scales[j] * Term::ALL[j].basis(p.tau))
+                .map(|(&j, &v)| v / scales[j] * Term::ALL[j].allan_variance(p.tau))
                 .sum();
             reference[i] = if model > 0.0 { model } else { measured[i] };
         }
@@ -260,7 +212,7 @@ fn weighted_system(
     for (i, p) in points.iter().enumerate() {
         let weight = (edfs[i] / 2.0).sqrt() / reference[i];
         for (j, term) in Term::ALL.iter().enumerate() {
-            design[(i, j)] = term.basis(p.tau) * weight;
+            design[(i, j)] = term.allan_variance(p.tau) * weight;
         }
         target[i] = measured[i] * weight;
     }

@@ -400,7 +400,7 @@ mod tests {
             let t = k as f64 / rate;
             // Midpoint rule on ω_nb^b.
             let mid = p.at(t + 0.5 / rate);
-            let w_ie = crate::earth::earth_rate_ned(p.lat_rad);
+            let w_ie = imulab_earth::earth_rate_ned(p.lat_rad);
             let w_nb = mid.gyro_b - mid.quat_nb.inverse() * w_ie;
             q *= UnitQuaternion::from_scaled_axis(w_nb / rate);
             k += 1;
@@ -412,7 +412,7 @@ mod tests {
             q.angle_to(&last.quat_nb)
         );
         assert!(
-            (last.accel_b.norm() - crate::earth::normal_gravity(p.lat_rad, 200.0)).abs() < 1e-9
+            (last.accel_b.norm() - imulab_earth::normal_gravity(p.lat_rad, 200.0)).abs() < 1e-9
         );
     }
 

@@ -19,8 +19,8 @@ use serde::{Deserialize, Serialize};
 
 use super::motion::TruthSample;
 use super::rng::Stream;
-use crate::earth;
-use crate::store::GnssRecord;
+use imulab_earth as earth;
+use imulab_store::GnssRecord;
 
 /// GPS time starts 1980-01-06T00:00:00Z, 315 964 800 s after the Unix epoch.
 const GPS_EPOCH_UNIX_S: i64 = 315_964_800;
@@ -401,7 +401,7 @@ pub fn gps_week_tow(utc_ns: i64) -> (u16, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::motion::static_truth;
+    use crate::motion::static_truth;
     use nalgebra::UnitQuaternion;
 
     #[test]

@@ -9,7 +9,7 @@
 //! with M = I + diag(scale factor) + misalignment; b the sum of constant, turn-on,
 //! instability (Gauss-Markov processes, see [`super::flicker`], whose Allan floor is 0.664·B
 //! for a spec's bias instability B: the convention of IEEE Std 952 and of the noise fit in
-//! [`crate::allan::fit`], so a preset's B is what `imulab allan --fit` reads back), rate random
+//! `imulab allan`'s fit ([`imulab_noise`]), so a preset's B is what `imulab allan --fit` reads back), rate random
 //! walk, rate ramp and temperature coefficient × ΔT; G the gyro g-sensitivity (gyros only); w white
 //! noise; then saturation at ±range and rounding to the LSB.
 
@@ -18,8 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use super::flicker::{FlickerDesign, SlowProcess};
 use super::rng::Stream;
-use crate::allan::fit::BIAS_INSTABILITY_FACTOR;
-use crate::store::{ImuRecord, TruthImuRecord};
+use imulab_noise::BIAS_INSTABILITY_FACTOR;
+use imulab_store::{ImuRecord, TruthImuRecord};
 
 /// Standard gravity used for g and mg units, m/s².
 pub const G0: f64 = 9.806_65;
@@ -1047,7 +1047,7 @@ mod tests {
 
     #[test]
     fn one_axis_alone_gives_the_same_values_as_in_the_full_imu() {
-        let s = crate::sim::presets::imu_preset("bench-cheap").unwrap();
+        let s = crate::presets::imu_preset("bench-cheap").unwrap();
         let z_only = Channels {
             gyro: [false, false, true],
             accel: [false; 3],

@@ -1,4 +1,6 @@
-//! Sensor simulator: IMU and GNSS error models, scenes, presets, byte-stream serving.
+//! Sensor simulator: IMU and GNSS error models, scenes, presets, byte-stream serving (crate
+//! `imulab-sim`, on the drivers, the store, ingest, the earth model and the noise model only;
+//! the main crate re-exports it as `imulab::sim`).
 //!
 //! - [`rng`]: deterministic per-sensor, per-axis random streams.
 //! - [`flicker`]: bias instability as a sum of Gauss-Markov processes.

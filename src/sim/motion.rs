@@ -12,7 +12,7 @@
 //! The vehicle has zero roll and no side-slip: the body x axis points along the velocity
 //! (pitch = flight-path angle while climbing), y to the right, z down (FRD).
 
-use crate::earth;
+use imulab_earth as earth;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};

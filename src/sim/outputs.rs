@@ -9,7 +9,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 use super::scene::Scene;
-use crate::store::{
+use imulab_store::{
     DeviceInfo, DeviceKind, EventRecord, GnssRecord, ImuRecord, Manifest, SessionWriter,
     TruthImuRecord, TruthNavRecord, WriterOptions,
 };

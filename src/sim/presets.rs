@@ -9,7 +9,7 @@
 //! back.
 
 use super::imu_model::{AccelSpec, GyroSpec, ImuSpec, ThermalSpec, DEFAULT_BAND_S};
-use crate::allan::fit::BIAS_INSTABILITY_FACTOR;
+use imulab_noise::BIAS_INSTABILITY_FACTOR;
 
 /// One IMU preset: its name, where its numbers come from, and the spec.
 pub struct ImuPreset {

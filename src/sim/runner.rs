@@ -17,7 +17,7 @@ use super::motion::{static_truth, MotionGenerator, TruthSample};
 use super::outputs::SimSink;
 use super::scene::{Motion, Scene, START_MONO_NS};
 use super::truth_file::TruthFileReader;
-use crate::store::{EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
+use imulab_store::{EventKind, EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 
 /// Samples per block handed to the sink.
 const BLOCK: usize = 4096;

@@ -7,8 +7,8 @@
 //!
 //! ```no_run
 //! # fn main() -> anyhow::Result<()> {
-//! use imulab::sim::scene::Scene;
-//! use imulab::sim::serve::{Server, ServeOptions, Speed, StartWhen};
+//! use imulab_sim::scene::Scene;
+//! use imulab_sim::serve::{Server, ServeOptions, Speed, StartWhen};
 //! let scene = Scene::load("fixtures/scenes/serve_bench.toml".as_ref())?;
 //! let mut server = Server::start(
 //!     scene,
@@ -88,9 +88,9 @@ use super::rng::Stream;
 use super::runner;
 use super::scene::{Scene, START_MONO_NS};
 use super::wire::{GnssWire, ImuWire};
-use crate::store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 use imulab_ingest::clock::Arrival;
 use imulab_ingest::mapping::{gnss_record, ImuMapping};
+use imulab_store::{EventRecord, GnssRecord, ImuRecord, TruthImuRecord, TruthNavRecord};
 
 /// Most bytes kept per endpoint for a reader that does not keep up (paced mode); frames
 /// beyond are dropped and counted, as a UART overrun would lose them.

@@ -42,7 +42,7 @@ use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
 
 use super::imu_model::Channels;
 use super::scene::START_MONO_NS;
-use crate::store::{GnssRecord, ImuRecord};
+use imulab_store::{GnssRecord, ImuRecord};
 
 /// The DBC every `slcan` IMU is served through (the project's IMU-over-CAN layout).
 const IMU_CAN_DBC: &str = include_str!("../../fixtures/imu_can.dbc");
