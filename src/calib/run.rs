@@ -134,14 +134,18 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
     let mut notes = Vec::new();
     if let Mode::RateTable(path) = &opts.mode {
         let rows = read_table(path)?;
-        let (segs, rest) = segments(rec, &rows, &opts.detector)?;
-        let (gyro, table) = fit_rate_table(&segs, rest)?;
-        let mut cal = Calibration::new(
-            &rec.device,
-            &rec.source,
-            "rate-table",
-            "the gyro's own axes (only the spindle axis's column of M is measured; the others are the identity's)",
-        );
+        let segs = segments(rec, &rows, &opts.detector)?;
+        let (gyro, table) = fit_rate_table(&segs)?;
+        let frame = if table.len() == 3 {
+            "the mounting fixture's (x, y and z each along the spindle in turn; the fixture's alignment errors are part of M)"
+        } else {
+            notes.push(format!(
+                "rate table: one mounting ({} on the spindle), so only that column of M is measured; mount x, y and z on the spindle in turn for the whole matrix",
+                table[0].axis
+            ));
+            "the gyro's own axes (only the spindle axis's column of M is measured; the others are the identity's)"
+        };
+        let mut cal = Calibration::new(&rec.device, &rec.source, "rate-table", frame);
         cal.gyro = Some(gyro);
         cal.rate_table = Some(table);
         return Ok(Outcome {
