@@ -218,8 +218,10 @@ pub fn segments(
         while i + window <= rec.len() && steady(i) {
             i += window;
         }
-        let end = i.min(rec.len());
-        if end - start >= min_len {
+        // One window less at each end: the tail of a change of rate can pass the variance
+        // test while still short of the new rate.
+        let (start, end) = (start + window, i.min(rec.len()).saturating_sub(window));
+        if end >= start + min_len {
             found.push((start, end));
         }
     }
