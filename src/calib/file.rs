@@ -110,6 +110,13 @@ pub struct Quality {
     /// RMS of |specific force| − g over the poses, m/s^2, raw and corrected.
     pub gravity_residual_before: Option<f64>,
     pub gravity_residual_after: Option<f64>,
+    /// The same with a constant accel bias (differs from `gravity_residual_after` when the
+    /// fit kept a bias drift).
+    pub gravity_residual_constant_bias: Option<f64>,
+    /// Accel bias drift over the fitted run, m/s^2 per s, and its 1σ (present when the data
+    /// supported it; `accel.bias` is then the bias at the middle of the poses).
+    pub accel_bias_drift: Option<[f64; 3]>,
+    pub accel_bias_drift_sigma: Option<[f64; 3]>,
     /// RMS angle between predicted and measured gravity after each rotation, rad, raw
     /// rates and corrected.
     pub rotation_residual_before: Option<f64>,

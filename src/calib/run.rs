@@ -212,6 +212,21 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
         }
         quality.gravity_residual_before = Some(fit.residual_before);
         quality.gravity_residual_after = Some(fit.residual_after);
+        quality.gravity_residual_constant_bias = Some(fit.residual_constant_bias);
+        if let Some(d) = &fit.drift {
+            quality.accel_bias_drift = Some(d.per_s);
+            quality.accel_bias_drift_sigma = Some(d.sigma_per_s);
+            let mg_h = d.per_s.map(|v| v / G0 * 1e3 * 3600.0);
+            notes.push(format!(
+                "the accelerometer bias drifted during the run ({:+.3} {:+.3} {:+.3} mg/h; F-test p = {:.1e}): fitted as linear in time, the bias written is its value at {:.0} s, the middle of the poses; with a constant bias the gravity residual is {:.4} mg",
+                mg_h[0],
+                mg_h[1],
+                mg_h[2],
+                d.p_value,
+                d.t_mid_s,
+                fit.residual_constant_bias / G0 * 1e3
+            ));
+        }
         (
             fit.model,
             "the accelerometer's (x along its x axis, y in its x-y plane)",

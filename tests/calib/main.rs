@@ -155,6 +155,60 @@ fn tumble_recovers_accel_and_gyro_of_an_industrial_imu() {
     assert_eq!(q.rotations, 24);
 }
 
+/// The bias-drift model selection: a steady accelerometer bias keeps the constant-bias fit; a
+/// bias ramping 4 mg/h is kept as a drift, recovered within its interval, and takes the gravity
+/// residual down to the white-noise level.
+#[test]
+fn accel_bias_drift_is_fitted_only_when_the_bias_moves() {
+    let steady = tumble_scene("industrial", 30, 8.0, 100.0, 5).replace(
+        "bias_mg = [20, -15, 25]",
+        "bias_mg = [20, -15, 25]\nbias_instability_mg = [0, 0, 0]\nrrw_mg_rth = [0, 0, 0]",
+    );
+    let (o, _, _) = outcome(&steady, Mode::MultiPosition);
+    let q = &o.calibration.quality;
+    assert_eq!(q.accel_bias_drift, None, "{q:?}");
+    assert_eq!(q.gravity_residual_after, q.gravity_residual_constant_bias);
+    let ramp_mg_h = [4.0, -3.0, 5.0];
+    let ramping = steady.replace(
+        "rrw_mg_rth = [0, 0, 0]",
+        "rrw_mg_rth = [0, 0, 0]\nrate_ramp_mg_per_h = [4.0, -3.0, 5.0]",
+    );
+    let (o, truth, g) = outcome(&ramping, Mode::MultiPosition);
+    let q = &o.calibration.quality;
+    let (drift, sigma) = (
+        q.accel_bias_drift.expect("drift kept"),
+        q.accel_bias_drift_sigma.unwrap(),
+    );
+    for k in 0..3 {
+        let want = ramp_mg_h[k] * 9.80665e-3 / 3600.0;
+        assert!(
+            (drift[k] - want).abs() < 3.0 * sigma[k],
+            "axis {k}: {} vs {want} (σ {})",
+            drift[k],
+            sigma[k]
+        );
+    }
+    let (constant, after) = (
+        q.gravity_residual_constant_bias.unwrap(),
+        q.gravity_residual_after.unwrap(),
+    );
+    assert!(after < 0.7 * constant, "{after} vs {constant}");
+    assert!(after < 0.06e-3 * g, "{after}");
+    assert!(
+        o.notes.iter().any(|n| n.contains("drifted")),
+        "{:?}",
+        o.notes
+    );
+    // The bias written is the run's mean bias (the truth's), at the middle of the poses.
+    let a = o.calibration.accel.unwrap();
+    for k in 0..3 {
+        assert!(
+            (a.bias[k] - truth.accel.bias[k]).abs() < 0.05e-3 * g,
+            "{a:?}"
+        );
+    }
+}
+
 #[test]
 fn six_position_finds_each_face_and_the_full_matrix() {
     let text = tumble_scene("industrial", 5, 10.0, 100.0, 2).replace(
