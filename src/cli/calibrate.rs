@@ -184,8 +184,12 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
     for seg in &o.segments {
         let _ = writeln!(
             s,
-            "  table {:+.1} °/s: {:.1}-{:.1} s, {} samples",
-            seg.rate_dps, seg.t_start, seg.t_end, seg.samples
+            "  table {:+.1} °/s, {} on the spindle: {:.1}-{:.1} s, {} samples",
+            seg.rate_dps,
+            ["x", "y", "z"][seg.spindle],
+            seg.t_start,
+            seg.t_end,
+            seg.samples
         );
     }
     if c.accel.is_some() {
