@@ -320,6 +320,39 @@ fn rate_table_three_mountings_recover_the_whole_gyro_matrix() {
     assert!(axes[0].nonlinearity_ppm_of_full_scale > 10.0, "{axes:?}");
 }
 
+/// The CSV's `axis` column states the mountings instead of gravity; one that contradicts the
+/// gyro is refused.
+#[test]
+fn rate_table_axis_column_states_the_mountings() {
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("rates.csv");
+    let rates = [10, -10, 50, -50, 100, -100, 200, -200];
+    let csv = |axes: [&str; 3]| {
+        let mut text = String::from("rate_dps,axis\n");
+        for a in axes {
+            for r in rates {
+                text += &format!("{r},{a}\n");
+            }
+        }
+        text
+    };
+    let (rec, _, g) = simulate(&rate_table_3axis());
+    std::fs::write(&table, csv(["x", "y", "z"])).unwrap();
+    let stated = calibrate(&rec, &options(Mode::RateTable(table.clone()), g)).unwrap();
+    let by_gravity = calibrate(
+        &rec,
+        &options(Mode::RateTable(fixture("rate_table_3axis.csv")), g),
+    )
+    .unwrap();
+    assert_eq!(stated.calibration.gyro, by_gravity.calibration.gyro);
+    std::fs::write(&table, csv(["y", "x", "z"])).unwrap();
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::RateTable(table), g)).unwrap_err()
+    );
+    assert!(e.contains("follows the table rate"), "{e}");
+}
+
 #[test]
 fn rate_table_with_a_mounting_missing_or_too_few_rates_is_refused() {
     let dir = tempfile::tempdir().unwrap();
