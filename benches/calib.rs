@@ -4,9 +4,15 @@
 //! errors at the grade's size; the gravity residual before and after; and the time one
 //! calibration takes; and, from the simulator's true bias, how far the accelerometer bias
 //! drifts along gravity between poses during the run (the part of the residual a constant-bias
-//! model cannot remove). Method and tables: docs/bench/calib.md. Run: `cargo bench --bench
+//! model cannot remove), the residual with a constant bias and with the fitted drift, and how
+//! often the F-test kept the drift; then the three-mounting rate-table program
+//! (`fixtures/scenes/rate_table_3axis.toml` with the gyro's scale factors, misalignments and
+//! quadratic terms drawn per seed): errors of the whole gyro M and of each axis's quadratic
+//! term, and how often the truth lies inside the stated 95 % interval. Method and tables:
+//! docs/bench/calib.md. Run: `cargo bench --bench
 //! calib` (`-- --seeds N` for another number of seeds; `-- --steady-accel` sets the
-//! accelerometers' bias instability and random walk to zero).
+//! accelerometers' bias instability and random walk to zero; `-- --rate-table` runs the
+//! rate-table program alone).
 
 use imulab::calib::recording::Recording;
 use imulab::calib::run::{calibrate, Gravity, Mode, Options};
@@ -14,6 +20,7 @@ use imulab::calib::statics::DetectorOptions;
 use imulab::calib::truth::Truth;
 use imulab::calib::TriadModel;
 use imulab::earth;
+use imulab::sim::imu_model::ImuSpec;
 use imulab::sim::outputs::MemorySink;
 use imulab::sim::rng::Stream;
 use imulab::sim::runner::run;
@@ -147,6 +154,80 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
     v[((v.len() - 1) as f64 * p).round() as usize]
 }
 
+/// The three-mounting rate-table program over `seeds`, tactical preset, with the gyro's
+/// scale factors (300 ppm), misalignments (0.3 mrad) and quadratic terms (0.3 ppm per °/s)
+/// drawn per seed (1σ).
+fn rate_table_rows(seeds: u64) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scenes");
+    let fixture = std::fs::read_to_string(root.join("rate_table_3axis.toml")).expect("fixture");
+    let table = root.join("rate_table_3axis.csv");
+    let (mut scale, mut mis, mut quad) = (Vec::new(), 0.0f64, 0.0f64);
+    let (mut m_in, mut m_all, mut q_in, mut q_all) = (0, 0, 0, 0);
+    let mut times = Vec::new();
+    for seed in 0..seeds {
+        let mut s = Stream::new(seed, "bench/calib/rate_table");
+        let text = fixture
+            .replace("seed = 29", &format!("seed = {}", 1000 + seed))
+            .replace("[300, -200, 450]", &draws(&mut s, 3, 300.0))
+            .replace("[0.2, -0.3, 0.1, 0.25, -0.15, 0.3]", &draws(&mut s, 6, 0.3))
+            .replace("[0.4, -0.25, 0.15]", &draws(&mut s, 3, 0.3));
+        let sc = Scene::parse(&text, Path::new(".")).expect("scene");
+        let mut sink = MemorySink::default();
+        run(&sc, &mut sink).expect("run");
+        let rec = Recording::from_records("stim", &sink.imu["stim"]);
+        let spec: &ImuSpec = &sc.imus[0].spec;
+        let truth = Truth::of_spec(spec, [0.0; 3], [0.0; 3]).gyro_body;
+        let opts = Options {
+            mode: Mode::RateTable(table.clone()),
+            detector: DetectorOptions::default(),
+            gravity: Gravity::Auto,
+        };
+        let start = Instant::now();
+        let o = match calibrate(&rec, &opts) {
+            Ok(o) => o,
+            Err(e) => {
+                println!("<!-- rate table seed {seed}: {e:#} -->");
+                continue;
+            }
+        };
+        times.push(start.elapsed().as_secs_f64());
+        let g = o.calibration.gyro.as_ref().unwrap();
+        let mut worst_scale = 0.0f64;
+        for i in 0..3 {
+            for j in 0..3 {
+                let e = (g.matrix[i][j] - truth.matrix[i][j]).abs();
+                if i == j {
+                    worst_scale = worst_scale.max(e * 1e6);
+                } else {
+                    mis = mis.max(e.to_degrees());
+                }
+                m_in += usize::from(e < 1.96 * g.matrix_sigma[i][j]);
+                m_all += 1;
+            }
+        }
+        scale.push(worst_scale);
+        for (k, a) in o.calibration.rate_table.iter().flatten().enumerate() {
+            let e = (a.quadratic_ppm_per_dps - spec.gyro.scale_quadratic_ppm_per_dps[k]).abs();
+            quad = quad.max(e);
+            q_in += usize::from(e < 1.96 * a.quadratic_sigma_ppm_per_dps);
+            q_all += 1;
+        }
+    }
+    println!(
+        "\n# rate table, three mountings (x, -y, z on the spindle, 8 rates of ±10-200 °/s held 20 s each), tactical gyro, {seeds} seeds\n"
+    );
+    println!("| gyro scale err p50 / max (ppm) | gyro mis. err max (°) | M entries in their 95 % interval | quadratic err max (ppm per °/s) | quadratic in 95 % | calibrate time p50 / max (s) |");
+    println!("| --- | --- | --- | --- | --- | --- |");
+    println!(
+        "| {:.1} / {:.1} | {:.5} | {m_in}/{m_all} | {quad:.4} | {q_in}/{q_all} | {:.3} / {:.3} |",
+        percentile(&mut scale, 0.5),
+        percentile(&mut scale, 1.0),
+        mis,
+        percentile(&mut times, 0.5),
+        percentile(&mut times, 1.0),
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let seeds: u64 = args
@@ -156,6 +237,10 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(20);
     let steady_accel = args.iter().any(|a| a == "--steady-accel");
+    if args.iter().any(|a| a == "--rate-table") {
+        rate_table_rows(seeds);
+        return;
+    }
     println!(
         "# calibration recovery, {seeds} seeds per preset, 15 min 200 Hz tumbles (60 poses){}\n",
         if steady_accel {
@@ -164,9 +249,9 @@ fn main() {
             ""
         }
     );
-    println!("| preset | accel scale err p50 / max (ppm) | target | accel mis. err max (°) | mis. ok (0.02° or 95 %) | accel bias err max (mg) | gyro scale err p50 / max (ppm) | gyro mis. err max (°) | gyro mis. ok | g residual before → after (mg) | pose-mean noise (mg) | bias drift along g (mg) | √(noise² + drift²) (mg) | calibrate time p50 / max (s) |");
+    println!("| preset | accel scale err p50 / max (ppm) | target | accel mis. err max (°) | mis. ok (0.02° or 95 %) | accel bias err max (mg) | gyro scale err p50 / max (ppm) | gyro mis. err max (°) | gyro mis. ok | g residual before → constant bias → after (mg) | drift kept | pose-mean noise (mg) | bias drift along g (mg) | √(noise² + drift²) (mg) | calibrate time p50 / max (s) |");
     println!(
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
     );
     for grade in &GRADES {
         let mut a_scale = Vec::new();
@@ -174,6 +259,7 @@ fn main() {
         let (mut a_mis, mut g_mis, mut a_bias) = (0.0f64, 0.0f64, 0.0f64);
         let (mut a_ok, mut g_ok) = (0, 0);
         let (mut before, mut after, mut floor) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut constant, mut drift_kept) = (Vec::new(), 0);
         let mut drift = Vec::new();
         let mut times = Vec::new();
         for seed in 0..seeds {
@@ -220,6 +306,8 @@ fn main() {
             let mg = 1e3 / 9.80665;
             before.push(c.quality.gravity_residual_before.unwrap() * mg);
             after.push(c.quality.gravity_residual_after.unwrap() * mg);
+            constant.push(c.quality.gravity_residual_constant_bias.unwrap() * mg);
+            drift_kept += usize::from(c.quality.accel_bias_drift.is_some());
             if let Some(d) = &o.detection {
                 let f: f64 = d
                     .intervals
@@ -271,7 +359,7 @@ fn main() {
         let done = times.len();
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         println!(
-            "| {} | {:.0} / {:.0} | {:.0} | {:.4} | {a_ok}/{done} | {:.3} | {:.0} / {:.0} | {:.4} | {g_ok}/{done} | {:.2} → {:.4} | {:.4} | {:.4} | {:.4} | {:.3} / {:.3} |",
+            "| {} | {:.0} / {:.0} | {:.0} | {:.4} | {a_ok}/{done} | {:.3} | {:.0} / {:.0} | {:.4} | {g_ok}/{done} | {:.2} → {:.4} → {:.4} | {drift_kept}/{done} | {:.4} | {:.4} | {:.4} | {:.3} / {:.3} |",
             grade.preset,
             percentile(&mut a_scale, 0.5),
             percentile(&mut a_scale, 1.0),
@@ -282,6 +370,7 @@ fn main() {
             percentile(&mut g_scale, 1.0),
             g_mis,
             mean(&before),
+            mean(&constant),
             mean(&after),
             mean(&floor),
             mean(&drift),
@@ -290,4 +379,5 @@ fn main() {
             percentile(&mut times, 1.0),
         );
     }
+    rate_table_rows(seeds);
 }

@@ -4,12 +4,15 @@
 //! rotation a full M would add cannot be seen from magnitudes), the nine parameters come from
 //! a nonlinear least-squares fit over the poses, with standard errors from the covariance.
 //! One robust pass drops poses whose residual is far outside the rest (motion during a
-//! "still" interval) and refits.
+//! "still" interval) and refits. A bias drifting linearly in time (three more parameters,
+//! b(t) = b + d·(t − t̄)) is then fitted too and kept only when an F-test says the data
+//! supports it (the drop in Σr² against the three parameters, at the 0.1 % level).
 
-use super::lsq::{conditioning, minimise};
+use super::lsq::{conditioning, minimise, Fit};
 use super::statics::{pose_spread, StaticInterval};
 use super::TriadModel;
 use anyhow::{bail, Result};
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 /// Fewest poses the nine-parameter fit accepts.
 pub const MIN_POSES: usize = 9;
@@ -25,7 +28,27 @@ pub struct AccelFit {
     pub poses_used: usize,
     pub rejected: Vec<usize>,
     pub converged: bool,
+    /// RMS of |corrected| − g with a constant bias (the same as `residual_after` unless the
+    /// drift was kept).
+    pub residual_constant_bias: f64,
+    /// The bias drift, when the F-test kept it.
+    pub drift: Option<BiasDrift>,
 }
+
+/// A linear accelerometer bias drift over the run: the bias is `model.bias` at `t_mid_s`
+/// and changes by `per_s` per second.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BiasDrift {
+    pub per_s: [f64; 3],
+    /// 1σ of `per_s`.
+    pub sigma_per_s: [f64; 3],
+    pub t_mid_s: f64,
+    /// The F-test's p-value for the drift's three parameters.
+    pub p_value: f64,
+}
+
+/// Significance level at which the bias drift is kept.
+pub const DRIFT_LEVEL: f64 = 0.001;
 
 /// Corrected specific force M⁻¹(raw − b) for lower-triangular M given as the fit's
 /// parameters [b (3), m00, m10, m11, m20, m21, m22].
@@ -41,7 +64,15 @@ fn norm(v: &[f64; 3]) -> f64 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
-const STEPS: [f64; 9] = [1e-6, 1e-6, 1e-6, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7];
+const STEPS: [f64; 12] = [
+    1e-6, 1e-6, 1e-6, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-6, 1e-6, 1e-6,
+];
+
+/// The pose's mean less the drift part of the bias, `p[9..12]` being the bias change over
+/// the poses' time span at normalised time `tau` (−½ … ½).
+fn undrifted(p: &[f64], raw: &[f64; 3], tau: f64) -> [f64; 3] {
+    [0, 1, 2].map(|k| raw[k] - p[9 + k] * tau)
+}
 
 /// Fits the accelerometer to the poses' mean specific forces with local gravity `g`.
 pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
@@ -67,13 +98,13 @@ pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
         let means: Vec<[f64; 3]> = used.iter().map(|&i| poses[i].accel_mean).collect();
         let f =
             |p: &[f64]| -> Vec<f64> { means.iter().map(|m| norm(&corrected(p, m)) - g).collect() };
-        let c = conditioning(&f, &x0, &STEPS);
+        let c = conditioning(&f, &x0, &STEPS[..9]);
         if c < 1e-12 {
             bail!(
                 "the poses cannot separate the accelerometer's bias, scale and misalignment (conditioning {c:.1e}); add poses with each axis up and each axis down"
             );
         }
-        fit = minimise(&f, &x0, &STEPS);
+        fit = minimise(&f, &x0, &STEPS[..9]);
         // One robust pass: residuals beyond 6 scaled MADs (and above the noise a pose
         // mean can have) are poses that moved.
         let mut abs: Vec<f64> = fit.residuals.iter().map(|r| r.abs()).collect();
@@ -93,8 +124,49 @@ pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
         rejected = bad;
         used.retain(|i| !rejected.contains(i));
     }
-    let p = &fit.params;
-    let s = &fit.sigma;
+    let constant = fit.clone();
+    // The drifting bias on the same poses, from the constant fit.
+    let times: Vec<f64> = used
+        .iter()
+        .map(|&i| 0.5 * (poses[i].t_start + poses[i].t_end))
+        .collect();
+    let t_mid = times.iter().sum::<f64>() / times.len() as f64;
+    let (t_lo, t_hi) = times
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &t| {
+            (a.min(t), b.max(t))
+        });
+    let span = (t_hi - t_lo).max(1e-9);
+    let drift_fit = {
+        let means: Vec<([f64; 3], f64)> = used
+            .iter()
+            .zip(&times)
+            .map(|(&i, &t)| (poses[i].accel_mean, (t - t_mid) / span))
+            .collect();
+        let f = |p: &[f64]| -> Vec<f64> {
+            means
+                .iter()
+                .map(|(m, tau)| norm(&corrected(p, &undrifted(p, m, *tau))) - g)
+                .collect()
+        };
+        let mut x0 = constant.params.clone();
+        x0.extend([0.0; 3]);
+        minimise(&f, &x0, &STEPS)
+    };
+    let n = used.len() as f64;
+    let ssr = |f: &Fit| f.residuals.iter().map(|r| r * r).sum::<f64>();
+    let (ssr0, ssr1) = (ssr(&constant), ssr(&drift_fit));
+    let dof = n - 12.0;
+    let p_value = if dof >= 1.0 && ssr1 > 0.0 && ssr1 < ssr0 {
+        let stat = (ssr0 - ssr1) / 3.0 / (ssr1 / dof);
+        FisherSnedecor::new(3.0, dof).map_or(1.0, |d| 1.0 - d.cdf(stat))
+    } else {
+        1.0
+    };
+    let keep = p_value < DRIFT_LEVEL && drift_fit.sigma.iter().all(|v| v.is_finite());
+    let chosen = if keep { &drift_fit } else { &constant };
+    let p = &chosen.params;
+    let s = &chosen.sigma;
     let matrix = [[p[3], 0.0, 0.0], [p[4], p[5], 0.0], [p[6], p[7], p[8]]];
     let matrix_sigma = [[s[3], 0.0, 0.0], [s[4], s[5], 0.0], [s[6], s[7], s[8]]];
     let before = used
@@ -110,9 +182,16 @@ pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
             matrix_sigma,
         },
         residual_before: before.sqrt(),
-        residual_after: fit.rms,
+        residual_after: chosen.rms,
         poses_used: used.len(),
         rejected,
-        converged: fit.converged,
+        converged: chosen.converged,
+        residual_constant_bias: constant.rms,
+        drift: keep.then(|| BiasDrift {
+            per_s: [9, 10, 11].map(|k| p[k] / span),
+            sigma_per_s: [9, 10, 11].map(|k| s[k] / span),
+            t_mid_s: t_mid,
+            p_value,
+        }),
     })
 }

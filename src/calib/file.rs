@@ -12,8 +12,9 @@ use std::path::Path;
 
 /// `format` of the document.
 pub const FORMAT: &str = "imulab-calibration";
-/// Version of the layout; readers refuse others.
-pub const VERSION: u32 = 1;
+/// Version of the layout. Readers take this one and version 1 (whose one-axis `rate_table`
+/// summary, an older layout, is left out on reading); they refuse others.
+pub const VERSION: u32 = 2;
 /// The model, as written in every file.
 pub const MODEL: &str = "raw = M * true + b; corrected = inverse(M) * (raw - b)";
 
@@ -78,19 +79,20 @@ impl TriadModel {
     }
 }
 
-/// Gyro scale factor and non-linearity from a rate table.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// One gyro axis's scale factor and non-linearity from a rate-table mounting.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct RateTableResult {
-    /// The gyro axis on the spindle (`x`, `y` or `z`).
+pub struct RateTableAxis {
+    /// The gyro axis along the spindle's positive direction (`x`, `-x`, … `-z`).
     pub axis: String,
-    /// Table rates used, °/s.
+    /// Table rates of the mounting, °/s, in order.
     pub rates_dps: Vec<f64>,
     /// Scale-factor error of that axis, ppm, and its 1σ.
     pub scale_factor_ppm: f64,
     pub scale_factor_sigma_ppm: f64,
-    /// Quadratic term of the output against rate, ppm of reading per °/s.
+    /// Quadratic term of the output against rate, ppm of reading per °/s, and its 1σ.
     pub quadratic_ppm_per_dps: f64,
+    pub quadratic_sigma_ppm_per_dps: f64,
     /// Largest deviation from the straight-line fit, ppm of the largest rate used.
     pub nonlinearity_ppm_of_full_scale: f64,
 }
@@ -108,6 +110,13 @@ pub struct Quality {
     /// RMS of |specific force| − g over the poses, m/s^2, raw and corrected.
     pub gravity_residual_before: Option<f64>,
     pub gravity_residual_after: Option<f64>,
+    /// The same with a constant accel bias (differs from `gravity_residual_after` when the
+    /// fit kept a bias drift).
+    pub gravity_residual_constant_bias: Option<f64>,
+    /// Accel bias drift over the fitted run, m/s^2 per s, and its 1σ (present when the data
+    /// supported it; `accel.bias` is then the bias at the middle of the poses).
+    pub accel_bias_drift: Option<[f64; 3]>,
+    pub accel_bias_drift_sigma: Option<[f64; 3]>,
     /// RMS angle between predicted and measured gravity after each rotation, rad, raw
     /// rates and corrected.
     pub rotation_residual_before: Option<f64>,
@@ -137,7 +146,8 @@ pub struct Calibration {
     pub gravity: Option<f64>,
     pub accel: Option<TriadModel>,
     pub gyro: Option<TriadModel>,
-    pub rate_table: Option<RateTableResult>,
+    /// Rate-table method: one entry per mounting.
+    pub rate_table: Option<Vec<RateTableAxis>>,
     pub quality: Quality,
 }
 
@@ -167,8 +177,15 @@ impl Calibration {
     pub fn load(path: &Path) -> Result<Calibration> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("cannot read calibration {}", path.display()))?;
-        let de = &mut serde_json::Deserializer::from_str(&text);
-        let c: Calibration = serde_path_to_error::deserialize(de).map_err(|e| {
+        let mut doc: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| anyhow::anyhow!("{}: not a calibration file ({e})", path.display()))?;
+        if doc["version"] == 1 {
+            if let Some(fields) = doc.as_object_mut() {
+                fields.insert("rate_table".into(), serde_json::Value::Null);
+                fields.insert("version".into(), VERSION.into());
+            }
+        }
+        let c: Calibration = serde_path_to_error::deserialize(doc).map_err(|e| {
             anyhow::anyhow!(
                 "{}: not a calibration file (at {}: {})",
                 path.display(),
@@ -187,7 +204,7 @@ impl Calibration {
         }
         if self.version != VERSION {
             bail!(
-                "version {} is not supported (this imulab reads version {VERSION})",
+                "version {} is not supported (this imulab reads versions 1 and {VERSION})",
                 self.version
             );
         }
@@ -443,6 +460,27 @@ mod tests {
         c.save(&path).unwrap();
         let e = format!("{:#}", Calibration::load(&path).unwrap_err());
         assert!(e.contains("singular"), "{e}");
+    }
+
+    #[test]
+    fn version_1_files_are_read_without_their_rate_table_summary() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cal.json");
+        let c = cal();
+        c.save(&path).unwrap();
+        let mut doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        doc["version"] = 1.into();
+        doc["rate_table"] = serde_json::json!({
+            "axis": "z", "rates_dps": [10.0, -10.0, 50.0], "scale_factor_ppm": 450.0,
+            "scale_factor_sigma_ppm": 5.0, "quadratic_ppm_per_dps": 0.01,
+            "nonlinearity_ppm_of_full_scale": 3.0
+        });
+        std::fs::write(&path, doc.to_string()).unwrap();
+        let back = Calibration::load(&path).unwrap();
+        assert_eq!(back.rate_table, None);
+        assert_eq!(back.gyro, c.gyro);
+        assert_eq!(back.accel, c.accel);
     }
 
     #[test]

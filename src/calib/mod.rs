@@ -9,7 +9,8 @@
 //! - [`accel`]: bias, scale factors and misalignment from gravity magnitude.
 //! - [`gyro`]: scale factors and misalignment from the rotations between poses.
 //! - [`six_position`]: the six-position test with known orientations.
-//! - [`rate_table`]: gyro scale factor and non-linearity from table rates.
+//! - [`rate_table`]: gyro scale factors, misalignment and non-linearity from table rates
+//!   (one mounting, or x, y and z on the spindle in turn).
 //! - [`file`]: the calibration document, its Kalibr and MATLAB forms, and the [`file::Corrector`]
 //!   that applies it.
 //! - [`source`]: a sample source whose gyro and accel channels are corrected on the way in.

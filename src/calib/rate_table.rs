@@ -1,28 +1,50 @@
 //! Rate-table calibration (after IEEE Std 1293's scale-factor tests): the gyro's mean output
 //! over segments of known constant table rate, fitted against the rate. The table rates come
-//! from a CSV (`rate_dps`, and optionally `start_s`,`end_s`; without times the constant-rate
-//! segments are found in the data, in order). The spindle axis is the one whose output
-//! follows the rate; its scale factor and non-linearity (a quadratic term and the largest
-//! deviation from the straight line) come from least squares, the other axes' sensitivity to
-//! it is its column of M.
+//! from a CSV (`rate_dps`, optionally `start_s`,`end_s`, and optionally `axis`, the body axis
+//! on the spindle; without times the constant-rate segments are found in the data, in order).
+//! A run holds one mounting or three (x, then y, then z on the spindle, in one recording);
+//! each segment's mounting is the CSV's `axis` or the body axis along gravity (a vertical
+//! spindle). Per mounting, each gyro axis's segment means against the rate give that
+//! spindle axis's column of M, and the spindle axis's own output its non-linearity (a
+//! quadratic term and the largest deviation from the straight line); three mountings give
+//! the whole M and the biases.
 
-use super::file::RateTableResult;
+use super::file::RateTableAxis;
 use super::recording::Recording;
 use super::statics::DetectorOptions;
 use super::TriadModel;
 use anyhow::{bail, Context, Result};
 use nalgebra::{DMatrix, DVector};
 use serde::Deserialize;
+use statrs::distribution::{ContinuousCDF, StudentsT};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// One row of the table CSV.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TableRow {
     pub rate_dps: f64,
     pub start_s: Option<f64>,
     pub end_s: Option<f64>,
+    /// Body axis on the spindle (`x`, `y` or `z`); absent: the axis along gravity.
+    pub axis: Option<char>,
 }
+
+/// The CSV row as written, before the axis is checked.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CsvRow {
+    rate_dps: f64,
+    start_s: Option<f64>,
+    end_s: Option<f64>,
+    axis: Option<String>,
+}
+
+/// Fewest different rates per mounting: the quadratic fit (3 parameters) needs one more to
+/// leave a residual.
+pub const MIN_RATES: usize = 4;
+
+const AXES: [&str; 3] = ["x", "y", "z"];
 
 /// One constant-rate segment found or given.
 #[derive(Debug, Clone, PartialEq)]
@@ -30,8 +52,12 @@ pub struct Segment {
     pub rate_dps: f64,
     pub t_start: f64,
     pub t_end: f64,
+    /// Mean gyro and accel output over the segment.
     pub mean: [f64; 3],
+    pub accel_mean: [f64; 3],
     pub samples: usize,
+    /// Body axis on the spindle (0, 1, 2 for x, y, z).
+    pub spindle: usize,
 }
 
 /// Reads the table CSV.
@@ -41,10 +67,10 @@ pub fn read_table(path: &Path) -> Result<Vec<TableRow>> {
         .from_path(path)
         .with_context(|| format!("cannot read rate table {}", path.display()))?;
     let mut rows = Vec::new();
-    for (i, row) in reader.deserialize::<TableRow>().enumerate() {
+    for (i, row) in reader.deserialize::<CsvRow>().enumerate() {
         let row = row.map_err(|e| {
             anyhow::anyhow!(
-                "{} row {}: {e} (columns: rate_dps, and optionally start_s, end_s)",
+                "{} row {}: {e} (columns: rate_dps, and optionally start_s, end_s, axis)",
                 path.display(),
                 i + 2
             )
@@ -56,16 +82,66 @@ pub fn read_table(path: &Path) -> Result<Vec<TableRow>> {
                 i + 2
             );
         }
-        rows.push(row);
+        let axis = match row.axis.as_deref().map(str::to_ascii_lowercase).as_deref() {
+            None | Some("") => None,
+            Some("x") => Some('x'),
+            Some("y") => Some('y'),
+            Some("z") => Some('z'),
+            Some(other) => bail!(
+                "{} row {}: axis {other:?} is not x, y or z (the body axis on the spindle)",
+                path.display(),
+                i + 2
+            ),
+        };
+        rows.push(TableRow {
+            rate_dps: row.rate_dps,
+            start_s: row.start_s,
+            end_s: row.end_s,
+            axis,
+        });
     }
-    if rows.len() < 3 {
+    if rows.is_empty() {
         bail!(
-            "{}: {} table rates; the scale-factor and non-linearity fit needs at least 3 different rates (both signs recommended)",
-            path.display(),
-            rows.len()
+            "{}: no table rates; list at least {MIN_RATES} different rates per mounting (both signs recommended)",
+            path.display()
         );
     }
     Ok(rows)
+}
+
+fn accel_mean_of(rec: &Recording, lo: usize, hi: usize) -> [f64; 3] {
+    let n = (hi - lo) as f64;
+    let mut m = [0.0; 3];
+    for r in &rec.accel[lo..hi] {
+        for k in 0..3 {
+            m[k] += r[k] / n;
+        }
+    }
+    m
+}
+
+/// The body axis on the spindle for a segment: the row's, or the axis along gravity.
+fn spindle_of(row: &TableRow, accel_mean: &[f64; 3], t: (f64, f64)) -> Result<usize> {
+    if let Some(c) = row.axis {
+        return Ok(AXES.iter().position(|a| a.starts_with(c)).unwrap_or(2));
+    }
+    let norm = accel_mean.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let k = (0..3)
+        .max_by(|&a, &b| accel_mean[a].abs().total_cmp(&accel_mean[b].abs()))
+        .unwrap_or(2);
+    let off = (accel_mean[k].abs() / norm)
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    if !(norm > 0.0 && off < 20.0) {
+        bail!(
+            "rate table: in the {} °/s segment ({:.1}-{:.1} s) gravity is {off:.0}° from the nearest body axis, so the axis on the spindle cannot be told from it; add an `axis` column (x, y or z) to the CSV",
+            row.rate_dps,
+            t.0,
+            t.1
+        );
+    }
+    Ok(k)
 }
 
 fn mean_of(rec: &Recording, lo: usize, hi: usize) -> [f64; 3] {
@@ -80,12 +156,12 @@ fn mean_of(rec: &Recording, lo: usize, hi: usize) -> [f64; 3] {
 }
 
 /// The segments of `rows` in `rec`: by their times, or detected (steady rate away from the
-/// initial rest) and matched to the rows in order. Also returns the rest mean (the bias).
+/// initial rest) and matched to the rows in order.
 pub fn segments(
     rec: &Recording,
     rows: &[TableRow],
     opts: &DetectorOptions,
-) -> Result<(Vec<Segment>, [f64; 3])> {
+) -> Result<Vec<Segment>> {
     let dt = rec.dt();
     let init_end = rec.t.partition_point(|&t| t < opts.init_s);
     if init_end < 10 {
@@ -109,15 +185,9 @@ pub fn segments(
                     rec.t[rec.len() - 1]
                 );
             }
-            out.push(Segment {
-                rate_dps: r.rate_dps,
-                t_start: a,
-                t_end: b,
-                mean: mean_of(rec, lo, hi),
-                samples: hi - lo,
-            });
+            out.push(segment(rec, r, lo, hi, (a, b))?);
         }
-        return Ok((out, rest));
+        return Ok(out);
     }
     // Steady windows: gyro variance near the rest's, and a rate well away from rest.
     let window = ((opts.window_s / dt).round() as usize).max(3) | 1;
@@ -148,8 +218,10 @@ pub fn segments(
         while i + window <= rec.len() && steady(i) {
             i += window;
         }
-        let end = i.min(rec.len());
-        if end - start >= min_len {
+        // One window less at each end: the tail of a change of rate can pass the variance
+        // test while still short of the new rate.
+        let (start, end) = (start + window, i.min(rec.len()).saturating_sub(window));
+        if end >= start + min_len {
             found.push((start, end));
         }
     }
@@ -174,98 +246,200 @@ pub fn segments(
             if list.is_empty() { "none".into() } else { list.join(", ") }
         );
     }
-    Ok((
-        found
-            .iter()
-            .zip(rows)
-            .map(|(&(a, b), r)| Segment {
-                rate_dps: r.rate_dps,
-                t_start: rec.t[a],
-                t_end: rec.t[b - 1],
-                mean: mean_of(rec, a, b),
-                samples: b - a,
-            })
-            .collect(),
-        rest,
-    ))
+    let segs = found
+        .iter()
+        .zip(rows)
+        .map(|(&(a, b), r)| segment(rec, r, a, b, (rec.t[a], rec.t[b - 1])))
+        .collect::<Result<_>>()?;
+    Ok(segs)
 }
 
-/// Linear least squares y ≈ X·β; returns β, its standard errors and the residuals.
+/// The segment of `row` over samples `lo..hi`, spanning times `t`.
+fn segment(
+    rec: &Recording,
+    row: &TableRow,
+    lo: usize,
+    hi: usize,
+    t: (f64, f64),
+) -> Result<Segment> {
+    let accel_mean = accel_mean_of(rec, lo, hi);
+    Ok(Segment {
+        rate_dps: row.rate_dps,
+        t_start: t.0,
+        t_end: t.1,
+        mean: mean_of(rec, lo, hi),
+        accel_mean,
+        samples: hi - lo,
+        spindle: spindle_of(row, &accel_mean, t)?,
+    })
+}
+
+/// Linear least squares y ≈ X·β: β, its standard errors (widened by t/1.96 for the
+/// degrees of freedom left, so that 1.96 of them is the 95 % interval) and the residuals.
 fn lstsq(x: &DMatrix<f64>, y: &DVector<f64>) -> Result<(DVector<f64>, Vec<f64>, DVector<f64>)> {
-    let xtx = x.transpose() * x;
-    let inv = xtx
+    let inv = (x.transpose() * x)
         .try_inverse()
-        .context("rate table: the rates cannot separate bias, scale and non-linearity; use at least 3 different rates")?;
+        .context("rate table: the rates cannot separate bias, scale and non-linearity; use at least 4 different rates per mounting")?;
     let beta = &inv * x.transpose() * y;
     let r = y - x * &beta;
-    let dof = (x.nrows() as f64 - x.ncols() as f64).max(1.0);
+    let dof = x.nrows().saturating_sub(x.ncols()).max(1) as f64;
+    let widen = StudentsT::new(0.0, 1.0, dof)
+        .map(|d| d.inverse_cdf(0.975) / 1.96)
+        .unwrap_or(1.0);
     let s2 = r.norm_squared() / dof;
-    let se = (0..x.ncols()).map(|k| (inv[(k, k)] * s2).sqrt()).collect();
+    let se = (0..x.ncols())
+        .map(|k| (inv[(k, k)] * s2).sqrt() * widen)
+        .collect();
     Ok((beta, se, r))
 }
 
-/// Fits the gyro from the segments: bias and the spindle axis's column of M (the other
-/// columns stay those of the identity: a one-axis table does not see them).
-pub fn fit_rate_table(segs: &[Segment], rest: [f64; 3]) -> Result<(TriadModel, RateTableResult)> {
-    let rates: Vec<f64> = segs.iter().map(|s| s.rate_dps.to_radians()).collect();
-    let n = rates.len();
-    let mut distinct = rates.clone();
+/// One mounting's fit: the spindle axis's column of M (signed so that the diagonal entry is
+/// positive), its standard errors, the intercepts and their standard errors, and the
+/// spindle axis's non-linearity.
+struct MountingFit {
+    column: [f64; 3],
+    column_sigma: [f64; 3],
+    intercept: [f64; 3],
+    intercept_sigma: [f64; 3],
+    axis: RateTableAxis,
+}
+
+fn fit_mounting(k: usize, segs: &[&Segment]) -> Result<MountingFit> {
+    let name = AXES[k];
+    let mut distinct: Vec<f64> = segs.iter().map(|s| s.rate_dps).collect();
     distinct.sort_by(f64::total_cmp);
     distinct.dedup();
-    if distinct.len() < 3 {
+    if distinct.len() < MIN_RATES {
         bail!(
-            "rate table: {} different rates; the fit needs at least 3",
-            distinct.len()
+            "rate table: the mounting with {name} on the spindle has {} different rates ({}); each mounting needs at least {MIN_RATES} (both signs recommended) for the scale factor and non-linearity",
+            distinct.len(),
+            distinct
+                .iter()
+                .map(|r| format!("{r} °/s"))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
     }
+    let rates: Vec<f64> = segs.iter().map(|s| s.rate_dps.to_radians()).collect();
+    let n = rates.len();
     let lin = DMatrix::from_fn(n, 2, |i, j| if j == 0 { 1.0 } else { rates[i] });
-    let mut column = [0.0; 3];
-    let mut column_sigma = [0.0; 3];
-    let mut bias = rest;
-    for k in 0..3 {
-        let y = DVector::from_iterator(n, segs.iter().map(|s| s.mean[k]));
+    let mut slope = [0.0; 3];
+    let mut fit = MountingFit {
+        column: [0.0; 3],
+        column_sigma: [0.0; 3],
+        intercept: [0.0; 3],
+        intercept_sigma: [0.0; 3],
+        axis: RateTableAxis::default(),
+    };
+    for (i, slope) in slope.iter_mut().enumerate() {
+        let y = DVector::from_iterator(n, segs.iter().map(|s| s.mean[i]));
         let (beta, se, _) = lstsq(&lin, &y)?;
-        column[k] = beta[1];
-        column_sigma[k] = se[1];
-        bias[k] = beta[0];
+        *slope = beta[1];
+        fit.column_sigma[i] = se[1];
+        fit.intercept[i] = beta[0];
+        fit.intercept_sigma[i] = se[0];
     }
-    let axis = (0..3)
-        .max_by(|&a, &b| column[a].abs().total_cmp(&column[b].abs()))
-        .unwrap_or(2);
-    let sign = column[axis].signum();
-    let y = DVector::from_iterator(n, segs.iter().map(|s| s.mean[axis] * sign));
-    let (_, _, straight) = lstsq(&lin, &y)?;
-    let quad = DMatrix::from_fn(n, 3, |i, j| rates[i].powi(j as i32));
-    let (q, _, _) = lstsq(&quad, &y)?;
-    let full_scale = rates.iter().map(|r| r.abs()).fold(0.0, f64::max);
-    let scale = column[axis].abs();
-    let mut matrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let mut matrix_sigma = [[0.0; 3]; 3];
-    for k in 0..3 {
-        matrix[k][axis] = column[k] * sign;
-        matrix_sigma[k][axis] = column_sigma[k];
+    let follows = (0..3)
+        .max_by(|&a, &b| slope[a].abs().total_cmp(&slope[b].abs()))
+        .unwrap_or(k);
+    if follows != k {
+        bail!(
+            "rate table: the segments at {:.1}-{:.1} s were taken as {name} on the spindle, but the gyro's {} axis follows the table rate; state the axis in an `axis` column of the CSV",
+            segs[0].t_start,
+            segs[n - 1].t_end,
+            AXES[follows]
+        );
     }
-    let name = ["x", "y", "z"][axis];
-    let mut rates_dps: Vec<f64> = segs.iter().map(|s| s.rate_dps).collect();
-    rates_dps.dedup();
-    Ok((
-        TriadModel {
-            bias,
-            bias_sigma: [0.0; 3],
-            matrix,
-            matrix_sigma,
+    // The body axis along the spindle's positive direction is +k or −k: the sign of the
+    // spindle axis's own response.
+    let sign = slope[k].signum();
+    fit.column = slope.map(|v| v * sign);
+    let x: Vec<f64> = rates.iter().map(|r| r * sign).collect();
+    let y = DVector::from_iterator(n, segs.iter().map(|s| s.mean[k]));
+    let lin_x = DMatrix::from_fn(n, 2, |i, j| if j == 0 { 1.0 } else { x[i] });
+    let (_, _, straight) = lstsq(&lin_x, &y)?;
+    let quad = DMatrix::from_fn(n, 3, |i, j| x[i].powi(j as i32));
+    let (q, q_se, _) = lstsq(&quad, &y)?;
+    // The spindle axis's slope and its error from the fit with the quadratic term: the
+    // straight line's residuals would hold the non-linearity.
+    fit.column[k] = q[1];
+    fit.column_sigma[k] = q_se[1];
+    let full_scale = x.iter().map(|r| r.abs()).fold(0.0, f64::max);
+    let scale = fit.column[k];
+    let per_dps = 1e6 * 1f64.to_radians() / q[1];
+    fit.axis = RateTableAxis {
+        axis: if sign < 0.0 {
+            format!("-{name}")
+        } else {
+            name.into()
         },
-        RateTableResult {
-            axis: if sign < 0.0 {
-                format!("-{name}")
-            } else {
-                name.into()
-            },
-            rates_dps,
-            scale_factor_ppm: (scale - 1.0) * 1e6,
-            scale_factor_sigma_ppm: column_sigma[axis] * 1e6,
-            quadratic_ppm_per_dps: q[2] / q[1] * 1e6 * 1f64.to_radians(),
-            nonlinearity_ppm_of_full_scale: straight.amax() / (scale * full_scale) * 1e6,
-        },
-    ))
+        rates_dps: segs.iter().map(|s| s.rate_dps).collect(),
+        scale_factor_ppm: (scale - 1.0) * 1e6,
+        scale_factor_sigma_ppm: fit.column_sigma[k] * 1e6,
+        quadratic_ppm_per_dps: q[2] * per_dps,
+        quadratic_sigma_ppm_per_dps: q_se[2] * per_dps.abs(),
+        nonlinearity_ppm_of_full_scale: straight.amax() / (scale * full_scale) * 1e6,
+    };
+    Ok(fit)
+}
+
+/// Fits the gyro from the segments. One mounting: the bias (the intercepts) and the spindle
+/// axis's column of M, the other columns those of the identity. Three mountings (x, y and z
+/// each on the spindle once): the whole M and the bias of each axis from the two mountings
+/// in which it is off the spindle (on it, the intercept also holds the earth rate's vertical
+/// component).
+pub fn fit_rate_table(segs: &[Segment]) -> Result<(TriadModel, Vec<RateTableAxis>)> {
+    let mut by_axis: BTreeMap<usize, Vec<&Segment>> = BTreeMap::new();
+    for s in segs {
+        by_axis.entry(s.spindle).or_default().push(s);
+    }
+    if by_axis.len() == 2 {
+        let missing: Vec<&str> = (0..3)
+            .filter(|k| !by_axis.contains_key(k))
+            .map(|k| AXES[k])
+            .collect();
+        let found: Vec<&str> = by_axis.keys().map(|&k| AXES[k]).collect();
+        bail!(
+            "rate table: mountings with {} on the spindle found, {} missing; the full gyro matrix needs x, y and z each on the spindle (or run one mounting alone for its axis only)",
+            found.join(" and "),
+            missing.join(", ")
+        );
+    }
+    let fits: Vec<(usize, MountingFit)> = by_axis
+        .iter()
+        .map(|(&k, s)| Ok((k, fit_mounting(k, s)?)))
+        .collect::<Result<_>>()?;
+    let mut model = TriadModel {
+        bias: [0.0; 3],
+        bias_sigma: [0.0; 3],
+        matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        matrix_sigma: [[0.0; 3]; 3],
+    };
+    for (k, f) in &fits {
+        for i in 0..3 {
+            model.matrix[i][*k] = f.column[i];
+            model.matrix_sigma[i][*k] = f.column_sigma[i];
+        }
+    }
+    if let [(_, only)] = fits.as_slice() {
+        model.bias = only.intercept;
+        model.bias_sigma = only.intercept_sigma;
+    } else {
+        for i in 0..3 {
+            let off: Vec<&MountingFit> = fits
+                .iter()
+                .filter(|(k, _)| *k != i)
+                .map(|(_, f)| f)
+                .collect();
+            let m = off.len() as f64;
+            model.bias[i] = off.iter().map(|f| f.intercept[i]).sum::<f64>() / m;
+            model.bias_sigma[i] = off
+                .iter()
+                .map(|f| f.intercept_sigma[i].powi(2))
+                .sum::<f64>()
+                .sqrt()
+                / m;
+        }
+    }
+    Ok((model, fits.into_iter().map(|(_, f)| f.axis).collect()))
 }

@@ -134,14 +134,18 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
     let mut notes = Vec::new();
     if let Mode::RateTable(path) = &opts.mode {
         let rows = read_table(path)?;
-        let (segs, rest) = segments(rec, &rows, &opts.detector)?;
-        let (gyro, table) = fit_rate_table(&segs, rest)?;
-        let mut cal = Calibration::new(
-            &rec.device,
-            &rec.source,
-            "rate-table",
-            "the gyro's own axes (only the spindle axis's column of M is measured; the others are the identity's)",
-        );
+        let segs = segments(rec, &rows, &opts.detector)?;
+        let (gyro, table) = fit_rate_table(&segs)?;
+        let frame = if table.len() == 3 {
+            "the mounting fixture's (x, y and z each along the spindle in turn; the fixture's alignment errors are part of M)"
+        } else {
+            notes.push(format!(
+                "rate table: one mounting ({} on the spindle), so only that column of M is measured; mount x, y and z on the spindle in turn for the whole matrix",
+                table[0].axis
+            ));
+            "the gyro's own axes (only the spindle axis's column of M is measured; the others are the identity's)"
+        };
+        let mut cal = Calibration::new(&rec.device, &rec.source, "rate-table", frame);
         cal.gyro = Some(gyro);
         cal.rate_table = Some(table);
         return Ok(Outcome {
@@ -208,6 +212,21 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
         }
         quality.gravity_residual_before = Some(fit.residual_before);
         quality.gravity_residual_after = Some(fit.residual_after);
+        quality.gravity_residual_constant_bias = Some(fit.residual_constant_bias);
+        if let Some(d) = &fit.drift {
+            quality.accel_bias_drift = Some(d.per_s);
+            quality.accel_bias_drift_sigma = Some(d.sigma_per_s);
+            let mg_h = d.per_s.map(|v| v / G0 * 1e3 * 3600.0);
+            notes.push(format!(
+                "the accelerometer bias drifted during the run ({:+.3} {:+.3} {:+.3} mg/h; F-test p = {:.1e}): fitted as linear in time, the bias written is its value at {:.0} s, the middle of the poses; with a constant bias the gravity residual is {:.4} mg",
+                mg_h[0],
+                mg_h[1],
+                mg_h[2],
+                d.p_value,
+                d.t_mid_s,
+                fit.residual_constant_bias / G0 * 1e3
+            ));
+        }
         (
             fit.model,
             "the accelerometer's (x along its x axis, y in its x-y plane)",

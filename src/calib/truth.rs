@@ -16,7 +16,10 @@ use std::path::Path;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Truth {
     pub accel: TriadModel,
+    /// The gyro in the accelerometer's frame (a tumble's convention).
     pub gyro: TriadModel,
+    /// The gyro in the body frame (a rate table's).
+    pub gyro_body: TriadModel,
 }
 
 /// The simulator's M = I + diag(scale factor) + misalignment of one triad.
@@ -53,6 +56,7 @@ impl Truth {
         Truth {
             accel: model(&l, accel_bias),
             gyro: model(&(mg * q.transpose()), gyro_bias),
+            gyro_body: model(&mg, gyro_bias),
         }
     }
 

@@ -34,7 +34,8 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "rate_table")]
     pub six_position: bool,
     /// Rate-table mode: CSV with a `rate_dps` column (table rates in order) and optionally
-    /// `start_s`,`end_s` per rate; calibrates the gyro's scale factor and non-linearity.
+    /// `start_s`,`end_s` and `axis` (body axis on the spindle) per rate; one mounting gives
+    /// its axis's scale factor and non-linearity, three (x, y, z on the spindle) the whole M.
     #[arg(long, value_name = "CSV")]
     pub rate_table: Option<PathBuf>,
     /// Still period at the start that the detector's thresholds come from, s.
@@ -183,8 +184,12 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
     for seg in &o.segments {
         let _ = writeln!(
             s,
-            "  table {:+.1} °/s: {:.1}-{:.1} s, {} samples",
-            seg.rate_dps, seg.t_start, seg.t_end, seg.samples
+            "  table {:+.1} °/s, {} on the spindle: {:.1}-{:.1} s, {} samples",
+            seg.rate_dps,
+            ["x", "y", "z"][seg.spindle],
+            seg.t_start,
+            seg.t_end,
+            seg.samples
         );
     }
     if c.accel.is_some() {
@@ -194,11 +199,20 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
         triad_text(&mut s, "accel", a, truth.map(|t| &t.accel), "mg", 1e3 / G0);
     }
     if let Some(g) = &c.gyro {
+        // A rate table measures the gyro in the mounting fixture's frame, a tumble in the
+        // accelerometer's.
+        let gyro_truth = truth.map(|t| {
+            if c.method == "rate-table" {
+                &t.gyro_body
+            } else {
+                &t.gyro
+            }
+        });
         triad_text(
             &mut s,
             "gyro",
             g,
-            truth.map(|t| &t.gyro),
+            gyro_truth,
             "deg/h",
             3600.0f64.to_degrees(),
         );
@@ -209,14 +223,15 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
             );
         }
     }
-    if let Some(t) = &c.rate_table {
+    for t in c.rate_table.iter().flatten() {
         let _ = writeln!(
             s,
-            "rate table, spindle axis {}: scale factor {:+.1} ±{:.1} ppm, quadratic {:+.3} ppm per deg/s, non-linearity {:.1} ppm of full scale ({} rates)",
+            "rate table, spindle axis {}: scale factor {:+.1} ±{:.1} ppm, quadratic {:+.4} ±{:.4} ppm per deg/s, non-linearity {:.1} ppm of full scale ({} rates)",
             t.axis,
             t.scale_factor_ppm,
             1.96 * t.scale_factor_sigma_ppm,
             t.quadratic_ppm_per_dps,
+            1.96 * t.quadratic_sigma_ppm_per_dps,
             t.nonlinearity_ppm_of_full_scale,
             t.rates_dps.len()
         );

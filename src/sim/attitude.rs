@@ -55,11 +55,28 @@ pub struct RateStep {
     pub duration_s: f64,
 }
 
-/// The `[motion] kind = "rate_table"` table.
+/// One mounting of the IMU on a rate table: the body axis on the spindle and the attitude
+/// at table angle 0.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Mounting {
+    /// Body axis on the spindle: "x", "y", "z", or "-x" … "-z".
+    pub axis: String,
+    /// Attitude at table angle 0 (z-y-x Euler, degrees).
+    #[serde(default)]
+    pub roll_deg: f64,
+    #[serde(default)]
+    pub pitch_deg: f64,
+    #[serde(default)]
+    pub heading_deg: f64,
+}
+
+/// The `[motion] kind = "rate_table"` table: one mounting (`axis` and the attitude), or
+/// `mountings` run one after the other, each with the same steps.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RateTableSpec {
-    /// Mounting attitude at table angle 0 (z-y-x Euler, degrees).
+    /// Mounting attitude at table angle 0 (z-y-x Euler, degrees), with `axis`.
     #[serde(default)]
     pub roll_deg: f64,
     #[serde(default)]
@@ -67,13 +84,38 @@ pub struct RateTableSpec {
     #[serde(default)]
     pub heading_deg: f64,
     /// Body axis on the spindle: "x", "y", "z", or "-x" … "-z".
-    pub axis: String,
-    /// Still period before the first step, s.
+    pub axis: Option<String>,
+    /// Mountings in order (instead of `axis` and the attitude), e.g. x, then y, then z on
+    /// the spindle.
+    pub mountings: Option<Vec<Mounting>>,
+    /// Still period before the first step of each mounting, s.
     #[serde(default = "default_first_hold")]
     pub first_hold_s: f64,
+    /// Duration of the rotation from one mounting to the next (the IMU taken off and put
+    /// back), s.
+    #[serde(default = "default_remount")]
+    pub remount_s: f64,
     /// Duration of each change of rate, s.
     pub ramp_s: f64,
     pub steps: Vec<RateStep>,
+}
+
+fn default_remount() -> f64 {
+    10.0
+}
+
+fn spindle_axis(name: &str) -> Result<Unit<Vector3<f64>>, String> {
+    let (sign, bare) = match name.strip_prefix('-') {
+        Some(a) => (-1.0, a),
+        None => (1.0, name),
+    };
+    let axis = match bare {
+        "x" => Vector3::x(),
+        "y" => Vector3::y(),
+        "z" => Vector3::z(),
+        _ => return Err(format!("axis must be x, y, z, -x, -y or -z, got {name:?}")),
+    };
+    Ok(Unit::new_normalize(axis * sign))
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -209,7 +251,8 @@ impl AttitudeProgram {
         Ok(Self::at_place(pieces, lat_deg, lon_deg, height_m))
     }
 
-    /// Plans a rate table run.
+    /// Plans a rate table run: for each mounting, a still period, the steps (each reached
+    /// by a ramp), a ramp back to rest; between mountings a rotation to the next one.
     pub fn rate_table(
         spec: &RateTableSpec,
         lat_deg: f64,
@@ -218,83 +261,107 @@ impl AttitudeProgram {
     ) -> Result<Self, String> {
         let first = positive("first_hold_s", spec.first_hold_s)?;
         let ramp = positive("ramp_s", spec.ramp_s)?;
-        let (sign, name) = match spec.axis.strip_prefix('-') {
-            Some(a) => (-1.0, a),
-            None => (1.0, spec.axis.as_str()),
-        };
-        let axis = match name {
-            "x" => Vector3::x(),
-            "y" => Vector3::y(),
-            "z" => Vector3::z(),
-            _ => {
-                return Err(format!(
-                    "axis must be x, y, z, -x, -y or -z, got {:?}",
-                    spec.axis
-                ))
-            }
-        };
-        let axis = Unit::new_normalize(axis * sign);
+        let remount = positive("remount_s", spec.remount_s)?;
+        let mountings: Vec<(Unit<Vector3<f64>>, UnitQuaternion<f64>)> =
+            match (&spec.axis, &spec.mountings) {
+                (Some(_), Some(_)) => {
+                    return Err("give either axis (one mounting) or mountings, not both".into())
+                }
+                (None, None) => {
+                    return Err(
+                        "give axis = \"z\" (one mounting) or mountings = [{ axis = \"x\", pitch_deg = 90 }, ...]"
+                            .into(),
+                    )
+                }
+                (Some(axis), None) => vec![(
+                    spindle_axis(axis)?,
+                    euler(spec.roll_deg, spec.pitch_deg, spec.heading_deg),
+                )],
+                (None, Some(list)) => {
+                    if list.is_empty() {
+                        return Err("mountings: give at least one { axis }".into());
+                    }
+                    let mut out = Vec::new();
+                    for (i, m) in list.iter().enumerate() {
+                        let axis = spindle_axis(&m.axis).map_err(|e| format!("mountings[{i}]: {e}"))?;
+                        if ![m.roll_deg, m.pitch_deg, m.heading_deg].iter().all(|v| v.is_finite()) {
+                            return Err(format!("mountings[{i}]: the attitude must be finite"));
+                        }
+                        out.push((axis, euler(m.roll_deg, m.pitch_deg, m.heading_deg)));
+                    }
+                    out
+                }
+            };
         if spec.steps.is_empty() {
             return Err("steps: give at least one { rate_dps, duration_s }".into());
         }
-        let mut q = euler(spec.roll_deg, spec.pitch_deg, spec.heading_deg);
-        let mut pieces = vec![Timed {
-            t0: 0.0,
-            duration: first,
-            piece: Piece::Spin {
-                q0: q,
-                axis,
-                r0: 0.0,
-                r1: 0.0,
-                ramp: false,
-            },
-        }];
-        let mut t = first;
-        let mut rate = 0.0;
-        let steps = spec.steps.iter().copied().chain(std::iter::once(RateStep {
-            rate_dps: 0.0,
-            duration_s: 1.0,
-        }));
-        for (i, step) in steps.enumerate() {
+        for (i, step) in spec.steps.iter().enumerate() {
             if !step.rate_dps.is_finite() {
                 return Err(format!("steps[{i}].rate_dps must be finite"));
             }
-            let hold = positive(&format!("steps[{i}].duration_s"), step.duration_s)?;
-            let r1 = step.rate_dps.to_radians();
-            let angle = |r0: f64, r1: f64, d: f64, ramp: bool| {
-                if ramp {
-                    r0 * d + (r1 - r0) * d * blend_integral(1.0)
-                } else {
-                    r0 * d
+            positive(&format!("steps[{i}].duration_s"), step.duration_s)?;
+        }
+        let mut pieces = Vec::new();
+        let mut t = 0.0;
+        let mut q = mountings[0].1;
+        for (k, &(axis, q_mount)) in mountings.iter().enumerate() {
+            if k > 0 {
+                if let Some((turn, angle)) = (q.inverse() * q_mount).axis_angle() {
+                    pieces.push(Timed {
+                        t0: t,
+                        duration: remount,
+                        piece: Piece::Rotate {
+                            q0: q,
+                            axis: turn,
+                            angle,
+                        },
+                    });
+                    t += remount;
                 }
-            };
+            }
+            q = q_mount;
             pieces.push(Timed {
                 t0: t,
-                duration: ramp,
-                piece: Piece::Spin {
-                    q0: q,
-                    axis,
-                    r0: rate,
-                    r1,
-                    ramp: true,
-                },
+                duration: first,
+                piece: Piece::Hold { q },
             });
-            q *= UnitQuaternion::from_axis_angle(&axis, angle(rate, r1, ramp, true));
-            t += ramp;
-            pieces.push(Timed {
-                t0: t,
-                duration: hold,
-                piece: Piece::Spin {
-                    q0: q,
-                    axis,
-                    r0: r1,
-                    r1,
-                    ramp: false,
-                },
-            });
-            q *= UnitQuaternion::from_axis_angle(&axis, angle(r1, r1, hold, false));
-            t += hold;
-            rate = r1;
+            t += first;
+            let mut rate = 0.0;
+            let steps = spec.steps.iter().copied().chain(std::iter::once(RateStep {
+                rate_dps: 0.0,
+                duration_s: 1.0,
+            }));
+            for step in steps {
+                let r1 = step.rate_dps.to_radians();
+                pieces.push(Timed {
+                    t0: t,
+                    duration: ramp,
+                    piece: Piece::Spin {
+                        q0: q,
+                        axis,
+                        r0: rate,
+                        r1,
+                        ramp: true,
+                    },
+                });
+                let ramp_angle = rate * ramp + (r1 - rate) * ramp * blend_integral(1.0);
+                q *= UnitQuaternion::from_axis_angle(&axis, ramp_angle);
+                t += ramp;
+                pieces.push(Timed {
+                    t0: t,
+                    duration: step.duration_s,
+                    piece: Piece::Spin {
+                        q0: q,
+                        axis,
+                        r0: r1,
+                        r1,
+                        ramp: false,
+                    },
+                });
+                q *= UnitQuaternion::from_axis_angle(&axis, r1 * step.duration_s);
+                t += step.duration_s;
+                rate = r1;
+            }
         }
         Ok(Self::at_place(pieces, lat_deg, lon_deg, height_m))
     }
@@ -422,8 +489,10 @@ mod tests {
             roll_deg: 0.0,
             pitch_deg: 0.0,
             heading_deg: 0.0,
-            axis: "-z".into(),
+            axis: Some("-z".into()),
+            mountings: None,
             first_hold_s: 5.0,
+            remount_s: 10.0,
             ramp_s: 2.0,
             steps: vec![
                 RateStep {
@@ -445,11 +514,61 @@ mod tests {
         // Spinning about the vertical: gravity stays on z.
         assert!(p.at(20.0).accel_b.xy().norm() < 1e-9);
         let bad = RateTableSpec {
-            axis: "w".into(),
+            axis: Some("w".into()),
             ..spec
         };
         assert!(AttitudeProgram::rate_table(&bad, 45.0, 7.0, 0.0)
             .unwrap_err()
             .contains("axis"));
+    }
+
+    #[test]
+    fn rate_table_mountings_put_each_axis_on_the_spindle_in_turn() {
+        let spec = RateTableSpec {
+            roll_deg: 0.0,
+            pitch_deg: 0.0,
+            heading_deg: 0.0,
+            axis: None,
+            mountings: Some(
+                [("x", 0.0, 90.0), ("y", -90.0, 0.0), ("z", 0.0, 0.0)]
+                    .map(|(axis, roll_deg, pitch_deg)| Mounting {
+                        axis: axis.into(),
+                        roll_deg,
+                        pitch_deg,
+                        heading_deg: 0.0,
+                    })
+                    .to_vec(),
+            ),
+            first_hold_s: 5.0,
+            remount_s: 4.0,
+            ramp_s: 1.0,
+            steps: vec![RateStep {
+                rate_dps: 60.0,
+                duration_s: 10.0,
+            }],
+        };
+        // Each mounting: 5 s rest, 1 s ramp, 10 s at rate, 1 s ramp, 1 s at rest; 4 s between.
+        let mut p = AttitudeProgram::rate_table(&spec, 45.0, 7.0, 0.0).unwrap();
+        assert!((p.duration_s() - (3.0 * 18.0 + 2.0 * 4.0)).abs() < 1e-9);
+        for (k, t0) in [0.0, 22.0, 44.0].into_iter().enumerate() {
+            let rest = p.at(t0 + 2.0);
+            let spin = p.at(t0 + 11.0);
+            let g = rest.accel_b.normalize();
+            assert!(g[k].abs() > 0.999, "mounting {k}: gravity {g}");
+            let w = spin.gyro_b - rest.gyro_b;
+            assert!(
+                (w[k] - 60f64.to_radians()).abs() < 1e-3,
+                "mounting {k}: {w}"
+            );
+            // The table turns about the vertical: gravity stays on the spindle axis.
+            assert!((spin.accel_b.normalize()[k].abs() - 1.0).abs() < 1e-6);
+        }
+        let both = RateTableSpec {
+            axis: Some("z".into()),
+            ..spec
+        };
+        assert!(AttitudeProgram::rate_table(&both, 45.0, 7.0, 0.0)
+            .unwrap_err()
+            .contains("not both"));
     }
 }

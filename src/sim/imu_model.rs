@@ -4,9 +4,10 @@
 //! Specs are written in the units of datasheets (°/h, °/√h, mg, µg/√Hz, ppm, mrad) with the
 //! unit in each field name, and converted once to SI. Output of one axis:
 //!
-//! y = sat_q( Σ_j M_ij (1 + k_s ΔT δ_ij) x_j + b_i(t) + [G a]_i + w_i )
+//! y = sat_q( Σ_j M_ij (1 + k_s ΔT δ_ij) x_j + k_q x_i² + b_i(t) + [G a]_i + w_i )
 //!
-//! with M = I + diag(scale factor) + misalignment; b the sum of constant, turn-on,
+//! with M = I + diag(scale factor) + misalignment; k_q the quadratic scale-factor term
+//! (gyros only); b the sum of constant, turn-on,
 //! instability (Gauss-Markov processes, see [`super::flicker`], whose Allan floor is 0.664·B
 //! for a spec's bias instability B: the convention of IEEE Std 952 and of the noise fit in
 //! `imulab allan`'s fit ([`imulab_noise`]), so a preset's B is what `imulab allan --fit` reads back), rate random
@@ -60,6 +61,10 @@ pub struct GyroSpec {
     pub turn_on_bias_sigma_dph: [f64; 3],
     /// Scale-factor error, ppm.
     pub scale_factor_ppm: [f64; 3],
+    /// Scale-factor non-linearity (a quadratic term), ppm of the reading per °/s: axis i
+    /// adds k_i·10⁻⁶·(ω_i in °/s)·ω_i to its output, ω_i the true rate about it.
+    #[serde(skip_serializing_if = "all_zero")]
+    pub scale_quadratic_ppm_per_dps: [f64; 3],
     /// Axis misalignment (cross-coupling) M_xy, M_xz, M_yx, M_yz, M_zx, M_zy, mrad; M_ij is
     /// the sensitivity of axis i to rate about axis j.
     pub misalignment_mrad: [f64; 6],
@@ -86,6 +91,10 @@ pub struct GyroSpec {
     /// Output resolution (one LSB), °/s (absent: no quantisation).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lsb_dps: Option<f64>,
+}
+
+fn all_zero(v: &[f64; 3]) -> bool {
+    v.iter().all(|&x| x == 0.0)
 }
 
 /// Accelerometer triad errors, per axis X/Y/Z, in datasheet units.
@@ -240,6 +249,8 @@ pub struct TriadErrors {
     pub turn_on_sigma: [f64; 3],
     /// Scale-factor error, fraction.
     pub scale_factor: [f64; 3],
+    /// Quadratic scale-factor term, fraction of the reading per unit of input.
+    pub scale_quadratic: [f64; 3],
     /// Misalignment xy, xz, yx, yz, zx, zy, rad.
     pub misalignment: [f64; 6],
     /// Bias temperature coefficient, unit/°C.
@@ -304,6 +315,7 @@ impl GyroSpec {
             bias: scale3(self.bias_dph, dph),
             turn_on_sigma: scale3(self.turn_on_bias_sigma_dph, dph),
             scale_factor: scale3(self.scale_factor_ppm, 1e-6),
+            scale_quadratic: scale3(self.scale_quadratic_ppm_per_dps, 1e-6 / DEG),
             misalignment: self.misalignment_mrad.map(|m| m * 1e-3),
             bias_tempco: scale3(self.bias_tempco_dph_per_c, dph),
             scale_tempco: scale3(self.scale_tempco_ppm_per_c, 1e-6),
@@ -358,6 +370,7 @@ impl AccelSpec {
             bias: scale3(self.bias_mg, mg),
             turn_on_sigma: scale3(self.turn_on_bias_sigma_mg, mg),
             scale_factor: scale3(self.scale_factor_ppm, 1e-6),
+            scale_quadratic: [0.0; 3],
             misalignment: self.misalignment_mrad.map(|m| m * 1e-3),
             bias_tempco: scale3(self.bias_tempco_mg_per_c, mg),
             scale_tempco: scale3(self.scale_tempco_ppm_per_c, 1e-6),
@@ -395,6 +408,7 @@ impl TriadErrors {
         finite(&self.ramp, "ramp")?;
         finite(&self.bias, "bias")?;
         finite(&self.scale_factor, "scale factor")?;
+        finite(&self.scale_quadratic, "scale-factor non-linearity")?;
         finite(&self.misalignment, "misalignment")?;
         finite(&self.bias_tempco, "bias tempco")?;
         finite(&self.scale_tempco, "scale tempco")?;
@@ -513,6 +527,7 @@ struct TriadSim {
     fixed_bias: [f64; 3],
     ramp: [f64; 3],
     misalign_scale: Matrix3<f64>,
+    scale_quadratic: [f64; 3],
     bias_tempco: [f64; 3],
     scale_tempco: [f64; 3],
     bias_tempco2: [f64; 3],
@@ -595,6 +610,7 @@ impl TriadSim {
             fixed_bias,
             ramp: e.ramp,
             misalign_scale,
+            scale_quadratic: e.scale_quadratic,
             bias_tempco: e.bias_tempco,
             scale_tempco: e.scale_tempco,
             bias_tempco2: e.bias_tempco2,
@@ -618,6 +634,9 @@ impl TriadSim {
         extra_bias: &Vector3<f64>,
     ) -> ([f64; 3], [f64; 3], bool) {
         let mut scaled = self.misalign_scale * x;
+        for i in 0..3 {
+            scaled[i] += self.scale_quadratic[i] * x[i] * x[i];
+        }
         let dtemp = th.dtemp;
         if dtemp != 0.0 {
             for i in 0..3 {

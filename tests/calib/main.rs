@@ -155,6 +155,60 @@ fn tumble_recovers_accel_and_gyro_of_an_industrial_imu() {
     assert_eq!(q.rotations, 24);
 }
 
+/// The bias-drift model selection: a steady accelerometer bias keeps the constant-bias fit; a
+/// bias ramping 4 mg/h is kept as a drift, recovered within its interval, and takes the gravity
+/// residual down to the white-noise level.
+#[test]
+fn accel_bias_drift_is_fitted_only_when_the_bias_moves() {
+    let steady = tumble_scene("industrial", 30, 8.0, 100.0, 5).replace(
+        "bias_mg = [20, -15, 25]",
+        "bias_mg = [20, -15, 25]\nbias_instability_mg = [0, 0, 0]\nrrw_mg_rth = [0, 0, 0]",
+    );
+    let (o, _, _) = outcome(&steady, Mode::MultiPosition);
+    let q = &o.calibration.quality;
+    assert_eq!(q.accel_bias_drift, None, "{q:?}");
+    assert_eq!(q.gravity_residual_after, q.gravity_residual_constant_bias);
+    let ramp_mg_h = [4.0, -3.0, 5.0];
+    let ramping = steady.replace(
+        "rrw_mg_rth = [0, 0, 0]",
+        "rrw_mg_rth = [0, 0, 0]\nrate_ramp_mg_per_h = [4.0, -3.0, 5.0]",
+    );
+    let (o, truth, g) = outcome(&ramping, Mode::MultiPosition);
+    let q = &o.calibration.quality;
+    let (drift, sigma) = (
+        q.accel_bias_drift.expect("drift kept"),
+        q.accel_bias_drift_sigma.unwrap(),
+    );
+    for k in 0..3 {
+        let want = ramp_mg_h[k] * 9.80665e-3 / 3600.0;
+        assert!(
+            (drift[k] - want).abs() < 3.0 * sigma[k],
+            "axis {k}: {} vs {want} (σ {})",
+            drift[k],
+            sigma[k]
+        );
+    }
+    let (constant, after) = (
+        q.gravity_residual_constant_bias.unwrap(),
+        q.gravity_residual_after.unwrap(),
+    );
+    assert!(after < 0.7 * constant, "{after} vs {constant}");
+    assert!(after < 0.06e-3 * g, "{after}");
+    assert!(
+        o.notes.iter().any(|n| n.contains("drifted")),
+        "{:?}",
+        o.notes
+    );
+    // The bias written is the run's mean bias (the truth's), at the middle of the poses.
+    let a = o.calibration.accel.unwrap();
+    for k in 0..3 {
+        assert!(
+            (a.bias[k] - truth.accel.bias[k]).abs() < 0.05e-3 * g,
+            "{a:?}"
+        );
+    }
+}
+
 #[test]
 fn six_position_finds_each_face_and_the_full_matrix() {
     let text = tumble_scene("industrial", 5, 10.0, 100.0, 2).replace(
@@ -189,14 +243,150 @@ fn rate_table_measures_scale_factor_on_the_spindle_axis() {
     let table = dir.path().join("rates.csv");
     std::fs::write(&table, "rate_dps\n10\n-10\n50\n-50\n100\n-100\n200\n-200\n").unwrap();
     let (o, _, _) = outcome(&text, Mode::RateTable(table));
-    let t = o.calibration.rate_table.unwrap();
+    let axes = o.calibration.rate_table.unwrap();
+    assert_eq!(axes.len(), 1);
+    let t = &axes[0];
     assert_eq!(t.axis, "z");
+    assert!(
+        o.notes.iter().any(|n| n.contains("one mounting")),
+        "{:?}",
+        o.notes
+    );
     // The scene's z scale factor is 450 ppm; tactical ARW over 20 s segments leaves ~10 ppm.
     assert!((t.scale_factor_ppm - 450.0).abs() < 30.0, "{t:?}");
     assert!(t.nonlinearity_ppm_of_full_scale < 50.0, "{t:?}");
     let g = o.calibration.gyro.unwrap();
     // Cross-axis: M_xz = 0.3 mrad... the x row's z entry is misalignment xz = -0.3 mrad.
     assert!((g.matrix[0][2] + 0.3e-3).abs() < 0.05e-3, "{g:?}");
+}
+
+fn fixture(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures/scenes")
+        .join(name)
+}
+
+fn rate_table_3axis() -> String {
+    std::fs::read_to_string(fixture("rate_table_3axis.toml"))
+        .unwrap()
+        .replace("name = \"stim\"", "name = \"imu\"")
+}
+
+/// The three-mounting program (x up, -y along the spindle, z down; eight rates each): the
+/// whole gyro M, each axis's scale factor and quadratic term, against the simulator's truth
+/// and the stated 95 % intervals.
+#[test]
+fn rate_table_three_mountings_recover_the_whole_gyro_matrix() {
+    let text = rate_table_3axis();
+    let scene = Scene::parse(&text, Path::new(".")).unwrap();
+    let quadratic = scene.imus[0].spec.gyro.scale_quadratic_ppm_per_dps;
+    let (o, truth, _) = outcome(&text, Mode::RateTable(fixture("rate_table_3axis.csv")));
+    let c = &o.calibration;
+    assert!(c.frame.contains("mounting fixture"), "{}", c.frame);
+    let axes = c.rate_table.as_ref().unwrap();
+    let names: Vec<&str> = axes.iter().map(|a| a.axis.as_str()).collect();
+    assert_eq!(names, ["x", "-y", "z"]);
+    let g = c.gyro.as_ref().unwrap();
+    let t = &truth.gyro_body;
+    // Every entry of M measured, each within a small multiple of its stated 1σ, and most
+    // inside the 95 % interval (1.96σ).
+    let mut inside = 0;
+    let mut report = String::new();
+    for i in 0..3 {
+        for j in 0..3 {
+            let (e, s) = (g.matrix[i][j] - t.matrix[i][j], g.matrix_sigma[i][j]);
+            report += &format!("M[{i}][{j}] error {:+.2e} σ {:.2e}\n", e, s);
+            assert!(s > 0.0 && s < 2e-5, "{report}");
+            assert!(e.abs() < 3.5 * s, "{report}");
+            inside += usize::from(e.abs() < 1.96 * s);
+        }
+    }
+    for (k, a) in axes.iter().enumerate() {
+        let (e, s) = (
+            a.quadratic_ppm_per_dps - quadratic[k],
+            a.quadratic_sigma_ppm_per_dps,
+        );
+        report += &format!("axis {k} quadratic error {e:+.4} σ {s:.4}\n");
+        assert!(s > 0.0 && s < 0.05, "{report}");
+        assert!(e.abs() < 3.5 * s, "{report}");
+        inside += usize::from(e.abs() < 1.96 * s);
+    }
+    println!("{report}");
+    assert!(
+        inside >= 10,
+        "{inside} of 12 inside the 95 % interval\n{report}"
+    );
+    // The quadratic term shows as non-linearity of the order of k·full scale.
+    assert!(axes[0].nonlinearity_ppm_of_full_scale > 10.0, "{axes:?}");
+}
+
+/// The CSV's `axis` column states the mountings instead of gravity; one that contradicts the
+/// gyro is refused.
+#[test]
+fn rate_table_axis_column_states_the_mountings() {
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("rates.csv");
+    let rates = [10, -10, 50, -50, 100, -100, 200, -200];
+    let csv = |axes: [&str; 3]| {
+        let mut text = String::from("rate_dps,axis\n");
+        for a in axes {
+            for r in rates {
+                text += &format!("{r},{a}\n");
+            }
+        }
+        text
+    };
+    let (rec, _, g) = simulate(&rate_table_3axis());
+    std::fs::write(&table, csv(["x", "y", "z"])).unwrap();
+    let stated = calibrate(&rec, &options(Mode::RateTable(table.clone()), g)).unwrap();
+    let by_gravity = calibrate(
+        &rec,
+        &options(Mode::RateTable(fixture("rate_table_3axis.csv")), g),
+    )
+    .unwrap();
+    assert_eq!(stated.calibration.gyro, by_gravity.calibration.gyro);
+    std::fs::write(&table, csv(["y", "x", "z"])).unwrap();
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::RateTable(table), g)).unwrap_err()
+    );
+    assert!(e.contains("follows the table rate"), "{e}");
+}
+
+#[test]
+fn rate_table_with_a_mounting_missing_or_too_few_rates_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let two = rate_table_3axis().replace("  { axis = \"z\" },\n", "");
+    let table = dir.path().join("rates.csv");
+    let rates = "10\n-10\n50\n-50\n100\n-100\n200\n-200\n";
+    std::fs::write(&table, format!("rate_dps\n{rates}{rates}")).unwrap();
+    let (rec, _, g) = simulate(&two);
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::RateTable(table.clone()), g)).unwrap_err()
+    );
+    assert!(e.contains("x and y") && e.contains("z missing"), "{e}");
+    // Three rates in the z mounting.
+    let few = rate_table_3axis()
+        .replace(
+            "  { axis = \"x\", pitch_deg = 90 },\n  { axis = \"-y\", roll_deg = 90 },\n",
+            "",
+        )
+        .replace("  { rate_dps = -50, duration_s = 20 },\n", "")
+        .replace("  { rate_dps = 100, duration_s = 20 },\n", "")
+        .replace("  { rate_dps = -100, duration_s = 20 },\n", "")
+        .replace("  { rate_dps = 200, duration_s = 20 },\n", "")
+        .replace("  { rate_dps = -200, duration_s = 20 },\n", "");
+    std::fs::write(&table, "rate_dps\n10\n-10\n50\n").unwrap();
+    let (rec, _, g) = simulate(&few);
+    let e = format!(
+        "{:#}",
+        calibrate(&rec, &options(Mode::RateTable(table), g)).unwrap_err()
+    );
+    assert!(
+        e.contains("z on the spindle has 3 different rates") && e.contains("at least 4"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -46,6 +46,7 @@ fn example_scenes_parse() {
         "serve_bench.toml",
         "tumble_15min.toml",
         "rate_table.toml",
+        "rate_table_3axis.toml",
     ] {
         let scene = Scene::load(&fixture(name)).unwrap_or_else(|e| panic!("{name}: {e:#}"));
         assert!(scene.samples() > 0);
