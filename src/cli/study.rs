@@ -77,14 +77,8 @@ pub fn run(args: StudyArgs) -> anyhow::Result<()> {
     }
     if args.white_gnss {
         config.gnss.position_error = Default::default();
-    } else if !config.gnss.position_error.enabled() {
-        if let Some(e) = scene
-            .gnss
-            .first()
-            .and_then(|rx| crate::fusion::noise::gnss_error_from_spec(&rx.spec))
-        {
-            config.gnss.position_error = e;
-        }
+    } else {
+        crate::fusion::study::model_receiver_error(&mut config, &scene);
     }
     let grades = args
         .grades
