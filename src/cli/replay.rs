@@ -37,6 +37,12 @@ pub struct ReplayArgs {
     /// velocity) with the configured or default settings.
     #[arg(long)]
     pub nhc: bool,
+    /// Take the GNSS fixes as white noise (inflated by `gnss.position_correlation_s`)
+    /// instead of carrying the receiver's slowly varying position error as three filter
+    /// states (the default for a session: the `[gnss.position_error]` of --config, else that
+    /// of the fixes' class, see docs/fusion.md).
+    #[arg(long, requires = "session")]
+    pub white_gnss: bool,
     /// Turn on zero-velocity updates at detected standstills.
     #[arg(long)]
     pub zupt: bool,
@@ -198,6 +204,7 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
             |n| n.origin.clone()
         )
     );
+    println!("GNSS: {}", receiver_error(&session, args, &mut config)?);
     let outages = parse_outages(&args.outage, args.outages.as_deref(), 30.0 * 86400.0)?;
     let thermal = args
         .compensate
@@ -269,6 +276,46 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         args.outage.len(),
         &axis,
     )
+}
+
+/// Sets the receiver-error states of a session replay (see [`ReplayArgs::white_gnss`]) and
+/// says what the filter assumes.
+fn receiver_error(
+    session: &crate::store::Session,
+    args: &ReplayArgs,
+    config: &mut FusionConfig,
+) -> anyhow::Result<String> {
+    let g = &mut config.gnss;
+    if args.white_gnss {
+        g.position_error = Default::default();
+        return Ok(format!(
+            "fixes white, correlation time {} s (--white-gnss)",
+            g.position_correlation_s
+        ));
+    }
+    let origin = if g.position_error.enabled() {
+        "[gnss.position_error] of the configuration".to_string()
+    } else {
+        let fix = session::dominant_fix_type(session, args.gnss.as_deref())?;
+        match fix.and_then(|f| Some((f, noise::gnss_error_for_fix(f)?))) {
+            Some((f, e)) => {
+                g.position_error = e;
+                format!(
+                    "the {} receiver class of its {f:?} fixes",
+                    noise::gnss_preset_for_fix(f).unwrap_or("standalone")
+                )
+            }
+            None => {
+                return Ok("no position fix to model the receiver error from".to_string());
+            }
+        }
+    };
+    config.validate()?;
+    let e = config.gnss.position_error;
+    Ok(format!(
+        "receiver position error as 3 filter states, σ {} m horizontal, {} m vertical, τ {} s, from {origin} (--white-gnss: fixes white)",
+        e.horizontal_m, e.vertical_m, e.tau_s
+    ))
 }
 
 /// The IMU noise for a session replay: `--noise` (Allan fit) over the configuration; else,

@@ -46,6 +46,12 @@ pub struct StudyArgs {
     /// grade's.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// Take the GNSS fixes as white noise (inflated by `gnss.position_correlation_s`)
+    /// instead of carrying the receiver's slowly varying position error as three filter
+    /// states (the default: the `[gnss.position_error]` of --config, else the scene
+    /// receiver's own, see docs/fusion.md).
+    #[arg(long)]
+    pub white_gnss: bool,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -68,6 +74,11 @@ pub fn run(args: StudyArgs) -> anyhow::Result<()> {
     };
     if let Some(p) = &args.config {
         config = FusionConfig::from_file(p)?;
+    }
+    if args.white_gnss {
+        config.gnss.position_error = Default::default();
+    } else {
+        crate::fusion::study::model_receiver_error(&mut config, &scene);
     }
     let grades = args
         .grades

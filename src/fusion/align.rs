@@ -1,13 +1,25 @@
 //! Initial alignment: static levelling (roll and pitch from the mean specific force while the
-//! IMU stands still) and heading from the GNSS track once the vehicle moves, or given.
+//! IMU stands still), the gyro bias from the mean angular rate over the same still period
+//! ([`static_gyro_bias`]), and heading from the GNSS track once the vehicle moves, or given.
 //!
-//! Low-cost gyros cannot see earth rate through their bias, so there is no gyrocompassing.
+//! Low-cost gyros cannot see earth rate through their bias, so there is no gyrocompassing:
+//! the earth rate's horizontal part, whose direction depends on the unknown heading, is an
+//! uncertainty of the static gyro bias instead.
 
-/// Motion thresholds of the levelling period: angular rate (rad/s) and deviation of the
-/// specific force from its running mean (m/s²); far above MEMS noise at 1 kHz.
+/// Motion thresholds of the levelling period: deviation of the angular rate (rad/s) and of
+/// the specific force (m/s²) from their running means; far above MEMS noise at 1 kHz. The
+/// rate is compared with its own mean, not with zero, so a gyro whose turn-on bias exceeds the
+/// threshold (a consumer MEMS part: σ 6.7 °/s) still levels and measures that bias.
 pub const LEVEL_GYRO_THRESHOLD: f64 = 0.05;
 pub const LEVEL_ACCEL_THRESHOLD: f64 = 0.3;
+/// How far the first sample's specific force may be from gravity's magnitude beyond the
+/// accel threshold, m/s² (0.1 g: consumer MEMS datasheets give zero-g offsets up to ±80 mg).
+pub const LEVEL_GRAVITY_TOLERANCE: f64 = 1.0;
+/// GNSS horizontal speed above which the vehicle is no longer standing still, m/s (well above
+/// a standalone receiver's velocity noise of a few cm/s).
+pub const STILL_SPEED_MPS: f64 = 0.5;
 
+use crate::earth::OMEGA_IE;
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// Roll and pitch (rad) of a body whose accelerometers read the mean specific force `f_b`
@@ -32,15 +44,81 @@ pub fn attitude(roll: f64, pitch: f64, heading: f64) -> UnitQuaternion<f64> {
 #[derive(Debug, Clone, Default)]
 pub struct StaticLeveller {
     sum_f: Vector3<f64>,
+    sum_w: Vector3<f64>,
     duration_s: f64,
     moved: bool,
 }
 
+/// The tilt error that levelling leaves, as a function of the accelerometer bias error: the
+/// levelled attitude makes the mean specific force `f_b` read as pure gravity, so its
+/// horizontal part in the n-frame is zero and the north/east attitude error φ_h satisfies
+/// [fⁿ×]_h φ_h = (C_nb δb_a)_h (the filter's velocity-error equation at rest). Returns the 2×3
+/// matrix J with φ_h = J δb_a, or `None` when fⁿ has no vertical part.
+pub fn levelling_tilt_jacobian(
+    f_b: &Vector3<f64>,
+    quat_nb: &UnitQuaternion<f64>,
+) -> Option<nalgebra::Matrix2x3<f64>> {
+    let c_nb = quat_nb.to_rotation_matrix().into_inner();
+    let f_z = (c_nb * f_b).z;
+    // [f×] restricted to north/east rows and columns: [[0, −f_z], [f_z, 0]].
+    let a = nalgebra::Matrix2::new(0.0, -f_z, f_z, 0.0);
+    let a_inv = a.try_inverse()?;
+    Some(a_inv * c_nb.fixed_rows::<2>(0))
+}
+
+/// The gyro bias measured while standing still, as a prior for the filter's bias state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StaticGyroBias {
+    /// Estimated bias per axis, rad/s.
+    pub bias: Vector3<f64>,
+    /// 1σ of that estimate per axis, rad/s.
+    pub sigma: Vector3<f64>,
+}
+
+/// The gyro bias from a still period of `duration_s` whose mean angular rate was `mean_w`,
+/// combined with the filter's prior (zero mean, 1σ `sigma0`) per axis.
+///
+/// The mean reads bias + C_bn ω_ie (earth rate). With roll and pitch known and heading not,
+/// the earth rate's vertical part (ω_ie sin φ at latitude φ) is subtracted and its horizontal
+/// part (ω_ie cos φ, direction unknown) bounds the error per axis; the white noise adds
+/// `arw`²/T. The result is the Bayesian combination of that measurement with the prior, so a
+/// gyro whose bias is already known better than the earth rate gains little.
+pub fn static_gyro_bias(
+    mean_w: &Vector3<f64>,
+    duration_s: f64,
+    roll: f64,
+    pitch: f64,
+    lat_rad: f64,
+    arw: f64,
+    sigma0: f64,
+) -> StaticGyroBias {
+    let c_nb = attitude(roll, pitch, 0.0).to_rotation_matrix();
+    let c_bn = c_nb.matrix().transpose();
+    let (sin, cos) = lat_rad.sin_cos();
+    let vertical = c_bn * Vector3::new(0.0, 0.0, -OMEGA_IE * sin);
+    let measured = mean_w - vertical;
+    let mut bias = Vector3::zeros();
+    let mut sigma = Vector3::repeat(sigma0);
+    for i in 0..3 {
+        let horizontal = OMEGA_IE * cos * c_bn[(i, 0)].hypot(c_bn[(i, 1)]);
+        let r = horizontal.powi(2) + arw.powi(2) / duration_s;
+        let p0 = sigma0.powi(2);
+        if !(r.is_finite() && p0.is_finite() && p0 + r > 0.0) {
+            continue;
+        }
+        let gain = p0 / (p0 + r);
+        bias[i] = gain * measured[i];
+        sigma[i] = ((1.0 - gain) * p0).sqrt();
+    }
+    StaticGyroBias { bias, sigma }
+}
+
 impl StaticLeveller {
     /// Adds one interval of `dt_s` seconds with mean specific force `f_b` and rate `w_b`.
-    /// Stops accumulating for good at the first sign of motion: a rate above
-    /// `gyro_threshold`, a specific force off the running mean by more than
-    /// `accel_threshold` (or, for the first sample, off gravity by more than that).
+    /// Stops accumulating for good at the first sign of motion: a rate off the running mean
+    /// by more than `gyro_threshold`, a specific force off the running mean by more than
+    /// `accel_threshold` (or, for the first sample, off gravity by more than that plus
+    /// [`LEVEL_GRAVITY_TOLERANCE`]).
     pub fn add(
         &mut self,
         f_b: &Vector3<f64>,
@@ -57,17 +135,30 @@ impl StaticLeveller {
         if !finite {
             return;
         }
-        let off = if self.duration_s > 0.0 {
-            (f_b - self.sum_f / self.duration_s).norm()
+        let (off, turning) = if self.duration_s > 0.0 {
+            (
+                (f_b - self.sum_f / self.duration_s).norm(),
+                (w_b - self.sum_w / self.duration_s).norm(),
+            )
         } else {
-            (f_b.norm() - gravity).abs()
+            // Gravity's magnitude against the reading's, within a MEMS part's zero-g offset.
+            (
+                ((f_b.norm() - gravity).abs() - LEVEL_GRAVITY_TOLERANCE).max(0.0),
+                0.0,
+            )
         };
-        if w_b.norm() > gyro_threshold || off > accel_threshold {
+        if turning > gyro_threshold || off > accel_threshold {
             self.moved = true;
             return;
         }
         self.sum_f += f_b * dt_s;
+        self.sum_w += w_b * dt_s;
         self.duration_s += dt_s;
+    }
+
+    /// Ends the static period (the GNSS says the vehicle moves).
+    pub fn stop(&mut self) {
+        self.moved = true;
     }
 
     /// Seconds of static data collected.
@@ -82,7 +173,17 @@ impl StaticLeveller {
 
     /// Roll and pitch from the static data, or `None` with none collected.
     pub fn roll_pitch(&self) -> Option<(f64, f64)> {
-        (self.duration_s > 0.0).then(|| level(&(self.sum_f / self.duration_s)))
+        self.mean_specific_force().map(|f| level(&f))
+    }
+
+    /// Mean specific force over the static data, or `None` with none collected.
+    pub fn mean_specific_force(&self) -> Option<Vector3<f64>> {
+        (self.duration_s > 0.0).then(|| self.sum_f / self.duration_s)
+    }
+
+    /// Mean angular rate over the static data, or `None` with none collected.
+    pub fn mean_gyro(&self) -> Option<Vector3<f64>> {
+        (self.duration_s > 0.0).then(|| self.sum_w / self.duration_s)
     }
 }
 
@@ -111,6 +212,70 @@ mod tests {
             (heading_from_velocity(&Vector3::new(0.0, -3.0, 0.0)) + std::f64::consts::FRAC_PI_2)
                 .abs()
                 < 1e-12
+        );
+    }
+
+    #[test]
+    fn leveller_measures_a_gyro_bias_above_the_motion_threshold() {
+        let mut lev = StaticLeveller::default();
+        let f = Vector3::new(0.0, 0.0, -9.8);
+        // A consumer part: 0.1 rad/s of turn-on bias, twice the motion threshold.
+        let bias = Vector3::new(0.1, -0.04, 0.07);
+        for _ in 0..100 {
+            lev.add(&f, &bias, 0.01, 9.8, 0.05, 0.3);
+        }
+        assert!(!lev.moved());
+        assert!((lev.mean_gyro().expect("static data") - bias).norm() < 1e-12);
+        lev.add(
+            &f,
+            &(bias + Vector3::new(0.0, 0.0, 0.06)),
+            0.01,
+            9.8,
+            0.05,
+            0.3,
+        );
+        assert!(lev.moved(), "a turn of 0.06 rad/s ends the still period");
+    }
+
+    #[test]
+    fn static_gyro_bias_removes_earth_rate_and_weighs_the_prior() {
+        let lat = 0.8f64;
+        let (roll, pitch) = (0.02, -0.03);
+        let c_bn = attitude(roll, pitch, 0.0)
+            .to_rotation_matrix()
+            .into_inner()
+            .transpose();
+        let bias = Vector3::new(0.1, -0.05, 0.08);
+        let earth_vertical = c_bn * Vector3::new(0.0, 0.0, -OMEGA_IE * lat.sin());
+        let mean = bias + earth_vertical;
+        // A prior far wider than the measurement: the estimate is the measurement.
+        let b = static_gyro_bias(&mean, 60.0, roll, pitch, lat, 1e-6, 0.1);
+        assert!((b.bias - bias).norm() < 1e-6, "{:?}", b.bias);
+        let horizontal = OMEGA_IE * lat.cos();
+        assert!(b.sigma.x > 0.99 * horizontal && b.sigma.x < 1.01 * horizontal);
+        // The vertical axis is free of the unknown horizontal earth rate (tilt aside).
+        assert!(b.sigma.z < 0.1 * horizontal, "{}", b.sigma.z);
+        // A prior tighter than the earth rate's horizontal part barely moves.
+        let tight = static_gyro_bias(&mean, 60.0, roll, pitch, lat, 1e-4, 1e-6);
+        assert!(tight.bias.x.abs() < 0.01 * bias.x, "{}", tight.bias.x);
+        assert!(tight.sigma.x > 0.99e-6 && tight.sigma.x <= 1e-6);
+    }
+
+    #[test]
+    fn levelling_tilt_jacobian_cancels_the_bias_in_the_specific_force() {
+        // Levelled on f_b + b, the attitude error φ_h = J δb makes [f×]φ − C δb vanish in
+        // the horizontal rows (the filter's velocity-error equation at rest).
+        let q = attitude(0.05, -0.02, 1.1);
+        let f_true = q.inverse() * Vector3::new(0.0, 0.0, -9.8);
+        let j = levelling_tilt_jacobian(&f_true, &q).expect("vertical gravity");
+        let db = Vector3::new(0.02, -0.03, 0.05);
+        let phi_h = j * db;
+        let phi = Vector3::new(phi_h.x, phi_h.y, 0.0);
+        let f_n = q * f_true;
+        let residual = f_n.cross(&phi) - q * db;
+        assert!(
+            residual.x.abs() < 1e-3 * db.norm() && residual.y.abs() < 1e-3 * db.norm(),
+            "{residual:?}"
         );
     }
 

@@ -10,7 +10,7 @@ use crate::fusion::config::FusionConfig;
 use crate::fusion::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
 use crate::fusion::mechanisation::{ImuInput, NavState};
 use crate::fusion::metrics;
-use crate::fusion::models::{self, has_scale_factors, BA, BG, SA, SG};
+use crate::fusion::models::{self, has_scale_factors, ATT, BA, BG, SA, SG};
 use crate::fusion::smoother;
 use nalgebra::{SMatrix, Vector3};
 
@@ -475,6 +475,9 @@ impl<const N: usize> Navigator<N> {
         let lever = Vector3::from(g.lever_arm_m);
 
         let Some(ins) = self.ins.as_mut() else {
+            if vel.is_some_and(|v| v.xy().norm() > align::STILL_SPEED_MPS) {
+                self.leveller.stop();
+            }
             self.try_align(fix, vel, &sigma_pos);
             return;
         };
@@ -519,7 +522,8 @@ impl<const N: usize> Navigator<N> {
     }
 
     /// Starts the filter at the fix once a heading is known; `sigma_white` is the fix's
-    /// white position σ (NED, m).
+    /// white position σ (NED, m). A still period of at least `alignment.level_s` before it
+    /// gives roll, pitch and the initial gyro bias ([`align::static_gyro_bias`]).
     fn try_align(
         &mut self,
         fix: &GnssObservation,
@@ -550,6 +554,37 @@ impl<const N: usize> Navigator<N> {
         nav.shift_position(&-(quat_nb * Vector3::from(self.config.gnss.lever_arm_m)));
         nav.shift_position(&(nav.vel_ned * (t_imu - fix.t_s)));
         self.start(nav);
+        if let (Some(f_b), Some(ins)) = (self.leveller.mean_specific_force(), self.ins.as_mut()) {
+            // The levelled tilt error is the accelerometer bias over g (fully correlated).
+            if let Some(j) = align::levelling_tilt_jacobian(&f_b, &quat_nb) {
+                let p_ba = ins.p.fixed_view::<3, 3>(BA, BA).into_owned();
+                let cross = j * p_ba;
+                let tilt = ins.p.fixed_view::<2, 2>(ATT, ATT).into_owned() + cross * j.transpose();
+                ins.p.fixed_view_mut::<2, 2>(ATT, ATT).copy_from(&tilt);
+                ins.p.fixed_view_mut::<2, 3>(ATT, BA).copy_from(&cross);
+                ins.p
+                    .fixed_view_mut::<3, 2>(BA, ATT)
+                    .copy_from(&cross.transpose());
+            }
+        }
+        if self.leveller.duration_s() >= a.level_s {
+            if let (Some(mean), Some(ins)) = (self.leveller.mean_gyro(), self.ins.as_mut()) {
+                let imu = &self.config.imu;
+                let b = align::static_gyro_bias(
+                    &mean,
+                    self.leveller.duration_s(),
+                    roll,
+                    pitch,
+                    fix.lat_rad,
+                    imu.arw_rad_per_sqrt_s,
+                    imu.gyro_bias_sigma0(),
+                );
+                ins.sensors.gyro_bias = b.bias;
+                for i in 0..3 {
+                    ins.p[(BG + i, BG + i)] = b.sigma[i].powi(2).max(1e-24);
+                }
+            }
+        }
         if let (Some(ge), Some(ins)) = (models::gnss_error_index(N), self.ins.as_mut()) {
             // The position is the fix's, so its error is the receiver's: δr = e + w for a
             // receiver error e and white noise w, while the error state starts at δe = −e.

@@ -177,6 +177,29 @@ pub fn gnss_error_from_spec(spec: &crate::sim::gnss_model::GnssSpec) -> Option<G
     (e.enabled() && e.tau_s.is_finite() && e.tau_s > 0.0).then_some(e)
 }
 
+/// The simulator's GNSS preset whose receiver error stands for fixes of class `fix`: RTK fixed
+/// → `rtk`; DGNSS/SBAS and RTK float → `sbas`; any other position fix (2-D, 3-D, dead
+/// reckoning) → `standalone`. None for epochs without a position.
+pub fn gnss_preset_for_fix(fix: imulab_drivers::types::FixType) -> Option<&'static str> {
+    use imulab_drivers::types::FixType;
+    match fix {
+        FixType::NoFix | FixType::TimeOnly => None,
+        FixType::RtkFixed => Some("rtk"),
+        FixType::Dgnss | FixType::RtkFloat => Some("sbas"),
+        FixType::DeadReckoning | FixType::Fix2D | FixType::Fix3D | FixType::GnssDeadReckoning => {
+            Some("standalone")
+        }
+    }
+}
+
+/// The receiver's correlated position error assumed for fixes of class `fix`: that of the
+/// GNSS preset of its class ([`gnss_preset_for_fix`]; standalone: σ 2 m per horizontal axis,
+/// 3.5 m vertical, τ 600 s).
+pub fn gnss_error_for_fix(fix: imulab_drivers::types::FixType) -> Option<GnssPositionError> {
+    let preset = gnss_preset_for_fix(fix)?;
+    gnss_error_from_spec(&crate::sim::gnss_model::GnssSpec::preset(preset)?)
+}
+
 /// The filter's IMU model for simulator preset `name`.
 pub fn model_from_preset(name: &str) -> anyhow::Result<NoiseModel> {
     let spec = crate::sim::presets::imu_preset(name).with_context(|| {
@@ -425,6 +448,28 @@ pub fn spec_from_allan(fit: &AllanDevice) -> anyhow::Result<ImuSpec> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn receiver_error_follows_the_fix_class() {
+        use imulab_drivers::types::FixType;
+        assert_eq!(gnss_preset_for_fix(FixType::NoFix), None);
+        assert_eq!(gnss_preset_for_fix(FixType::Fix3D), Some("standalone"));
+        assert_eq!(gnss_preset_for_fix(FixType::RtkFloat), Some("sbas"));
+        let rtk = gnss_error_for_fix(FixType::RtkFixed).expect("rtk");
+        assert_eq!(
+            (rtk.horizontal_m, rtk.vertical_m, rtk.tau_s),
+            (0.005, 0.008, 60.0)
+        );
+        let standalone = gnss_error_for_fix(FixType::Fix2D).expect("standalone");
+        assert_eq!(
+            (
+                standalone.horizontal_m,
+                standalone.vertical_m,
+                standalone.tau_s
+            ),
+            (2.0, 3.5, 600.0)
+        );
+    }
 
     #[test]
     fn preset_mapping_uses_datasheet_values() {

@@ -123,6 +123,38 @@ pub fn simulated_imu_preset(session: &Session, device: &str) -> Option<String> {
     crate::sim::presets::imu_preset(preset).map(|_| preset.to_string())
 }
 
+/// The most frequent position-fix class among the rows of GNSS device `gnss` (the only one
+/// when None); None when no row has a position fix.
+pub fn dominant_fix_type(session: &Session, gnss: Option<&str>) -> anyhow::Result<Option<FixType>> {
+    let device = pick(session, DeviceKind::Gnss, gnss)?;
+    let mut counts = [0u64; 9];
+    let mut problems = Vec::new();
+    let blocks = session.gnss_blocks(&device, TimeRange::all(), BLOCK_ROWS)?;
+    for block in readable(blocks, &mut problems) {
+        for i in 0..block.len() {
+            let fix = block.record(i).fix_type;
+            if !matches!(fix, FixType::NoFix | FixType::TimeOnly) {
+                counts[fix as usize] += 1;
+            }
+        }
+    }
+    const CLASSES: [FixType; 9] = [
+        FixType::NoFix,
+        FixType::DeadReckoning,
+        FixType::Fix2D,
+        FixType::Fix3D,
+        FixType::GnssDeadReckoning,
+        FixType::TimeOnly,
+        FixType::Dgnss,
+        FixType::RtkFloat,
+        FixType::RtkFixed,
+    ];
+    Ok(CLASSES
+        .into_iter()
+        .filter(|f| counts[*f as usize] > 0)
+        .max_by_key(|f| counts[*f as usize]))
+}
+
 /// Replays `session` with IMU `imu` and receiver `gnss` (each may be omitted when the session
 /// has only one). Outage windows in `options` are in seconds since the first IMU row;
 /// `thermal`, when given, compensates the IMU rows (see [`ImuCompensator`]).

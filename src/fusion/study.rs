@@ -188,10 +188,11 @@ pub fn fit_study(
     progress: bool,
 ) -> anyhow::Result<StudyResult> {
     let scene = Scene::parse(REFERENCE_DRIVE, Path::new(".")).context("reference drive")?;
-    let config = FusionConfig {
+    let mut config = FusionConfig {
         covariance_interval_s: 0.1,
         ..FusionConfig::default()
     };
+    model_receiver_error(&mut config, &scene);
     let grades = devices
         .iter()
         .map(|d| {
@@ -204,6 +205,22 @@ pub fn fit_study(
     options.config = config;
     options.progress = progress;
     run_study(&scene, &options)
+}
+
+/// Gives the filter the scene receiver's correlated position error as three states
+/// (`noise::gnss_error_from_spec` of its first receiver), unless the configuration already
+/// sets one: how a study models the receiver by default.
+pub fn model_receiver_error(config: &mut FusionConfig, scene: &Scene) {
+    if config.gnss.position_error.enabled() {
+        return;
+    }
+    if let Some(e) = scene
+        .gnss
+        .first()
+        .and_then(|rx| crate::fusion::noise::gnss_error_from_spec(&rx.spec))
+    {
+        config.gnss.position_error = e;
+    }
 }
 
 /// What to study.

@@ -1,5 +1,6 @@
 //! fusion integration tests, one binary (fewer, smaller links).
 
+mod consumer;
 mod filter;
 mod fuzz;
 mod heading;

@@ -218,6 +218,25 @@ fn replay_command_reads_noise_from_an_allan_fit_and_writes_into_the_session() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(stdout.contains("IMU noise: Allan fit"), "{stdout}");
+    // The short drive's receiver is the simulator's SBAS one (DGNSS fixes): its error model.
+    assert!(
+        stdout.contains("GNSS: receiver position error as 3 filter states, σ 0.5 m horizontal, 0.9 m vertical, τ 300 s, from the sbas receiver class of its Dgnss fixes"),
+        "{stdout}"
+    );
+    let white = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .arg("replay")
+        .arg(&session)
+        .arg("--white-gnss")
+        .arg("--out")
+        .arg(dir.path().join("white"))
+        .output()
+        .expect("run imulab");
+    let white_out = String::from_utf8_lossy(&white.stdout);
+    assert!(white.status.success(), "{white_out}");
+    assert!(
+        white_out.contains("GNSS: fixes white, correlation time 60 s (--white-gnss)"),
+        "{white_out}"
+    );
     let h5 = session.join("replay-filter.h5");
     let file = hdf5::File::open(&h5).expect("replay file");
     let lat = file
