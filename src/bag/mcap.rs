@@ -155,7 +155,8 @@ pub fn read<E: From<BagError>>(path: &Path, visit: &mut MsgVisitor<'_, E>) -> Re
 const CHUNKS_AHEAD_PER_THREAD: usize = 2;
 /// Decompressed bytes ahead of the one being visited, at most (one chunk always goes ahead).
 const BYTES_AHEAD: u64 = 64 << 20;
-/// A chunk that says it decompresses to more than this is taken as damaged.
+/// A chunk (or schema, channel or message record) that says it holds more than this,
+/// compressed or not, is taken as damaged.
 const MAX_CHUNK_BYTES: u64 = 1 << 30;
 /// Buffers kept for reuse, at most.
 const POOL_BUFFERS: usize = 16;
@@ -461,6 +462,16 @@ impl DataSection {
         self.records.magic()?;
         loop {
             let head = self.records.head()?;
+            let read_whole = matches!(
+                head.opcode,
+                op::CHUNK | op::SCHEMA | op::CHANNEL | op::MESSAGE
+            );
+            if read_whole && head.len > MAX_CHUNK_BYTES {
+                return Err(Stop::Cut(format!(
+                    "the record at byte {} is damaged: it says {} bytes (more than {MAX_CHUNK_BYTES})",
+                    head.offset, head.len
+                )));
+            }
             match head.opcode {
                 op::CHUNK => {
                     let mut record = self.buffer();

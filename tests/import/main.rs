@@ -384,9 +384,13 @@ fn truncated_bags_keep_the_messages_before_the_cut() {
 fn a_damaged_mcap_chunk_keeps_the_messages_of_the_chunks_before_it() {
     let dir = tempfile::tempdir().unwrap();
     let messages = messages(6_000);
-    // zstd chunks with a byte of the compressed data flipped, and stored chunks with a byte
-    // of the last message's data flipped, which only the chunk's CRC-32 shows.
-    for (name, compression) in [("zstd", Some(mcap::Compression::Zstd)), ("stored", None)] {
+    // zstd and lz4 chunks with a byte of the compressed data flipped, and stored chunks with
+    // a byte of the last message's data flipped, which only the chunk's CRC-32 shows.
+    for (name, compression) in [
+        ("zstd", Some(mcap::Compression::Zstd)),
+        ("lz4", Some(mcap::Compression::Lz4)),
+        ("stored", None),
+    ] {
         let path = dir.path().join(format!("{name}.mcap"));
         write_mcap_compressed(&path, &topics(), &messages, 16 << 10, compression);
         let mut bytes = std::fs::read(&path).unwrap();
