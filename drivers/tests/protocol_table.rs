@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use imulab_drivers::codec::reading::{DeviceClock, Input, Kind, Reading, ReadingDecoder};
-use imulab_drivers::codec::{DecoderOptions, NamedText, ProtocolEntry, PROTOCOLS};
+use imulab_drivers::codec::{DecoderOptions, NamedText, ProtocolEntry, RowsFrom, PROTOCOLS};
 use imulab_drivers::types::{FixType, GnssFix, ImuSample};
 
 fn fixture_text(name: &str) -> NamedText {
@@ -24,6 +24,7 @@ fn options(entry: &ProtocolEntry) -> DecoderOptions {
         DecoderOptions {
             dbc: Some(fixture_text("imu_can.dbc")),
             config: Some(fixture_text("imu_can_mapping.toml")),
+            ..DecoderOptions::default()
         }
     } else {
         DecoderOptions::default()
@@ -175,7 +176,8 @@ fn every_encoder_reads_back_through_its_own_row() {
     assert!(served >= 9, "{served} rows with an encoder");
 }
 
-/// A VectorNav or MIP device set to output delta theta / delta velocity instead of rates:
+/// A VectorNav or MIP device set to output delta theta / delta velocity instead of rates
+/// (rows from the rates, the default, or from the deltas, the same here):
 /// through the row's readings decoder (what `imulogd` logs) the same gyro and accelerometer
 /// readings as from rates, the deltas taken over the message's own interval (VectorNav) or
 /// the device-time interval since the previous packet (MIP, so its first packet gives none).
@@ -207,6 +209,13 @@ fn delta_outputs_read_back_as_rates_through_their_rows() {
         let mut decoder = (entry.readings)(&options(entry)).expect("opens")();
         let got = decode(decoder.as_mut(), &bytes);
         assert_eq!(got.len(), sent.len() - unrated, "{name}: {got:?}");
+        // Asked for rows from the deltas, the same rows.
+        let deltas = DecoderOptions {
+            rows_from: RowsFrom::Deltas,
+            ..options(entry)
+        };
+        let mut decoder = (entry.readings)(&deltas).expect("opens")();
+        assert_eq!(decode(decoder.as_mut(), &bytes), got, "{name}");
         for (s, g) in sent[unrated..].iter().zip(&got) {
             let Reading::Imu(g) = g else {
                 panic!("{name}: {g:?}")

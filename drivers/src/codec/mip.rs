@@ -20,7 +20,7 @@
 //! as [`MipPacket::Other`]. Neither is a sample.
 
 use super::reading::DeviceClock;
-use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, RowsFrom, Scan, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 pub const SYNC1: u8 = 0x75;
@@ -95,21 +95,28 @@ impl MipImuData {
     /// correlation time of week (s), else the shared GPS time of week, else the reference
     /// timestamp (s), else the internal timestamp in its ticks. Without scaled gyro (or
     /// accelerometer), delta theta (or delta velocity) over `delta_interval_s`, the
-    /// device-time interval since the previous IMU data packet ([`MipSamples`]), gives it.
-    pub fn to_imu_sample(&self, delta_interval_s: Option<f64>) -> Option<ImuSample> {
+    /// device-time interval since the previous IMU data packet ([`MipSamples`]), gives it;
+    /// with [`RowsFrom::Deltas`] the deltas come first.
+    pub fn to_imu_sample(
+        &self,
+        delta_interval_s: Option<f64>,
+        rows_from: RowsFrom,
+    ) -> Option<ImuSample> {
         let interval = delta_interval_s.filter(|dt| dt.is_finite() && *dt > 0.0);
         let per_second = |delta: Option<[f32; 3]>, scale: f64| {
             let dt = interval?;
             delta.map(|d| d.map(|x| f64::from(x) * scale / dt))
         };
-        let gyro = self
-            .scaled_gyro
-            .map(|v| v.map(f64::from))
-            .or_else(|| per_second(self.delta_theta, 1.0));
+        let rate = self.scaled_gyro.map(|v| v.map(f64::from));
+        let from_delta = per_second(self.delta_theta, 1.0);
         let accel = self
             .scaled_accel_g
-            .map(|v| v.map(|g| f64::from(g) * STANDARD_GRAVITY))
-            .or_else(|| per_second(self.delta_velocity_gs, STANDARD_GRAVITY));
+            .map(|v| v.map(|g| f64::from(g) * STANDARD_GRAVITY));
+        let accel_from_delta = per_second(self.delta_velocity_gs, STANDARD_GRAVITY);
+        let (gyro, accel) = match rows_from {
+            RowsFrom::Rates => (rate.or(from_delta), accel.or(accel_from_delta)),
+            RowsFrom::Deltas => (from_delta.or(rate), accel_from_delta.or(accel)),
+        };
         if gyro.is_none() && accel.is_none() {
             return None;
         }
@@ -158,7 +165,7 @@ impl MipPacket {
     /// interval since the previous packet: [`MipSamples`]).
     pub fn to_imu_sample(&self) -> Option<ImuSample> {
         match self {
-            MipPacket::Imu(data) => data.to_imu_sample(None),
+            MipPacket::Imu(data) => data.to_imu_sample(None, RowsFrom::Rates),
             _ => None,
         }
     }
@@ -497,13 +504,17 @@ impl Encoder for MipEncoder {
 #[derive(Debug, Default, Clone)]
 pub struct MipSamples {
     packets: MipDecoder,
+    rows_from: RowsFrom,
     /// Device time (s) of the previous IMU data packet and [`loss`] of the stream then.
     previous: Option<(f64, u64)>,
 }
 
 impl MipSamples {
-    pub fn new() -> Self {
-        Self::default()
+    pub fn new(rows_from: RowsFrom) -> Self {
+        MipSamples {
+            rows_from,
+            ..Self::default()
+        }
     }
 }
 
@@ -533,7 +544,7 @@ impl Decoder for MipSamples {
                 _ => None,
             };
             self.previous = now.map(|t| (t, lost));
-            if let Some(sample) = data.to_imu_sample(interval) {
+            if let Some(sample) = data.to_imu_sample(interval, self.rows_from) {
                 return Some(sample);
             }
         }
@@ -630,7 +641,7 @@ mod tests {
         assert_eq!((first.scaled_gyro, first.scaled_accel_g), (None, None));
         assert_eq!(frames[0].to_imu_sample(), None);
         // The first packet has no interval before it; the next two have 10 ms each.
-        let mut samples = MipSamples::new();
+        let mut samples = MipSamples::new(RowsFrom::Rates);
         let mut decoded = Vec::new();
         samples.decode(&bytes, |s| decoded.push(s));
         assert_eq!(decoded.len(), 2, "{decoded:?}");
@@ -648,12 +659,26 @@ mod tests {
         let mut damaged = bytes.clone();
         let second = bytes.len() / 3;
         damaged[second + 8] ^= 0xFF;
-        let mut samples = MipSamples::new();
+        let mut samples = MipSamples::new(RowsFrom::Rates);
         let mut decoded = Vec::new();
         samples.decode(&damaged, |s| decoded.push(s));
         assert_eq!(decoded.len(), 0, "{decoded:?}");
         assert_eq!(samples.stats().checksum_errors, 1);
         assert!(encode_delta_sample(&sample(1), &clock(1), 0.0, &mut Vec::new()).is_err());
+        // A packet with both: the scaled values, or the deltas when they are asked for.
+        let both = MipImuData {
+            scaled_gyro: Some([1.0, 2.0, 3.0]),
+            delta_theta: Some([0.01, 0.02, 0.04]),
+            ..MipImuData::default()
+        };
+        let rates = both.to_imu_sample(Some(0.01), RowsFrom::Rates).unwrap();
+        assert_eq!(rates.gyro, Some([1.0, 2.0, 3.0]));
+        let deltas = both.to_imu_sample(Some(0.01), RowsFrom::Deltas).unwrap();
+        let gyro = deltas.gyro.unwrap();
+        assert!((gyro[2] - 4.0).abs() < 1e-6, "{gyro:?}");
+        // Without an interval the deltas give nothing and the scaled values stand.
+        let fallback = both.to_imu_sample(None, RowsFrom::Deltas).unwrap();
+        assert_eq!(fallback.gyro, Some([1.0, 2.0, 3.0]));
     }
 
     #[test]

@@ -26,8 +26,8 @@
 
 use crc::{Crc, Table, CRC_16_XMODEM};
 
-use super::reading::{DeviceClock, Reading, ToReading};
-use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use super::reading::DeviceClock;
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, RowsFrom, Scan, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Binary packet sync byte.
@@ -166,9 +166,10 @@ pub struct VnValues {
 impl VnValues {
     /// The SI sample: time since startup (s, else GPS time of week), compensated rate and
     /// acceleration (the uncompensated ones when only those are output; without either,
-    /// delta theta and delta velocity over their own integration interval, `delta_time_s`),
-    /// temperature, and the IMU status word (else the INS status).
-    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+    /// delta theta and delta velocity over their own integration interval, `delta_time_s`;
+    /// with [`RowsFrom::Deltas`] the deltas first), temperature, and the IMU status word
+    /// (else the INS status).
+    pub fn to_imu_sample(&self, rows_from: RowsFrom) -> Option<ImuSample> {
         let f64s = |v: [f32; 3]| v.map(f64::from);
         // A rate from a delta needs a positive, finite integration interval.
         let interval = self
@@ -179,16 +180,14 @@ impl VnValues {
             let dt = interval?;
             delta.map(|d| d.map(|x| f64::from(x) * scale / dt))
         };
-        let gyro = self
-            .angular_rate
-            .or(self.uncomp_gyro)
-            .map(f64s)
-            .or_else(|| per_second(self.delta_theta_deg, std::f64::consts::PI / 180.0));
-        let accel = self
-            .accel
-            .or(self.uncomp_accel)
-            .map(f64s)
-            .or_else(|| per_second(self.delta_velocity, 1.0));
+        let rate = self.angular_rate.or(self.uncomp_gyro).map(f64s);
+        let from_delta = per_second(self.delta_theta_deg, std::f64::consts::PI / 180.0);
+        let accel = self.accel.or(self.uncomp_accel).map(f64s);
+        let accel_from_delta = per_second(self.delta_velocity, 1.0);
+        let (gyro, accel) = match rows_from {
+            RowsFrom::Rates => (rate.or(from_delta), accel.or(accel_from_delta)),
+            RowsFrom::Deltas => (from_delta.or(rate), accel_from_delta.or(accel)),
+        };
         if gyro.is_none() && accel.is_none() {
             return None;
         }
@@ -366,11 +365,12 @@ pub enum VnFrame {
 }
 
 impl VnFrame {
-    /// The IMU sample this frame carries, if it has angular rate or acceleration.
-    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+    /// The IMU sample this frame carries, if it has angular rate, acceleration or their
+    /// deltas ([`VnValues::to_imu_sample`]).
+    pub fn to_imu_sample(&self, rows_from: RowsFrom) -> Option<ImuSample> {
         match self {
-            VnFrame::Binary(b) => b.values.to_imu_sample(),
-            VnFrame::Ascii(a) => a.values.to_imu_sample(),
+            VnFrame::Binary(b) => b.values.to_imu_sample(rows_from),
+            VnFrame::Ascii(a) => a.values.to_imu_sample(rows_from),
             VnFrame::AsciiOther { .. } => None,
         }
     }
@@ -1051,11 +1051,41 @@ fn encode_text(body: &[u8], checksum: VnChecksum, out: &mut Vec<u8>) -> Result<(
     Ok(())
 }
 
-/// Binary packets and ASCII sentences with angular rate or acceleration are readings;
-/// attitude-only output and register replies are not.
-impl ToReading for VnFrame {
-    fn to_reading(self) -> Option<Reading> {
-        self.to_imu_sample().map(Reading::Imu)
+/// The IMU samples of a VectorNav stream (what `imulogd` logs): binary packets and ASCII
+/// sentences with angular rate, acceleration or their deltas, taken as
+/// [`VnValues::to_imu_sample`] says; attitude-only output and register replies are none.
+#[derive(Debug, Default, Clone)]
+pub struct VnSamples {
+    frames: VnDecoder,
+    rows_from: RowsFrom,
+}
+
+impl VnSamples {
+    pub fn new(rows_from: RowsFrom) -> Self {
+        VnSamples {
+            frames: VnDecoder::new(),
+            rows_from,
+        }
+    }
+}
+
+impl Decoder for VnSamples {
+    type Frame = ImuSample;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.frames.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<ImuSample> {
+        loop {
+            if let Some(sample) = self.frames.poll()?.to_imu_sample(self.rows_from) {
+                return Some(sample);
+            }
+        }
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.frames.stats()
     }
 }
 
@@ -1189,7 +1219,7 @@ mod tests {
         assert_eq!(packet.values.accel, None);
         let dtheta = packet.values.delta_theta_deg.unwrap();
         assert!((f64::from(dtheta[0]) - 0.1 * 0.005 * 180.0 / std::f64::consts::PI).abs() < 1e-7);
-        let decoded = frames[0].to_imu_sample().unwrap();
+        let decoded = frames[0].to_imu_sample(RowsFrom::Rates).unwrap();
         for (got, want) in decoded.gyro.unwrap().iter().zip(sample.gyro.unwrap()) {
             assert!(
                 (got - want).abs() < 1e-6 * want.abs().max(1.0),
@@ -1204,13 +1234,17 @@ mod tests {
         }
         assert_eq!(decoded.sensor_time, Some(12.5));
         assert_eq!(decoded.temp_c, Some(25.0));
-        // Rates beside the deltas win; a zero interval gives no rate from a delta.
+        // Rates beside the deltas win unless the deltas are asked for; a zero interval gives
+        // no rate from a delta.
         let mut values = packet.values;
         values.angular_rate = Some([1.0, 2.0, 3.0]);
-        assert_eq!(values.to_imu_sample().unwrap().gyro, Some([1.0, 2.0, 3.0]));
+        let rates = values.to_imu_sample(RowsFrom::Rates).unwrap();
+        assert_eq!(rates.gyro, Some([1.0, 2.0, 3.0]));
+        let deltas = values.to_imu_sample(RowsFrom::Deltas).unwrap();
+        assert_eq!(deltas.gyro, decoded.gyro);
         values.angular_rate = None;
         values.delta_time_s = Some(0.0);
-        assert_eq!(values.to_imu_sample(), None);
+        assert_eq!(values.to_imu_sample(RowsFrom::Deltas), None);
         assert!(encode_delta_sample(&sample, &clock, 0.0, &mut Vec::new()).is_err());
     }
 
@@ -1244,7 +1278,7 @@ mod tests {
         );
         let (frames, stats) = decode_all(line.as_bytes());
         assert_eq!(stats.frames_ok, 1);
-        let sample = frames[0].to_imu_sample().expect("a sample");
+        let sample = frames[0].to_imu_sample(RowsFrom::Rates).expect("a sample");
         let accel = sample.accel.unwrap();
         assert!((accel[2] + 9.802).abs() < 1e-5, "{accel:?}");
         let gyro = sample.gyro.unwrap();
