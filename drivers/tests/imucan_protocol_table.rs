@@ -173,6 +173,7 @@ fn json_decoders_print_si_samples() {
     let options = DecoderOptions {
         dbc: Some(fixture_text("imu_can.dbc")),
         config: Some(fixture_text("imu_can_mapping.toml")),
+        ..DecoderOptions::default()
     };
     let imu = json_lines(Protocol::Candump, &options, &candump);
     assert_eq!(imu.len(), 10);
@@ -183,6 +184,7 @@ fn json_decoders_print_si_samples() {
         .open(&DecoderOptions {
             dbc: Some(fixture_text("imu_can.dbc")),
             config: None,
+            ..DecoderOptions::default()
         })
         .err()
         .expect("needs mapping");

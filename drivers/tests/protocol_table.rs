@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use imulab_drivers::codec::reading::{DeviceClock, Input, Kind, Reading, ReadingDecoder};
-use imulab_drivers::codec::{DecoderOptions, NamedText, ProtocolEntry, PROTOCOLS};
+use imulab_drivers::codec::{DecoderOptions, NamedText, ProtocolEntry, RowsFrom, PROTOCOLS};
 use imulab_drivers::types::{FixType, GnssFix, ImuSample};
 
 fn fixture_text(name: &str) -> NamedText {
@@ -24,6 +24,7 @@ fn options(entry: &ProtocolEntry) -> DecoderOptions {
         DecoderOptions {
             dbc: Some(fixture_text("imu_can.dbc")),
             config: Some(fixture_text("imu_can_mapping.toml")),
+            ..DecoderOptions::default()
         }
     } else {
         DecoderOptions::default()
@@ -173,4 +174,60 @@ fn every_encoder_reads_back_through_its_own_row() {
         }
     }
     assert!(served >= 9, "{served} rows with an encoder");
+}
+
+/// A VectorNav or MIP device set to output delta theta / delta velocity instead of rates
+/// (rows from the rates, the default, or from the deltas, the same here):
+/// through the row's readings decoder (what `imulogd` logs) the same gyro and accelerometer
+/// readings as from rates, the deltas taken over the message's own interval (VectorNav) or
+/// the device-time interval since the previous packet (MIP, so its first packet gives none).
+#[test]
+fn delta_outputs_read_back_as_rates_through_their_rows() {
+    use imulab_drivers::codec::{mip, vectornav};
+    type EncodeDelta = fn(
+        &ImuSample,
+        &DeviceClock,
+        f64,
+        &mut Vec<u8>,
+    ) -> Result<(), imulab_drivers::codec::EncodeError>;
+    let rows: [(&str, EncodeDelta, usize); 2] = [
+        ("vectornav", vectornav::encode_delta_sample, 0),
+        ("mip", mip::encode_delta_sample, 1),
+    ];
+    for (name, encode, unrated) in rows {
+        let entry = PROTOCOLS.iter().find(|e| e.name == name).expect("a row");
+        let mut bytes = Vec::new();
+        let sent: Vec<ImuSample> = (0..20)
+            .map(|k| {
+                let (Reading::Imu(sample), clock) = imu_reading(k) else {
+                    unreachable!()
+                };
+                encode(&sample, &clock, 0.01, &mut bytes).expect("encodes");
+                sample
+            })
+            .collect();
+        let mut decoder = (entry.readings)(&options(entry)).expect("opens")();
+        let got = decode(decoder.as_mut(), &bytes);
+        assert_eq!(got.len(), sent.len() - unrated, "{name}: {got:?}");
+        // Asked for rows from the deltas, the same rows.
+        let deltas = DecoderOptions {
+            rows_from: RowsFrom::Deltas,
+            ..options(entry)
+        };
+        let mut decoder = (entry.readings)(&deltas).expect("opens")();
+        assert_eq!(decode(decoder.as_mut(), &bytes), got, "{name}");
+        for (s, g) in sent[unrated..].iter().zip(&got) {
+            let Reading::Imu(g) = g else {
+                panic!("{name}: {g:?}")
+            };
+            assert!(
+                close(g.gyro.unwrap(), s.gyro.unwrap(), 1e-5),
+                "{name}: {g:?} vs {s:?}"
+            );
+            assert!(
+                close(g.accel.unwrap(), s.accel.unwrap(), 1e-4),
+                "{name}: {g:?} vs {s:?}"
+            );
+        }
+    }
 }

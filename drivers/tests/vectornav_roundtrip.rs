@@ -11,7 +11,7 @@ use imulab_drivers::codec::vectornav::{
     attitude, common, imu, time, VnAscii, VnAsciiKind, VnBinary, VnChecksum, VnDecoder, VnEncoder,
     VnFrame, VnOutputFields, VnValues,
 };
-use imulab_drivers::codec::{detect, Decoder, Encoder, Protocol};
+use imulab_drivers::codec::{detect, Decoder, Encoder, Protocol, RowsFrom};
 use proptest::prelude::*;
 
 /// CRC16-CCITT as the manual's C routine computes it, byte by byte.
@@ -61,7 +61,7 @@ fn hand_built_common_and_imu_packet_decodes() {
     let mut d = VnDecoder::new();
     let frames = decode_all(&mut d, &bytes);
     assert_eq!(frames.len(), 1, "{:?}", d.stats());
-    let sample = frames[0].to_imu_sample().expect("a sample");
+    let sample = frames[0].to_imu_sample(RowsFrom::Rates).expect("a sample");
     assert_eq!(sample.sensor_time, Some(0.123456789));
     assert_eq!(sample.gyro, Some([0.01f32, -0.02, 0.03].map(f64::from)));
     assert_eq!(sample.accel, Some([0.1f32, 0.2, -9.81].map(f64::from)));
@@ -101,7 +101,7 @@ fn attitude_and_time_groups_and_skipped_fields() {
     assert_eq!(b.values.ypr_deg, Some([90.0, 1.0, -2.0]));
     assert_eq!(b.skipped_fields, 2);
     // Attitude only: no sample.
-    assert_eq!(frames[0].to_imu_sample(), None);
+    assert_eq!(frames[0].to_imu_sample(RowsFrom::Rates), None);
     // Fields not kept cannot be encoded.
     assert!(VnEncoder.encode(&frames[0], &mut Vec::new()).is_err());
 }
@@ -135,7 +135,7 @@ fn ascii_sentences_with_both_checksums_and_a_wrong_one() {
         panic!("{:?}", frames[1])
     };
     assert_eq!((a.kind, a.checksum), (VnAsciiKind::Imu, VnChecksum::Crc16));
-    let sample = frames[0].to_imu_sample().unwrap();
+    let sample = frames[0].to_imu_sample(RowsFrom::Rates).unwrap();
     assert_eq!(sample.gyro, Some([0.001f32, -0.002, 0.003].map(f64::from)));
     assert_eq!(sample.temp_c, Some(f64::from(25.1f32)));
     assert!(matches!(&frames[2], VnFrame::AsciiOther { body, .. } if body == "VNERR,03"));
@@ -193,7 +193,10 @@ fn output_configuration_changed_mid_stream() {
     VnEncoder.encode(&last, &mut bytes).unwrap();
     let mut d = VnDecoder::new();
     let frames = decode_all(&mut d, &bytes);
-    let decoded: Vec<_> = frames.iter().map(|f| f.to_imu_sample().unwrap()).collect();
+    let decoded: Vec<_> = frames
+        .iter()
+        .map(|f| f.to_imu_sample(RowsFrom::Rates).unwrap())
+        .collect();
     assert_eq!(decoded.len(), 11, "{:?}", d.stats());
     // After the change the uncompensated values are the sample, status from ImuStatus.
     assert_eq!(decoded[7].status, 3);

@@ -1,6 +1,6 @@
 //! Bag input: a [`SampleSource`] over one `sensor_msgs/Imu` topic of a ROS bag or MCAP file
-//! ([`imulab_bag`]), streamed message by message into blocks, so memory is one chunk of the
-//! file and one block of rows. Channels as for sessions: `t` (receive time, seconds from the
+//! ([`imulab_bag`]), streamed message by message into blocks, so memory is a few chunks of
+//! the file and one block of rows. Channels as for sessions: `t` (receive time, seconds from the
 //! first message), `gyro_x…z` (`angular_velocity`, rad/s), `accel_x…z`
 //! (`linear_acceleration`, m/s²) and `t_sensor` (the header stamp, seconds from the first
 //! message's). Gaps are found on the header stamps; a topic whose stamps do not increase

@@ -1,14 +1,16 @@
 //! The ROS messages imulab reads from bags: `sensor_msgs/Imu`, `sensor_msgs/NavSatFix`,
 //! `sensor_msgs/Temperature` and `geometry_msgs/TwistStamped`, in both of their wire
 //! encodings. ROS 2 messages are CDR (the OMG Common Data Representation: little- or
-//! big-endian by the 4-byte encapsulation header, each value aligned to its size) and are
-//! decoded with the `cdr-encoding` crate through the serde structs of [`cdr`]. ROS 1
-//! messages are the ROS 1 serialisation (little-endian, packed, no alignment, strings as a
-//! u32 length then the bytes); the only Rust crate for it (`serde_rosmsg`) has been
-//! unmaintained since 2017 and expects the TCPROS length prefix, so [`decode`] reads it with
-//! a small cursor here.
+//! big-endian by the 4-byte encapsulation header, each value aligned to its size from the
+//! start of the body). ROS 1 messages are the ROS 1 serialisation (little-endian, packed, no
+//! alignment); the only Rust crate for it (`serde_rosmsg`) has been unmaintained since 2017
+//! and expects the TCPROS length prefix. Both have strings as a u32 length then the bytes,
+//! so [`decode`] reads both with one small cursor, field by field, without allocating (a
+//! bag holds millions of IMU messages). The serde structs of [`cdr`] write CDR messages
+//! with the `cdr-encoding` crate (for test bags and benchmarks), which also checks the
+//! cursor's alignment rules in the tests below.
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 /// The message types imulab reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -110,21 +112,21 @@ pub mod cdr {
     use super::*;
 
     /// `builtin_interfaces/Time`.
-    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
     pub struct Time {
         pub sec: i32,
         pub nanosec: u32,
     }
 
     /// `std_msgs/Header`.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Default, PartialEq, Serialize)]
     pub struct Header {
         pub stamp: Time,
         pub frame_id: String,
     }
 
     /// `geometry_msgs/Vector3`.
-    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
     pub struct Vector3 {
         pub x: f64,
         pub y: f64,
@@ -132,7 +134,7 @@ pub mod cdr {
     }
 
     /// `geometry_msgs/Quaternion`.
-    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
     pub struct Quaternion {
         pub x: f64,
         pub y: f64,
@@ -141,7 +143,7 @@ pub mod cdr {
     }
 
     /// `sensor_msgs/Imu`.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Default, PartialEq, Serialize)]
     pub struct Imu {
         pub header: Header,
         pub orientation: Quaternion,
@@ -153,14 +155,14 @@ pub mod cdr {
     }
 
     /// `sensor_msgs/NavSatStatus`.
-    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
     pub struct NavSatStatus {
         pub status: i8,
         pub service: u16,
     }
 
     /// `sensor_msgs/NavSatFix`.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Default, PartialEq, Serialize)]
     pub struct NavSatFix {
         pub header: Header,
         pub status: NavSatStatus,
@@ -172,7 +174,7 @@ pub mod cdr {
     }
 
     /// `sensor_msgs/Temperature`.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Default, PartialEq, Serialize)]
     pub struct Temperature {
         pub header: Header,
         pub temperature: f64,
@@ -180,14 +182,14 @@ pub mod cdr {
     }
 
     /// `geometry_msgs/Twist`.
-    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
     pub struct Twist {
         pub linear: Vector3,
         pub angular: Vector3,
     }
 
     /// `geometry_msgs/TwistStamped`.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[derive(Debug, Clone, Default, PartialEq, Serialize)]
     pub struct TwistStamped {
         pub header: Header,
         pub twist: Twist,
@@ -204,8 +206,29 @@ pub mod cdr {
         out.extend_from_slice(&body);
         out
     }
+}
 
-    pub(super) fn decode<'de, T: Deserialize<'de>>(data: &'de [u8]) -> Result<T, String> {
+/// Reads a message field by field: ROS 1 (little-endian, packed) or CDR (either byte order,
+/// each value aligned to its size from the start of the body).
+struct Cursor<'a> {
+    data: &'a [u8],
+    at: usize,
+    little: bool,
+    aligned: bool,
+}
+
+impl<'a> Cursor<'a> {
+    fn ros1(data: &'a [u8]) -> Self {
+        Cursor {
+            data,
+            at: 0,
+            little: true,
+            aligned: false,
+        }
+    }
+
+    /// The body after the CDR encapsulation header, in the byte order it names.
+    fn cdr(data: &'a [u8]) -> Result<Self, String> {
         if data.len() < 4 {
             return Err(format!("{} bytes, shorter than the CDR header", data.len()));
         }
@@ -215,80 +238,14 @@ pub mod cdr {
             [0, 1] | [0, 3] => true,
             other => return Err(format!("unknown CDR representation {other:02x?}")),
         };
-        let body = &data[4..];
-        let result = if little {
-            cdr_encoding::from_bytes::<T, byteorder::LittleEndian>(body)
-        } else {
-            cdr_encoding::from_bytes::<T, byteorder::BigEndian>(body)
-        };
-        result.map(|(v, _)| v).map_err(|e| format!("CDR: {e}"))
+        Ok(Cursor {
+            data: &data[4..],
+            at: 0,
+            little,
+            aligned: true,
+        })
     }
 
-    pub(super) fn stamp(h: &Header) -> i64 {
-        i64::from(h.stamp.sec) * 1_000_000_000 + i64::from(h.stamp.nanosec)
-    }
-
-    pub(super) fn v3(v: &Vector3) -> [f64; 3] {
-        [v.x, v.y, v.z]
-    }
-}
-
-/// Decodes one message of type `kind` from its bytes.
-pub fn decode(kind: MessageType, encoding: Encoding, data: &[u8]) -> Result<Reading, String> {
-    match encoding {
-        Encoding::Cdr => decode_cdr(kind, data),
-        Encoding::Ros1 => decode_ros1(kind, data),
-    }
-}
-
-fn decode_cdr(kind: MessageType, data: &[u8]) -> Result<Reading, String> {
-    use cdr::{stamp, v3};
-    Ok(match kind {
-        MessageType::Imu => {
-            let m: cdr::Imu = cdr::decode(data)?;
-            Reading::Imu {
-                stamp_ns: stamp(&m.header),
-                gyro: v3(&m.angular_velocity),
-                accel: v3(&m.linear_acceleration),
-            }
-        }
-        MessageType::NavSatFix => {
-            let m: cdr::NavSatFix = cdr::decode(data)?;
-            Reading::Fix(Fix {
-                stamp_ns: stamp(&m.header),
-                status: m.status.status,
-                lat_deg: m.latitude,
-                lon_deg: m.longitude,
-                alt_m: m.altitude,
-                covariance: m.position_covariance,
-                covariance_type: m.position_covariance_type,
-            })
-        }
-        MessageType::Temperature => {
-            let m: cdr::Temperature = cdr::decode(data)?;
-            Reading::Temperature {
-                stamp_ns: stamp(&m.header),
-                celsius: m.temperature,
-            }
-        }
-        MessageType::TwistStamped => {
-            let m: cdr::TwistStamped = cdr::decode(data)?;
-            Reading::Twist {
-                stamp_ns: stamp(&m.header),
-                linear: v3(&m.twist.linear),
-                angular: v3(&m.twist.angular),
-            }
-        }
-    })
-}
-
-/// Reads the ROS 1 serialisation: little-endian, packed.
-struct Ros1Cursor<'a> {
-    data: &'a [u8],
-    at: usize,
-}
-
-impl<'a> Ros1Cursor<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
         let end = self.at.checked_add(n).filter(|&e| e <= self.data.len());
         let Some(end) = end else {
@@ -302,16 +259,28 @@ impl<'a> Ros1Cursor<'a> {
         self.at = end;
         Ok(bytes)
     }
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], String> {
+
+    /// `N` bytes of one value, aligned to `N` in CDR, in little-endian order.
+    fn value<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        if self.aligned {
+            self.at = self.at.next_multiple_of(N);
+        }
         let mut a = [0u8; N];
         a.copy_from_slice(self.take(N)?);
+        if !self.little {
+            a.reverse();
+        }
         Ok(a)
     }
+
+    fn u8(&mut self) -> Result<u8, String> {
+        Ok(self.value::<1>()?[0])
+    }
     fn u32(&mut self) -> Result<u32, String> {
-        Ok(u32::from_le_bytes(self.array()?))
+        Ok(u32::from_le_bytes(self.value()?))
     }
     fn f64(&mut self) -> Result<f64, String> {
-        Ok(f64::from_le_bytes(self.array()?))
+        Ok(f64::from_le_bytes(self.value()?))
     }
     fn f64s<const N: usize>(&mut self) -> Result<[f64; N], String> {
         let mut out = [0.0; N];
@@ -320,19 +289,33 @@ impl<'a> Ros1Cursor<'a> {
         }
         Ok(out)
     }
-    /// `std_msgs/Header` (seq, stamp secs and nsecs, frame_id); returns the stamp in ns.
+    fn skip_string(&mut self) -> Result<(), String> {
+        let len = self.u32()? as usize;
+        self.take(len)?;
+        Ok(())
+    }
+
+    /// `std_msgs/Header`: ROS 1 seq, stamp secs and nsecs, frame_id; ROS 2 stamp sec and
+    /// nanosec, frame_id. The stamp in ns.
     fn header(&mut self) -> Result<i64, String> {
-        let _seq = self.u32()?;
-        let secs = self.u32()?;
+        let secs = if self.aligned {
+            i64::from(self.u32()? as i32)
+        } else {
+            let _seq = self.u32()?;
+            i64::from(self.u32()?)
+        };
         let nsecs = self.u32()?;
-        let frame = self.u32()? as usize;
-        self.take(frame)?;
-        Ok(i64::from(secs) * 1_000_000_000 + i64::from(nsecs))
+        self.skip_string()?;
+        Ok(secs * 1_000_000_000 + i64::from(nsecs))
     }
 }
 
-fn decode_ros1(kind: MessageType, data: &[u8]) -> Result<Reading, String> {
-    let mut c = Ros1Cursor { data, at: 0 };
+/// Decodes one message of type `kind` from its bytes.
+pub fn decode(kind: MessageType, encoding: Encoding, data: &[u8]) -> Result<Reading, String> {
+    let mut c = match encoding {
+        Encoding::Cdr => Cursor::cdr(data)?,
+        Encoding::Ros1 => Cursor::ros1(data),
+    };
     let stamp_ns = c.header()?;
     Ok(match kind {
         MessageType::Imu => {
@@ -349,8 +332,8 @@ fn decode_ros1(kind: MessageType, data: &[u8]) -> Result<Reading, String> {
             }
         }
         MessageType::NavSatFix => {
-            let status = c.array::<1>()?[0] as i8;
-            let _service = c.array::<2>()?;
+            let status = c.u8()? as i8;
+            let _service = c.value::<2>()?;
             Reading::Fix(Fix {
                 stamp_ns,
                 status,
@@ -358,7 +341,7 @@ fn decode_ros1(kind: MessageType, data: &[u8]) -> Result<Reading, String> {
                 lon_deg: c.f64()?,
                 alt_m: c.f64()?,
                 covariance: c.f64s()?,
-                covariance_type: c.array::<1>()?[0],
+                covariance_type: c.u8()?,
             })
         }
         MessageType::Temperature => Reading::Temperature {
@@ -371,4 +354,137 @@ fn decode_ros1(kind: MessageType, data: &[u8]) -> Result<Reading, String> {
             angular: c.f64s()?,
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header(sec: i32, nanosec: u32, frame_id: &str) -> cdr::Header {
+        cdr::Header {
+            stamp: cdr::Time { sec, nanosec },
+            frame_id: frame_id.into(),
+        }
+    }
+
+    /// `value` in big-endian CDR, as some DDS vendors write it.
+    fn encode_big_endian<T: Serialize>(value: &T) -> Vec<u8> {
+        let mut out = vec![0, 0, 0, 0];
+        out.extend(cdr_encoding::to_vec::<T, byteorder::BigEndian>(value).unwrap());
+        out
+    }
+
+    #[test]
+    fn cdr_messages_decode_in_both_byte_orders_whatever_the_frame_ids_padding() {
+        // Frame ids of 0-8 characters shift every later value's alignment padding.
+        for frame_id in ["", "a", "imu", "imu_lnk", "imu_link"] {
+            let imu = cdr::Imu {
+                header: header(1_700_000_000, 123_456_789, frame_id),
+                angular_velocity: cdr::Vector3 {
+                    x: 0.1,
+                    y: -0.2,
+                    z: 0.3,
+                },
+                linear_acceleration: cdr::Vector3 {
+                    x: 1.0,
+                    y: 2.0,
+                    z: 9.8,
+                },
+                orientation_covariance: [-1.0; 9],
+                ..Default::default()
+            };
+            let fix = cdr::NavSatFix {
+                header: header(-5, 7, frame_id),
+                status: cdr::NavSatStatus {
+                    status: -1,
+                    service: 9,
+                },
+                latitude: 48.1,
+                longitude: 11.5,
+                altitude: 520.25,
+                position_covariance: std::array::from_fn(|i| i as f64),
+                position_covariance_type: 2,
+            };
+            let temperature = cdr::Temperature {
+                header: header(3, 4, frame_id),
+                temperature: 24.5,
+                variance: 0.1,
+            };
+            let twist = cdr::TwistStamped {
+                header: header(5, 6, frame_id),
+                twist: cdr::Twist {
+                    linear: cdr::Vector3 {
+                        x: 1.0,
+                        y: 0.0,
+                        z: -1.0,
+                    },
+                    angular: cdr::Vector3 {
+                        x: 0.0,
+                        y: 0.5,
+                        z: 0.0,
+                    },
+                },
+            };
+            let expected = [
+                (
+                    MessageType::Imu,
+                    Reading::Imu {
+                        stamp_ns: 1_700_000_000_123_456_789,
+                        gyro: [0.1, -0.2, 0.3],
+                        accel: [1.0, 2.0, 9.8],
+                    },
+                ),
+                (
+                    MessageType::NavSatFix,
+                    Reading::Fix(Fix {
+                        stamp_ns: -5_000_000_000 + 7,
+                        status: -1,
+                        lat_deg: 48.1,
+                        lon_deg: 11.5,
+                        alt_m: 520.25,
+                        covariance: std::array::from_fn(|i| i as f64),
+                        covariance_type: 2,
+                    }),
+                ),
+                (
+                    MessageType::Temperature,
+                    Reading::Temperature {
+                        stamp_ns: 3_000_000_004,
+                        celsius: 24.5,
+                    },
+                ),
+                (
+                    MessageType::TwistStamped,
+                    Reading::Twist {
+                        stamp_ns: 5_000_000_006,
+                        linear: [1.0, 0.0, -1.0],
+                        angular: [0.0, 0.5, 0.0],
+                    },
+                ),
+            ];
+            let encoded: [(Vec<u8>, Vec<u8>); 4] = [
+                (cdr::encode(&imu), encode_big_endian(&imu)),
+                (cdr::encode(&fix), encode_big_endian(&fix)),
+                (cdr::encode(&temperature), encode_big_endian(&temperature)),
+                (cdr::encode(&twist), encode_big_endian(&twist)),
+            ];
+            for ((kind, reading), (little, big)) in expected.iter().zip(&encoded) {
+                for bytes in [little, big] {
+                    assert_eq!(
+                        decode(*kind, Encoding::Cdr, bytes).as_ref(),
+                        Ok(reading),
+                        "{kind:?}, frame id {frame_id:?}"
+                    );
+                }
+                // Cut short anywhere: never a panic; an error once a value read is cut (an
+                // IMU message ends with its last value read).
+                for n in 0..little.len() {
+                    let cut = decode(*kind, Encoding::Cdr, &little[..n]);
+                    if *kind == MessageType::Imu {
+                        assert!(cut.is_err(), "{n} bytes");
+                    }
+                }
+            }
+        }
+    }
 }

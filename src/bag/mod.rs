@@ -1,7 +1,7 @@
 //! Recordings from ROS: ROS 2 bags and other MCAP files ([`mcap`], through the `mcap`
 //! crate) and ROS 1 bags ([`ros1`]). [`Bag::open`] tells the format by the file's first
 //! bytes and lists its topics (type, message count); [`Bag::read`] streams every message in
-//! file order, holding one chunk at a time, and ends at a cut (a truncated file) with the
+//! file order, holding a few chunks at a time, and ends at a cut (a truncated file) with the
 //! messages before it delivered. [`messages`] decodes the message types imulab uses.
 //!
 //! ROS 2's default sqlite3 storage (`.db3`) is not read: it is refused with the command

@@ -215,6 +215,7 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     let options = DecoderOptions {
         dbc: read(&args.dbc)?,
         config: read(&args.config)?,
+        ..DecoderOptions::default()
     };
     let mut decoder = protocol.open(&options)?;
 

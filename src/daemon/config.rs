@@ -11,6 +11,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use imulab_drivers::codec::csv_line::CsvLineConfig;
+use imulab_drivers::codec::RowsFrom;
 use nalgebra::Matrix3;
 
 use imulab_ingest::mapping::ImuMapping;
@@ -371,6 +372,10 @@ pub struct DeviceConfig {
     pub axes: Option<AxesConfig>,
     #[serde(default)]
     pub units: Option<UnitsConfig>,
+    /// Gyro and accelerometer rows from the rates or from delta theta / delta velocity, for a
+    /// VectorNav or MIP device that sends both; default: the rates.
+    #[serde(default)]
+    pub rows_from: Option<RowsFrom>,
     /// First retry delay after the device vanished or failed to open, ms.
     #[serde(default = "default_retry_initial_ms")]
     pub retry_initial_ms: u64,
@@ -445,6 +450,7 @@ pub struct DeviceSpec {
     pub accel_scale: f64,
     pub dbc: Option<DbcConfig>,
     pub csv: Option<CsvLineConfig>,
+    pub rows_from: RowsFrom,
     pub retry_initial_ms: u64,
     pub retry_max_ms: u64,
     /// Whether this device's undecoded bytes are kept (`/raw/<name>`).
@@ -961,6 +967,16 @@ fn validate_device(
     let transport = validate_transport(d, path, issues);
     validate_dbc(d, path, issues);
     validate_csv(d, path, issues);
+    if d.rows_from.is_some() && !matches!(d.protocol, Protocol::Vectornav | Protocol::Mip) {
+        issues.add(
+            format!("{path}.rows_from"),
+            format!(
+                "protocol `{}` sends no delta theta / delta velocity to choose",
+                d.protocol.name()
+            ),
+            "remove rows_from, or use it with protocol = \"vectornav\" or \"mip\"",
+        );
+    }
     let body_from_sensor = match &d.axes {
         None => Matrix3::identity(),
         Some(axes) => validate_axes(axes, &format!("{path}.axes"), issues),
@@ -980,6 +996,7 @@ fn validate_device(
         accel_scale: units.accel.to_si(),
         dbc: d.dbc.clone(),
         csv: d.csv.clone(),
+        rows_from: d.rows_from.unwrap_or_default(),
         retry_initial_ms: d.retry_initial_ms,
         retry_max_ms: d.retry_max_ms,
         raw_journal: d.raw_journal.unwrap_or(session.raw_journal),

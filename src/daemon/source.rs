@@ -260,7 +260,10 @@ fn read_text(what: &str, path: &Path) -> Result<NamedText, String> {
 /// and checks the files a protocol needs (the DBC and its signal mapping) once, so a bad file
 /// is reported at start-up and by `--check-config`, not on every connection.
 pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
-    let mut options = DecoderOptions::default();
+    let mut options = DecoderOptions {
+        rows_from: device.rows_from,
+        ..DecoderOptions::default()
+    };
     if let Some(dbc) = &device.dbc {
         options.dbc = Some(read_text("DBC file", &dbc.file)?);
         options.config = Some(read_text("DBC signal mapping", &dbc.mapping)?);

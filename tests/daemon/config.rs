@@ -606,3 +606,30 @@ fn dbc_paths_are_relative_to_the_config_file() {
     assert_eq!(dbc.file, dir.path().join("imu.dbc"));
     assert_eq!(dbc.mapping, std::path::Path::new("/etc/m.toml"));
 }
+
+#[test]
+fn rows_from_deltas_is_only_for_vectornav_and_mip() {
+    use imulab_drivers::codec::RowsFrom;
+    assert_issue(
+        &with_session(
+            "",
+            &device("serial = { port = \"/dev/x\" }\nrows_from = \"deltas\""),
+        ),
+        "device[0].rows_from",
+        "sends no delta theta",
+    );
+    let vn = |extra: &str| {
+        with_session(
+            "",
+            &format!(
+                "[[device]]\nname = \"vn\"\nprotocol = \"vectornav\"\nrate_hz = 200\nserial = {{ port = \"/dev/x\" }}\n{extra}\n"
+            ),
+        )
+    };
+    let c = parse(&vn("rows_from = \"deltas\""), "t").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(c.devices[0].rows_from, RowsFrom::Deltas);
+    let c = parse(&vn(""), "t").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(c.devices[0].rows_from, RowsFrom::Rates);
+    let e = reject(&vn("rows_from = \"integrals\""));
+    assert!(e.to_string().contains("rows_from"), "{e}");
+}

@@ -13,7 +13,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::path::Path;
 use std::process::{Command, Output};
-use support::{write_mcap, write_ros1, Message, Topic, Value};
+use support::{mcap_chunks, write_mcap, write_mcap_compressed, write_ros1, Message, Topic, Value};
 
 const T0_NS: i64 = 1_700_000_000_000_000_000;
 
@@ -377,6 +377,83 @@ fn truncated_bags_keep_the_messages_before_the_cut() {
             said.contains(&format!("{rows} messages of the topic before it")),
             "{said}"
         );
+    }
+}
+
+#[test]
+fn a_damaged_mcap_chunk_keeps_the_messages_of_the_chunks_before_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let messages = messages(6_000);
+    // zstd and lz4 chunks with a byte of the compressed data flipped, and stored chunks with
+    // a byte of the last message's data flipped, which only the chunk's CRC-32 shows.
+    for (name, compression) in [
+        ("zstd", Some(mcap::Compression::Zstd)),
+        ("lz4", Some(mcap::Compression::Lz4)),
+        ("stored", None),
+    ] {
+        let path = dir.path().join(format!("{name}.mcap"));
+        write_mcap_compressed(&path, &topics(), &messages, 16 << 10, compression);
+        let mut bytes = std::fs::read(&path).unwrap();
+        let chunks = mcap_chunks(&bytes);
+        assert!(chunks.len() >= 6, "{name}: {} chunks", chunks.len());
+        let (at, len) = chunks[3];
+        let flip = if compression.is_some() {
+            at + 9 + len / 2
+        } else {
+            at + 9 + len - 1
+        };
+        bytes[flip] ^= 0x5a;
+        std::fs::write(&path, &bytes).unwrap();
+        // The messages of chunks 1-3: those logged up to the third chunk's end time.
+        let (third, _) = chunks[2];
+        let end_ns = u64::from_le_bytes(bytes[third + 17..third + 25].try_into().unwrap());
+        let before = messages
+            .iter()
+            .filter(|m| m.log_ns as u64 <= end_ns)
+            .count() as u64;
+        let imu_before = imu_values(&messages)
+            .iter()
+            .filter(|v| v.0 as u64 <= end_ns)
+            .count() as u64;
+
+        let bag = imulab::bag::Bag::open(&path).unwrap();
+        let mut seen = 0u64;
+        let end = bag
+            .read::<imulab::bag::BagError>(&mut |_| {
+                seen += 1;
+                Ok(())
+            })
+            .unwrap();
+        assert_eq!(
+            (end.messages, seen),
+            (before, before),
+            "{name}: {:?}",
+            end.cut
+        );
+        let cut = end.cut.unwrap_or_default();
+        assert!(
+            cut.contains(&format!("chunk 4 (at byte {at}) is damaged")),
+            "{name}: {cut}"
+        );
+        if compression.is_none() {
+            assert!(cut.contains("CRC-32"), "{name}: {cut}");
+        }
+
+        let session = dir.path().join(format!("{name}.session"));
+        let out = imulab(&[
+            "import",
+            path.to_str().unwrap(),
+            "-o",
+            session.to_str().unwrap(),
+        ]);
+        let said = text(&out);
+        assert!(out.status.success(), "{said}");
+        assert!(said.contains(&format!("chunk 4 (at byte {at})")), "{said}");
+        let rows = Session::open(&session)
+            .unwrap()
+            .stream_summary("/imu/imu_data")
+            .rows;
+        assert_eq!(rows, imu_before, "{name}");
     }
 }
 

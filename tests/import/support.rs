@@ -191,9 +191,27 @@ pub fn ros1_bytes(value: &Value) -> Vec<u8> {
 
 /// Writes an MCAP file of CDR messages, chunked (zstd) with chunks of about `chunk_bytes`.
 pub fn write_mcap(path: &Path, topics: &[Topic], messages: &[Message], chunk_bytes: u64) {
+    write_mcap_compressed(
+        path,
+        topics,
+        messages,
+        chunk_bytes,
+        Some(mcap::Compression::Zstd),
+    );
+}
+
+/// [`write_mcap`] with the chunks' compression chosen (`None`: stored as they are).
+pub fn write_mcap_compressed(
+    path: &Path,
+    topics: &[Topic],
+    messages: &[Message],
+    chunk_bytes: u64,
+    compression: Option<mcap::Compression>,
+) {
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut writer = mcap::WriteOptions::new()
         .chunk_size(Some(chunk_bytes))
+        .compression(compression)
         .profile("ros2")
         .create(file)
         .unwrap();
@@ -369,4 +387,20 @@ fn bag_header(index_pos: u64, connections: u32, chunks: u32) -> Vec<u8> {
     let header_len: usize = fields.iter().map(Vec::len).sum();
     let padding = 4096 - 8 - header_len;
     record(&fields, &vec![b' '; padding])
+}
+
+/// Offset and data length of every chunk record of an MCAP file, in file order.
+pub fn mcap_chunks(bytes: &[u8]) -> Vec<(usize, usize)> {
+    let mut at = 8;
+    let mut out = Vec::new();
+    while at + 9 <= bytes.len() {
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        match bytes[at] {
+            0x06 => out.push((at, len)),
+            0x0F => break,
+            _ => {}
+        }
+        at += 9 + len;
+    }
+    out
 }

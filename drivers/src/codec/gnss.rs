@@ -30,7 +30,8 @@
 //!   VTG, GST, GSA, ZDA;
 //! - HDOP and VDOP: GGA/GNS and GSA (UBX NAV-PVT carries only PDOP);
 //! - fix type: NAV-PVT (else NAV-STATUS) when the epoch has one, else the NMEA judgement
-//!   ([`NmeaEpoch::fix_type`]: GGA/GNS quality and altitude, then the GSA mode);
+//!   ([`NmeaEpoch::fix_type`]: GGA/GNS quality and altitude, then the GSA mode; a GGA of
+//!   no fix or fewer than 3 satellites yields to a GSA fix from 3 or more);
 //! - GPS week and time of week: UBX only.
 //!
 //! `source` says whether any UBX message contributed ([`FixSource::Ubx`]) or only NMEA.
@@ -123,7 +124,10 @@ struct NmeaEpoch {
     fix: GnssFix,
     has_data: bool,
     gsa_mode: Option<u8>,
+    /// Satellites the cycle's GSA sentences list as used (summed over constellations).
+    gsa_used: u32,
     gga_quality: Option<u8>,
+    gga_sats: Option<u8>,
     rmc_status: Option<char>,
     gll_status: Option<char>,
     gns_no_fix: Option<bool>,
@@ -150,6 +154,7 @@ impl NmeaEpoch {
         match sentence {
             NmeaSentence::Gga(s) => {
                 self.gga_quality = s.quality;
+                self.gga_sats = s.num_sats;
                 f.num_sats = s.num_sats.or(f.num_sats);
                 f.hdop = s.hdop.map(|d| d.to_f64()).or(f.hdop);
                 if let Some(alt) = s.alt_msl_m {
@@ -190,6 +195,7 @@ impl NmeaEpoch {
                 if s.fix_mode.is_some() {
                     self.gsa_mode = s.fix_mode;
                 }
+                self.gsa_used += s.sat_ids.iter().filter(|id| id.is_some()).count() as u32;
                 f.pdop = s.pdop.map(|d| d.to_f64()).or(f.pdop);
                 f.hdop = s.hdop.map(|d| d.to_f64()).or(f.hdop);
                 f.vdop = s.vdop.map(|d| d.to_f64()).or(f.vdop);
@@ -218,12 +224,23 @@ impl NmeaEpoch {
 
     /// Fix type of a cycle, judged from its own sentences: GGA (or GNS) quality and
     /// altitude first (quality 0 is no fix, otherwise 3D with an altitude and 2D without),
-    /// then the GSA mode. A cycle with only a valid RMC or GLL keeps the previous cycle's
-    /// dimension (2D at least), as gpsd does. DGNSS/RTK qualities refine a 3D fix.
+    /// then the GSA mode. A GGA that says no fix or fewer than 3 satellites yields to a GSA
+    /// of the cycle that says a 2D or 3D fix from 3 or more satellites (gpsd does the same:
+    /// such a GGA is a receiver reporting before its count is updated). A cycle with only a
+    /// valid RMC or GLL keeps the previous cycle's dimension (2D at least), as gpsd does.
+    /// DGNSS/RTK qualities refine a 3D fix.
     fn fix_type(&self, previous: FixType) -> FixType {
         let has_alt = self.fix.height_msl_m.is_some();
         let weak_valid = matches!(self.rmc_status, Some('A' | 'D'))
             || matches!(self.gll_status, Some('A' | 'D'));
+        let weak_gga = self.gga_quality == Some(0) || self.gga_sats.is_some_and(|n| n < 3);
+        if weak_gga && self.gsa_used >= 3 {
+            match self.gsa_mode {
+                Some(3) => return FixType::Fix3D,
+                Some(2) => return FixType::Fix2D,
+                _ => {}
+            }
+        }
         let base = match (self.gga_quality, self.gns_no_fix, self.gsa_mode) {
             (Some(0), _, _) | (None, Some(true), _) => FixType::NoFix,
             (Some(6), _, _) => FixType::DeadReckoning,
@@ -1155,6 +1172,43 @@ $GPGGA,123520,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*4D\r\n";
 
     use crate::codec::ubx::{NavPvt, RawMessage, UbxEncoder};
     use crate::codec::Encoder;
+
+    /// The fix type of one NMEA cycle (GGA then GSA, with an altitude) and the next one's
+    /// GGA that closes it.
+    fn gga_gsa_fix(quality: u8, gga_sats: u8, gsa_mode: u8, gsa_used: &[u8]) -> FixType {
+        let ids: Vec<String> = (0..12)
+            .map(|i| {
+                gsa_used
+                    .get(i)
+                    .map_or(String::new(), |id| format!("{id:02}"))
+            })
+            .collect();
+        let stream = [
+            format!("GPGGA,120326,4221.3871,N,01322.0800,E,{quality},{gga_sats:02},3.1,746.1,M,44.2,M,,"),
+            format!("GPGSA,A,{gsa_mode},{},3.1,3.1,", ids.join(",")),
+            "GPGGA,120327,4221.3872,N,01322.0800,E,1,03,3.1,746.1,M,44.2,M,,".to_string(),
+        ]
+        .iter()
+        .map(|b| with_checksum(b))
+        .collect::<String>();
+        let fixes = fixes_of(stream.as_bytes());
+        assert_eq!(fixes.len(), 2, "{fixes:#?}");
+        fixes[0].1.fix.fix
+    }
+
+    #[test]
+    fn a_gga_with_fewer_than_3_satellites_yields_to_the_cycles_gsa_mode() {
+        // The Garmin GPS 25LP of gpsd's captures: quality 1, altitude, 0 satellites; its GSA
+        // says 2D from 3 satellites.
+        assert_eq!(gga_gsa_fix(1, 0, 2, &[1, 3, 14]), FixType::Fix2D);
+        assert_eq!(gga_gsa_fix(0, 0, 3, &[1, 3, 14, 19]), FixType::Fix3D);
+        // A GSA with fewer than 3 satellites, or saying no fix, does not overrule the GGA.
+        assert_eq!(gga_gsa_fix(1, 0, 2, &[1, 3]), FixType::Fix3D);
+        assert_eq!(gga_gsa_fix(1, 2, 1, &[1, 3, 14]), FixType::Fix3D);
+        assert_eq!(gga_gsa_fix(0, 0, 2, &[1, 3]), FixType::NoFix);
+        // With 3 or more satellites the GGA's quality and altitude decide.
+        assert_eq!(gga_gsa_fix(1, 3, 2, &[1, 3, 14]), FixType::Fix3D);
+    }
 
     /// A NAV-PVT of 2026-12-01 at `sec` seconds past 12:00:00 UTC (iTOW with 18 leap
     /// seconds: Tuesday), 3D fix at 48.1°N 11.5°E, 2 m/s north.

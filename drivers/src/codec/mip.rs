@@ -11,13 +11,16 @@
 //! ticks), GPS correlation timestamp (0x12: time of week s, week, valid flags), scaled
 //! ambient pressure (0x17, mbar), and the shared GPS timestamp (0xD3, same layout as 0x12)
 //! and reference timestamp (0xD5, ns). Other IMU fields are counted in `skipped_fields`.
-//! The IMU data set defines no temperature field, so MIP samples carry none. Command
+//! The IMU data set defines no temperature field, so MIP samples carry none. A device set
+//! to output delta theta / delta velocity instead of scaled gyro / accelerometer gives the
+//! same gyro and accelerometer rows: [`MipSamples`] takes each delta over the device-time
+//! interval since the previous IMU data packet. Command
 //! replies (a command descriptor set whose first field is the ACK/NACK field 0xF1: echoed
 //! command descriptor, error code) are [`MipPacket::Reply`]; other packets are kept whole
 //! as [`MipPacket::Other`]. Neither is a sample.
 
-use super::reading::{DeviceClock, Reading, ToReading};
-use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use super::reading::DeviceClock;
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, RowsFrom, Scan, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 pub const SYNC1: u8 = 0x75;
@@ -83,29 +86,57 @@ pub struct MipImuData {
     pub skipped_fields: u16,
 }
 
+/// Longest device-time interval between two IMU data packets over which a delta is taken
+/// as a rate, s (a longer one is a gap or a lost packet).
+pub const MAX_DELTA_INTERVAL_S: f64 = 1.0;
+
 impl MipImuData {
     /// The SI sample, or `None` without accelerometer or gyro. Device time: the GPS
     /// correlation time of week (s), else the shared GPS time of week, else the reference
-    /// timestamp (s), else the internal timestamp in its ticks.
-    pub fn to_imu_sample(&self) -> Option<ImuSample> {
-        if self.scaled_accel_g.is_none() && self.scaled_gyro.is_none() {
+    /// timestamp (s), else the internal timestamp in its ticks. Without scaled gyro (or
+    /// accelerometer), delta theta (or delta velocity) over `delta_interval_s`, the
+    /// device-time interval since the previous IMU data packet ([`MipSamples`]), gives it;
+    /// with [`RowsFrom::Deltas`] the deltas come first.
+    pub fn to_imu_sample(
+        &self,
+        delta_interval_s: Option<f64>,
+        rows_from: RowsFrom,
+    ) -> Option<ImuSample> {
+        let interval = delta_interval_s.filter(|dt| dt.is_finite() && *dt > 0.0);
+        let per_second = |delta: Option<[f32; 3]>, scale: f64| {
+            let dt = interval?;
+            delta.map(|d| d.map(|x| f64::from(x) * scale / dt))
+        };
+        let rate = self.scaled_gyro.map(|v| v.map(f64::from));
+        let from_delta = per_second(self.delta_theta, 1.0);
+        let accel = self
+            .scaled_accel_g
+            .map(|v| v.map(|g| f64::from(g) * STANDARD_GRAVITY));
+        let accel_from_delta = per_second(self.delta_velocity_gs, STANDARD_GRAVITY);
+        let (gyro, accel) = match rows_from {
+            RowsFrom::Rates => (rate.or(from_delta), accel.or(accel_from_delta)),
+            RowsFrom::Deltas => (from_delta.or(rate), accel_from_delta.or(accel)),
+        };
+        if gyro.is_none() && accel.is_none() {
             return None;
         }
-        let sensor_time = self
-            .gps_correlation_time
-            .or(self.shared_gps_time)
-            .map(|t| t.tow_s)
-            .or(self.reference_time_ns.map(|ns| ns as f64 / 1e9))
-            .or(self.internal_timestamp.map(f64::from));
+        let sensor_time = self.seconds().or(self.internal_timestamp.map(f64::from));
         Some(ImuSample {
             sensor_time,
-            gyro: self.scaled_gyro.map(|v| v.map(f64::from)),
-            accel: self
-                .scaled_accel_g
-                .map(|v| v.map(|g| f64::from(g) * STANDARD_GRAVITY)),
+            gyro,
+            accel,
             temp_c: None,
             status: 0,
         })
+    }
+
+    /// The device time in seconds: GPS correlation time of week, else shared GPS time of
+    /// week, else the reference timestamp.
+    fn seconds(&self) -> Option<f64> {
+        self.gps_correlation_time
+            .or(self.shared_gps_time)
+            .map(|t| t.tow_s)
+            .or(self.reference_time_ns.map(|ns| ns as f64 / 1e9))
     }
 }
 
@@ -130,9 +161,11 @@ pub enum MipPacket {
 }
 
 impl MipPacket {
+    /// The sample of this packet alone: its scaled gyro and accelerometer (deltas need the
+    /// interval since the previous packet: [`MipSamples`]).
     pub fn to_imu_sample(&self) -> Option<ImuSample> {
         match self {
-            MipPacket::Imu(data) => data.to_imu_sample(),
+            MipPacket::Imu(data) => data.to_imu_sample(None, RowsFrom::Rates),
             _ => None,
         }
     }
@@ -463,9 +496,62 @@ impl Encoder for MipEncoder {
 }
 
 /// IMU data packets with accelerometer or gyro are readings; command replies are not.
-impl ToReading for MipPacket {
-    fn to_reading(self) -> Option<Reading> {
-        self.to_imu_sample().map(Reading::Imu)
+/// The IMU samples of a MIP stream (what `imulogd` logs): [`MipDecoder`]'s IMU data packets
+/// as SI samples, a delta taken over the device-time interval since the previous IMU data
+/// packet when nothing was lost between the two (no checksum error, malformed or too long
+/// frame, or skipped byte) and the interval is positive and at most
+/// [`MAX_DELTA_INTERVAL_S`]. Replies and other packets are no samples.
+#[derive(Debug, Default, Clone)]
+pub struct MipSamples {
+    packets: MipDecoder,
+    rows_from: RowsFrom,
+    /// Device time (s) of the previous IMU data packet and [`loss`] of the stream then.
+    previous: Option<(f64, u64)>,
+}
+
+impl MipSamples {
+    pub fn new(rows_from: RowsFrom) -> Self {
+        MipSamples {
+            rows_from,
+            ..Self::default()
+        }
+    }
+}
+
+/// Evidence of lost bytes in a stream: every count of bytes or frames not accepted.
+fn loss(stats: &DecoderStats) -> u64 {
+    stats.checksum_errors + stats.frames_malformed + stats.frames_too_long + stats.bytes_skipped
+}
+
+impl Decoder for MipSamples {
+    type Frame = ImuSample;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.packets.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<ImuSample> {
+        loop {
+            let MipPacket::Imu(data) = self.packets.poll()? else {
+                continue;
+            };
+            let lost = loss(&self.packets.stats());
+            let now = data.seconds();
+            let interval = match (self.previous, now) {
+                (Some((before, lost_before)), Some(now)) if lost_before == lost => {
+                    Some(now - before).filter(|dt| *dt <= MAX_DELTA_INTERVAL_S)
+                }
+                _ => None,
+            };
+            self.previous = now.map(|t| (t, lost));
+            if let Some(sample) = data.to_imu_sample(interval, self.rows_from) {
+                return Some(sample);
+            }
+        }
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.packets.stats()
     }
 }
 
@@ -488,6 +574,32 @@ pub fn encode_sample(
     MipEncoder.encode(&MipPacket::Imu(data), out)
 }
 
+/// The IMU data packet of a device set to output integrated motion: delta theta (rad) and
+/// delta velocity (g·s) of the sample's rate and acceleration over `interval_s`, the output
+/// period, and the reference timestamp of [`encode_sample`].
+pub fn encode_delta_sample(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    interval_s: f64,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    if !(interval_s.is_finite() && interval_s > 0.0) {
+        return Err(EncodeError::Invalid {
+            field: "interval_s",
+            reason: "the output period must be positive",
+        });
+    }
+    let data = MipImuData {
+        delta_theta: sample.gyro.map(|v| v.map(|x| (x * interval_s) as f32)),
+        delta_velocity_gs: sample
+            .accel
+            .map(|v| v.map(|x| (x / STANDARD_GRAVITY * interval_s) as f32)),
+        reference_time_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
+        ..MipImuData::default()
+    };
+    MipEncoder.encode(&MipPacket::Imu(data), out)
+}
+
 /// Auto-detection score: checksummed MIP packets, at least [`DETECT_MIN_FRAMES`].
 pub fn detect_score(sample: &[u8]) -> u32 {
     let frames = accepted_frames(MipDecoder::new(), sample);
@@ -501,6 +613,73 @@ pub fn detect_score(sample: &[u8]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn delta_packets_give_rates_over_the_device_time_interval() {
+        let sample = |k: u32| ImuSample {
+            sensor_time: None,
+            gyro: Some([0.1 * f64::from(k), -0.2, 0.3]),
+            accel: Some([0.5, -1.0, 9.8]),
+            temp_c: None,
+            status: 0,
+        };
+        let clock = |k: u32| DeviceClock {
+            time_s: 100.0 + 0.01 * f64::from(k),
+            ..DeviceClock::default()
+        };
+        let mut bytes = Vec::new();
+        for k in 1..=3 {
+            encode_delta_sample(&sample(k), &clock(k), 0.01, &mut bytes).unwrap();
+        }
+        // The wire carries deltas only.
+        let mut packets = MipDecoder::new();
+        let mut frames = Vec::new();
+        packets.decode(&bytes, |f| frames.push(f));
+        let MipPacket::Imu(first) = &frames[0] else {
+            panic!("{frames:?}")
+        };
+        assert_eq!((first.scaled_gyro, first.scaled_accel_g), (None, None));
+        assert_eq!(frames[0].to_imu_sample(), None);
+        // The first packet has no interval before it; the next two have 10 ms each.
+        let mut samples = MipSamples::new(RowsFrom::Rates);
+        let mut decoded = Vec::new();
+        samples.decode(&bytes, |s| decoded.push(s));
+        assert_eq!(decoded.len(), 2, "{decoded:?}");
+        for (k, got) in (2..=3).zip(&decoded) {
+            let want = sample(k);
+            for (g, w) in got.gyro.unwrap().iter().zip(want.gyro.unwrap()) {
+                assert!((g - w).abs() < 1e-5 * w.abs().max(1.0), "{g} vs {w}");
+            }
+            for (a, w) in got.accel.unwrap().iter().zip(want.accel.unwrap()) {
+                assert!((a - w).abs() < 1e-5 * w.abs().max(1.0), "{a} vs {w}");
+            }
+            assert!((got.sensor_time.unwrap() - clock(k).time_s).abs() < 1e-9);
+        }
+        // A damaged packet between two: no interval across it.
+        let mut damaged = bytes.clone();
+        let second = bytes.len() / 3;
+        damaged[second + 8] ^= 0xFF;
+        let mut samples = MipSamples::new(RowsFrom::Rates);
+        let mut decoded = Vec::new();
+        samples.decode(&damaged, |s| decoded.push(s));
+        assert_eq!(decoded.len(), 0, "{decoded:?}");
+        assert_eq!(samples.stats().checksum_errors, 1);
+        assert!(encode_delta_sample(&sample(1), &clock(1), 0.0, &mut Vec::new()).is_err());
+        // A packet with both: the scaled values, or the deltas when they are asked for.
+        let both = MipImuData {
+            scaled_gyro: Some([1.0, 2.0, 3.0]),
+            delta_theta: Some([0.01, 0.02, 0.04]),
+            ..MipImuData::default()
+        };
+        let rates = both.to_imu_sample(Some(0.01), RowsFrom::Rates).unwrap();
+        assert_eq!(rates.gyro, Some([1.0, 2.0, 3.0]));
+        let deltas = both.to_imu_sample(Some(0.01), RowsFrom::Deltas).unwrap();
+        let gyro = deltas.gyro.unwrap();
+        assert!((gyro[2] - 4.0).abs() < 1e-6, "{gyro:?}");
+        // Without an interval the deltas give nothing and the scaled values stand.
+        let fallback = both.to_imu_sample(None, RowsFrom::Deltas).unwrap();
+        assert_eq!(fallback.gyro, Some([1.0, 2.0, 3.0]));
+    }
 
     #[test]
     fn manual_example_checksum() {

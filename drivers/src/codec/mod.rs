@@ -168,6 +168,20 @@ pub struct DecoderOptions {
     pub dbc: Option<NamedText>,
     /// Protocol-specific configuration file (e.g. a CSV column map or a DBC signal map).
     pub config: Option<NamedText>,
+    /// Rates or their integrals, for a device that sends both (VectorNav, MIP).
+    pub rows_from: RowsFrom,
+}
+
+/// Where an IMU's gyro and accelerometer rows come from when the device sends both its rates
+/// and their integrals (VectorNav, MIP): the rates, or delta theta / delta velocity over
+/// their interval (which also hold the motion between two samples). Either way a device that
+/// sends only one of them gives rows from it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RowsFrom {
+    #[default]
+    Rates,
+    Deltas,
 }
 
 /// The text of a file the caller read, with the name its error messages use.
@@ -262,12 +276,12 @@ pub const PROTOCOLS: &[ProtocolEntry] = &[
     ProtocolEntry { protocol: Protocol::ImuLine, name: "imu-line", summary: "$IMU,t,gx,gy,gz,ax,ay,az[,temp]*CS ASCII lines", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: imu_line::detect_score, json: Some(|_| Ok(Box::new(imu_line::ImuLineDecoder::new()))), readings: |_| Ok(byte_readings(imu_line::ImuLineDecoder::new)), encoder: Some(|_| Ok(imu_encoder(imu_line::encode_sample))) },
     ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: gnss::detect_score, json: Some(|_| Ok(Box::new(gnss::GnssDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(gnss::encode_fix))) },
     ProtocolEntry { protocol: Protocol::UbxEsf, name: "ubx-esf", summary: "u-blox dead-reckoning receiver's IMU (UBX ESF-RAW, ESF-MEAS) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(|_| Ok(Box::new(gnss::EsfImuDecoder::new()))), readings: |_| Ok(byte_readings(gnss::EsfImuDecoder::new)), encoder: None },
-    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: vectornav::detect_score, json: Some(|_| Ok(Box::new(vectornav::VnDecoder::new()))), readings: |_| Ok(byte_readings(vectornav::VnDecoder::new)), encoder: Some(|_| Ok(imu_encoder(vectornav::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: vectornav::detect_score, json: Some(|_| Ok(Box::new(vectornav::VnDecoder::new()))), readings: |o| { let from = o.rows_from; Ok(byte_readings(move || vectornav::VnSamples::new(from))) }, encoder: Some(|_| Ok(imu_encoder(vectornav::encode_sample))) },
     ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: nmea::detect_score, json: Some(|_| Ok(Box::new(nmea::NmeaDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(nmea::encode_fix))) },
     ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: ubx::detect_score, json: Some(|_| Ok(Box::new(ubx::UbxDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(ubx::encode_fix))) },
     ProtocolEntry { protocol: Protocol::Wit, name: "wit", summary: "WitMotion serial IMU (0x55 packets) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: witmotion::detect_score, json: Some(|_| Ok(Box::new(witmotion::WitImuDecoder::new()))), readings: |_| Ok(byte_readings(witmotion::WitImuDecoder::new)), encoder: Some(|_| Ok(imu_encoder(witmotion::encode_sample))) },
     ProtocolEntry { protocol: Protocol::Xbus, name: "xbus", summary: "Xsens MTi Xbus messages, MTData2 decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: xbus::detect_score, json: Some(|_| Ok(Box::new(xbus::XbusDecoder::new()))), readings: |_| Ok(byte_readings(xbus::XbusDecoder::new)), encoder: Some(|_| Ok(imu_encoder(xbus::encode_sample))) },
-    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: mip::detect_score, json: Some(|_| Ok(Box::new(mip::MipDecoder::new()))), readings: |_| Ok(byte_readings(mip::MipDecoder::new)), encoder: Some(|_| Ok(imu_encoder(mip::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: mip::detect_score, json: Some(|_| Ok(Box::new(mip::MipDecoder::new()))), readings: |o| { let from = o.rows_from; Ok(byte_readings(move || mip::MipSamples::new(from))) }, encoder: Some(|_| Ok(imu_encoder(mip::encode_sample))) },
     ProtocolEntry { protocol: Protocol::Csv, name: "csv", summary: "ASCII/CSV IMU lines (column map from --config)", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(csv_line::open_json), readings: csv_line::readings, encoder: Some(csv_line::encoder) },
     ProtocolEntry { protocol: Protocol::Slcan, name: "slcan", summary: "slcan ASCII CAN (with --dbc and --config: IMU samples)", kind: Kind::Imu, link: Link::Bytes, dbc: true, detect: slcan::detect_score, json: Some(dbc::open_slcan_json), readings: dbc::slcan_readings, encoder: Some(dbc::slcan_encoder) },
     ProtocolEntry { protocol: Protocol::Candump, name: "candump", summary: "candump log (with --dbc and --config: IMU samples)", kind: Kind::Imu, link: Link::Bytes, dbc: true, detect: candump::detect_score, json: Some(dbc::open_candump_json), readings: dbc::candump_readings, encoder: None },

@@ -19,12 +19,15 @@
 //! text and are no samples.
 //!
 //! Units are the manual's: angles °, angular rate rad/s, acceleration m/s², magnetic field
-//! gauss, temperature °C, pressure kPa, time ns, delta theta °, delta velocity m/s.
+//! gauss, temperature °C, pressure kPa, time ns, delta theta °, delta velocity m/s. A
+//! sample without a rate (or acceleration) but with delta theta (or delta velocity) takes
+//! the rate as the delta over the message's own integration interval (delta time): a sensor
+//! set to output integrated motion logs the same gyro and accelerometer rows.
 
 use crc::{Crc, Table, CRC_16_XMODEM};
 
-use super::reading::{DeviceClock, Reading, ToReading};
-use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, Scan, StreamBuffer};
+use super::reading::DeviceClock;
+use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, RowsFrom, Scan, StreamBuffer};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Binary packet sync byte.
@@ -162,12 +165,29 @@ pub struct VnValues {
 
 impl VnValues {
     /// The SI sample: time since startup (s, else GPS time of week), compensated rate and
-    /// acceleration (the uncompensated ones when only those are output), temperature, and
-    /// the IMU status word (else the INS status).
-    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+    /// acceleration (the uncompensated ones when only those are output; without either,
+    /// delta theta and delta velocity over their own integration interval, `delta_time_s`;
+    /// with [`RowsFrom::Deltas`] the deltas first), temperature, and the IMU status word
+    /// (else the INS status).
+    pub fn to_imu_sample(&self, rows_from: RowsFrom) -> Option<ImuSample> {
         let f64s = |v: [f32; 3]| v.map(f64::from);
-        let gyro = self.angular_rate.or(self.uncomp_gyro).map(f64s);
+        // A rate from a delta needs a positive, finite integration interval.
+        let interval = self
+            .delta_time_s
+            .map(f64::from)
+            .filter(|dt| dt.is_finite() && *dt > 0.0);
+        let per_second = |delta: Option<[f32; 3]>, scale: f64| {
+            let dt = interval?;
+            delta.map(|d| d.map(|x| f64::from(x) * scale / dt))
+        };
+        let rate = self.angular_rate.or(self.uncomp_gyro).map(f64s);
+        let from_delta = per_second(self.delta_theta_deg, std::f64::consts::PI / 180.0);
         let accel = self.accel.or(self.uncomp_accel).map(f64s);
+        let accel_from_delta = per_second(self.delta_velocity, 1.0);
+        let (gyro, accel) = match rows_from {
+            RowsFrom::Rates => (rate.or(from_delta), accel.or(accel_from_delta)),
+            RowsFrom::Deltas => (from_delta.or(rate), accel_from_delta.or(accel)),
+        };
         if gyro.is_none() && accel.is_none() {
             return None;
         }
@@ -345,11 +365,12 @@ pub enum VnFrame {
 }
 
 impl VnFrame {
-    /// The IMU sample this frame carries, if it has angular rate or acceleration.
-    pub fn to_imu_sample(&self) -> Option<ImuSample> {
+    /// The IMU sample this frame carries, if it has angular rate, acceleration or their
+    /// deltas ([`VnValues::to_imu_sample`]).
+    pub fn to_imu_sample(&self, rows_from: RowsFrom) -> Option<ImuSample> {
         match self {
-            VnFrame::Binary(b) => b.values.to_imu_sample(),
-            VnFrame::Ascii(a) => a.values.to_imu_sample(),
+            VnFrame::Binary(b) => b.values.to_imu_sample(rows_from),
+            VnFrame::Ascii(a) => a.values.to_imu_sample(rows_from),
             VnFrame::AsciiOther { .. } => None,
         }
     }
@@ -1030,11 +1051,41 @@ fn encode_text(body: &[u8], checksum: VnChecksum, out: &mut Vec<u8>) -> Result<(
     Ok(())
 }
 
-/// Binary packets and ASCII sentences with angular rate or acceleration are readings;
-/// attitude-only output and register replies are not.
-impl ToReading for VnFrame {
-    fn to_reading(self) -> Option<Reading> {
-        self.to_imu_sample().map(Reading::Imu)
+/// The IMU samples of a VectorNav stream (what `imulogd` logs): binary packets and ASCII
+/// sentences with angular rate, acceleration or their deltas, taken as
+/// [`VnValues::to_imu_sample`] says; attitude-only output and register replies are none.
+#[derive(Debug, Default, Clone)]
+pub struct VnSamples {
+    frames: VnDecoder,
+    rows_from: RowsFrom,
+}
+
+impl VnSamples {
+    pub fn new(rows_from: RowsFrom) -> Self {
+        VnSamples {
+            frames: VnDecoder::new(),
+            rows_from,
+        }
+    }
+}
+
+impl Decoder for VnSamples {
+    type Frame = ImuSample;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.frames.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<ImuSample> {
+        loop {
+            if let Some(sample) = self.frames.poll()?.to_imu_sample(self.rows_from) {
+                return Some(sample);
+            }
+        }
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.frames.stats()
     }
 }
 
@@ -1075,6 +1126,51 @@ pub fn encode_sample(
     VnEncoder.encode(&VnFrame::Binary(packet), out)
 }
 
+/// The binary output packet of a VectorNav set to output integrated motion instead of
+/// rates: Common group TimeStartup and DeltaThetaVel (the integration interval
+/// `interval_s`, the sample's rate and acceleration times it, angles in °), IMU group
+/// ImuStatus and Temp as [`encode_sample`].
+pub fn encode_delta_sample(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    interval_s: f64,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    if !(interval_s.is_finite() && interval_s > 0.0) {
+        return Err(EncodeError::Invalid {
+            field: "interval_s",
+            reason: "the integration interval must be positive",
+        });
+    }
+    let (Some(gyro), Some(accel)) = (sample.gyro, sample.accel) else {
+        return Err(EncodeError::Invalid {
+            field: "sample",
+            reason: "DeltaThetaVel carries both delta theta and delta velocity",
+        });
+    };
+    let delta = |v: [f64; 3], scale: f64| v.map(|x| (x * scale * interval_s) as f32);
+    let temp = sample.temp_c.map(|t| t as f32);
+    let imu_fields = imu::IMU_STATUS | if temp.is_some() { imu::TEMP } else { 0 };
+    let packet = VnBinary {
+        fields: VnOutputFields {
+            common: common::TIME_STARTUP | common::DELTA_THETA_VEL,
+            imu: imu_fields,
+            ..VnOutputFields::default()
+        },
+        values: VnValues {
+            time_startup_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
+            delta_time_s: Some(interval_s as f32),
+            delta_theta_deg: Some(delta(gyro, 180.0 / std::f64::consts::PI)),
+            delta_velocity: Some(delta(accel, 1.0)),
+            temp_c: temp,
+            imu_status: Some((sample.status & 0xFFFF) as u16),
+            ..VnValues::default()
+        },
+        skipped_fields: 0,
+    };
+    VnEncoder.encode(&VnFrame::Binary(packet), out)
+}
+
 /// Auto-detection score. At least [`DETECT_MIN_FRAMES`] checksummed VectorNav frames, else
 /// 0. Each counts twice: a `$VN` sentence is also a well-formed NMEA sentence of talker
 /// `VN`, and VectorNav must win over NMEA on a VectorNav ASCII stream.
@@ -1096,6 +1192,60 @@ mod tests {
         let mut frames = Vec::new();
         d.decode(bytes, |f| frames.push(f));
         (frames, d.stats())
+    }
+
+    #[test]
+    fn delta_theta_and_velocity_give_rates_over_their_own_interval() {
+        let sample = ImuSample {
+            sensor_time: None,
+            gyro: Some([0.1, -0.2, 0.3]),
+            accel: Some([0.5, -1.0, 9.8]),
+            temp_c: Some(25.0),
+            status: 3,
+        };
+        let clock = DeviceClock {
+            time_s: 12.5,
+            ..DeviceClock::default()
+        };
+        let mut bytes = Vec::new();
+        encode_delta_sample(&sample, &clock, 0.005, &mut bytes).unwrap();
+        let (frames, stats) = decode_all(&bytes);
+        assert_eq!(stats.frames_ok, 1, "{stats:?}");
+        let VnFrame::Binary(packet) = &frames[0] else {
+            panic!("{frames:?}")
+        };
+        // The wire carries deltas only: 0.005 s of 0.1 rad/s is 0.02865°.
+        assert_eq!(packet.values.angular_rate, None);
+        assert_eq!(packet.values.accel, None);
+        let dtheta = packet.values.delta_theta_deg.unwrap();
+        assert!((f64::from(dtheta[0]) - 0.1 * 0.005 * 180.0 / std::f64::consts::PI).abs() < 1e-7);
+        let decoded = frames[0].to_imu_sample(RowsFrom::Rates).unwrap();
+        for (got, want) in decoded.gyro.unwrap().iter().zip(sample.gyro.unwrap()) {
+            assert!(
+                (got - want).abs() < 1e-6 * want.abs().max(1.0),
+                "{got} vs {want}"
+            );
+        }
+        for (got, want) in decoded.accel.unwrap().iter().zip(sample.accel.unwrap()) {
+            assert!(
+                (got - want).abs() < 1e-5 * want.abs().max(1.0),
+                "{got} vs {want}"
+            );
+        }
+        assert_eq!(decoded.sensor_time, Some(12.5));
+        assert_eq!(decoded.temp_c, Some(25.0));
+        // Rates beside the deltas win unless the deltas are asked for; a zero interval gives
+        // no rate from a delta.
+        let mut values = packet.values;
+        values.angular_rate = Some([1.0, 2.0, 3.0]);
+        let rates = values.to_imu_sample(RowsFrom::Rates).unwrap();
+        assert_eq!(rates.gyro, Some([1.0, 2.0, 3.0]));
+        let deltas = values.to_imu_sample(RowsFrom::Deltas).unwrap();
+        assert_eq!(deltas.gyro, decoded.gyro);
+        values.angular_rate = None;
+        values.delta_time_s = Some(0.0);
+        assert_eq!(values.to_imu_sample(RowsFrom::Deltas), None);
+        assert!(encode_delta_sample(&sample, &clock, 0.0, &mut Vec::new()).is_err());
     }
 
     #[test]
@@ -1128,7 +1278,7 @@ mod tests {
         );
         let (frames, stats) = decode_all(line.as_bytes());
         assert_eq!(stats.frames_ok, 1);
-        let sample = frames[0].to_imu_sample().expect("a sample");
+        let sample = frames[0].to_imu_sample(RowsFrom::Rates).expect("a sample");
         let accel = sample.accel.unwrap();
         assert!((accel[2] + 9.802).abs() < 1e-5, "{accel:?}");
         let gyro = sample.gyro.unwrap();
