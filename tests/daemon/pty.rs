@@ -83,18 +83,18 @@ async fn pty_closed_and_reopened_mid_run_resumes_in_the_same_session() {
     let devices = wit_device(&link, 200, 20, 100);
     let daemon = start(config(dir.path(), &devices));
 
-    // Let the daemon open the port, then stream, then pull the plug.
-    tokio::time::sleep(Duration::from_millis(200)).await;
+    // Once the daemon has opened the port, stream, then pull the plug.
+    daemon.wait_for_event("imu", EventKind::Connect, 1).await;
     let first = stream(first, 0..50).await;
     let old_path = first.slave_path.clone();
     drop(first);
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    daemon.wait_for_event("imu", EventKind::Disconnect, 1).await;
 
     let second = Pty::open();
     // The kernel may hand out the same pts number again once every holder closed it.
     print_pty_paths(&old_path, &second.slave_path);
     point_link(&link, &second.slave_path);
-    tokio::time::sleep(Duration::from_millis(400)).await;
+    daemon.wait_for_event("imu", EventKind::Reconnect, 1).await;
     let second = stream(second, 50..100).await;
     let store = daemon.stop().await;
     drop(second);

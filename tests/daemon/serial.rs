@@ -58,6 +58,29 @@ pub fn start(config: CheckedConfig) -> Daemon {
 }
 
 impl Daemon {
+    /// Waits (at most 10 s) until `device` has `count` events of `kind` in the sink, so a test
+    /// acts on what the daemon did rather than on how long it usually takes.
+    pub async fn wait_for_event(&self, device: &str, kind: EventKind, count: usize) {
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            let seen = self
+                .sink
+                .snapshot()
+                .events
+                .iter()
+                .filter(|e| e.device == device && e.kind == kind)
+                .count();
+            if seen >= count {
+                return;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "{device}: {count} {kind:?} event(s) not seen within 10 s (seen {seen})"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
     pub async fn stop(self) -> MemoryStore {
         let _ = self.stop.send(true);
         let outcome = self.handle.await.unwrap();
