@@ -117,8 +117,8 @@ pub struct Warmup {
     pub soak_s: f64,
 }
 
-/// What a first soak without a detected transient could have shown: the smallest amplitude
-/// the detection test finds at each of a few time constants.
+/// What a first soak without a detected transient could have shown: at each of a few time
+/// constants, the smallest amplitude 3 standard errors (white noise and drift) out.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct WarmupLimit {
     pub soak_s: f64,
@@ -126,7 +126,8 @@ pub struct WarmupLimit {
     pub limits: Vec<DetectionLimit>,
 }
 
-/// The smallest detectable amplitude (datasheet unit) of a transient with this time constant.
+/// The smallest detectable amplitude (datasheet unit) of a transient with this time constant:
+/// 3 standard errors of the fitted amplitude, white noise and drift.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DetectionLimit {
     pub time_constant_s: f64,
@@ -815,7 +816,8 @@ pub fn analyse_axis_thermal(
                         .iter()
                         .filter_map(|&share| {
                             let tau = share * soak_s;
-                            detection_limit(&t, f.sigma2, tau).map(|a| DetectionLimit {
+                            let drift = |weights: &[f64]| drift_sigma(&blocks.t_s[s..e], weights);
+                            detection_limit(&t, f.sigma2, tau, &drift).map(|a| DetectionLimit {
                                 time_constant_s: tau,
                                 amplitude: a * to_ds,
                             })

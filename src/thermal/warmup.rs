@@ -1,6 +1,6 @@
 //! The turn-on transient y = settled + A·e^(−t/τ) of a soak: the least-squares fit, its
 //! detection test, profile-likelihood 95 % intervals of τ and A, and the smallest amplitude
-//! the data could have detected.
+//! the data could have detected (white noise and drift).
 //!
 //! At the relative uncertainty of τ a short soak leaves (tens of per cent) the residual sum
 //! of squares is far from a parabola in τ (flat towards long τ, steep towards short), so a
@@ -285,12 +285,24 @@ pub fn amplitude_interval(t: &[f64], y: &[f64], f: &ExponentialFit, inflation: f
     ]
 }
 
-/// The smallest amplitude the detection test finds for a transient of time constant `tau`
-/// on samples at `t` with residual variance `sigma2`: [`DETECTION_SIGMAS`] times the
-/// white-noise standard error of A with (settled, A, τ) fitted (it does not depend on A).
-pub fn detection_limit(t: &[f64], sigma2: f64, tau: f64) -> Option<f64> {
+/// The smallest amplitude that stands [`DETECTION_SIGMAS`] standard errors out for a
+/// transient of time constant `tau` on samples at `t` with residual variance `sigma2`: the
+/// standard error of A with (settled, A, τ) fitted (it does not depend on A), its white part
+/// from the Jacobian and `drift_sigma` of its linearised weights added. Without drift it is
+/// the amplitude the detection test finds half the time.
+pub fn detection_limit(
+    t: &[f64],
+    sigma2: f64,
+    tau: f64,
+    drift_sigma: &dyn Fn(&[f64]) -> f64,
+) -> Option<f64> {
     let inverse = normal_matrix(t, 1.0, tau).try_inverse()?;
-    Some(DETECTION_SIGMAS * (inverse[(1, 1)] * sigma2).max(0.0).sqrt())
+    let weights: Vec<f64> = t
+        .iter()
+        .map(|&ti| (inverse * jacobian_row(ti, 1.0, tau))[1])
+        .collect();
+    let white = (inverse[(1, 1)] * sigma2).max(0.0).sqrt();
+    Some(DETECTION_SIGMAS * white.hypot(drift_sigma(&weights)))
 }
 
 #[cfg(test)]
@@ -382,7 +394,7 @@ mod tests {
     fn the_detection_limit_is_what_the_test_finds() {
         // A transient at the limit passes the test in about half the cases.
         let t: Vec<f64> = (0..600).map(|i| i as f64).collect();
-        let limit = detection_limit(&t, 0.12 * 0.12, 100.0).unwrap();
+        let limit = detection_limit(&t, 0.12 * 0.12, 100.0, &|_| 0.0).unwrap();
         let found = (0..200)
             .filter(|&seed| {
                 let mut noise = Stream::new(seed, "detection limit");
