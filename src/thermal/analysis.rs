@@ -1103,6 +1103,49 @@ mod tests {
     }
 
     #[test]
+    fn a_soak_without_a_transient_reports_what_it_could_have_detected() {
+        // 1 Hz: 1200 s at 25 °C, a ramp to 45 °C, a hold; bias 0.01 + 0.001/°C, no warm-up.
+        let mut noise = crate::sim::rng::Stream::new(7, "no transient");
+        let temp: Vec<f32> = (0..4000)
+            .map(|i| (25.0 + (f64::from(i) - 1200.0).clamp(0.0, 2000.0) * 0.01) as f32)
+            .collect();
+        let rate: Vec<f64> = temp
+            .iter()
+            .map(|&t| 0.01 + 0.001 * (f64::from(t) - 25.0) + 0.01 * noise.normal())
+            .collect();
+        let mut series = AxisSeries::one_segment("accel_x", 1.0, rate);
+        series.temperature = Some(temp);
+        let options = ThermalOptions {
+            plateau_min_s: 1e9,
+            ..ThermalOptions::default()
+        };
+        let (a, _) = analyse_axis_thermal(
+            "dut",
+            series,
+            SensorKind::Accel,
+            RateUnit::MetrePerSecondSquared,
+            None,
+            &options,
+        )
+        .unwrap();
+        assert!(a.warmup.is_none(), "{:?}", a.warmup);
+        let limit = a.warmup_detection_limit.expect("no detection limit");
+        assert_eq!(limit.limits.len(), DETECTION_LIMIT_SOAK_FRACTIONS.len());
+        // 3 standard errors of an amplitude fitted on ~1200 blocks of 0.01 m/s² ≈ 1 mg:
+        // a few tenths of a mg (most for the shortest τ, which few blocks see).
+        let mg: Vec<f64> = limit.limits.iter().map(|l| l.amplitude).collect();
+        assert!(mg.iter().all(|&m| m > 0.1 && m < 2.0), "{mg:?}");
+        assert!(mg[0] > mg[2], "{mg:?}");
+        assert!(
+            a.notes
+                .iter()
+                .any(|n| n.contains("detectable") && n.contains("mg at τ")),
+            "{:?}",
+            a.notes
+        );
+    }
+
+    #[test]
     fn scale_factor_comes_from_the_gravity_poses() {
         // 1 Hz accel in m/s²: soaks at 25, 60 and −10 °C, each ending in 100 s up and 100 s
         // down; scale 200 ppm/°C about 25 °C, bias 0.01 m/s² + 0.001 m/s²/°C.
