@@ -182,6 +182,7 @@ fn recovery(seed_count: u64) {
         "| grade | sensor | term | truth | median error | median stated σ / truth | seeds ok | worst |"
     );
     println!("|---|---|---|---|---|---|---|---|");
+    let mut not_found = Vec::new();
     for (grade, spec) in [
         ("icm20948-thermal", imu_preset("icm20948-thermal").unwrap()),
         ("quiet", quiet_grade()),
@@ -234,6 +235,19 @@ fn recovery(seed_count: u64) {
                 if let Some(w) = &a.warmup {
                     tau_sigma.push(w.time_constant_relative_sigma);
                 }
+                // A miss without a transient: what the soak could have detected near τ.
+                if let Some(l) = &a.warmup_detection_limit {
+                    if let Some(d) = l.limits.iter().min_by(|x, y| {
+                        (x.time_constant_s - tau_w)
+                            .abs()
+                            .total_cmp(&(y.time_constant_s - tau_w).abs())
+                    }) {
+                        not_found.push(format!(
+                            "{grade} {sensor:?} seed {seed}: {:.2} {} at τ {:.0} s",
+                            d.amplitude, l.unit, d.time_constant_s
+                        ));
+                    }
+                }
                 if let Some(h) = &a.hysteresis {
                     gap_sigma.push(h.largest_gap_ci95 / 1.96 / hyst);
                 }
@@ -283,6 +297,14 @@ fn recovery(seed_count: u64) {
                     }
                 );
             }
+        }
+    }
+    if !not_found.is_empty() {
+        println!(
+            "\nwarm-up not found (a miss above); the smallest amplitude the soak could have detected near the true τ:"
+        );
+        for line in &not_found {
+            println!("- {line}");
         }
     }
 }

@@ -22,8 +22,9 @@ use std::time::{Duration, Instant};
 pub struct AnalysisArgs {
     #[command(flatten)]
     pub options: Options,
-    /// Subtract the bias(T) of this thermal model (`imulab thermal --model`, docs/thermal.md)
-    /// from every sample before the analysis, using the temperature channel.
+    /// Subtract the change of bias with temperature, bias(T) − bias(reference), of this
+    /// thermal model (`imulab thermal --model`, docs/thermal.md) from every sample before the
+    /// analysis, using the temperature channel.
     #[arg(long)]
     pub compensate: Option<PathBuf>,
     /// Correct the gyro and accel channels with this calibration file (`imulab calibrate`,

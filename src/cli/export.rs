@@ -37,8 +37,9 @@ pub struct ExportArgs {
     /// End, in seconds after the device's first sample (exclusive).
     #[arg(long)]
     pub end: Option<f64>,
-    /// Thermal model (JSON from `imulab thermal --model`): remove its bias(T) from the IMU's
-    /// gyro and accel columns, using the row's `temp`.
+    /// Thermal model (JSON from `imulab thermal --model`): remove its change of bias with
+    /// temperature, bias(T) − bias(reference), from the IMU's gyro and accel columns, using
+    /// the row's `temp`.
     #[arg(long, value_name = "MODEL")]
     pub compensate: Option<PathBuf>,
     /// Calibration file (`imulab calibrate`, docs/calibration.md): correct the gyro and
@@ -115,7 +116,7 @@ pub fn export_csv(
             require_session_temperature(session, &device.name)?;
             writeln!(
                 out,
-                "# {} compensated with thermal model {} (bias(T) from the temp column removed)",
+                "# {} compensated with thermal model {} (bias(T) − bias(reference) by the temp column removed)",
                 c.axes().join(" "),
                 path.display()
             )?;

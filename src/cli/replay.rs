@@ -82,8 +82,9 @@ pub struct ReplayArgs {
     /// SESSION/replay-NAME.h5.
     #[arg(long, default_value = "filter", requires = "session")]
     pub name: String,
-    /// Thermal model (JSON from `imulab thermal --model`): remove its bias(T) from the
-    /// session IMU's rates, by their `temp`, before the filter.
+    /// Thermal model (JSON from `imulab thermal --model`): remove its change of bias with
+    /// temperature, bias(T) − bias(reference), from the session IMU's rates, by their
+    /// `temp`, before the filter.
     #[arg(long, value_name = "MODEL", requires = "session")]
     pub compensate: Option<PathBuf>,
     /// Calibration file (`imulab calibrate`, docs/calibration.md): correct the session IMU's

@@ -1,8 +1,9 @@
 //! Replay of a recorded or simulated session (`imulab::store`): streams one IMU's rows
 //! block by block through the navigator with one GNSS receiver's fixes, and reads the truth
 //! trajectory of simulated sessions for the error statistics. Times are seconds since the
-//! first IMU row (host monotonic clock). A thermal model, when given, removes its bias(T)
-//! from the IMU rows (by their `temp`) before the filter sees them.
+//! first IMU row (host monotonic clock). A thermal model, when given, removes its change of
+//! bias with temperature, bias(T) − bias(reference), from the IMU rows (by their `temp`)
+//! before the filter sees them.
 
 use crate::fusion::config::FusionConfig;
 use crate::fusion::mechanisation::{ImuInput, NavState};

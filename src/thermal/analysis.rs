@@ -14,6 +14,9 @@
 
 use super::drift::{Drift, PlateauCurve};
 use super::polyfit::{fit_branches, fit_polynomial, PolyFit};
+use super::warmup::{
+    amplitude_interval, detection_limit, fit_exponential, tau_interval, transient_found,
+};
 use crate::allan::analysis::{analyse_axis, AnalysisOptions};
 use crate::allan::deviation::DeviationKind;
 use crate::allan::input::AxisSeries;
@@ -95,14 +98,16 @@ pub struct Hysteresis {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Warmup {
     pub time_constant_s: f64,
-    /// 95 % interval of the time constant (from the Jacobian at the solution), s.
+    /// Profile-likelihood 95 % interval of the time constant, the drift included
+    /// ([`super::warmup`]), s; the upper end is null (∞) where the data do not bound it.
     pub time_constant_ci95_s: [f64; 2],
-    /// Standard error of the time constant over its value.
+    /// Linearised standard error of the time constant (Jacobian and drift) over its value.
     pub time_constant_relative_sigma: f64,
     /// Datasheet unit.
     pub amplitude: f64,
-    /// 95 % half-width of the amplitude.
-    pub amplitude_ci95: f64,
+    /// Profile-likelihood 95 % interval of the amplitude, the drift included; ends the data
+    /// do not bound are null (±∞).
+    pub amplitude_ci95: [f64; 2],
     pub settled: f64,
     pub tolerance: f64,
     pub unit: String,
@@ -111,6 +116,27 @@ pub struct Warmup {
     /// Length of the soak the fit used, s.
     pub soak_s: f64,
 }
+
+/// What a first soak without a detected transient could have shown: at each of a few time
+/// constants, the smallest amplitude 3 standard errors (white noise and drift) out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WarmupLimit {
+    pub soak_s: f64,
+    pub unit: String,
+    pub limits: Vec<DetectionLimit>,
+}
+
+/// The smallest detectable amplitude (datasheet unit) of a transient with this time constant:
+/// 3 standard errors of the fitted amplitude, white noise and drift.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DetectionLimit {
+    pub time_constant_s: f64,
+    pub amplitude: f64,
+}
+
+/// The time constants of the detection limits, as fractions of the soak (the test accepts
+/// τ up to half the soak).
+pub const DETECTION_LIMIT_SOAK_FRACTIONS: [f64; 4] = [0.05, 0.1, 0.25, 0.5];
 
 /// The accelerometer scale factor at one temperature, from the poses with the axis along and
 /// against gravity: (mean up − mean down) / 2 g₀ − 1, the bias cancelling.
@@ -166,6 +192,9 @@ pub struct AxisThermal {
     pub chamber_fit: Option<PolyFit>,
     pub hysteresis: Option<Hysteresis>,
     pub warmup: Option<Warmup>,
+    /// Where the first soak shows no transient: the amplitudes it could have detected.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub warmup_detection_limit: Option<WarmupLimit>,
     /// Accelerometers: scale factor against temperature from ±1 g poses, where the run holds them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scale_factor: Option<ScaleFactor>,
@@ -353,143 +382,6 @@ fn temperature_rate(b: &Blocks, half_window_s: f64) -> Vec<f64> {
         }
     }
     out
-}
-
-/// A fitted turn-on transient y = settled + A e^(−t/τ), with standard errors from the
-/// Jacobian at the solution (the Cramér–Rao bound for the residual noise, inflated for its
-/// lag-1 correlation), and the linearised weights of τ̂ and Â in the observations
-/// (d τ̂ / d yᵢ, rows of (JᵀJ)⁻¹Jᵀ: they sum to 0, the settled value taking any offset).
-#[derive(Debug, Clone, PartialEq)]
-struct ExponentialFit {
-    tau: f64,
-    amplitude: f64,
-    settled: f64,
-    se_tau: f64,
-    se_amplitude: f64,
-    tau_weights: Vec<f64>,
-    amplitude_weights: Vec<f64>,
-}
-
-/// Fits settled + A e^(−t/τ) to `(t, y)` by Levenberg–Marquardt on (settled, A, τ), started
-/// from the best τ of a log-spaced scan (settled and A linear for each τ).
-fn fit_exponential(t: &[f64], y: &[f64]) -> Option<ExponentialFit> {
-    use nalgebra::{Matrix3, Vector3};
-    let span = t.last()? - t.first()?;
-    if t.len() < 6 || span <= 0.0 {
-        return None;
-    }
-    let n = t.len() as f64;
-    let linear = |tau: f64| -> (f64, f64, f64) {
-        let (mut se, mut see, mut sy, mut sey) = (0.0, 0.0, 0.0, 0.0);
-        for (&ti, &yi) in t.iter().zip(y) {
-            let e = (-ti / tau).exp();
-            se += e;
-            see += e * e;
-            sy += yi;
-            sey += e * yi;
-        }
-        let det = n * see - se * se;
-        if det.abs() < 1e-300 {
-            return (0.0, sy / n, f64::INFINITY);
-        }
-        let a = (n * sey - se * sy) / det;
-        let c = (sy - a * se) / n;
-        let rss: f64 = t
-            .iter()
-            .zip(y)
-            .map(|(&ti, &yi)| (yi - c - a * (-ti / tau).exp()).powi(2))
-            .sum();
-        (a, c, rss)
-    };
-    let (lo, hi) = ((span / 1000.0).max(1e-3).ln(), span.ln());
-    let grid = 60;
-    let start = (0..=grid)
-        .map(|k| (lo + (hi - lo) * k as f64 / grid as f64).exp())
-        .min_by(|a, b| linear(*a).2.total_cmp(&linear(*b).2))?;
-    let (a0, c0, _) = linear(start);
-    let rss_of = |p: &Vector3<f64>| -> f64 {
-        t.iter()
-            .zip(y)
-            .map(|(&ti, &yi)| (yi - p[0] - p[1] * (-ti / p[2]).exp()).powi(2))
-            .sum()
-    };
-    let normal = |p: &Vector3<f64>| -> (Matrix3<f64>, Vector3<f64>) {
-        let mut jtj = Matrix3::zeros();
-        let mut jtr = Vector3::zeros();
-        for (&ti, &yi) in t.iter().zip(y) {
-            let e = (-ti / p[2]).exp();
-            let j = Vector3::new(1.0, e, p[1] * ti / (p[2] * p[2]) * e);
-            let r = yi - p[0] - p[1] * e;
-            jtj += j * j.transpose();
-            jtr += j * r;
-        }
-        (jtj, jtr)
-    };
-    let mut p = Vector3::new(c0, a0, start);
-    let mut rss = rss_of(&p);
-    let mut lambda = 1e-3;
-    for _ in 0..100 {
-        let (jtj, jtr) = normal(&p);
-        let mut damped = jtj;
-        for k in 0..3 {
-            damped[(k, k)] += lambda * jtj[(k, k)].max(1e-300);
-        }
-        let Some(step) = damped.cholesky().map(|c| c.solve(&jtr)) else {
-            lambda *= 10.0;
-            continue;
-        };
-        let trial = p + step;
-        let trial_rss = if trial[2] > 0.0 {
-            rss_of(&trial)
-        } else {
-            f64::INFINITY
-        };
-        if trial_rss < rss {
-            let converged = (rss - trial_rss) <= 1e-12 * rss;
-            p = trial;
-            rss = trial_rss;
-            lambda = (lambda / 10.0).max(1e-12);
-            if converged {
-                break;
-            }
-        } else {
-            lambda *= 10.0;
-            if lambda > 1e12 {
-                break;
-            }
-        }
-    }
-    let residuals: Vec<f64> = t
-        .iter()
-        .zip(y)
-        .map(|(&ti, &yi)| yi - p[0] - p[1] * (-ti / p[2]).exp())
-        .collect();
-    let den: f64 = residuals.iter().map(|r| r * r).sum();
-    let rho = if den > 0.0 {
-        (residuals.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / den).clamp(0.0, 0.999)
-    } else {
-        0.0
-    };
-    let sigma2 = rss / (n - 3.0).max(1.0) * (1.0 + rho) / (1.0 - rho);
-    let (jtj, _) = normal(&p);
-    let inverse = jtj.try_inverse()?;
-    let cov = inverse * sigma2;
-    let (mut tau_weights, mut amplitude_weights) = (Vec::with_capacity(t.len()), Vec::new());
-    for &ti in t {
-        let e = (-ti / p[2]).exp();
-        let row = inverse * Vector3::new(1.0, e, p[1] * ti / (p[2] * p[2]) * e);
-        amplitude_weights.push(row[1]);
-        tau_weights.push(row[2]);
-    }
-    Some(ExponentialFit {
-        tau: p[2],
-        amplitude: p[1],
-        settled: p[0],
-        se_tau: cov[(2, 2)].max(0.0).sqrt(),
-        se_amplitude: cov[(1, 1)].max(0.0).sqrt(),
-        tau_weights,
-        amplitude_weights,
-    })
 }
 
 /// The first-order time constant and offset of `sensor` following `chamber` (block series),
@@ -680,12 +572,6 @@ fn scale_from_gravity(
     })
 }
 
-/// A transient stands out: its amplitude is at least 3 standard errors and its time constant
-/// leaves at least half the soak to show the settled value.
-fn transient_found(f: &ExponentialFit, soak_s: f64) -> bool {
-    f.amplitude.abs() > 3.0 * f.se_amplitude && f.tau < soak_s / 2.0
-}
-
 /// Runs of blocks whose temperature stays in a band of ±`tolerance` (highest minus lowest
 /// at most 2·`tolerance`) and that last at least `min_s`: (first block, end block).
 fn plateaus(b: &Blocks, tolerance: f64, min_s: f64) -> Vec<(usize, usize)> {
@@ -868,6 +754,7 @@ pub fn analyse_axis_thermal(
         drift.map_or(0.0, |d| d.sigma(times, weights, options.block_s))
     };
 
+    let mut warmup_detection_limit = None;
     let warmup = match soak {
         None => {
             notes.push(
@@ -878,21 +765,32 @@ pub fn analyse_axis_thermal(
         Some((s, e)) => {
             let t0 = blocks.t_s[s];
             let t: Vec<f64> = blocks.t_s[s..e].iter().map(|t| t - t0).collect();
+            let soak_s = t[t.len() - 1];
             let base = fit.eval(blocks.temp_c[s]);
             let corrected: Vec<f64> = (s..e)
                 .map(|i| blocks.bias[i] - (fit.eval(blocks.temp_c[i]) - base))
                 .collect();
             // Found against the white noise of the blocks; the intervals add the drift.
             match fit_exponential(&t, &corrected) {
-                Some(f) if transient_found(&f, t[t.len() - 1]) => {
+                Some(f) if transient_found(&f, soak_s) => {
                     let times = &blocks.t_s[s..e];
-                    let f = ExponentialFit {
-                        se_tau: f.se_tau.hypot(drift_sigma(times, &f.tau_weights)),
-                        se_amplitude: f
-                            .se_amplitude
-                            .hypot(drift_sigma(times, &f.amplitude_weights)),
-                        ..f
+                    let drift_tau = drift_sigma(times, &f.tau_weights);
+                    let drift_amplitude = drift_sigma(times, &f.amplitude_weights);
+                    // The drift's share of each estimate's variance at the solution.
+                    let inflation = |se: f64, drift: f64| {
+                        if se > 0.0 {
+                            1.0 + (drift / se).powi(2)
+                        } else {
+                            1.0
+                        }
                     };
+                    let tau_ci = tau_interval(&t, &corrected, &f, inflation(f.se_tau, drift_tau));
+                    let [a_lo, a_hi] = amplitude_interval(
+                        &t,
+                        &corrected,
+                        &f,
+                        inflation(f.se_amplitude, drift_amplitude),
+                    );
                     let a = f.amplitude;
                     let tolerance = options.warmup_tolerance.unwrap_or(0.05 * a.abs());
                     let to_tol = if a.abs() > tolerance {
@@ -900,34 +798,55 @@ pub fn analyse_axis_thermal(
                     } else {
                         0.0
                     };
-                    let z = 1.96;
                     Some(Warmup {
                         time_constant_s: f.tau,
-                        time_constant_ci95_s: [
-                            (f.tau - z * f.se_tau).max(0.0),
-                            f.tau + z * f.se_tau,
-                        ],
-                        time_constant_relative_sigma: f.se_tau / f.tau,
+                        time_constant_ci95_s: tau_ci,
+                        time_constant_relative_sigma: f.se_tau.hypot(drift_tau) / f.tau,
                         amplitude: a * to_ds,
-                        amplitude_ci95: z * f.se_amplitude * to_ds,
+                        amplitude_ci95: [a_lo * to_ds, a_hi * to_ds],
                         settled: f.settled * to_ds,
                         tolerance: tolerance * to_ds,
                         unit: ds_unit.to_string(),
                         time_to_tolerance_s: to_tol + t0,
-                        soak_s: t[t.len() - 1],
+                        soak_s,
                     })
                 }
                 Some(f) => {
+                    let limits: Vec<DetectionLimit> = DETECTION_LIMIT_SOAK_FRACTIONS
+                        .iter()
+                        .filter_map(|&share| {
+                            let tau = share * soak_s;
+                            let drift = |weights: &[f64]| drift_sigma(&blocks.t_s[s..e], weights);
+                            detection_limit(&t, f.sigma2, tau, &drift).map(|a| DetectionLimit {
+                                time_constant_s: tau,
+                                amplitude: a * to_ds,
+                            })
+                        })
+                        .collect();
                     notes.push(format!(
-                        "no warm-up transient on the first soak (amplitude {:.3} ± {:.3} {ds_unit}, τ {:.0} s on a {:.0} s soak)",
+                        "no warm-up transient on the first soak (fitted amplitude {:.3} ± {:.3} {ds_unit}, τ {:.0} s on a {soak_s:.0} s soak); detectable: {}",
                         f.amplitude * to_ds,
                         f.se_amplitude * to_ds,
                         f.tau,
-                        t[t.len() - 1]
+                        limits
+                            .iter()
+                            .map(|l| format!("{:.3} {ds_unit} at τ {:.0} s", l.amplitude, l.time_constant_s))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ));
+                    warmup_detection_limit = Some(WarmupLimit {
+                        soak_s,
+                        unit: ds_unit.to_string(),
+                        limits,
+                    });
+                    None
+                }
+                None => {
+                    notes.push(format!(
+                        "no warm-up fit: the {soak_s:.0} s first soak has too few blocks"
                     ));
                     None
                 }
-                None => None,
             }
         }
     };
@@ -1098,6 +1017,7 @@ pub fn analyse_axis_thermal(
             chamber_fit,
             hysteresis,
             warmup,
+            warmup_detection_limit,
             scale_factor,
             plateaus: plateau_noise,
             notes,
@@ -1112,20 +1032,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn exponential_and_lag_fits_recover_their_time_constants() {
+    fn the_lag_fit_recovers_its_time_constant() {
         let t: Vec<f64> = (0..1800).map(|i| i as f64 + 0.5).collect();
-        let y: Vec<f64> = t
-            .iter()
-            .enumerate()
-            .map(|(i, t)| 1.0 + 2.0 * (-t / 300.0).exp() + if i % 2 == 0 { 0.01 } else { -0.01 })
-            .collect();
-        let f = fit_exponential(&t, &y).unwrap();
-        assert!((f.tau - 300.0).abs() < 3.0, "{f:?}");
-        assert!((f.amplitude - 2.0).abs() < 0.01 && (f.settled - 1.0).abs() < 0.01);
-        assert!(
-            f.se_amplitude < 0.01 && f.se_tau > 0.0 && f.se_tau < 3.0,
-            "{f:?}"
-        );
         let chamber: Vec<f64> = t
             .iter()
             .map(|&t| if t < 100.0 { 20.0 } else { 40.0 })
@@ -1192,6 +1100,49 @@ mod tests {
         let mut some_nan: Vec<f32> = (0..100).map(|i| 20.0 + i as f32 * 0.1).collect();
         some_nan[5] = f32::NAN;
         assert_eq!(check_temperature(&some_nan, 1.0, None).unwrap(), 1);
+    }
+
+    #[test]
+    fn a_soak_without_a_transient_reports_what_it_could_have_detected() {
+        // 1 Hz: 1200 s at 25 °C, a ramp to 45 °C, a hold; bias 0.01 + 0.001/°C, no warm-up.
+        let mut noise = crate::sim::rng::Stream::new(7, "no transient");
+        let temp: Vec<f32> = (0..4000)
+            .map(|i| (25.0 + (f64::from(i) - 1200.0).clamp(0.0, 2000.0) * 0.01) as f32)
+            .collect();
+        let rate: Vec<f64> = temp
+            .iter()
+            .map(|&t| 0.01 + 0.001 * (f64::from(t) - 25.0) + 0.01 * noise.normal())
+            .collect();
+        let mut series = AxisSeries::one_segment("accel_x", 1.0, rate);
+        series.temperature = Some(temp);
+        let options = ThermalOptions {
+            plateau_min_s: 1e9,
+            ..ThermalOptions::default()
+        };
+        let (a, _) = analyse_axis_thermal(
+            "dut",
+            series,
+            SensorKind::Accel,
+            RateUnit::MetrePerSecondSquared,
+            None,
+            &options,
+        )
+        .unwrap();
+        assert!(a.warmup.is_none(), "{:?}", a.warmup);
+        let limit = a.warmup_detection_limit.expect("no detection limit");
+        assert_eq!(limit.limits.len(), DETECTION_LIMIT_SOAK_FRACTIONS.len());
+        // 3 standard errors of an amplitude fitted on ~1200 blocks of 0.01 m/s² ≈ 1 mg:
+        // a few tenths of a mg (most for the shortest τ, which few blocks see).
+        let mg: Vec<f64> = limit.limits.iter().map(|l| l.amplitude).collect();
+        assert!(mg.iter().all(|&m| m > 0.1 && m < 2.0), "{mg:?}");
+        assert!(mg[0] > mg[2], "{mg:?}");
+        assert!(
+            a.notes
+                .iter()
+                .any(|n| n.contains("detectable") && n.contains("mg at τ")),
+            "{:?}",
+            a.notes
+        );
     }
 
     #[test]

@@ -4,6 +4,12 @@
 //! --compensate` and `report --compensate` call it through [`ThermalModel::compensate_series`],
 //! `export --compensate` and `replay --compensate` through [`ImuCompensator`] block by block).
 //!
+//! Compensation removes the change of bias with temperature, bias(T) − bias(reference_c)
+//! ([`AxisModel::thermal_bias_at`]), and keeps the constant term: fitted on a static bench
+//! run it holds gravity and the Earth's rate, which exported rates and a navigation filter
+//! must keep, and an Allan deviation does not change with a constant. Every command applies
+//! this one rule, so an Allan curve and a replay see the same corrected samples.
+//!
 //! Outside the valid range the correction is held at its value at the nearest end of the
 //! range, never extrapolated, and the samples so treated are counted for a warning.
 
@@ -97,8 +103,15 @@ impl AxisModel {
             .fold(0.0, |acc, c| acc * u + c)
     }
 
-    /// Subtracts the modelled bias from `rate` (in the model's unit × `scale`, i.e. rate
-    /// values are in a unit whose SI factor is 1/`scale`), sample by sample.
+    /// The change of the modelled bias from `reference_c` to `t_c` (held at the range ends),
+    /// bias(T) − bias(reference_c), in `unit`: what compensation removes.
+    pub fn thermal_bias_at(&self, t_c: f64) -> f64 {
+        self.bias_at(t_c) - self.coefficients.first().copied().unwrap_or(0.0)
+    }
+
+    /// Subtracts the thermal change of bias ([`Self::thermal_bias_at`]) from `rate` (in the
+    /// model's unit × `scale`, i.e. rate values are in a unit whose SI factor is 1/`scale`),
+    /// sample by sample.
     pub fn compensate(&self, rate: &mut [f64], temperature: &[f32], scale: f64) -> Compensation {
         let mut c = Compensation {
             samples: rate.len() as u64,
@@ -115,7 +128,7 @@ impl AxisModel {
             } else if t > self.valid_range_c[1] {
                 c.above_range += 1;
             }
-            *r -= self.bias_at(t) * scale;
+            *r -= self.thermal_bias_at(t) * scale;
         }
         c.no_temperature += rate.len().saturating_sub(temperature.len()) as u64;
         c
@@ -267,12 +280,8 @@ pub const IMU_AXES: [&str; 6] = [
 ];
 
 /// One session IMU's model axes, applied block by block to streamed rows (`export
-/// --compensate`, `replay --compensate`); counts accumulate over the blocks for the warning.
-///
-/// It removes the change of bias with temperature, bias(T) − bias(reference_c): the
-/// constant term is left in the rates, because a model fitted on a static bench run carries
-/// gravity and the Earth's rate in it, which a navigation filter must see (and it estimates a
-/// constant bias itself).
+/// --compensate`, `replay --compensate`) with [`AxisModel::compensate`]; counts accumulate
+/// over the blocks for the warning.
 #[derive(Debug, Clone)]
 pub struct ImuCompensator {
     device: String,
@@ -301,11 +310,10 @@ impl ImuCompensator {
         let axes = IMU_AXES
             .iter()
             .map(|name| {
-                d.axes.iter().find(|a| a.axis == *name).map(|a| {
-                    let mut thermal_part = a.clone();
-                    thermal_part.coefficients[0] = 0.0;
-                    (thermal_part, Compensation::default())
-                })
+                d.axes
+                    .iter()
+                    .find(|a| a.axis == *name)
+                    .map(|a| (a.clone(), Compensation::default()))
             })
             .collect();
         Ok(ImuCompensator {
@@ -324,7 +332,7 @@ impl ImuCompensator {
             .collect()
     }
 
-    /// Subtracts the modelled bias (SI units: rad/s, m/s²) from one block's rows.
+    /// Subtracts the thermal change of bias (SI units: rad/s, m/s²) from one block's rows.
     pub fn compensate_block(
         &mut self,
         gyro: &mut [[f64; 3]],
@@ -395,10 +403,11 @@ mod tests {
         let (c, warning) = m
             .compensate_axis("imu", "accel_x", &mut rate, &temps, 1.0)
             .unwrap();
-        assert!((rate[0] - 0.9).abs() < 1e-12);
-        assert!((rate[1] - (1.0 - 0.1 - 0.1 - 0.1)).abs() < 1e-12);
-        // 80 °C is held at 50 °C: 0.1 + 0.25 + 0.625.
-        assert!((rate[2] - (1.0 - 0.975)).abs() < 1e-12);
+        // The constant term stays: at the reference nothing changes.
+        assert_eq!(rate[0], 1.0);
+        assert!((rate[1] - (1.0 - 0.1 - 0.1)).abs() < 1e-12);
+        // 80 °C is held at 50 °C: 0.25 + 0.625.
+        assert!((rate[2] - (1.0 - 0.875)).abs() < 1e-12);
         assert_eq!(rate[3], 1.0);
         assert_eq!((c.above_range, c.below_range, c.no_temperature), (1, 0, 1));
         let w = warning.unwrap();
@@ -408,13 +417,48 @@ mod tests {
         );
         // In mg (SI factor 9.80665e-3) the correction is scaled.
         let mut mg = vec![0.0];
-        m.compensate_axis("imu", "accel_x", &mut mg, &[25.0], 9.806_65e-3)
+        m.compensate_axis("imu", "accel_x", &mut mg, &[35.0], 9.806_65e-3)
             .unwrap();
-        assert!((mg[0] + 0.1 / 9.806_65e-3).abs() < 1e-9);
+        assert!((mg[0] + 0.2 / 9.806_65e-3).abs() < 1e-9);
         let e = m
             .compensate_axis("imu", "gyro_x", &mut mg, &[25.0], 1.0)
             .unwrap_err();
         assert!(e.to_string().contains("imu accel_x"), "{e}");
+    }
+
+    #[test]
+    fn allan_and_export_remove_the_same_correction() {
+        // The same samples through the Allan path (a series) and the export/replay path
+        // (session rows, block by block) come out identical.
+        let m = model();
+        let temps: Vec<f32> = (0..200).map(|i| -5.0 + 0.3 * i as f32).collect();
+        let raw: Vec<f64> = (0..200).map(|i| 9.8 + 0.001 * i as f64).collect();
+        let mut series = crate::allan::input::AxisSeries::one_segment("accel_x", 0.01, raw.clone());
+        series.segments = vec![raw[..120].to_vec(), raw[120..].to_vec()];
+        series.temperature = Some(temps.clone());
+        let (c, _) = m.compensate_series("imu", &mut series, 1.0).unwrap();
+        assert_eq!(c.samples, 200);
+        let allan: Vec<f64> = series.segments.concat();
+        let mut compensator = ImuCompensator::new(&m, "imu").unwrap();
+        let mut export = Vec::new();
+        for (rows, temp) in raw.chunks(64).zip(temps.chunks(64)) {
+            let mut gyro = vec![[0.0; 3]; rows.len()];
+            let mut accel: Vec<[f64; 3]> = rows.iter().map(|&a| [a, 0.0, 0.0]).collect();
+            let temp: Vec<f64> = temp.iter().map(|&t| f64::from(t)).collect();
+            compensator.compensate_block(&mut gyro, &mut accel, &temp);
+            export.extend(accel.iter().map(|r| r[0]));
+        }
+        assert_eq!(allan, export);
+        // Both removed bias(T) − bias(25 °C), not the constant 0.1.
+        let at = |k: usize| {
+            raw[k] - 0.01 * f64::from(temps[k] - 25.0) - 0.001 * f64::from(temps[k] - 25.0).powi(2)
+        };
+        assert!(
+            (allan[150] - at(150)).abs() < 1e-9,
+            "{} {}",
+            allan[150],
+            at(150)
+        );
     }
 
     #[test]

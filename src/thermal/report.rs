@@ -171,8 +171,17 @@ pub fn summary_text(report: &ThermalReport) -> String {
             if let Some(w) = &a.warmup {
                 let _ = writeln!(
                     s,
-                    "    warm-up: τ = {:.1} s [{:.1}, {:.1}], amplitude {:+.4} ± {:.4} {}, within {:.4} {} of the settled value after {:.0} s",
-                    w.time_constant_s, w.time_constant_ci95_s[0], w.time_constant_ci95_s[1], w.amplitude, w.amplitude_ci95, w.unit, w.tolerance, w.unit, w.time_to_tolerance_s
+                    "    warm-up: τ = {:.1} s [{}, {}], amplitude {:+.4} {} [{}, {}], within {:.4} {} of the settled value after {:.0} s",
+                    w.time_constant_s,
+                    bound(w.time_constant_ci95_s[0], 1),
+                    bound(w.time_constant_ci95_s[1], 1),
+                    w.amplitude,
+                    w.unit,
+                    bound(w.amplitude_ci95[0], 4),
+                    bound(w.amplitude_ci95[1], 4),
+                    w.tolerance,
+                    w.unit,
+                    w.time_to_tolerance_s
                 );
             }
             if let Some(sf) = &a.scale_factor {
@@ -198,6 +207,29 @@ pub fn summary_text(report: &ThermalReport) -> String {
         }
     }
     s
+}
+
+/// An interval end: ∞ where the data do not bound it.
+fn bound(x: f64, decimals: usize) -> String {
+    if x.is_infinite() {
+        if x > 0.0 { "∞" } else { "−∞" }.to_string()
+    } else {
+        format!("{x:.decimals$}")
+    }
+}
+
+/// The smallest detectable warm-up amplitudes, one per time constant.
+fn detection_text(l: &super::analysis::WarmupLimit) -> String {
+    l.limits
+        .iter()
+        .map(|d| {
+            format!(
+                "{:.4} {} at τ {:.0} s",
+                d.amplitude, l.unit, d.time_constant_s
+            )
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn esc(s: &str) -> String {
@@ -233,18 +265,22 @@ pub fn html_section(report: &ThermalReport) -> String {
                     x.largest_gap, x.largest_gap_ci95, x.unit, x.largest_gap_at_c
                 )
             });
-            let warm = a.warmup.as_ref().map_or("—".to_string(), |w| {
-                format!(
-                    "{:.1} s [{:.1}, {:.1}], {:+.4} {}, {:.0} s (±{:.4})",
+            let warm = match (&a.warmup, &a.warmup_detection_limit) {
+                (Some(w), _) => format!(
+                    "{:.1} s [{}, {}], {:+.4} {} [{}, {}], {:.0} s (±{:.4})",
                     w.time_constant_s,
-                    w.time_constant_ci95_s[0],
-                    w.time_constant_ci95_s[1],
+                    bound(w.time_constant_ci95_s[0], 1),
+                    bound(w.time_constant_ci95_s[1], 1),
                     w.amplitude,
                     w.unit,
+                    bound(w.amplitude_ci95[0], 4),
+                    bound(w.amplitude_ci95[1], 4),
                     w.time_to_tolerance_s,
                     w.tolerance
-                )
-            });
+                ),
+                (None, Some(l)) => format!("not found; detectable: {}", detection_text(l)),
+                (None, None) => "—".to_string(),
+            };
             let scale = a.scale_factor.as_ref().map_or("—".to_string(), scale_text);
             let _ = writeln!(
                 h,
