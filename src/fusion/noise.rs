@@ -50,8 +50,8 @@ pub const GM_ADEV_PEAK_TAU: f64 = 1.89;
 /// Scale-factor σ assumed when a preset gives none, fraction.
 pub const DEFAULT_SCALE_SIGMA: f64 = 1e-4;
 /// 1σ of a land vehicle's own specific-force changes (accelerating, braking, turning), in g,
-/// assumed for the in-run part of the gyro g-sensitivity bias. On `short_drive` (peaks of
-/// 0.15–0.3 g) 0.1 g left the consumer preset at NEES 15, 0.2 g gave 9.6, 0.3 g 8.0.
+/// assumed for the in-run part of the gyro g-sensitivity bias (`short_drive` peaks at
+/// 0.15–0.3 g; the consumer preset's NEES there is 6.3 with it).
 pub const VEHICLE_ACCEL_SIGMA_G: f64 = 0.2;
 
 /// A noise model with where it came from and what had to be assumed.
