@@ -70,6 +70,10 @@ pub struct ImuModel {
     pub gyro_rrw_rad_per_s_sqrt_s: f64,
     /// Accelerometer bias random walk (Allan K), m/s²/√s.
     pub accel_rrw_mps2_per_sqrt_s: f64,
+    /// In-run gyro bias from g-sensitivity per body axis (x, y, z), rad/s 1σ: the bias each
+    /// axis gets from the vehicle's own specific-force changes, a Gauss-Markov part with
+    /// `gyro_bias.tau_s` added to `gyro_bias` on that axis only.
+    pub gyro_bias_g_sensitivity_sigma: [f64; 3],
 }
 
 impl ImuModel {
@@ -84,9 +88,18 @@ impl ImuModel {
             .unwrap_or(self.accel_bias.sigma)
     }
 
-    /// The process the filter's gyro bias state follows, see [`bias_state_process`].
-    pub fn gyro_bias_state(&self) -> GaussMarkov {
-        bias_state_process(&self.gyro_bias, self.gyro_bias_sigma0())
+    /// The process the filter's gyro bias state of body axis `axis` (0 = x, 1 = y, 2 = z)
+    /// follows: the in-run bias with that axis's g-sensitivity part, see
+    /// [`bias_state_process`].
+    pub fn gyro_bias_state(&self, axis: usize) -> GaussMarkov {
+        let in_run = GaussMarkov {
+            sigma: self
+                .gyro_bias
+                .sigma
+                .hypot(self.gyro_bias_g_sensitivity_sigma[axis]),
+            tau_s: self.gyro_bias.tau_s,
+        };
+        bias_state_process(&in_run, self.gyro_bias_sigma0())
     }
 
     /// The process the filter's accelerometer bias state follows, see
@@ -156,6 +169,7 @@ impl Default for ImuModel {
             accel_bias_initial_sigma: None,
             gyro_rrw_rad_per_s_sqrt_s: 0.0,
             accel_rrw_mps2_per_sqrt_s: 0.0,
+            gyro_bias_g_sensitivity_sigma: [0.0; 3],
         }
     }
 }
@@ -615,6 +629,17 @@ impl FusionConfig {
             imu.accel_rrw_mps2_per_sqrt_s >= 0.0,
             nonneg,
         )?;
+        for v in imu.gyro_bias_g_sensitivity_sigma {
+            check("imu.gyro_bias_g_sensitivity_sigma", v, v >= 0.0, nonneg)?;
+        }
+        let follows_manoeuvres = imu.gyro_bias.tau_s.is_finite() && imu.gyro_bias.tau_s > 0.0;
+        if imu.gyro_bias_g_sensitivity_sigma.iter().any(|&v| v > 0.0) && !follows_manoeuvres {
+            return Err(ConfigError::Invalid {
+                key: "imu.gyro_bias.tau_s",
+                value: imu.gyro_bias.tau_s.to_string(),
+                why: "must be finite and > 0 when imu.gyro_bias_g_sensitivity_sigma is set",
+            });
+        }
         check(
             "gnss.position_correlation_s",
             self.gnss.position_correlation_s,
@@ -867,7 +892,17 @@ mod tests {
             gyro_bias_initial_sigma: Some(5.0),
             ..ImuModel::default()
         };
-        assert_eq!(model.gyro_bias_state(), bias_state_process(&in_run, 5.0));
+        assert_eq!(model.gyro_bias_state(2), bias_state_process(&in_run, 5.0));
+        // The g-sensitivity part drives only the axes it is given for.
+        let sensitive = ImuModel {
+            gyro_bias_g_sensitivity_sigma: [3.0, 0.0, 0.0],
+            ..model
+        };
+        assert!(
+            sensitive.gyro_bias_state(0).driving_psd() > model.gyro_bias_state(0).driving_psd()
+        );
+        assert_eq!(sensitive.gyro_bias_state(1), model.gyro_bias_state(1));
+        assert_eq!(sensitive.gyro_bias_state(2), model.gyro_bias_state(2));
         assert_eq!(model.accel_bias_state(), model.accel_bias);
     }
 }

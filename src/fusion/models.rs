@@ -104,12 +104,9 @@ pub fn dynamics_matrix<const N: usize>(
 
     // Sensor errors as first-order Gauss-Markov processes.
     let imu = &config.imu;
-    let (gyro_decay, accel_decay) = (
-        imu.gyro_bias_state().decay(),
-        imu.accel_bias_state().decay(),
-    );
+    let accel_decay = imu.accel_bias_state().decay();
     for i in 0..3 {
-        f[(BG + i, BG + i)] = -gyro_decay;
+        f[(BG + i, BG + i)] = -imu.gyro_bias_state(i).decay();
         f[(BA + i, BA + i)] = -accel_decay;
     }
     if let Some(ge) = gnss_error_index(N) {
@@ -139,7 +136,7 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
     for i in 0..3 {
         q[VEL + i] = imu.vrw_mps_per_sqrt_s.powi(2);
         q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
-        q[BG + i] = imu.gyro_bias_state().driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
+        q[BG + i] = imu.gyro_bias_state(i).driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
         q[BA + i] = imu.accel_bias_state().driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
         if has_scale_factors(N) {
             q[SG + i] = imu.gyro_scale.driving_psd();

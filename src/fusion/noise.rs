@@ -3,7 +3,7 @@
 //! writes. The same mapping builds the simulator spec of a grade given as an Allan fit, so a
 //! study simulates and filters one and the same IMU description.
 //!
-//! Mapping (per sensor; the filter model is isotropic, so the largest axis is used):
+//! Mapping (per sensor; the largest axis is used, except for the g-sensitivity's in-run part):
 //! - white noise: ARW N (rad/√s) and VRW N (m/s/√s) as they are;
 //! - bias instability: a flat Allan floor F (ADEV, = 0.664·B of the fit) becomes a first-order
 //!   Gauss-Markov bias whose Allan deviation peaks at the floor where the floor is lowest:
@@ -24,9 +24,12 @@
 //! - gyro g-sensitivity G (a preset's `g_sensitivity_dph_per_g`), which the 15/21-state
 //!   filter has no state for: its part from the 1 g of gravity is a constant of unknown sign
 //!   on each axis, added to the initial gyro bias σ (G·1 g); its part from the vehicle's own
-//!   accelerations varies as the vehicle manoeuvres and is added to the Gauss-Markov gyro
-//!   bias σ (G·[`VEHICLE_ACCEL_SIGMA_G`]). Without it the consumer preset (0.1 °/s/g) gave
-//!   NEES 28 on `short_drive` (see docs/fusion.md).
+//!   accelerations varies as the vehicle manoeuvres and drives the gyro bias of each body
+//!   axis by that axis's sensitivity to the horizontal (body x, y) inputs times
+//!   [`VEHICLE_ACCEL_SIGMA_G`] (`ImuModel::gyro_bias_g_sensitivity_sigma`): with a level
+//!   mount, a z gyro sensitive only along z sees the constant 1 g and gets no in-run part.
+//!   Without it the consumer preset (0.1 °/s/g) gave NEES 28 on `short_drive` (see
+//!   docs/fusion.md).
 //! - quantization is not mapped: for the presets it is far below the white noise (consumer
 //!   gyro LSB 1/131 °/s: 0.002 °/s per sample against 0.05 °/s of white noise at 100 Hz).
 //!
@@ -47,8 +50,8 @@ pub const GM_ADEV_PEAK_TAU: f64 = 1.89;
 /// Scale-factor σ assumed when a preset gives none, fraction.
 pub const DEFAULT_SCALE_SIGMA: f64 = 1e-4;
 /// 1σ of a land vehicle's own specific-force changes (accelerating, braking, turning), in g,
-/// assumed for the in-run part of the gyro g-sensitivity bias. On `short_drive` (peaks of
-/// 0.15–0.3 g) 0.1 g left the consumer preset at NEES 15, 0.2 g gave 9.6, 0.3 g 8.0.
+/// assumed for the in-run part of the gyro g-sensitivity bias (`short_drive` peaks at
+/// 0.15–0.3 g; the consumer preset's NEES there is 6.3 with it).
 pub const VEHICLE_ACCEL_SIGMA_G: f64 = 0.2;
 
 /// A noise model with where it came from and what had to be assumed.
@@ -125,13 +128,17 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
         .map_err(|e| anyhow::anyhow!("{origin}: accel: {e}"))?;
     let (mut gyro_bias, mut gyro_b0, gyro_rrw) = triad_bias(&gyro);
     let (accel_bias, accel_b0, accel_rrw) = triad_bias(&accel);
+    let mut gyro_bias_g_sensitivity_sigma = [0.0; 3];
     if let Some(g) = spec.gyro.g_sensitivity_si() {
         // Largest bias one axis gets per m/s² of specific force in any direction.
         let per_mps2 = (0..3).map(|i| g.row(i).norm()).fold(0.0, f64::max);
-        let static_part = per_mps2 * G0;
-        let dynamic_part = per_mps2 * VEHICLE_ACCEL_SIGMA_G * G0;
-        gyro_b0 = gyro_b0.hypot(static_part);
-        gyro_bias.sigma = gyro_bias.sigma.hypot(dynamic_part);
+        gyro_b0 = gyro_b0.hypot(per_mps2 * G0);
+        // The vehicle's own specific-force changes are horizontal (body x and y of a level
+        // mount): each axis's in-run part is its sensitivity to those two inputs.
+        for (axis, sigma) in gyro_bias_g_sensitivity_sigma.iter_mut().enumerate() {
+            let horizontal = g[(axis, 0)].hypot(g[(axis, 1)]);
+            *sigma = horizontal * VEHICLE_ACCEL_SIGMA_G * G0;
+        }
         if !(gyro_bias.tau_s.is_finite() && gyro_bias.tau_s > 0.0) {
             // A random constant cannot follow the manoeuvres: give it the flat band's τ.
             let band = gyro.bias_instability_band_s;
@@ -159,6 +166,7 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
             accel_bias_initial_sigma: Some(accel_b0),
             gyro_rrw_rad_per_s_sqrt_s: gyro_rrw,
             accel_rrw_mps2_per_sqrt_s: accel_rrw,
+            gyro_bias_g_sensitivity_sigma,
         },
         origin: origin.to_string(),
         warnings,
@@ -485,11 +493,16 @@ mod tests {
         // The consumer preset's turn-on bias dominates its initial σ.
         let c = model_from_preset("consumer").expect("preset").model;
         assert!(c.gyro_bias_sigma0() > 10.0 * c.gyro_bias.sigma);
-        // Its g-sensitivity, 0.1 °/s/g, is in the model: in-run σ = √(floor σ² + (0.1 °/s ·
-        // 0.2)²), initial σ = √(floor σ² + turn-on² + (0.1 °/s · 1)²).
+        // Its g-sensitivity, 0.1 °/s/g on each axis's own input, is in the model: in-run
+        // 0.1 °/s · 0.2 on x and y (horizontal inputs), none on z (its input is the constant
+        // 1 g); initial σ = √(floor σ² + turn-on² + (0.1 °/s · 1)²).
         let floor_sigma = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0 / GM_ADEV_PEAK;
         let dynamic = 0.1f64.to_radians() * VEHICLE_ACCEL_SIGMA_G;
-        assert!((c.gyro_bias.sigma - floor_sigma.hypot(dynamic)).abs() < 1e-12);
+        assert!((c.gyro_bias.sigma - floor_sigma).abs() < 1e-12);
+        let per_axis = c.gyro_bias_g_sensitivity_sigma;
+        assert!((per_axis[0] - dynamic).abs() < 1e-12 && (per_axis[1] - dynamic).abs() < 1e-12);
+        assert_eq!(per_axis[2], 0.0);
+        assert!(c.gyro_bias_state(0).driving_psd() > 10.0 * c.gyro_bias_state(2).driving_psd());
         let band_sigma = flicker_band_sigma(floor_sigma * GM_ADEV_PEAK, [1.0, 5000.0]);
         let initial =
             (band_sigma.powi(2) + (20f64 / 3.0).to_radians().powi(2) + 0.1f64.to_radians().powi(2))
@@ -499,8 +512,9 @@ mod tests {
             "{} vs {initial}",
             c.gyro_bias_sigma0()
         );
-        // Presets without g-sensitivity keep the floor's σ.
+        // Presets without g-sensitivity keep the floor's σ on every axis.
         assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
+        assert_eq!(m.gyro_bias_g_sensitivity_sigma, [0.0; 3]);
         // The initial σ holds the flicker's spread over the band and the turn-on bias.
         let band = floor * (5000f64.ln() / (2.0 * std::f64::consts::LN_2)).sqrt();
         assert!((band / floor - 2.48).abs() < 0.01, "{}", band / floor);

@@ -5,7 +5,9 @@
 //! these four seeds, attitude block 1249): the heading error passes 60° within 10 s of the
 //! start, beyond the filter's small-angle model, and the bias it then settles on is wrong by
 //! 0.6 °/s. The drive's first minute stands still, and the alignment takes the gyro bias from
-//! it (`align::static_gyro_bias`).
+//! it (`align::static_gyro_bias`). The g-sensitivity's in-run part drives only the x and y
+//! gyro biases (`ImuModel::gyro_bias_g_sensitivity_sigma`), so the yaw bias is not let
+//! wander on a long straight.
 
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::mechanisation::ImuInput;
@@ -101,9 +103,17 @@ fn consumer_imu_with_gnss_only_stays_bounded_over_a_drive() {
         100.0 * all.above
     );
     assert!(all.epochs > 1600, "{} common epochs", all.epochs);
-    // Bounds: twice the 9 expected, four times the 3 of the attitude block. The excess left
-    // (16.0 and 9.9 on these seeds) is the heading on the drive's 760 s straight
-    // (docs/bench/fusion.md, "Consumer preset without constraints").
-    assert!(all.mean < 18.0, "ANEES {:.2}", all.mean);
-    assert!(attitude.mean < 12.0, "attitude ANEES {:.2}", attitude.mean);
+    // The ANEES within its 95 % band for 4 seeds (6.83 on these seeds), the attitude block
+    // within 1.5 times its 3 expected (2.33). With the g-sensitivity's in-run part on the
+    // yaw bias as well, whose input is the constant 1 g, the heading on the drive's 760 s
+    // straight was over-confident: ANEES 16.0, attitude 9.9 (docs/bench/fusion.md,
+    // "Consumer preset without constraints").
+    assert!(
+        all.mean > all.band.0 && all.mean < all.band.1,
+        "ANEES {:.2} outside [{:.2}, {:.2}]",
+        all.mean,
+        all.band.0,
+        all.band.1
+    );
+    assert!(attitude.mean < 4.5, "attitude ANEES {:.2}", attitude.mean);
 }
