@@ -66,13 +66,19 @@ fn best_linear(t: &[f64], y: &[f64], tau: f64) -> (f64, f64, f64) {
 
 /// Residual sum of squares for a fixed amplitude and τ, the settled value at its best.
 fn rss_fixed(t: &[f64], y: &[f64], amplitude: f64, tau: f64) -> f64 {
-    let r: Vec<f64> = t
-        .iter()
-        .zip(y)
-        .map(|(&ti, &yi)| yi - amplitude * (-ti / tau).exp())
-        .collect();
-    let mean = r.iter().sum::<f64>() / r.len() as f64;
-    r.iter().map(|v| (v - mean).powi(2)).sum()
+    // One pass, no allocation (the profile intervals call this thousands of times); the
+    // residuals are taken relative to the first one, so the settled value cancels exactly.
+    let rate = -1.0 / tau;
+    let residual = |ti: f64, yi: f64| yi - amplitude * (ti * rate).exp();
+    let Some((&t0, &y0)) = t.first().zip(y.first()) else {
+        return 0.0;
+    };
+    let shift = residual(t0, y0);
+    let (sum, sum_sq) = t.iter().zip(y).fold((0.0, 0.0), |(s, q), (&ti, &yi)| {
+        let d = residual(ti, yi) - shift;
+        (s + d, q + d * d)
+    });
+    (sum_sq - sum * sum / t.len() as f64).max(0.0)
 }
 
 /// The range of ln τ the fits look at: a thousandth of the span to a hundred spans.
@@ -250,20 +256,29 @@ fn rss_for_amplitude(t: &[f64], y: &[f64], amplitude: f64) -> f64 {
     let grid = 32;
     let u = |k: usize| lo + (hi - lo) * k as f64 / grid as f64;
     let rss = |u: f64| rss_fixed(t, y, amplitude, u.exp());
-    let best = (0..=grid)
-        .min_by(|&a, &b| rss(u(a)).total_cmp(&rss(u(b))))
-        .unwrap_or(0);
+    let (best, best_rss) = (0..=grid)
+        .map(|k| (k, rss(u(k))))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, f64::INFINITY));
+    // Golden section on the bracket around the best grid point, one evaluation per step.
     let (mut a, mut b) = (u(best.saturating_sub(1)), u((best + 1).min(grid)));
     let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+    let (mut f1, mut f2) = (rss(x1), rss(x2));
     for _ in 0..30 {
-        let (x1, x2) = (b - g * (b - a), a + g * (b - a));
-        if rss(x1) < rss(x2) {
+        if f1 < f2 {
             b = x2;
+            (x2, f2) = (x1, f1);
+            x1 = b - g * (b - a);
+            f1 = rss(x1);
         } else {
             a = x1;
+            (x1, f1) = (x2, f2);
+            x2 = a + g * (b - a);
+            f2 = rss(x2);
         }
     }
-    rss(0.5 * (a + b)).min(rss(u(best)))
+    f1.min(f2).min(best_rss)
 }
 
 /// Profile-likelihood 95 % interval of the amplitude (τ and the settled value free), in the
