@@ -180,14 +180,7 @@ pub fn open_input(
         }
         open_file(path)?
     };
-    let name = match source.as_any_session() {
-        Some(d) => d.to_string(),
-        None => args.device.clone().unwrap_or_else(|| {
-            path.file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "device".into())
-        }),
-    };
+    let name = device_name(source.as_ref(), path, args);
     // A session's channels are SI; a file's are when no other unit is given for them.
     let si = path.is_dir()
         || (matches!(
@@ -195,6 +188,19 @@ pub fn open_input(
             RateUnit::Unspecified | RateUnit::RadPerSecond | RateUnit::MetrePerSecondSquared
         ) && args.columns.is_empty());
     corrections.correct_source(source, &name, si)
+}
+
+/// The device an input's results are named by: a session's IMU, else `--device`, else the
+/// file's stem.
+fn device_name(source: &dyn SampleSource, path: &Path, args: &Options) -> String {
+    match source.as_any_session() {
+        Some(device) => device.to_string(),
+        None => args.device.clone().unwrap_or_else(|| {
+            path.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "device".into())
+        }),
+    }
 }
 
 /// Reads and analyses every selected axis of every input, one axis in memory at a time.
@@ -269,15 +275,7 @@ pub fn analyse_inputs(
         if axes.is_empty() {
             bail!("{}: no channels to analyse", path.display());
         }
-        let device = if let Some(session) = source.as_any_session() {
-            session.to_string()
-        } else {
-            args.device.clone().unwrap_or_else(|| {
-                path.file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| "device".into())
-            })
-        };
+        let device = device_name(source.as_ref(), path, args);
         plan.push(PlannedInput {
             path: path.clone(),
             source,
