@@ -1102,6 +1102,27 @@ mod tests {
         assert_eq!(check_temperature(&some_nan, 1.0, None).unwrap(), 1);
     }
 
+    /// The thermal analysis of a 1 Hz accelerometer axis in m/s², with no plateau long
+    /// enough for its own Allan curve.
+    fn analyse_accel_without_plateaus(rate: Vec<f64>, temp: Vec<f32>) -> AxisThermal {
+        let mut series = AxisSeries::one_segment("accel_x", 1.0, rate);
+        series.temperature = Some(temp);
+        let options = ThermalOptions {
+            plateau_min_s: 1e9,
+            ..ThermalOptions::default()
+        };
+        analyse_axis_thermal(
+            "dut",
+            series,
+            SensorKind::Accel,
+            RateUnit::MetrePerSecondSquared,
+            None,
+            &options,
+        )
+        .unwrap()
+        .0
+    }
+
     #[test]
     fn a_soak_without_a_transient_reports_what_it_could_have_detected() {
         // 1 Hz: 1200 s at 25 °C, a ramp to 45 °C, a hold; bias 0.01 + 0.001/°C, no warm-up.
@@ -1113,21 +1134,7 @@ mod tests {
             .iter()
             .map(|&t| 0.01 + 0.001 * (f64::from(t) - 25.0) + 0.01 * noise.normal())
             .collect();
-        let mut series = AxisSeries::one_segment("accel_x", 1.0, rate);
-        series.temperature = Some(temp);
-        let options = ThermalOptions {
-            plateau_min_s: 1e9,
-            ..ThermalOptions::default()
-        };
-        let (a, _) = analyse_axis_thermal(
-            "dut",
-            series,
-            SensorKind::Accel,
-            RateUnit::MetrePerSecondSquared,
-            None,
-            &options,
-        )
-        .unwrap();
+        let a = analyse_accel_without_plateaus(rate, temp);
         assert!(a.warmup.is_none(), "{:?}", a.warmup);
         let limit = a.warmup_detection_limit.expect("no detection limit");
         assert_eq!(limit.limits.len(), DETECTION_LIMIT_SOAK_FRACTIONS.len());
@@ -1165,21 +1172,7 @@ mod tests {
                 temp.push(t_c as f32 + 0.001 * (i % 7) as f32);
             }
         }
-        let mut series = AxisSeries::one_segment("accel_x", 1.0, rate);
-        series.temperature = Some(temp);
-        let options = ThermalOptions {
-            plateau_min_s: 1e9,
-            ..ThermalOptions::default()
-        };
-        let (a, _) = analyse_axis_thermal(
-            "dut",
-            series,
-            SensorKind::Accel,
-            RateUnit::MetrePerSecondSquared,
-            None,
-            &options,
-        )
-        .unwrap();
+        let a = analyse_accel_without_plateaus(rate, temp);
         let sf = a.scale_factor.expect("no scale factor");
         assert_eq!(sf.points.len(), 3, "{:?}", sf.points);
         assert_eq!(sf.fit.order, 1);

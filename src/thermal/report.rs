@@ -3,7 +3,7 @@
 //! as a text summary, as the HTML report section with its SVG plots, and as the
 //! compensation model it exports.
 
-use super::analysis::AxisThermal;
+use super::analysis::{AxisThermal, Warmup};
 use super::model::{AxisModel, DeviceModel, ThermalModel, MODEL_FORMAT, MODEL_VERSION};
 use super::plot;
 use crate::allan::units::RateUnit;
@@ -171,14 +171,9 @@ pub fn summary_text(report: &ThermalReport) -> String {
             if let Some(w) = &a.warmup {
                 let _ = writeln!(
                     s,
-                    "    warm-up: τ = {:.1} s [{}, {}], amplitude {:+.4} {} [{}, {}], within {:.4} {} of the settled value after {:.0} s",
-                    w.time_constant_s,
-                    bound(w.time_constant_ci95_s[0], 1),
-                    bound(w.time_constant_ci95_s[1], 1),
-                    w.amplitude,
-                    w.unit,
-                    bound(w.amplitude_ci95[0], 4),
-                    bound(w.amplitude_ci95[1], 4),
+                    "    warm-up: τ = {}, amplitude {}, within {:.4} {} of the settled value after {:.0} s",
+                    time_constant_text(w),
+                    amplitude_text(w),
                     w.tolerance,
                     w.unit,
                     w.time_to_tolerance_s
@@ -216,6 +211,29 @@ fn bound(x: f64, decimals: usize) -> String {
     } else {
         format!("{x:.decimals$}")
     }
+}
+
+/// A warm-up's time constant with its 95 % interval: `312.4 s [250.1, ∞]`.
+fn time_constant_text(w: &Warmup) -> String {
+    let [lo, hi] = w.time_constant_ci95_s;
+    format!(
+        "{:.1} s [{}, {}]",
+        w.time_constant_s,
+        bound(lo, 1),
+        bound(hi, 1)
+    )
+}
+
+/// A warm-up's amplitude with its unit and 95 % interval: `+0.0123 rad/s [0.0101, 0.0150]`.
+fn amplitude_text(w: &Warmup) -> String {
+    let [lo, hi] = w.amplitude_ci95;
+    format!(
+        "{:+.4} {} [{}, {}]",
+        w.amplitude,
+        w.unit,
+        bound(lo, 4),
+        bound(hi, 4)
+    )
 }
 
 /// The smallest detectable warm-up amplitudes, one per time constant.
@@ -267,14 +285,9 @@ pub fn html_section(report: &ThermalReport) -> String {
             });
             let warm = match (&a.warmup, &a.warmup_detection_limit) {
                 (Some(w), _) => format!(
-                    "{:.1} s [{}, {}], {:+.4} {} [{}, {}], {:.0} s (±{:.4})",
-                    w.time_constant_s,
-                    bound(w.time_constant_ci95_s[0], 1),
-                    bound(w.time_constant_ci95_s[1], 1),
-                    w.amplitude,
-                    w.unit,
-                    bound(w.amplitude_ci95[0], 4),
-                    bound(w.amplitude_ci95[1], 4),
+                    "{}, {}, {:.0} s (±{:.4})",
+                    time_constant_text(w),
+                    amplitude_text(w),
                     w.time_to_tolerance_s,
                     w.tolerance
                 ),
