@@ -30,8 +30,9 @@ pub struct TumbleSpec {
     /// The still period at the start (a static detector takes its threshold from it), s.
     #[serde(default = "default_first_hold")]
     pub first_hold_s: f64,
-    /// How long each later pose is held still, s.
-    pub hold_s: f64,
+    /// How long each later pose is held still, s: one time for every pose, or a list with
+    /// one time per pose (a chamber run holding ±1 g poses only at the end of each soak).
+    pub hold_s: Holds,
     /// How long each rotation to the next pose takes, s.
     pub rotate_s: f64,
     /// Number of random poses after the first (drawn from the scene seed); alternative to
@@ -43,6 +44,32 @@ pub struct TumbleSpec {
 
 fn default_first_hold() -> f64 {
     30.0
+}
+
+/// The hold time of a tumble's poses: the same for all, or one per pose.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Holds {
+    Every(f64),
+    Each(Vec<f64>),
+}
+
+impl Holds {
+    /// The hold time of each of `poses` poses, checked.
+    fn per_pose(&self, poses: usize) -> Result<Vec<f64>, String> {
+        match self {
+            Holds::Every(hold) => Ok(vec![positive("hold_s", *hold)?; poses]),
+            Holds::Each(list) if list.len() != poses => Err(format!(
+                "hold_s lists {} times for {poses} poses: give one per pose, or one number for all",
+                list.len()
+            )),
+            Holds::Each(list) => list
+                .iter()
+                .enumerate()
+                .map(|(i, &h)| positive(&format!("hold_s[{i}]"), h))
+                .collect(),
+        }
+    }
 }
 
 /// One constant-rate step of a rate table.
@@ -202,7 +229,6 @@ impl AttitudeProgram {
         height_m: f64,
     ) -> Result<Self, String> {
         let first = positive("first_hold_s", spec.first_hold_s)?;
-        let hold = positive("hold_s", spec.hold_s)?;
         let rotate = positive("rotate_s", spec.rotate_s)?;
         let poses: Vec<UnitQuaternion<f64>> = match (spec.poses, &spec.orientations) {
             (Some(_), Some(_)) => return Err("give either poses or orientations, not both".into()),
@@ -223,6 +249,7 @@ impl AttitudeProgram {
                 list.iter().map(|o| euler(o[0], o[1], o[2])).collect()
             }
         };
+        let holds = spec.hold_s.per_pose(poses.len())?;
         let mut q = euler(spec.roll_deg, spec.pitch_deg, spec.heading_deg);
         let mut pieces = vec![Timed {
             t0: 0.0,
@@ -230,7 +257,7 @@ impl AttitudeProgram {
             piece: Piece::Hold { q },
         }];
         let mut t = first;
-        for next in poses {
+        for (next, hold) in poses.into_iter().zip(holds) {
             let rel = q.inverse() * next;
             if let Some((axis, angle)) = rel.axis_angle() {
                 pieces.push(Timed {
@@ -446,7 +473,7 @@ mod tests {
             pitch_deg: 0.0,
             heading_deg: 0.0,
             first_hold_s: 10.0,
-            hold_s: 4.0,
+            hold_s: Holds::Every(4.0),
             rotate_s: 2.0,
             poses: Some(n),
             orientations: None,
@@ -481,6 +508,37 @@ mod tests {
         assert!(
             (last.accel_b.norm() - imulab_earth::normal_gravity(p.lat_rad, 200.0)).abs() < 1e-9
         );
+    }
+
+    #[test]
+    fn each_pose_is_held_for_its_own_time() {
+        let mut spec = TumbleSpec {
+            roll_deg: 0.0,
+            pitch_deg: 0.0,
+            heading_deg: 0.0,
+            first_hold_s: 10.0,
+            hold_s: Holds::Each(vec![5.0, 7.0]),
+            rotate_s: 2.0,
+            poses: None,
+            orientations: Some(vec![[0.0, 90.0, 0.0], [0.0, -90.0, 0.0]]),
+        };
+        let mut p = AttitudeProgram::tumble(&spec, 1, 45.0, 7.0, 200.0).unwrap();
+        assert!((p.duration_s() - 26.0).abs() < 1e-12, "{}", p.duration_s());
+        let up = euler(0.0, 90.0, 0.0);
+        let down = euler(0.0, -90.0, 0.0);
+        for (t, q) in [(12.1, up), (16.9, up), (19.1, down), (25.9, down)] {
+            assert!(p.at(t).quat_nb.angle_to(&q) < 1e-12, "t = {t}");
+        }
+        assert!(
+            p.at(17.5).quat_nb.angle_to(&up) > 1e-3,
+            "rotating at 17.5 s"
+        );
+        spec.hold_s = Holds::Each(vec![5.0]);
+        let e = AttitudeProgram::tumble(&spec, 1, 45.0, 7.0, 200.0).unwrap_err();
+        assert!(e.contains("hold_s lists 1 times for 2 poses"), "{e}");
+        spec.hold_s = Holds::Each(vec![5.0, -1.0]);
+        let e = AttitudeProgram::tumble(&spec, 1, 45.0, 7.0, 200.0).unwrap_err();
+        assert!(e.contains("hold_s[1] must be > 0"), "{e}");
     }
 
     #[test]
