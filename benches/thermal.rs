@@ -9,7 +9,7 @@ use imulab::allan::units::{RateUnit, SensorKind};
 use imulab::sim::imu_model::{Channels, ImuSimulator, ImuSpec, G0};
 use imulab::sim::presets::imu_preset;
 use imulab::sim::temperature::{ProgramSegment, TemperatureProfile};
-use imulab::thermal::analysis::{analyse_axis_thermal, AxisThermal, ThermalOptions};
+use imulab::thermal::analysis::{analyse_axis_thermal, AxisThermal, DeviceMotion, ThermalOptions};
 use nalgebra::Vector3;
 use std::time::Instant;
 
@@ -107,6 +107,7 @@ fn analyse(series: AxisSeries, sensor: SensorKind, profile: &TemperatureProfile)
         unit,
         Some(&chamber),
         &ThermalOptions::default(),
+        &mut DeviceMotion::default(),
     )
     .unwrap()
     .0

@@ -12,7 +12,9 @@ use crate::allan::units::{RateUnit, SensorKind};
 use crate::sim::temperature::TemperatureProfile;
 use crate::store::manifest::DeviceKind;
 use crate::store::Session;
-use crate::thermal::analysis::{analyse_axis_thermal, fit_lag, ThermalOptions};
+use crate::thermal::analysis::{
+    analyse_axis_thermal, fit_lag, AxisThermal, DeviceMotion, ThermalOptions,
+};
 use crate::thermal::report::{html_page, summary_text, DeviceThermal, ThermalLag, ThermalReport};
 use anyhow::{anyhow, bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -215,7 +217,12 @@ fn analyse_device(
     let mut results = Vec::new();
     let mut lag = None;
     let mut range = [f64::INFINITY, f64::NEG_INFINITY];
-    for axis in &axes {
+    // The accelerometers first: the blocks where they find the device turned stay out of
+    // the gyros' bias fits too.
+    let mut order: Vec<&String> = axes.iter().collect();
+    order.sort_by_key(|a| !matches!(sensor_of(a), Ok((SensorKind::Accel, _))));
+    let mut motion = DeviceMotion::default();
+    for axis in order {
         let (sensor, unit) = sensor_of(axis)?;
         let series = match read_one(source, axis, &timing, temp) {
             Ok(series) => series,
@@ -245,8 +252,9 @@ fn analyse_device(
                 .map(|t| t / crate::thermal::analysis::datasheet_unit(sensor, unit).1),
             ..options.clone()
         };
-        let (result, temps) = analyse_axis_thermal(device, series, sensor, unit, chamber, &options)
-            .map_err(|e| anyhow!("{}: {e}", source.describe()))?;
+        let (result, temps) =
+            analyse_axis_thermal(device, series, sensor, unit, chamber, &options, &mut motion)
+                .map_err(|e| anyhow!("{}: {e}", source.describe()))?;
         range[0] = range[0].min(result.fit.range_c[0]);
         range[1] = range[1].max(result.fit.range_c[1]);
         if lag.is_none() && !temps.chamber_c.is_empty() {
@@ -264,6 +272,7 @@ fn analyse_device(
     if results.is_empty() {
         bail!("{}: no axis with valid samples", source.describe());
     }
+    results.sort_by_key(|r: &AxisThermal| axes.iter().position(|a| *a == r.axis));
     Ok(DeviceThermal {
         device: device.to_string(),
         temperature_range_c: range,

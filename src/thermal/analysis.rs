@@ -459,6 +459,44 @@ fn gravity_poses(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<i8> {
     }
 }
 
+/// Where the IMU was turned, by block number (first sample / block length), as the
+/// accelerometer axes analysed so far found it: every axis leaves these blocks out of its
+/// bias fits, so neither a gyro's rotation into a pose and the earth rate's other
+/// projection there, nor an accelerometer axis's tilt, enter a bias against temperature.
+/// Analyse the accelerometer axes of a device first and pass the same value to all its axes.
+#[derive(Debug, Clone, Default)]
+pub struct DeviceMotion {
+    turned: Vec<bool>,
+}
+
+impl DeviceMotion {
+    fn turned(&self, block: usize) -> bool {
+        self.turned.get(block).copied().unwrap_or(false)
+    }
+
+    fn mark(&mut self, block: usize) {
+        if self.turned.len() <= block {
+            self.turned.resize(block + 1, false);
+        }
+        self.turned[block] = true;
+    }
+}
+
+/// Per block: `true` where an accelerometer axis reads more than [`POSE_GRAVITY_FRACTION`]
+/// of 1 g away from its usual (median) value: the IMU was turned. All `false` for a gyro.
+fn turned_blocks(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<bool> {
+    if sensor != SensorKind::Accel || bias.is_empty() {
+        return vec![false; bias.len()];
+    }
+    let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
+    let mut sorted = bias.to_vec();
+    let mid = sorted.len() / 2;
+    let usual = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
+    bias.iter()
+        .map(|&b| (b - usual).abs() > POSE_GRAVITY_FRACTION * g)
+        .collect()
+}
+
 /// `true` within `margin` blocks of a non-zero entry.
 fn dilate(pose: &[i8], margin: usize) -> Vec<bool> {
     let mut out = vec![false; pose.len()];
@@ -604,7 +642,8 @@ pub struct TemperatureTrace {
 }
 
 /// Analyses one axis. `series` holds one uniform segment; `chamber` gives the chamber
-/// temperature at a time (s from the first sample) where the session has it.
+/// temperature at a time (s from the first sample) where the session has it; `motion` is
+/// where the device was turned, shared by its axes (see [`DeviceMotion`]).
 pub fn analyse_axis_thermal(
     device: &str,
     mut series: AxisSeries,
@@ -612,6 +651,7 @@ pub fn analyse_axis_thermal(
     unit: RateUnit,
     chamber: Option<&dyn Fn(f64) -> f64>,
     options: &ThermalOptions,
+    motion: &mut DeviceMotion,
 ) -> Result<(AxisThermal, TemperatureTrace), String> {
     let tau0 = series.tau0;
     let axis = series.name.clone();
@@ -646,7 +686,19 @@ pub fn analyse_axis_thermal(
     // Accelerometer poses that hold gravity along the axis (a tumble at each soak): they give
     // the scale factor against temperature and stay out of the bias fits.
     let pose = gravity_poses(&blocks.bias, sensor, unit);
-    let in_pose = dilate(&pose, POSE_MARGIN_BLOCKS);
+    let block_len = ((options.block_s / tau0).round() as usize).max(1);
+    for (i, turned) in turned_blocks(&blocks.bias, sensor, unit)
+        .into_iter()
+        .enumerate()
+    {
+        if turned {
+            motion.mark(blocks.start[i] / block_len);
+        }
+    }
+    let moved: Vec<i8> = (0..pose.len())
+        .map(|i| i8::from(pose[i] != 0 || motion.turned(blocks.start[i] / block_len)))
+        .collect();
+    let in_pose = dilate(&moved, POSE_MARGIN_BLOCKS);
     let before_pose = |(s, e): (usize, usize)| -> (usize, usize) {
         (s, (s..e).find(|&i| in_pose[i]).unwrap_or(e))
     };
@@ -684,7 +736,6 @@ pub fn analyse_axis_thermal(
     // bias(T): they also give the slow bias drift the warm-up and hysteresis intervals hold.
     let mut plateau_noise = Vec::new();
     let mut plateau_fits = Vec::new();
-    let block_len = ((options.block_s / tau0).round() as usize).max(1);
     for (s, e) in plateaus(&blocks, options.plateau_tolerance_c, options.plateau_min_s) {
         let (s, e) = before_pose((s, e));
         if e <= s {
@@ -1118,6 +1169,7 @@ mod tests {
             RateUnit::MetrePerSecondSquared,
             None,
             &options,
+            &mut DeviceMotion::default(),
         )
         .unwrap()
         .0

@@ -513,3 +513,80 @@ fn report_shows_the_thermal_section() {
         std::fs::copy(&shot, copy).unwrap();
     }
 }
+
+/// The chamber run with ±1 g poses at the end of each soak (fixtures/scenes/chamber_poses.toml):
+/// the accelerometer scale tempco comes from the poses, and the turns stay out of every axis's
+/// bias fit, so the pitch axis's gyro and the z accelerometer (1 g → 0 in the poses) keep the
+/// tempcos a static run gives.
+#[test]
+fn a_chamber_run_with_poses_gives_the_scale_tempco_and_clean_bias_fits() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scenes/chamber_poses.toml");
+    let session = dir.path().join("session");
+    let out = imulab(&[
+        "sim",
+        scene.to_str().unwrap(),
+        "-o",
+        session.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json = dir.path().join("thermal.json");
+    let out = imulab(&[
+        "thermal",
+        session.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let axes = doc["devices"][0]["axes"].as_array().unwrap().clone();
+    let names: Vec<&str> = axes.iter().map(|a| a["axis"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        ["gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"],
+        "axes in the session's order"
+    );
+    let axis = |name: &str| axes.iter().find(|a| a["axis"] == name).unwrap();
+    let c1 = |name: &str| axis(name)["coefficients"][1]["value"].as_f64().unwrap();
+    let residual = |name: &str| axis(name)["fit"]["residual_rms"].as_f64().unwrap();
+    // The preset (icm20948-thermal): accel scale tempco 260 ppm/°C; gyro y bias tempco
+    // −20 °/h/°C; accel z 0.80 mg/°C, less the 0.26 mg/°C its scale tempco adds under −1 g.
+    let scale = axis("accel_x")["scale_factor"]["coefficients"][1]["value"]
+        .as_f64()
+        .unwrap();
+    assert!(within(scale, 260.0, 0.05), "scale tempco {scale} ppm/°C");
+    assert!(
+        within(c1("gyro_y"), -20.0, 0.05),
+        "gyro_y c1 {}",
+        c1("gyro_y")
+    );
+    assert!(
+        within(c1("accel_z"), 0.54, 0.05),
+        "accel_z c1 {}",
+        c1("accel_z")
+    );
+    // Residuals at the noise of 1 s blocks: the ICM's 54 °/h/√Hz gyro and ~0.3 mg accel.
+    let dph = std::f64::consts::PI / 180.0 / 3600.0;
+    for gyro in ["gyro_x", "gyro_y", "gyro_z"] {
+        assert!(
+            residual(gyro) < 100.0 * dph,
+            "{gyro} residual {} rad/s",
+            residual(gyro)
+        );
+    }
+    for accel in ["accel_x", "accel_y", "accel_z"] {
+        assert!(
+            residual(accel) < 1e-3 * 9.80665,
+            "{accel} residual {} m/s²",
+            residual(accel)
+        );
+    }
+}
