@@ -30,10 +30,10 @@ use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// The synthetic data, shared with `examples/allan_probe.rs`.
-#[path = "allan/noise.rs"]
-mod noise;
-use noise::{simulate, simulate_batches, K_TRUE, N_TRUE, RATE_HZ, SAMPLES};
+// The synthetic data, shared with `examples/allan_probe.rs`.
+use imulab_test_support::gyro_noise::{
+    simulate, simulate_batches, K_TRUE, N_TRUE, RATE_HZ, SAMPLES,
+};
 
 fn best_of<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let (time, out) = best_of_prepared(runs, || (), |()| f());

@@ -10,15 +10,13 @@
 //! Prints markdown tables (copied into docs/bench/fusion.md). Run times are the thread's CPU
 //! time (CLOCK_THREAD_CPUTIME_ID), so a busy shared machine does not inflate them.
 
-#[path = "../tests/fusion/support.rs"]
-mod fusion_support;
-
-use fusion_support::{mems_errors, simulate, SimData};
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::mechanisation::{ImuInput, IntegrationOrder, NavState};
 use imulab::fusion::metrics::{errors, summarise};
 use imulab::fusion::navigator::{replay, ReplayOptions};
 use imulab::sim::motion::{MotionSpec, Segment};
+use imulab_test_support::fusion_data as fusion_support;
+use imulab_test_support::fusion_data::{mems_errors, simulate, SimData};
 use nalgebra::Vector3;
 use std::time::Instant;
 

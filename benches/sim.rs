@@ -6,8 +6,7 @@
 //!
 //! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings).
 
-#[path = "../tests/sim/support.rs"]
-mod sim_support;
+use imulab_test_support::allan_check as sim_support;
 
 use std::io::Read;
 use std::os::unix::fs::OpenOptionsExt;

@@ -22,10 +22,8 @@ use imulab::allan::units::RateUnit;
 use imulab::allan::{compute_curve, Curve, DeviationKind, Phase, TauGrid};
 use std::time::Instant;
 
-/// The bench's synthetic data (one generator for both).
-#[path = "../benches/allan/noise.rs"]
-mod noise;
-use noise::{simulate, RATE_HZ, SAMPLES};
+// The bench's synthetic data (one generator for both).
+use imulab_test_support::gyro_noise::{simulate, RATE_HZ, SAMPLES};
 
 fn cpu_ms() -> f64 {
     nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID)

@@ -8,10 +8,11 @@ use imulab::store::{
     DeviceInfo, DeviceKind, EventKind, EventRecord, ImuRecord, Manifest, SessionWriter,
     WriterOptions,
 };
+use imulab_test_support::browser::{chromium, chromium_missing, run};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 const RATE_HZ: f64 = 100.0;
@@ -96,18 +97,6 @@ fn png_size(path: &Path) -> (u32, u32, usize) {
     (be(16), be(20), bytes.len())
 }
 
-fn chromium() -> Option<PathBuf> {
-    ["chromium", "chromium-browser", "google-chrome"]
-        .iter()
-        .find_map(|name| {
-            std::env::var_os("PATH").and_then(|paths| {
-                std::env::split_paths(&paths)
-                    .map(|dir| dir.join(name))
-                    .find(|p| p.is_file())
-            })
-        })
-}
-
 #[test]
 fn session_report_is_complete_self_contained_and_renders() {
     let dir = tempfile::tempdir().unwrap();
@@ -187,29 +176,16 @@ fn session_report_is_complete_self_contained_and_renders() {
     }
 
     // A real browser.
-    let Some(browser) = chromium() else {
-        eprintln!("skipping the browser check: no chromium on PATH (apt package `chromium`)");
+    if chromium_missing("the browser check") {
         return;
-    };
+    }
+    let profile = tempfile::tempdir().unwrap();
     let shot = dir.path().join("screenshot.png");
-    let status = Command::new(&browser)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--hide-scrollbars",
-        ])
-        .arg(format!("--screenshot={}", shot.display()))
+    let mut c = chromium(profile.path());
+    c.arg(format!("--screenshot={}", shot.display()))
         .arg("--window-size=1280,2400")
-        .arg(format!("file://{}", html_path.display()))
-        .output()
-        .unwrap();
-    assert!(
-        status.status.success(),
-        "{}: {}",
-        browser.display(),
-        String::from_utf8_lossy(&status.stderr)
-    );
+        .arg(format!("file://{}", html_path.display()));
+    run(c);
     let (w, h, bytes) = png_size(&shot);
     assert_eq!((w, h), (1280, 2400));
     // A blank page compresses to a few kB; text, tables and four plots do not.

@@ -10,4 +10,4 @@ mod noise;
 mod session;
 mod stability;
 mod study;
-mod support;
+use imulab_test_support::fusion_data as support;

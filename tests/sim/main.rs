@@ -4,6 +4,5 @@ mod allan;
 mod scenes;
 mod serve;
 mod session;
-#[path = "../store/space.rs"]
-mod space;
-mod support;
+use imulab_test_support::allan_check as support;
+use imulab_test_support::space;

@@ -9,4 +9,4 @@ mod python;
 mod recover;
 mod rotation;
 mod roundtrip;
-mod space;
+use imulab_test_support::space;

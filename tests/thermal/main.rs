@@ -3,6 +3,7 @@
 //! its message; the exported model compensates `imulab allan` and `imulab export`, and a
 //! model of the drive scene's tempcos shrinks `imulab replay`'s outage drift.
 
+use imulab_test_support::browser::{chromium, chromium_missing, run};
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -424,8 +425,6 @@ fn bad_temperature_input_is_explained() {
     );
 }
 
-const CHROMIUM: &str = "/usr/bin/chromium";
-
 /// `imulab report` of a chamber session carries the thermal section with both plots; a real
 /// headless Chromium renders it (skipped, saying why, without `/usr/bin/chromium`). With
 /// `IMULAB_THERMAL_SCREENSHOT=FILE` the screenshot is copied there (docs/img/report-thermal.png).
@@ -464,37 +463,23 @@ fn report_shows_the_thermal_section() {
         "the thermal section comes before the data health"
     );
 
-    if !Path::new(CHROMIUM).exists() {
-        eprintln!("skipped the browser check: {CHROMIUM} not found (install Debian's `chromium`)");
+    if chromium_missing("the browser check") {
         return;
     }
     let profile = tempfile::tempdir().unwrap();
     let shot = dir.path().join("report.png");
-    let run = |extra: &[String]| -> Output {
-        Command::new(CHROMIUM)
-            .args([
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--no-first-run",
-            ])
-            .arg(format!("--user-data-dir={}", profile.path().display()))
-            .args(extra)
-            .arg(format!("file://{}", html.display()))
-            .stdin(std::process::Stdio::null())
-            .output()
-            .expect("run chromium")
+    let render = |extra: &[String]| -> Output {
+        let mut c = chromium(profile.path());
+        c.args(extra).arg(format!("file://{}", html.display()));
+        run(c)
     };
-    let dom = run(&["--dump-dom".to_string()]);
+    let dom = render(&["--dump-dom".to_string()]);
     let dom = String::from_utf8_lossy(&dom.stdout);
     assert!(
         dom.contains("id=\"thermal\"") && dom.contains("bias against sensor temperature"),
         "chromium's DOM lacks the thermal section"
     );
-    let out = run(&[
+    let out = render(&[
         format!("--screenshot={}", shot.display()),
         "--window-size=1200,1600".to_string(),
     ]);

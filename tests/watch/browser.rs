@@ -4,59 +4,11 @@
 //! also copied there (how docs/img/watch.png is made).
 
 use super::common::{mono_now, LiveSession, Served, IMUS};
-use std::path::Path;
-use std::process::{Command, Stdio};
+use imulab_test_support::browser::{chromium, chromium_missing, run};
+use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-
-const CHROMIUM: &str = "/usr/bin/chromium";
-
-/// Whether Chromium is absent, said on stderr: the browser tests then skip.
-fn chromium_missing() -> bool {
-    let missing = !Path::new(CHROMIUM).exists();
-    if missing {
-        eprintln!("skipped: {CHROMIUM} not found (install Debian's `chromium` to run this test)");
-    }
-    missing
-}
-
-/// Chromium with the flags of a headless, offline, throw-away profile.
-fn chromium(profile: &Path) -> Command {
-    let mut c = Command::new(CHROMIUM);
-    c.args([
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-    ])
-    .arg(format!("--user-data-dir={}", profile.display()))
-    .stdin(Stdio::null());
-    c
-}
-
-/// Runs Chromium to the end, at most 90 s.
-fn run(mut c: Command) -> std::process::Output {
-    let mut child = c
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let deadline = std::time::Instant::now() + Duration::from_secs(90);
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            return child.wait_with_output().unwrap();
-        }
-        if std::time::Instant::now() > deadline {
-            let _ = child.kill();
-            panic!("chromium did not finish within 90 s");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
 
 /// The `(look N` number of the page's summary line.
 fn look_number(dom: &str) -> u64 {
@@ -82,7 +34,7 @@ fn rows_of_first_imu(dom: &str) -> u64 {
 
 #[test]
 fn chromium_shows_the_live_page_and_its_updates() {
-    if chromium_missing() {
+    if chromium_missing("the browser check") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -108,11 +60,6 @@ fn chromium_shows_the_live_page_and_its_updates() {
         let mut c = chromium(profile.path());
         c.args(["--dump-dom", &url]);
         let out = run(c);
-        assert!(
-            out.status.success(),
-            "chromium: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
         String::from_utf8_lossy(&out.stdout).to_string()
     };
     let first = dump();
@@ -140,17 +87,9 @@ fn chromium_shows_the_live_page_and_its_updates() {
     // A screenshot of the page as a browser draws it.
     let shot = dir.path().join("watch.png");
     let mut c = chromium(profile.path());
-    c.arg(format!("--screenshot={}", shot.display())).args([
-        "--window-size=1200,2200",
-        "--hide-scrollbars",
-        &url,
-    ]);
-    let out = run(c);
-    assert!(
-        out.status.success(),
-        "chromium: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    c.arg(format!("--screenshot={}", shot.display()))
+        .args(["--window-size=1200,2200", &url]);
+    run(c);
     let png = std::fs::read(&shot).unwrap();
     assert!(
         png.starts_with(b"\x89PNG") && png.len() > 20_000,
@@ -169,7 +108,7 @@ fn chromium_shows_the_live_page_and_its_updates() {
 /// right edge into the DOM it dumps.
 #[test]
 fn chromium_lays_the_health_table_out_within_1200_px() {
-    if chromium_missing() {
+    if chromium_missing("the browser check") {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -204,11 +143,6 @@ fn chromium_lays_the_health_table_out_within_1200_px() {
     c.args(["--window-size=1200,900", "--dump-dom"])
         .arg(format!("file://{}", html.display()));
     let out = run(c);
-    assert!(
-        out.status.success(),
-        "chromium: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let dom = String::from_utf8_lossy(&out.stdout);
     let attribute = |name: &str| -> f64 {
         dom.split(&format!("{name}=\""))

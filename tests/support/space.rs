@@ -1,5 +1,5 @@
 //! Where a chunk file's bytes go, for the tests that bound its dead space (the store's own
-//! and the simulator's; included by `tests/sim` with `#[path]`).
+//! and the simulator's).
 
 use std::path::Path;
 

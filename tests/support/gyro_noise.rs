@@ -2,9 +2,7 @@
 //! 150 Hz from a seeded xoshiro256++ stream. One generator for `benches/allan.rs` (the
 //! per-type table, `data.npy` for allantools, the session and memory runs) and
 //! `examples/allan_probe.rs` (which times curves on the bench's axis 0), so both always
-//! analyse the same series. Included by both with `#[path]`; not every user needs every
-//! item.
-#![allow(dead_code)]
+//! analyse the same series.
 
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};

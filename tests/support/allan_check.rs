@@ -1,9 +1,7 @@
-//! Test support for the simulator tests: a small independent overlapping Allan deviation,
-//! the equivalent degrees of freedom of its estimates (NIST SP 1065, section 5.2.4 simple
-//! approximations) and a weighted least-squares fit of the classic noise terms. Written
-//! here rather than taken from `imulab::allan` so the simulator is checked independently.
-
-#![allow(dead_code)]
+//! A small independent overlapping Allan deviation, the equivalent degrees of freedom of its
+//! estimates (NIST SP 1065, section 5.2.4 simple approximations) and a weighted least-squares
+//! fit of the classic noise terms, for the simulator's tests and benchmark. Written here
+//! rather than taken from `imulab::allan` so the simulator is checked independently.
 
 /// Overlapping Allan deviation of rate samples `y` (spacing `dt`) at τ = m·dt.
 pub fn oadev(y: &[f64], dt: f64, m: usize) -> f64 {

@@ -1,7 +1,6 @@
 //! Test-only data maker for the fusion tests: truth from `sim::motion`, IMU increments with
-//! constant biases, scale factors and white noise, GNSS fixes with white noise.
-
-#![allow(dead_code)]
+//! constant biases, scale factors and white noise, GNSS fixes with white noise (the fusion
+//! tests and `benches/fusion.rs`).
 
 use imulab::fusion::mechanisation::{ImuInput, NavState};
 use imulab::fusion::navigator::GnssObservation;

@@ -1,0 +1,14 @@
+//! What the imulab tests and benchmarks share, as a crate of its own rather than files
+//! included with `#[path]`:
+//! - [`allan_check`]: an overlapping Allan deviation, EDF approximations and a noise-term fit
+//!   written apart from `imulab::allan`, so the simulator is checked independently;
+//! - [`gyro_noise`]: the Allan benchmark's seeded gyro series (white noise + rate random walk);
+//! - [`fusion_data`]: truth, IMU increments and GNSS fixes for the fusion tests;
+//! - [`space`]: the bytes of an HDF5 chunk file outside its datasets' chunks;
+//! - [`browser`]: headless Chromium for the tests that render a page.
+
+pub mod allan_check;
+pub mod browser;
+pub mod fusion_data;
+pub mod gyro_noise;
+pub mod space;
