@@ -26,5 +26,5 @@ pub mod fusion;
 pub mod report;
 pub use imulab_sim as sim;
 pub use imulab_store as store;
-pub mod thermal;
+pub use imulab_thermal as thermal;
 pub mod watch;

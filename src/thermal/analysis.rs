@@ -17,11 +17,11 @@ use super::polyfit::{fit_branches, fit_polynomial, PolyFit};
 use super::warmup::{
     amplitude_interval, detection_limit, fit_exponential, tau_interval, transient_found,
 };
-use crate::allan::analysis::{analyse_axis, AnalysisOptions};
-use crate::allan::deviation::DeviationKind;
-use crate::allan::input::AxisSeries;
-use crate::allan::taus::TauGrid;
-use crate::allan::units::{RateUnit, SensorKind, TermInUnits};
+use imulab_allan::analysis::{analyse_axis, AnalysisOptions};
+use imulab_allan::deviation::DeviationKind;
+use imulab_allan::input::AxisSeries;
+use imulab_allan::taus::TauGrid;
+use imulab_allan::units::{RateUnit, SensorKind, TermInUnits};
 use serde::{Deserialize, Serialize};
 
 /// Lowest and highest temperature a reading may have to count as valid, °C.
@@ -231,7 +231,7 @@ pub fn datasheet_unit(sensor: SensorKind, unit: RateUnit) -> (&'static str, f64)
     let si = unit.to_si();
     match sensor {
         SensorKind::Gyro => ("deg/h", si * 180.0 / std::f64::consts::PI * 3600.0),
-        SensorKind::Accel => ("mg", si / crate::allan::units::STANDARD_GRAVITY * 1000.0),
+        SensorKind::Accel => ("mg", si / imulab_allan::units::STANDARD_GRAVITY * 1000.0),
     }
 }
 
@@ -439,7 +439,7 @@ pub const POSE_GROUP_C: f64 = 1.0;
 /// −1 for −1 g, else 0; all 0 for a gyro, and for an axis that never holds both signs (it
 /// stays along gravity: no tumble).
 fn gravity_poses(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<i8> {
-    let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
+    let g = imulab_allan::units::STANDARD_GRAVITY / unit.to_si();
     let pose: Vec<i8> = bias
         .iter()
         .map(|&b| {
@@ -488,7 +488,7 @@ fn turned_blocks(bias: &[f64], sensor: SensorKind, unit: RateUnit) -> Vec<bool> 
     if sensor != SensorKind::Accel || bias.is_empty() {
         return vec![false; bias.len()];
     }
-    let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
+    let g = imulab_allan::units::STANDARD_GRAVITY / unit.to_si();
     let mut sorted = bias.to_vec();
     let mid = sorted.len() / 2;
     let usual = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
@@ -516,7 +516,7 @@ fn scale_from_gravity(
     unit: RateUnit,
     options: &ThermalOptions,
 ) -> Result<ScaleFactor, String> {
-    let g = crate::allan::units::STANDARD_GRAVITY / unit.to_si();
+    let g = imulab_allan::units::STANDARD_GRAVITY / unit.to_si();
     // Runs: (sign, first, end).
     let mut runs = Vec::new();
     let mut i = 0;
@@ -1178,7 +1178,7 @@ mod tests {
     #[test]
     fn a_soak_without_a_transient_reports_what_it_could_have_detected() {
         // 1 Hz: 1200 s at 25 °C, a ramp to 45 °C, a hold; bias 0.01 + 0.001/°C, no warm-up.
-        let mut noise = crate::sim::rng::Stream::new(7, "no transient");
+        let mut noise = imulab_sim::rng::Stream::new(7, "no transient");
         let temp: Vec<f32> = (0..4000)
             .map(|i| (25.0 + (f64::from(i) - 1200.0).clamp(0.0, 2000.0) * 0.01) as f32)
             .collect();
@@ -1208,7 +1208,7 @@ mod tests {
     fn scale_factor_comes_from_the_gravity_poses() {
         // 1 Hz accel in m/s²: soaks at 25, 60 and −10 °C, each ending in 100 s up and 100 s
         // down; scale 200 ppm/°C about 25 °C, bias 0.01 m/s² + 0.001 m/s²/°C.
-        let g = crate::allan::units::STANDARD_GRAVITY;
+        let g = imulab_allan::units::STANDARD_GRAVITY;
         let (mut rate, mut temp) = (Vec::new(), Vec::new());
         for (k, soak_c) in [25.0, 60.0, -10.0].into_iter().enumerate() {
             for i in 0..1000 {

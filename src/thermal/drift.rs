@@ -14,8 +14,8 @@
 //! exponential) has the drift variance −½ ΣΣ wᵢ wⱼ D(|tᵢ − tⱼ|), which needs no stationary
 //! variance of the drift (a random walk has none).
 
-use crate::allan::curve::Curve;
-use crate::allan::fit::{NoiseFit, Term, BIAS_INSTABILITY_FACTOR};
+use imulab_allan::curve::Curve;
+use imulab_allan::fit::{NoiseFit, Term, BIAS_INSTABILITY_FACTOR};
 
 /// Euler's constant γ.
 const EULER_GAMMA: f64 = 0.577_215_664_901_532_9;
@@ -162,13 +162,13 @@ fn excess_flicker(curve: &Curve, fit: &NoiseFit) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::allan::analysis::{analyse_axis, AnalysisOptions};
-    use crate::allan::deviation::DeviationKind;
-    use crate::allan::input::AxisSeries;
-    use crate::allan::taus::TauGrid;
-    use crate::allan::units::RateUnit;
-    use crate::sim::flicker::{FlickerDesign, SlowProcess};
-    use crate::sim::rng::Stream;
+    use imulab_allan::analysis::{analyse_axis, AnalysisOptions};
+    use imulab_allan::deviation::DeviationKind;
+    use imulab_allan::input::AxisSeries;
+    use imulab_allan::taus::TauGrid;
+    use imulab_allan::units::RateUnit;
+    use imulab_sim::flicker::{FlickerDesign, SlowProcess};
+    use imulab_sim::rng::Stream;
 
     /// `n` samples at 1 Hz of a flicker process of bias instability `b` plus white noise.
     fn flicker_series(b: f64, white: f64, n: usize, seed: u64) -> Vec<f64> {

@@ -227,7 +227,7 @@ impl ThermalModel {
     pub fn compensate_series(
         &self,
         device: &str,
-        series: &mut crate::allan::input::AxisSeries,
+        series: &mut imulab_allan::input::AxisSeries,
         to_si: f64,
     ) -> Result<(Compensation, Option<String>)> {
         let Some(temperature) = series.temperature.as_deref() else {
@@ -262,8 +262,8 @@ impl ThermalModel {
 
 /// Errors unless IMU `device` of `session` logged its temperature (some finite `temp`):
 /// compensation needs the sensor's own temperature per sample.
-pub fn require_session_temperature(session: &crate::store::Session, device: &str) -> Result<()> {
-    for block in session.imu_blocks(device, crate::store::TimeRange::all(), 65_536)? {
+pub fn require_session_temperature(session: &imulab_store::Session, device: &str) -> Result<()> {
+    for block in session.imu_blocks(device, imulab_store::TimeRange::all(), 65_536)? {
         if block?.temp.iter().any(|t| t.is_finite()) {
             return Ok(());
         }
@@ -433,7 +433,7 @@ mod tests {
         let m = model();
         let temps: Vec<f32> = (0..200).map(|i| -5.0 + 0.3 * i as f32).collect();
         let raw: Vec<f64> = (0..200).map(|i| 9.8 + 0.001 * i as f64).collect();
-        let mut series = crate::allan::input::AxisSeries::one_segment("accel_x", 0.01, raw.clone());
+        let mut series = imulab_allan::input::AxisSeries::one_segment("accel_x", 0.01, raw.clone());
         series.segments = vec![raw[..120].to_vec(), raw[120..].to_vec()];
         series.temperature = Some(temps.clone());
         let (c, _) = m.compensate_series("imu", &mut series, 1.0).unwrap();

@@ -6,7 +6,7 @@
 use super::analysis::{AxisThermal, Warmup};
 use super::model::{AxisModel, DeviceModel, ThermalModel, MODEL_FORMAT, MODEL_VERSION};
 use super::plot;
-use crate::allan::units::RateUnit;
+use imulab_allan::units::RateUnit;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
 

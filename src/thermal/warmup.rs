@@ -323,8 +323,8 @@ pub fn detection_limit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::rng::Stream;
-    use crate::thermal::drift::Drift;
+    use crate::drift::Drift;
+    use imulab_sim::rng::Stream;
 
     #[test]
     fn the_exponential_fit_recovers_its_time_constant() {
