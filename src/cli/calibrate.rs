@@ -37,8 +37,9 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "rate_table")]
     pub six_position: bool,
     /// Rate-table mode: CSV with a `rate_dps` column (table rates in order) and optionally
-    /// `start_s`,`end_s` and `axis` (body axis on the spindle) per rate; one mounting gives
-    /// its axis's scale factor and non-linearity, three (x, y, z on the spindle) the whole M.
+    /// `start_s`,`end_s`, `axis` (body axis on the spindle) and `input` (number from 1, or
+    /// path) per rate; one mounting gives its axis's scale factor and non-linearity, three
+    /// (x, y, z on the spindle, in one input or one each) the whole M.
     #[arg(long, value_name = "CSV")]
     pub rate_table: Option<PathBuf>,
     /// Still period at the start that the detector's thresholds come from, s.
