@@ -308,7 +308,7 @@ fn main() {
             after.push(c.quality.gravity_residual_after.unwrap() * mg);
             constant.push(c.quality.gravity_residual_constant_bias.unwrap() * mg);
             drift_kept += usize::from(c.quality.accel_bias_drift.is_some());
-            if let Some(d) = &o.detection {
+            if let Some(d) = o.inputs[0].detection.as_ref() {
                 let f: f64 = d
                     .intervals
                     .iter()

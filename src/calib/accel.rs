@@ -6,7 +6,8 @@
 //! One robust pass drops poses whose residual is far outside the rest (motion during a
 //! "still" interval) and refits. A bias drifting linearly in time (three more parameters,
 //! b(t) = b + d·(t − t̄)) is then fitted too and kept only when an F-test says the data
-//! supports it (the drop in Σr² against the three parameters, at the 0.1 % level).
+//! supports it (the drop in Σr² against the three parameters, at the 0.1 % level); poses
+//! pooled from several recordings, on separate clocks, keep the constant bias.
 
 use super::lsq::{conditioning, minimise, Fit};
 use super::statics::{pose_spread, StaticInterval};
@@ -74,8 +75,9 @@ fn undrifted(p: &[f64], raw: &[f64; 3], tau: f64) -> [f64; 3] {
     [0, 1, 2].map(|k| raw[k] - p[9 + k] * tau)
 }
 
-/// Fits the accelerometer to the poses' mean specific forces with local gravity `g`.
-pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
+/// Fits the accelerometer to the poses' mean specific forces with local gravity `g`; the
+/// bias drift is tried only when `drift` (the poses' times on one clock).
+pub fn fit_accel(poses: &[StaticInterval], g: f64, drift: bool) -> Result<AccelFit> {
     if poses.len() < MIN_POSES {
         bail!(
             "found {} still poses; the accelerometer fit needs at least {MIN_POSES} (12 or more recommended): hold the IMU still in at least 12 different orientations, each for longer than --min-static, with every axis pointing up and down at least once",
@@ -163,7 +165,7 @@ pub fn fit_accel(poses: &[StaticInterval], g: f64) -> Result<AccelFit> {
     } else {
         1.0
     };
-    let keep = p_value < DRIFT_LEVEL && drift_fit.sigma.iter().all(|v| v.is_finite());
+    let keep = drift && p_value < DRIFT_LEVEL && drift_fit.sigma.iter().all(|v| v.is_finite());
     let chosen = if keep { &drift_fit } else { &constant };
     let p = &chosen.params;
     let s = &chosen.sigma;

@@ -131,33 +131,42 @@ fn inverse_derivative(a: &Matrix3<f64>) -> SMatrix<f64, 9, 9> {
     t
 }
 
-/// Fits the gyro over the rotations between consecutive `poses` of `rec`, with gravity
-/// directions from the calibrated accelerometer `accel`.
-pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -> Result<GyroFit> {
-    let rotations: Vec<Rotation> = poses
-        .windows(2)
-        .map(|w| {
-            let (p, q) = (&w[0], &w[1]);
-            let (t0, t1) = (rec.t[p.end - 1], rec.t[q.start]);
-            let bias_at = |t: f64| {
-                let s = ((t - t0) / (t1 - t0)).clamp(0.0, 1.0);
-                Vector3::from(p.gyro_mean) * (1.0 - s) + Vector3::from(q.gyro_mean) * s
-            };
-            let increments = (p.end - 1..q.start)
-                .map(|i| {
-                    let dt = rec.t[i + 1] - rec.t[i];
-                    let mid = (Vector3::from(rec.gyro[i]) + Vector3::from(rec.gyro[i + 1])) / 2.0;
-                    (mid - bias_at((rec.t[i] + rec.t[i + 1]) / 2.0)) * dt
-                })
-                .collect();
-            let dir = |s: &StaticInterval| Vector3::from(unit(accel.correct(&s.accel_mean)).0);
-            Rotation {
-                increments,
-                before: dir(p),
-                after: dir(q),
-            }
+/// One rotation between consecutive poses `p` and `q` of `rec`.
+fn rotation(
+    rec: &Recording,
+    p: &StaticInterval,
+    q: &StaticInterval,
+    accel: &TriadModel,
+) -> Rotation {
+    let (t0, t1) = (rec.t[p.end - 1], rec.t[q.start]);
+    let bias_at = |t: f64| {
+        let s = ((t - t0) / (t1 - t0)).clamp(0.0, 1.0);
+        Vector3::from(p.gyro_mean) * (1.0 - s) + Vector3::from(q.gyro_mean) * s
+    };
+    let increments = (p.end - 1..q.start)
+        .map(|i| {
+            let dt = rec.t[i + 1] - rec.t[i];
+            let mid = (Vector3::from(rec.gyro[i]) + Vector3::from(rec.gyro[i + 1])) / 2.0;
+            (mid - bias_at((rec.t[i] + rec.t[i + 1]) / 2.0)) * dt
         })
         .collect();
+    let dir = |s: &StaticInterval| Vector3::from(unit(accel.correct(&s.accel_mean)).0);
+    Rotation {
+        increments,
+        before: dir(p),
+        after: dir(q),
+    }
+}
+
+/// Fits the gyro over the rotations between consecutive poses of each run (a recording and
+/// its poses; never from one run into the next), with gravity directions from the
+/// calibrated accelerometer `accel`.
+pub fn fit_gyro(runs: &[(&Recording, &[StaticInterval])], accel: &TriadModel) -> Result<GyroFit> {
+    let rotations: Vec<Rotation> = runs
+        .iter()
+        .flat_map(|&(rec, poses)| poses.windows(2).map(|w| rotation(rec, &w[0], &w[1], accel)))
+        .collect();
+    let poses: Vec<&StaticInterval> = runs.iter().flat_map(|(_, p)| p.iter()).collect();
     if rotations.len() < MIN_ROTATIONS {
         bail!(
             "found {} rotations between still poses; the gyro fit needs at least {MIN_ROTATIONS} (12 or more recommended): turn the IMU about each of its axes between the poses",
@@ -215,13 +224,13 @@ pub fn fit_gyro(rec: &Recording, poses: &[StaticInterval], accel: &TriadModel) -
     let s = &fit.sigma;
     let n = poses.len() as f64;
     let mut bias = [0.0; 3];
-    for pose in poses {
+    for pose in &poses {
         for (b, g) in bias.iter_mut().zip(&pose.gyro_mean) {
             *b += g / n;
         }
     }
     let mut spread = [0.0; 3];
-    for pose in poses {
+    for pose in &poses {
         for k in 0..3 {
             spread[k] += (pose.gyro_mean[k] - bias[k]).powi(2) / (n - 1.0).max(1.0);
         }

@@ -1,10 +1,11 @@
 //! Rate-table calibration (after IEEE Std 1293's scale-factor tests): the gyro's mean output
 //! over segments of known constant table rate, fitted against the rate. The table rates come
-//! from a CSV (`rate_dps`, optionally `start_s`,`end_s`, and optionally `axis`, the body axis
-//! on the spindle; without times the constant-rate segments are found in the data, in order).
-//! A run holds one mounting or three (x, then y, then z on the spindle, in one recording);
-//! each segment's mounting is the CSV's `axis` or the body axis along gravity (a vertical
-//! spindle). Per mounting, each gyro axis's segment means against the rate give that
+//! from a CSV (`rate_dps`, optionally `start_s`,`end_s`, `axis`, the body axis on the
+//! spindle, and `input`, the recording the row belongs to; without times the constant-rate
+//! segments are found in the data, in order, each recording on its own clock). The
+//! recordings hold one mounting or three (x, then y, then z on the spindle, in one recording
+//! or one each); each segment's mounting is the CSV's `axis` or the body axis along gravity
+//! (a vertical spindle). Per mounting, each gyro axis's segment means against the rate give that
 //! spindle axis's column of M, and the spindle axis's own output its non-linearity (a
 //! quadratic term and the largest deviation from the straight line); three mountings give
 //! the whole M and the biases.
@@ -21,13 +22,16 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 /// One row of the table CSV.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct TableRow {
     pub rate_dps: f64,
     pub start_s: Option<f64>,
     pub end_s: Option<f64>,
     /// Body axis on the spindle (`x`, `y` or `z`); absent: the axis along gravity.
     pub axis: Option<char>,
+    /// The input the row belongs to, as written: a 1-based index or the input's path (or
+    /// its last component); absent: rows go to the inputs in order.
+    pub input: Option<String>,
 }
 
 /// The CSV row as written, before the axis is checked.
@@ -38,6 +42,7 @@ struct CsvRow {
     start_s: Option<f64>,
     end_s: Option<f64>,
     axis: Option<String>,
+    input: Option<String>,
 }
 
 /// Fewest different rates per mounting: the quadratic fit (3 parameters) needs one more to
@@ -58,6 +63,8 @@ pub struct Segment {
     pub samples: usize,
     /// Body axis on the spindle (0, 1, 2 for x, y, z).
     pub spindle: usize,
+    /// The input (0-based) it was found in; its times are on that input's clock.
+    pub input: usize,
 }
 
 /// Reads the table CSV.
@@ -70,7 +77,7 @@ pub fn read_table(path: &Path) -> Result<Vec<TableRow>> {
     for (i, row) in reader.deserialize::<CsvRow>().enumerate() {
         let row = row.map_err(|e| {
             anyhow::anyhow!(
-                "{} row {}: {e} (columns: rate_dps, and optionally start_s, end_s, axis)",
+                "{} row {}: {e} (columns: rate_dps, and optionally start_s, end_s, axis, input)",
                 path.display(),
                 i + 2
             )
@@ -98,6 +105,7 @@ pub fn read_table(path: &Path) -> Result<Vec<TableRow>> {
             start_s: row.start_s,
             end_s: row.end_s,
             axis,
+            input: row.input.filter(|s| !s.is_empty()),
         });
     }
     if rows.is_empty() {
@@ -155,41 +163,226 @@ fn mean_of(rec: &Recording, lo: usize, hi: usize) -> [f64; 3] {
     m
 }
 
-/// The segments of `rows` in `rec`: by their times, or detected (steady rate away from the
-/// initial rest) and matched to the rows in order.
+/// How an input is named in messages: its source, with its number when there are several.
+fn label(recs: &[Recording], i: usize) -> String {
+    if recs.len() > 1 {
+        format!("input {} ({})", i + 1, recs[i].source)
+    } else {
+        recs[i].source.clone()
+    }
+}
+
+/// The input a row's `input` names: a 1-based number, or an input's path as given or its
+/// last component.
+fn resolve(recs: &[Recording], row: usize, name: &str) -> Result<usize> {
+    if let Ok(k) = name.parse::<usize>() {
+        if (1..=recs.len()).contains(&k) {
+            return Ok(k - 1);
+        }
+        bail!(
+            "rate table: row {} names input {k}, but there are {} inputs (numbered from 1)",
+            row + 2,
+            recs.len()
+        );
+    }
+    let matches: Vec<usize> = (0..recs.len())
+        .filter(|&k| {
+            let path = Path::new(&recs[k].name);
+            recs[k].name == name
+                || path.file_name().is_some_and(|f| f == name)
+                || path.to_string_lossy().trim_end_matches('/') == name.trim_end_matches('/')
+        })
+        .collect();
+    match matches.as_slice() {
+        [k] => Ok(*k),
+        [] => bail!(
+            "rate table: row {} names input {name:?}, which is none of the inputs ({}); give its number (from 1) or its path",
+            row + 2,
+            recs.iter().map(|r| r.name.as_str()).collect::<Vec<_>>().join(", ")
+        ),
+        _ => bail!(
+            "rate table: row {} names input {name:?}, which fits several inputs; give its number (from 1) or its whole path",
+            row + 2
+        ),
+    }
+}
+
+/// The segments of `rows` in the inputs `recs`, each input on its own clock (a segment never
+/// spans two inputs). With an `input` column each input takes its rows; without, the rows
+/// go to the inputs in order: the segments found in the first input, then in the second…
+/// A group of rows that all have times is cut by them (seconds from its input's first
+/// sample); otherwise the segments are detected (steady rate away from the initial rest)
+/// and matched to the rows in order.
 pub fn segments(
-    rec: &Recording,
+    recs: &[Recording],
     rows: &[TableRow],
     opts: &DetectorOptions,
 ) -> Result<Vec<Segment>> {
-    let dt = rec.dt();
-    let init_end = rec.t.partition_point(|&t| t < opts.init_s);
-    if init_end < 10 {
-        bail!(
-            "{}: the rate-table run must start with the table at rest for --init-static {} s",
-            rec.source,
-            opts.init_s
-        );
-    }
-    let rest = mean_of(rec, 0, init_end);
-    if rows.iter().all(|r| r.start_s.is_some()) {
-        let mut out = Vec::new();
-        for r in rows {
-            let (a, b) = (r.start_s.unwrap_or(0.0), r.end_s.unwrap_or(0.0));
-            let lo = rec.t.partition_point(|&t| t < a);
-            let hi = rec.t.partition_point(|&t| t < b);
-            if hi <= lo + 1 {
-                bail!(
-                    "rate table: the segment {a}-{b} s at {} °/s holds no samples (the recording spans 0-{:.1} s)",
-                    r.rate_dps,
-                    rec.t[rec.len() - 1]
+    let named = rows.iter().filter(|r| r.input.is_some()).count();
+    if named == 0 {
+        if recs.len() == 1 && rows.iter().all(|r| r.start_s.is_some()) {
+            return timed_segments(recs, 0, &rows.iter().collect::<Vec<_>>(), opts);
+        }
+        if recs.len() > 1 && rows.iter().any(|r| r.start_s.is_some()) {
+            bail!(
+                "rate table: with {} inputs, rows with start_s and end_s need an `input` column (the input's number from 1, or its path) saying whose clock their times are on",
+                recs.len()
+            );
+        }
+        let found: Vec<Vec<(usize, usize)>> = (0..recs.len())
+            .map(|i| steady_segments(recs, i, opts))
+            .collect::<Result<_>>()?;
+        let total: usize = found.iter().map(Vec::len).sum();
+        if total != rows.len() {
+            let list: Vec<String> = found
+                .iter()
+                .enumerate()
+                .map(|(i, f)| {
+                    if recs.len() > 1 {
+                        format!("{}: {}", label(recs, i), describe(&recs[i], f))
+                    } else {
+                        describe(&recs[i], f)
+                    }
+                })
+                .collect();
+            bail!(
+                    "rate table: the CSV lists {} rates but {total} constant-rate segments were found: {}; give start_s and end_s for each rate in the CSV{}",
+                    rows.len(),
+                    list.join("; "),
+                    if recs.len() > 1 { " (and its input)" } else { "" }
                 );
+        }
+        let mut rows = rows.iter();
+        let mut out = Vec::with_capacity(total);
+        for (i, f) in found.iter().enumerate() {
+            let rec = &recs[i];
+            for (&(a, b), r) in f.iter().zip(rows.by_ref()) {
+                out.push(segment(rec, r, a, b, (rec.t[a], rec.t[b - 1]), i)?);
             }
-            out.push(segment(rec, r, lo, hi, (a, b))?);
         }
         return Ok(out);
     }
-    // Steady windows: gyro variance near the rest's, and a rate well away from rest.
+    if named != rows.len() {
+        let k = rows.iter().position(|r| r.input.is_none()).unwrap_or(0);
+        bail!(
+            "rate table: row {} has no `input`; give it for every row or for none",
+            k + 2
+        );
+    }
+    let owner: Vec<usize> = rows
+        .iter()
+        .enumerate()
+        .map(|(k, r)| resolve(recs, k, r.input.as_deref().unwrap_or("")))
+        .collect::<Result<_>>()?;
+    let mut out = Vec::new();
+    for i in 0..recs.len() {
+        let mine: Vec<&TableRow> = rows
+            .iter()
+            .zip(&owner)
+            .filter(|(_, &o)| o == i)
+            .map(|(r, _)| r)
+            .collect();
+        if mine.is_empty() {
+            bail!(
+                "rate table: no CSV row names {} in its `input` column; list its rates, or leave the input out",
+                label(recs, i)
+            );
+        }
+        if mine.iter().all(|r| r.start_s.is_some()) {
+            out.extend(timed_segments(recs, i, &mine, opts)?);
+            continue;
+        }
+        let found = steady_segments(recs, i, opts)?;
+        if found.len() != mine.len() {
+            bail!(
+                "rate table: the CSV lists {} rates for {} but {} constant-rate segments were found there: {}; give start_s and end_s for each rate in the CSV",
+                mine.len(),
+                label(recs, i),
+                found.len(),
+                describe(&recs[i], &found)
+            );
+        }
+        let rec = &recs[i];
+        for (&(a, b), r) in found.iter().zip(mine) {
+            out.push(segment(rec, r, a, b, (rec.t[a], rec.t[b - 1]), i)?);
+        }
+    }
+    Ok(out)
+}
+
+/// The end of input `i`'s initial rest, checked to be there.
+fn rest_end(recs: &[Recording], i: usize, opts: &DetectorOptions) -> Result<usize> {
+    let init_end = recs[i].t.partition_point(|&t| t < opts.init_s);
+    if init_end < 10 {
+        bail!(
+            "{}: the rate-table run must start with the table at rest for --init-static {} s",
+            label(recs, i),
+            opts.init_s
+        );
+    }
+    Ok(init_end)
+}
+
+/// The segments of input `i` cut by the rows' times.
+fn timed_segments(
+    recs: &[Recording],
+    i: usize,
+    rows: &[&TableRow],
+    opts: &DetectorOptions,
+) -> Result<Vec<Segment>> {
+    rest_end(recs, i, opts)?;
+    let rec = &recs[i];
+    let mut out = Vec::new();
+    for r in rows {
+        let (a, b) = (r.start_s.unwrap_or(0.0), r.end_s.unwrap_or(0.0));
+        let lo = rec.t.partition_point(|&t| t < a);
+        let hi = rec.t.partition_point(|&t| t < b);
+        if hi <= lo + 1 {
+            bail!(
+                "rate table: the segment {a}-{b} s at {} °/s holds no samples ({} spans 0-{:.1} s)",
+                r.rate_dps,
+                label(recs, i),
+                rec.t[rec.len() - 1]
+            );
+        }
+        out.push(segment(rec, r, lo, hi, (a, b), i)?);
+    }
+    Ok(out)
+}
+
+/// The found segments' times and approximate rates, for messages.
+fn describe(rec: &Recording, found: &[(usize, usize)]) -> String {
+    let list: Vec<String> = found
+        .iter()
+        .map(|&(a, b)| {
+            let m = mean_of(rec, a, b);
+            let big = m.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            format!(
+                "{:.1}-{:.1} s (~{:.1} °/s)",
+                rec.t[a],
+                rec.t[b - 1],
+                big.to_degrees()
+            )
+        })
+        .collect();
+    if list.is_empty() {
+        "none".into()
+    } else {
+        list.join(", ")
+    }
+}
+
+/// The steady-rate stretches of input `i` (sample ranges): gyro variance near the initial
+/// rest's and a rate well away from rest, one window less at each end.
+fn steady_segments(
+    recs: &[Recording],
+    i: usize,
+    opts: &DetectorOptions,
+) -> Result<Vec<(usize, usize)>> {
+    let init_end = rest_end(recs, i, opts)?;
+    let rec = &recs[i];
+    let dt = rec.dt();
+    let rest = mean_of(rec, 0, init_end);
     let window = ((opts.window_s / dt).round() as usize).max(3) | 1;
     let var_of = |lo: usize, hi: usize| {
         let m = mean_of(rec, lo, hi);
@@ -225,33 +418,7 @@ pub fn segments(
             found.push((start, end));
         }
     }
-    if found.len() != rows.len() {
-        let list: Vec<String> = found
-            .iter()
-            .map(|&(a, b)| {
-                let m = mean_of(rec, a, b);
-                let big = m.iter().map(|v| v.abs()).fold(0.0, f64::max);
-                format!(
-                    "{:.1}-{:.1} s (~{:.1} °/s)",
-                    rec.t[a],
-                    rec.t[b - 1],
-                    big.to_degrees()
-                )
-            })
-            .collect();
-        bail!(
-            "rate table: the CSV lists {} rates but {} constant-rate segments were found: {}; give start_s and end_s for each rate in the CSV",
-            rows.len(),
-            found.len(),
-            if list.is_empty() { "none".into() } else { list.join(", ") }
-        );
-    }
-    let segs = found
-        .iter()
-        .zip(rows)
-        .map(|(&(a, b), r)| segment(rec, r, a, b, (rec.t[a], rec.t[b - 1])))
-        .collect::<Result<_>>()?;
-    Ok(segs)
+    Ok(found)
 }
 
 /// The segment of `row` over samples `lo..hi`, spanning times `t`.
@@ -261,6 +428,7 @@ fn segment(
     lo: usize,
     hi: usize,
     t: (f64, f64),
+    input: usize,
 ) -> Result<Segment> {
     let accel_mean = accel_mean_of(rec, lo, hi);
     Ok(Segment {
@@ -271,6 +439,7 @@ fn segment(
         accel_mean,
         samples: hi - lo,
         spindle: spindle_of(row, &accel_mean, t)?,
+        input,
     })
 }
 

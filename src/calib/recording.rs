@@ -19,8 +19,13 @@ pub const TRIAD_CHANNELS: [&str; 6] = [
 pub struct Recording {
     /// What was read (path and device), for reports.
     pub source: String,
+    /// The path as given (a rate-table CSV's `input` column can name it).
+    pub name: String,
     /// Device name.
     pub device: String,
+    /// Whether `device` is the recording's own (a session's device, `--device`, in memory)
+    /// rather than a file's stem.
+    pub device_named: bool,
     /// Seconds from the first sample.
     pub t: Vec<f64>,
     pub gyro: Vec<[f64; 3]>,
@@ -53,7 +58,9 @@ impl Recording {
         let t0 = records.first().map_or(0, |r| r.t_mono_ns);
         Recording {
             source: format!("{device} (in memory)"),
+            name: device.into(),
             device: device.into(),
+            device_named: true,
             t: records
                 .iter()
                 .map(|r| (r.t_mono_ns - t0) as f64 * 1e-9)
@@ -73,7 +80,9 @@ impl Recording {
             let mut rec = read_source(&source, 0, None)
                 .with_context(|| format!("reading {}", path.display()))?;
             rec.source = format!("{} [{device}]", path.display());
+            rec.name = path.display().to_string();
             rec.device = device;
+            rec.device_named = true;
             rec.place = session_place(path);
             return Ok(rec);
         }
@@ -94,6 +103,8 @@ impl Recording {
         let mut rec = read_source(source.as_ref(), time.unwrap_or(usize::MAX), rate_hz)
             .with_context(|| format!("reading {}", path.display()))?;
         rec.source = path.display().to_string();
+        rec.name = rec.source.clone();
+        rec.device_named = device.is_some();
         rec.device = device.map(str::to_string).unwrap_or_else(|| {
             path.file_stem()
                 .map_or("imu".into(), |s| s.to_string_lossy().into_owned())

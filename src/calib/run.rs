@@ -1,7 +1,10 @@
-//! What `imulab calibrate` does with a recording: find the still poses, fit the
-//! accelerometer and the gyro (multi-position), or the six faces (six-position), or the
-//! table rates (rate table), check that the data supports the fit, and assemble the
-//! calibration document with the notes a user must read.
+//! What `imulab calibrate` does with one recording or several of the same IMU: find the
+//! still poses, fit the accelerometer and the gyro (multi-position), or the six faces
+//! (six-position), or the table rates (rate table), check that the data supports the fit,
+//! and assemble the calibration document with the notes a user must read. Several
+//! recordings are each searched on their own clock; their poses are pooled for the
+//! accelerometer, the gyro is fitted on the rotations within each, and a rate table's
+//! segments are found in each.
 
 use super::accel::fit_accel;
 use super::file::{Calibration, Quality, TriadModel};
@@ -44,11 +47,27 @@ pub struct Options {
     pub gravity: Gravity,
 }
 
+/// What one input gave.
+#[derive(Debug, Clone)]
+pub struct InputReport {
+    pub source: String,
+    pub samples: usize,
+    /// Sample rate, Hz (from the median interval).
+    pub rate_hz: f64,
+    /// Still intervals found (tumble and six-position).
+    pub detection: Option<Detection>,
+    /// Poses used (after outliers dropped), rotations the gyro fit used, rate-table segments.
+    pub poses: usize,
+    pub rotations: usize,
+    pub segments: usize,
+}
+
 /// A calibration with what was found on the way.
 #[derive(Debug, Clone)]
 pub struct Outcome {
     pub calibration: Calibration,
-    pub detection: Option<Detection>,
+    /// One per input, in order.
+    pub inputs: Vec<InputReport>,
     /// Rate-table segments used.
     pub segments: Vec<Segment>,
     /// Six-position mode: the face each pose was taken as.
@@ -60,7 +79,7 @@ pub struct Outcome {
     pub notes: Vec<String>,
 }
 
-fn local_gravity(rec: &Recording, g: Gravity) -> Result<(f64, String)> {
+fn local_gravity(place: Option<(f64, f64)>, g: Gravity) -> Result<(f64, String)> {
     Ok(match g {
         Gravity::Value(v) => {
             if !(v.is_finite() && (9.7..=9.9).contains(&v)) {
@@ -77,7 +96,7 @@ fn local_gravity(rec: &Recording, g: Gravity) -> Result<(f64, String)> {
                 format!("normal gravity at {lat_deg}° latitude, {height_m} m"),
             )
         }
-        Gravity::Auto => match rec.place {
+        Gravity::Auto => match place {
             Some((lat, h)) => (
                 earth::normal_gravity(lat, h),
                 format!(
@@ -93,8 +112,9 @@ fn local_gravity(rec: &Recording, g: Gravity) -> Result<(f64, String)> {
     })
 }
 
-/// Notes about poses noisier than the initial still period (something moved).
-fn motion_notes(det: &Detection, poses: &[StaticInterval]) -> Vec<String> {
+/// Notes about poses noisier than the initial still period (something moved); `of` names
+/// the input when there are several.
+fn motion_notes(det: &Detection, poses: &[StaticInterval], of: &str) -> Vec<String> {
     let init_std = (det.init_accel_var / 3.0).sqrt();
     poses
         .iter()
@@ -102,7 +122,7 @@ fn motion_notes(det: &Detection, poses: &[StaticInterval]) -> Vec<String> {
             let s = (p.accel_std.iter().map(|v| v * v).sum::<f64>() / 3.0).sqrt();
             (s > 2.0 * init_std).then(|| {
                 format!(
-                    "pose {:.1}-{:.1} s is {:.1}× noisier than the initial still period: the IMU may not have been at rest (hold it still, or rest it on something)",
+                    "pose {:.1}-{:.1} s{of} is {:.1}× noisier than the initial still period: the IMU may not have been at rest (hold it still, or rest it on something)",
                     p.t_start,
                     p.t_end,
                     s / init_std
@@ -128,13 +148,92 @@ fn bias_only(poses: &[StaticInterval]) -> TriadModel {
     }
 }
 
+/// " of input N" when there are several inputs, else nothing.
+fn of_input(n: usize, i: usize) -> String {
+    if n > 1 {
+        format!(" of input {}", i + 1)
+    } else {
+        String::new()
+    }
+}
+
+/// Largest relative difference between two inputs' sample rates taken as the same rate.
+const RATE_TOLERANCE: f64 = 0.01;
+
+/// Checks that the inputs can be one IMU's: the same sample rate and no two different
+/// device names (a file's stem is no device name). Returns the device name.
+fn check_inputs(recs: &[Recording]) -> Result<String> {
+    let Some(first) = recs.first() else {
+        bail!("no input to calibrate");
+    };
+    let rate = |r: &Recording| 1.0 / r.dt();
+    for (i, r) in recs.iter().enumerate().skip(1) {
+        let (a, b) = (rate(first), rate(r));
+        if a.is_finite() && b.is_finite() && ((b - a) / a).abs() > RATE_TOLERANCE {
+            bail!(
+                "input {} ({}) is sampled at {b:.2} Hz but input 1 ({}) at {a:.2} Hz: several inputs must be one IMU at one sample rate",
+                i + 1,
+                r.source,
+                first.source
+            );
+        }
+    }
+    let named: Vec<(usize, &Recording)> = recs
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.device_named)
+        .collect();
+    if let Some(&(k, a)) = named.first() {
+        if let Some(&(i, b)) = named.iter().find(|(_, b)| b.device != a.device) {
+            bail!(
+                "input {} ({}) is device `{}` but input {} ({}) is `{}`: several inputs must be one IMU",
+                i + 1,
+                b.source,
+                b.device,
+                k + 1,
+                a.source,
+                a.device
+            );
+        }
+        return Ok(a.device.clone());
+    }
+    Ok(first.device.clone())
+}
+
 /// Calibrates `rec`.
 pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
-    let (g, gravity_source) = local_gravity(rec, opts.gravity)?;
+    calibrate_inputs(std::slice::from_ref(rec), opts)
+}
+
+/// Calibrates one IMU from the recordings `recs` (one or more, each on its own clock).
+pub fn calibrate_inputs(recs: &[Recording], opts: &Options) -> Result<Outcome> {
+    let device = check_inputs(recs)?;
+    let source = recs
+        .iter()
+        .map(|r| r.source.as_str())
+        .collect::<Vec<_>>()
+        .join(" + ");
+    let place = recs.iter().find_map(|r| r.place);
+    let (g, gravity_source) = local_gravity(place, opts.gravity)?;
     let mut notes = Vec::new();
+    let mut inputs: Vec<InputReport> = recs
+        .iter()
+        .map(|r| InputReport {
+            source: r.source.clone(),
+            samples: r.len(),
+            rate_hz: 1.0 / r.dt(),
+            detection: None,
+            poses: 0,
+            rotations: 0,
+            segments: 0,
+        })
+        .collect();
     if let Mode::RateTable(path) = &opts.mode {
         let rows = read_table(path)?;
-        let segs = segments(rec, &rows, &opts.detector)?;
+        let segs = segments(recs, &rows, &opts.detector)?;
+        for s in &segs {
+            inputs[s.input].segments += 1;
+        }
         let (gyro, table) = fit_rate_table(&segs)?;
         let frame = if table.len() == 3 {
             "the mounting fixture's (x, y and z each along the spindle in turn; the fixture's alignment errors are part of M)"
@@ -145,12 +244,12 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
             ));
             "the gyro's own axes (only the spindle axis's column of M is measured; the others are the identity's)"
         };
-        let mut cal = Calibration::new(&rec.device, &rec.source, "rate-table", frame);
+        let mut cal = Calibration::new(&device, &source, "rate-table", frame);
         cal.gyro = Some(gyro);
         cal.rate_table = Some(table);
         return Ok(Outcome {
             calibration: cal,
-            detection: None,
+            inputs,
             segments: segs,
             faces: Vec::new(),
             gravity: g,
@@ -158,22 +257,31 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
             notes,
         });
     }
-    let det = detect(rec, &opts.detector)?;
-    let poses = det.intervals.clone();
-    if poses
-        .first()
-        .is_none_or(|p| p.t_start > opts.detector.window_s)
-    {
-        bail!(
-            "{}: the recording does not start still (no still interval at its start); it must start with --init-static {} s at rest",
-            rec.source,
-            opts.detector.init_s
-        );
+    // The poses of every input, pooled, and the input each came from.
+    let mut poses: Vec<StaticInterval> = Vec::new();
+    let mut owner: Vec<usize> = Vec::new();
+    for (i, rec) in recs.iter().enumerate() {
+        let det = detect(rec, &opts.detector)?;
+        if det
+            .intervals
+            .first()
+            .is_none_or(|p| p.t_start > opts.detector.window_s)
+        {
+            bail!(
+                "{}: the recording does not start still (no still interval at its start); it must start with --init-static {} s at rest",
+                rec.source,
+                opts.detector.init_s
+            );
+        }
+        notes.extend(motion_notes(&det, &det.intervals, &of_input(recs.len(), i)));
+        poses.extend(det.intervals.iter().cloned());
+        owner.extend(std::iter::repeat_n(i, det.intervals.len()));
+        inputs[i].detection = Some(det);
     }
-    notes.extend(motion_notes(&det, &poses));
     let six = opts.mode == Mode::SixPosition;
     let mut quality = Quality::default();
     let mut faces = Vec::new();
+    let mut rejected: Vec<usize> = Vec::new();
     let (accel, frame, method) = if six {
         let (model, labels) = six_position(&poses, g)?;
         faces = labels;
@@ -198,7 +306,7 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
             "six-position",
         )
     } else {
-        let fit = fit_accel(&poses, g)?;
+        let fit = fit_accel(&poses, g, recs.len() == 1)?;
         if !fit.converged {
             notes.push("the accelerometer fit did not report convergence; check the poses".into());
         }
@@ -206,10 +314,13 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
         quality.rejected_pose_times_s = fit.rejected.iter().map(|&i| poses[i].t_start).collect();
         for &i in &fit.rejected {
             notes.push(format!(
-                "pose {:.1}-{:.1} s left out: its gravity magnitude disagrees with the others (the IMU moved during it)",
-                poses[i].t_start, poses[i].t_end
+                "pose {:.1}-{:.1} s{} left out: its gravity magnitude disagrees with the others (the IMU moved during it)",
+                poses[i].t_start,
+                poses[i].t_end,
+                of_input(recs.len(), owner[i])
             ));
         }
+        rejected.clone_from(&fit.rejected);
         quality.gravity_residual_before = Some(fit.residual_before);
         quality.gravity_residual_after = Some(fit.residual_after);
         quality.gravity_residual_constant_bias = Some(fit.residual_constant_bias);
@@ -233,12 +344,26 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
             "multi-position",
         )
     };
-    let used: Vec<StaticInterval> = poses
-        .iter()
-        .filter(|p| !quality.rejected_pose_times_s.contains(&p.t_start))
-        .cloned()
+    // The poses used, per input: the gyro's rotations stay within one input.
+    let used: Vec<Vec<StaticInterval>> = (0..recs.len())
+        .map(|i| {
+            poses
+                .iter()
+                .enumerate()
+                .filter(|&(k, _)| owner[k] == i && !rejected.contains(&k))
+                .map(|(_, p)| p.clone())
+                .collect()
+        })
         .collect();
-    let gyro = match fit_gyro(rec, &used, &accel) {
+    for (report, u) in inputs.iter_mut().zip(&used) {
+        report.poses = u.len();
+    }
+    let runs: Vec<(&Recording, &[StaticInterval])> = recs
+        .iter()
+        .zip(&used)
+        .map(|(r, u)| (r, u.as_slice()))
+        .collect();
+    let gyro = match fit_gyro(&runs, &accel) {
         Ok(fit) => {
             quality.rotations = fit.rotations;
             quality.rotation_residual_before = Some(fit.residual_before);
@@ -246,23 +371,26 @@ pub fn calibrate(rec: &Recording, opts: &Options) -> Result<Outcome> {
             if !fit.converged {
                 notes.push("the gyro fit did not report convergence; check the rotations".into());
             }
+            for (report, u) in inputs.iter_mut().zip(&used) {
+                report.rotations = u.len().saturating_sub(1);
+            }
             fit.model
         }
         Err(e) => {
             notes.push(format!(
                 "gyro: bias only, scale and misalignment not fitted: {e}"
             ));
-            bias_only(&used)
+            bias_only(&used.concat())
         }
     };
-    let mut cal = Calibration::new(&rec.device, &rec.source, method, frame);
+    let mut cal = Calibration::new(&device, &source, method, frame);
     cal.gravity = Some(g);
     cal.accel = Some(accel);
     cal.gyro = Some(gyro);
     cal.quality = quality;
     Ok(Outcome {
         calibration: cal,
-        detection: Some(det),
+        inputs,
         segments: Vec::new(),
         faces,
         gravity: g,

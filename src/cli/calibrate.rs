@@ -1,29 +1,32 @@
-//! `imulab calibrate SESSION|FILE`: finds the still poses, fits the accelerometer (bias,
-//! scale factors, misalignment) to gravity magnitude and the gyro to the rotations between
-//! poses, or runs the six-position or rate-table method; prints what it found with 95 %
+//! `imulab calibrate SESSION|FILE [...]`: from one recording or several of the same IMU,
+//! finds the still poses, fits the accelerometer (bias, scale factors, misalignment) to
+//! gravity magnitude and the gyro to the rotations between poses, or runs the six-position
+//! or rate-table method; prints what it found with 95 %
 //! intervals (and, for a simulated session, the truth beside each figure), and writes the
 //! calibration file that `allan`, `report`, `thermal`, `export` and `replay` apply with
 //! `--calibration` (docs/calibration.md).
 
 use crate::calib::file::TriadModel;
 use crate::calib::recording::Recording;
-use crate::calib::run::{calibrate, Gravity, Mode, Options, Outcome};
+use crate::calib::run::{calibrate_inputs, Gravity, Mode, Options, Outcome};
 use crate::calib::statics::DetectorOptions;
 use crate::calib::truth::Truth;
 use crate::sim::imu_model::G0;
 use anyhow::{bail, Result};
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Examples:\n  imulab calibrate runs/tumble -o imu-cal.json --kalibr imu-cal.yaml --matlab imu_cal.m\n  imulab calibrate cube.csv --six-position --latitude 48.15 --height 520 -o cube-cal.json\n  imulab calibrate runs/table --rate-table rates.csv -o gyro-cal.json\n  imulab allan runs/static --calibration imu-cal.json"
+    after_help = "Examples:\n  imulab calibrate runs/tumble -o imu-cal.json --kalibr imu-cal.yaml --matlab imu_cal.m\n  imulab calibrate runs/tumble-a runs/tumble-b -o imu-cal.json\n  imulab calibrate cube.csv --six-position --latitude 48.15 --height 520 -o cube-cal.json\n  imulab calibrate runs/table --rate-table rates.csv -o gyro-cal.json\n  imulab calibrate runs/table-x runs/table-y runs/table-z --rate-table rates.csv -o gyro-cal.json\n  imulab allan runs/static --calibration imu-cal.json\n\nSeveral inputs are one IMU's recordings (same device, same sample rate), each starting at\nrest and searched on its own clock: a tumble's poses are pooled, its rotations taken within\neach input; a rate table's rows go to the inputs in order, or by an `input` column (number\nfrom 1, or path) that start_s/end_s need with several inputs (docs/calibration.md)."
 )]
 pub struct CalibrateArgs {
-    /// A session directory, or a CSV/TSV/.npy file with columns gyro_x … accel_z (rad/s,
-    /// m/s²) and a time column `t` (s) or --rate.
-    pub input: PathBuf,
+    /// Session directories, or CSV/TSV/.npy files with columns gyro_x … accel_z (rad/s,
+    /// m/s²) and a time column `t` (s) or --rate: one recording, or several of the same IMU
+    /// (e.g. one rate-table mounting each).
+    #[arg(required = true, num_args = 1.., value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
     /// Session IMU to calibrate (default: the only one); a file: the device name to record.
     #[arg(long)]
     pub device: Option<String>,
@@ -34,8 +37,9 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "rate_table")]
     pub six_position: bool,
     /// Rate-table mode: CSV with a `rate_dps` column (table rates in order) and optionally
-    /// `start_s`,`end_s` and `axis` (body axis on the spindle) per rate; one mounting gives
-    /// its axis's scale factor and non-linearity, three (x, y, z on the spindle) the whole M.
+    /// `start_s`,`end_s`, `axis` (body axis on the spindle) and `input` (number from 1, or
+    /// path) per rate; one mounting gives its axis's scale factor and non-linearity, three
+    /// (x, y, z on the spindle, in one input or one each) the whole M.
     #[arg(long, value_name = "CSV")]
     pub rate_table: Option<PathBuf>,
     /// Still period at the start that the detector's thresholds come from, s.
@@ -150,10 +154,31 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
         "calibration of {} ({}), {}",
         c.device, c.source, c.method
     );
-    if let Some(d) = &o.detection {
+    let several = o.inputs.len() > 1;
+    for (i, input) in o.inputs.iter().enumerate() {
+        let prefix = if several {
+            format!("input {}: ", i + 1)
+        } else {
+            String::new()
+        };
+        if several {
+            let found = if input.detection.is_some() {
+                format!("{} poses, {} rotations", input.poses, input.rotations)
+            } else {
+                format!("{} segments", input.segments)
+            };
+            let _ = writeln!(
+                s,
+                "{prefix}{}, {} samples at {:.1} Hz: {found}",
+                input.source, input.samples, input.rate_hz
+            );
+        }
+        let Some(d) = &input.detection else {
+            continue;
+        };
         let _ = writeln!(
             s,
-            "still intervals: {} found (window {} samples; thresholds {:.1e} (m/s²)² accel, {:.1e} (rad/s)² gyro = {} × the initial period's)",
+            "{prefix}still intervals: {} found (window {} samples; thresholds {:.1e} (m/s²)² accel, {:.1e} (rad/s)² gyro = {} × the initial period's)",
             d.intervals.len(),
             d.window,
             d.accel_threshold,
@@ -184,9 +209,14 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
     for seg in &o.segments {
         let _ = writeln!(
             s,
-            "  table {:+.1} °/s, {} on the spindle: {:.1}-{:.1} s, {} samples",
+            "  table {:+.1} °/s, {} on the spindle: {}{:.1}-{:.1} s, {} samples",
             seg.rate_dps,
             ["x", "y", "z"][seg.spindle],
+            if several {
+                format!("input {}, ", seg.input + 1)
+            } else {
+                String::new()
+            },
             seg.t_start,
             seg.t_end,
             seg.samples
@@ -262,6 +292,33 @@ pub fn summary_text(o: &Outcome, truth: Option<&Truth>, seconds: f64) -> String 
     s
 }
 
+/// The truth of simulated sessions among `inputs`: the scene's matrices (when every such
+/// session has the same) and the mean of their true biases; `None` when no input is a
+/// simulated session.
+fn session_truth(inputs: &[PathBuf], device: &str) -> Option<Truth> {
+    let truths: Vec<Truth> = inputs
+        .iter()
+        .filter(|p| p.is_dir())
+        .filter_map(|p| Truth::of_session(Path::new(p), device).ok().flatten())
+        .collect();
+    let mut t = truths.first()?.clone();
+    let same = |a: &TriadModel, b: &TriadModel| a.matrix == b.matrix;
+    if truths
+        .iter()
+        .any(|u| !same(&u.accel, &t.accel) || !same(&u.gyro_body, &t.gyro_body))
+    {
+        return None;
+    }
+    let n = truths.len() as f64;
+    for k in 0..3 {
+        let mean = |f: &dyn Fn(&Truth) -> f64| truths.iter().map(f).sum::<f64>() / n;
+        t.accel.bias[k] = mean(&|u| u.accel.bias[k]);
+        t.gyro.bias[k] = mean(&|u| u.gyro.bias[k]);
+        t.gyro_body.bias[k] = mean(&|u| u.gyro_body.bias[k]);
+    }
+    Some(t)
+}
+
 pub fn run(args: CalibrateArgs) -> Result<()> {
     let mode = match (&args.rate_table, args.six_position) {
         (Some(p), _) => Mode::RateTable(p.clone()),
@@ -299,20 +356,25 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         gravity,
     };
     let read_start = Instant::now();
-    let rec = Recording::read(&args.input, args.device.as_deref(), args.rate)?;
+    let recs: Vec<Recording> = args
+        .inputs
+        .iter()
+        .map(|p| Recording::read(p, args.device.as_deref(), args.rate))
+        .collect::<Result<_>>()?;
     println!(
-        "read {} samples in {:.2} s",
-        rec.len(),
+        "read {} samples{} in {:.2} s",
+        recs.iter().map(Recording::len).sum::<usize>(),
+        if recs.len() > 1 {
+            format!(" from {} inputs", recs.len())
+        } else {
+            String::new()
+        },
         read_start.elapsed().as_secs_f64()
     );
     let start = Instant::now();
-    let outcome = calibrate(&rec, &opts)?;
+    let outcome = calibrate_inputs(&recs, &opts)?;
     let seconds = start.elapsed().as_secs_f64();
-    let truth = if args.input.is_dir() {
-        Truth::of_session(&args.input, &rec.device).unwrap_or(None)
-    } else {
-        None
-    };
+    let truth = session_truth(&args.inputs, &outcome.calibration.device);
     print!("{}", summary_text(&outcome, truth.as_ref(), seconds));
     let cal = &outcome.calibration;
     if let Some(path) = &args.output {
@@ -320,7 +382,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     if let Some(path) = &args.kalibr {
-        std::fs::write(path, cal.kalibr_yaml(1.0 / rec.dt()))?;
+        std::fs::write(path, cal.kalibr_yaml(1.0 / recs[0].dt()))?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &args.matlab {

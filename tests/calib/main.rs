@@ -4,7 +4,7 @@
 //! `export` and `allan`.
 
 use imulab::calib::recording::Recording;
-use imulab::calib::run::{calibrate, Gravity, Mode, Options, Outcome};
+use imulab::calib::run::{calibrate, calibrate_inputs, Gravity, Mode, Options, Outcome};
 use imulab::calib::statics::DetectorOptions;
 use imulab::calib::truth::Truth;
 use imulab::calib::TriadModel;
@@ -318,6 +318,234 @@ fn rate_table_three_mountings_recover_the_whole_gyro_matrix() {
     );
     // The quadratic term shows as non-linearity of the order of k·full scale.
     assert!(axes[0].nonlinearity_ppm_of_full_scale > 10.0, "{axes:?}");
+}
+
+/// One mounting of the three-mounting program as a scene of its own (its own seed, so its
+/// own noise and turn-on bias): what a user who records each mounting separately has.
+fn rate_table_mounting(k: usize) -> String {
+    let lines = [
+        "  { axis = \"x\", pitch_deg = 90 },\n",
+        "  { axis = \"-y\", roll_deg = 90 },\n",
+        "  { axis = \"z\" },\n",
+    ];
+    let mut text = rate_table_3axis()
+        .replace("duration_s = 650", "duration_s = 215")
+        .replace("seed = 29", &format!("seed = {}", 41 + k));
+    for (j, line) in lines.iter().enumerate() {
+        if j != k {
+            text = text.replace(line, "");
+        }
+    }
+    text
+}
+
+/// Each entry of the fitted M against the truth: all within 3.5σ, and how many inside the
+/// 95 % interval.
+fn inside_95(g: &TriadModel, truth: &TriadModel, what: &str) -> usize {
+    let mut inside = 0;
+    let mut report = String::new();
+    for i in 0..3 {
+        for j in 0..3 {
+            let (e, s) = (g.matrix[i][j] - truth.matrix[i][j], g.matrix_sigma[i][j]);
+            report += &format!("{what} M[{i}][{j}] error {e:+.2e} σ {s:.2e}\n");
+            assert!(s > 0.0 && s < 2e-5, "{report}");
+            assert!(e.abs() < 3.5 * s, "{report}");
+            inside += usize::from(e.abs() < 1.96 * s);
+        }
+    }
+    println!("{report}");
+    inside
+}
+
+/// The three mountings recorded as three inputs, each on its own clock: the segments are
+/// found in each, the rows go to the inputs in order, and the whole M comes out as from the
+/// single recording, each entry within its 95 % interval of the truth. The same rows with
+/// times and an `input` column naming the inputs give the same M; times without an `input`
+/// column are refused.
+#[test]
+fn rate_table_mountings_as_three_inputs_recover_the_same_matrix_as_one_recording() {
+    let csv = fixture("rate_table_3axis.csv");
+    let (single, truth, g) = outcome(&rate_table_3axis(), Mode::RateTable(csv.clone()));
+    let recs: Vec<Recording> = (0..3)
+        .map(|k| {
+            let mut rec = simulate(&rate_table_mounting(k)).0;
+            rec.name = format!("runs/mount-{k}");
+            rec
+        })
+        .collect();
+    let three = calibrate_inputs(&recs, &options(Mode::RateTable(csv), g)).unwrap();
+    let per_input: Vec<usize> = three.inputs.iter().map(|i| i.segments).collect();
+    assert_eq!(per_input, [8, 8, 8]);
+    for s in &three.segments {
+        // On its own input's clock: inside that input's 215 s.
+        assert!(s.t_end < 215.0, "{s:?}");
+        assert_eq!(s.spindle, s.input, "{s:?}");
+    }
+    let c = &three.calibration;
+    let names: Vec<&str> = c
+        .rate_table
+        .as_ref()
+        .unwrap()
+        .iter()
+        .map(|a| a.axis.as_str())
+        .collect();
+    assert_eq!(names, ["x", "-y", "z"]);
+    assert!(c.frame.contains("mounting fixture"), "{}", c.frame);
+    let (m1, m3) = (
+        single.calibration.gyro.as_ref().unwrap(),
+        c.gyro.as_ref().unwrap(),
+    );
+    let t = &truth.gyro_body;
+    let (in1, in3) = (
+        inside_95(m1, t, "one input"),
+        inside_95(m3, t, "three inputs"),
+    );
+    assert!(
+        in1 >= 8 && in3 >= 8,
+        "inside the 95 % interval: {in1} and {in3} of 9"
+    );
+    for i in 0..3 {
+        for j in 0..3 {
+            let s = m1.matrix_sigma[i][j].hypot(m3.matrix_sigma[i][j]);
+            let d = m3.matrix[i][j] - m1.matrix[i][j];
+            assert!(d.abs() < 3.0 * s, "M[{i}][{j}]: {d:+.2e} apart, σ {s:.2e}");
+        }
+    }
+
+    // The rows with the segments' times, each naming its input by path's last component.
+    let dir = tempfile::tempdir().unwrap();
+    let table = dir.path().join("rates.csv");
+    let mut text = String::from("rate_dps,start_s,end_s,input\n");
+    for s in &three.segments {
+        text += &format!(
+            "{},{},{},mount-{}\n",
+            s.rate_dps, s.t_start, s.t_end, s.input
+        );
+    }
+    std::fs::write(&table, &text).unwrap();
+    let timed = calibrate_inputs(&recs, &options(Mode::RateTable(table.clone()), g)).unwrap();
+    let mt = timed.calibration.gyro.as_ref().unwrap();
+    for i in 0..3 {
+        for j in 0..3 {
+            let d = mt.matrix[i][j] - m3.matrix[i][j];
+            assert!(
+                d.abs() < 0.1 * m3.matrix_sigma[i][j],
+                "M[{i}][{j}] {d:+.2e}"
+            );
+        }
+    }
+    // The same times without the `input` column: whose clock is unknown.
+    let no_input: String = text
+        .lines()
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string() + "\n")
+        .collect();
+    std::fs::write(&table, no_input).unwrap();
+    let e = format!(
+        "{:#}",
+        calibrate_inputs(&recs, &options(Mode::RateTable(table), g)).unwrap_err()
+    );
+    assert!(e.contains("need an `input` column"), "{e}");
+}
+
+/// A tumble recorded as two inputs (the industrial preset, no turn-on bias: one power-up's
+/// bias): neither has the 9 poses the accelerometer needs, both together do; the gyro uses
+/// the 7 rotations within each input and none from the end of the first to the start of
+/// the second.
+#[test]
+fn tumble_split_into_two_inputs_pools_the_poses_and_keeps_rotations_within_each() {
+    let recs: Vec<Recording> = [11, 12]
+        .into_iter()
+        .map(|seed| simulate(&tumble_scene("industrial", 7, 8.0, 100.0, seed)).0)
+        .collect();
+    let (_, truth, g) = simulate(&tumble_scene("industrial", 7, 8.0, 100.0, 11));
+    let e = format!(
+        "{:#}",
+        calibrate(&recs[0], &options(Mode::MultiPosition, g)).unwrap_err()
+    );
+    assert!(e.contains("found 8 still poses"), "{e}");
+    let mut recs = recs;
+    // A file's stem is no device name: it does not stand against the other input's.
+    recs[1].device = "tumble-b".into();
+    recs[1].device_named = false;
+    let o = calibrate_inputs(&recs, &options(Mode::MultiPosition, g)).unwrap();
+    let c = &o.calibration;
+    assert_eq!(c.device, "imu");
+    let q = &c.quality;
+    assert_eq!(q.poses, 16);
+    assert_eq!(q.rotations, 14);
+    let per: Vec<(usize, usize)> = o.inputs.iter().map(|i| (i.poses, i.rotations)).collect();
+    assert_eq!(per, [(8, 7), (8, 7)]);
+    // Separate clocks: no bias drift is fitted across them.
+    assert_eq!(q.accel_bias_drift, None);
+    let (accel, gyro) = (c.accel.as_ref().unwrap(), c.gyro.as_ref().unwrap());
+    let (s, m, b) = errors(accel, &truth.accel);
+    assert!(s < 300.0 && m < 0.3, "accel: {s} ppm, {m} mrad\n{accel:#?}");
+    assert!(
+        b < 0.2e-3 * 9.80665,
+        "accel bias error {} mg",
+        b / 9.80665e-3
+    );
+    for i in 0..3 {
+        let e = (accel.matrix[i][i] - truth.accel.matrix[i][i]).abs();
+        assert!(e < 4.0 * accel.matrix_sigma[i][i], "axis {i}: {e}");
+    }
+    let (s, m, _) = errors(gyro, &truth.gyro);
+    assert!(s < 1500.0 && m < 1.5, "gyro: {s} ppm, {m} mrad\n{gyro:#?}");
+    let (before, after) = (
+        q.rotation_residual_before.unwrap(),
+        q.rotation_residual_after.unwrap(),
+    );
+    assert!(after < before / 5.0, "{before} {after}");
+}
+
+/// Inputs of different sample rates, or of two devices, are refused with one line naming
+/// the input.
+#[test]
+fn inputs_of_different_rates_or_devices_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut paths = Vec::new();
+    for (rate, name) in [(100.0, "a.csv"), (200.0, "b.csv")] {
+        let (rec, _, _) = simulate(&tumble_scene("industrial", 2, 4.0, rate, 3));
+        let mut text = String::from("t,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z\n");
+        for ((t, w), a) in rec.t.iter().zip(&rec.gyro).zip(&rec.accel) {
+            text += &format!(
+                "{t},{},{},{},{},{},{}\n",
+                w[0], w[1], w[2], a[0], a[1], a[2]
+            );
+        }
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        paths.push(path.to_str().unwrap().to_string());
+    }
+    let (ok, text) = imulab(&["calibrate", &paths[0], &paths[1]]);
+    assert!(!ok, "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("imulab:"))
+        .unwrap_or_else(|| panic!("{text}"));
+    assert!(
+        line.contains(&format!("input 2 ({})", paths[1]))
+            && line.contains("200.00 Hz")
+            && line.contains("100.00 Hz"),
+        "{text}"
+    );
+    // The same rate twice passes the check (and goes on to the fit).
+    let (_, text) = imulab(&["calibrate", &paths[0], &paths[0]]);
+    assert!(!text.contains("sampled at"), "{text}");
+    // Two sessions' devices.
+    let (mut a, _, g) = simulate(&tumble_scene("industrial", 2, 4.0, 100.0, 3));
+    let mut b = a.clone();
+    a.source = "runs/a [imu]".into();
+    b.source = "runs/b [mems]".into();
+    b.device = "mems".into();
+    let e = format!(
+        "{:#}",
+        calibrate_inputs(&[a, b], &options(Mode::MultiPosition, g)).unwrap_err()
+    );
+    assert!(
+        e.contains("input 2 (runs/b [mems]) is device `mems`") && !e.contains('\n'),
+        "{e}"
+    );
 }
 
 /// The CSV's `axis` column states the mountings instead of gravity; one that contradicts the
