@@ -140,7 +140,7 @@ fn run(
     outages: &[(f64, f64)],
 ) -> Row {
     let opts = ReplayOptions {
-        initial: Some(NavState::from(&d.truth[0])),
+        initial: Some(imulab::study::nav_state(&d.truth[0])),
         outages: outages.to_vec(),
         smooth,
         ..Default::default()
@@ -322,7 +322,7 @@ fn speed_table(base: &FusionConfig, e: &fusion_support::ImuErrors) {
     );
     let hours = d.truth.last().map_or(0.0, |t| t.t_s) / 3600.0;
     let opts = ReplayOptions {
-        initial: Some(NavState::from(&d.truth[0])),
+        initial: Some(imulab::study::nav_state(&d.truth[0])),
         ..Default::default()
     };
     println!("\nSpeed: {hours:.2} h of 200 Hz IMU ({} samples) + 10 Hz GNSS ({} fixes), one core, best of 3 (thread CPU time)\n", d.imu.len(), d.gnss.len());
@@ -375,7 +375,7 @@ fn block_nees(solution: &imulab::fusion::navigator::NavSolution, truth: &NavStat
 /// Per-second NEES ([`block_nees`]) of one simulated run (index = whole second since the
 /// session start; NaN before the filter starts).
 fn nees_run<const N: usize>(
-    drive: &imulab::fusion::study::StudyDrive,
+    drive: &imulab::study::grades::StudyDrive,
     spec: &imulab::sim::imu_model::ImuSpec,
     config: &FusionConfig,
     seed: u64,
@@ -430,7 +430,7 @@ fn nees_table() {
     use imulab::fusion::metrics::anees;
     use rayon::prelude::*;
     let scene = imulab::sim::scene::Scene::load(std::path::Path::new(NEES_SCENE)).expect("scene");
-    let drive = imulab::fusion::study::StudyDrive::new(&scene).expect("drive");
+    let drive = imulab::study::grades::StudyDrive::new(&scene).expect("drive");
     // `-- nees GRADE… --runs=N` narrows the table to some presets and fewer seeds.
     let args: Vec<String> = std::env::args().collect();
     let all = ["consumer", "bench-cheap", "industrial", "tactical"];
@@ -454,7 +454,7 @@ fn nees_table() {
     let gnss_error = if args.iter().any(|a| a == "white") {
         None
     } else {
-        imulab::fusion::noise::gnss_error_from_spec(&scene.gnss[0].spec)
+        imulab::study::noise::gnss_error_from_spec(&scene.gnss[0].spec)
     };
     let sets: [(&str, bool, bool); 3] = [
         ("GNSS only", false, false),
@@ -468,7 +468,7 @@ fn nees_table() {
     println!("|---|---|---:|---:|---:|---:|---:|---|");
     for grade in grades {
         let spec = imulab::sim::presets::imu_preset(grade).expect("preset");
-        let noise = imulab::fusion::noise::model_from_spec(&spec, grade).expect("noise");
+        let noise = imulab::study::noise::model_from_spec(&spec, grade).expect("noise");
         for (name, nhc, still) in sets {
             let mut config = FusionConfig {
                 imu: noise.model,
@@ -536,7 +536,7 @@ fn truth_near(d: &SimData, t: f64) -> Option<NavState> {
     if k < 0.0 || (k / d.imu_rate - t).abs() > 1e-4 {
         return None;
     }
-    d.truth.get(k as usize).map(NavState::from)
+    d.truth.get(k as usize).map(imulab::study::nav_state)
 }
 
 /// Writes one simulated drive in KF-GINS's input formats under `dir`: IMU increments, the
@@ -614,7 +614,7 @@ fn write_kf_gins_inputs(
         writeln!(
             truth,
             "{}",
-            imulab::fusion::kfgins::format_nav_line(0, &NavState::from(t))
+            imulab::fusion::kfgins::format_nav_line(0, &imulab::study::nav_state(t))
         )?;
     }
     truth.flush()?;
@@ -699,7 +699,7 @@ fn kf_gins_anchor() {
     println!("| IMU grade | filter | RMS of per-outage max horiz. drift, m | GNSS-on horiz. RMS, m | outages |");
     println!("|---|---|---:|---:|---:|");
     for (k, grade) in ["industrial", "tactical"].into_iter().enumerate() {
-        let model = imulab::fusion::noise::model_from_preset(grade)
+        let model = imulab::study::noise::model_from_preset(grade)
             .expect("preset")
             .model;
         let mut rng_errors = mems_errors(21 + k as u64);

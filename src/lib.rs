@@ -7,6 +7,7 @@
 //! - [`report`]: the HTML page, plots, CSV and datasheet table of an analysis, with outage
 //!   answers and the data's health.
 //! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
+//! - [`study`]: the sensor-grade study and the simulator-to-filter noise mapping it uses.
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`noise`]: the IMU noise model's terms, shared by the Allan fit, the simulator and fusion.
 //! - [`sim`]: IMU/GNSS error models, scenes and byte-stream serving.
@@ -21,10 +22,11 @@ pub mod calib;
 pub mod cli;
 pub use imulab_daemon as daemon;
 pub use imulab_earth as earth;
+pub use imulab_fusion as fusion;
 pub use imulab_noise as noise;
-pub mod fusion;
 pub mod report;
 pub use imulab_sim as sim;
 pub use imulab_store as store;
+pub use imulab_study as study;
 pub use imulab_thermal as thermal;
 pub mod watch;

@@ -17,7 +17,7 @@
 //!    carries, 150 Hz × speed: they size its chunks and its gap detector.)
 //! 4. A fusion replay (`imulab replay`) of a simulated 15 minute drive with both IMUs and
 //!    GNSS outages of 30 s every 120 s, the filter tuned from each IMU's Allan fit.
-//! 5. A small sensor-grade study ([`crate::fusion::study`]) whose grades are the two Allan
+//! 5. A small sensor-grade study ([`crate::study::grades`]) whose grades are the two Allan
 //!    fits just made: how long an outage each of these IMUs bridges within 0.1 m and 1 m.
 //!
 //! At the end: the paths of the session, report and JSON, and three lines of findings.
@@ -28,13 +28,13 @@ use crate::allan::session_source::SessionSource;
 use crate::allan::units::TermInUnits;
 use crate::allan::{DeviationKind, TauGrid};
 use crate::daemon::status::{read_status_file, DeviceState};
-use crate::fusion::study::{fit_study, StudyResult};
 use crate::report::{
     datasheet_table_text, html_report, html_report_with_study, plot_groups, write_png_axes,
 };
 use crate::sim::scene::Scene;
 use crate::sim::serve::{ServeOptions, ServeReport, Server, Speed, StartWhen};
 use crate::store::{EventKind, Session, TimeRange};
+use crate::study::grades::{fit_study, StudyResult};
 use anyhow::{bail, Context};
 use clap::Parser;
 use rayon::prelude::*;
@@ -63,8 +63,8 @@ const REPLAY_OUTAGES: &str = "every:120:30";
 const REPORT_TITLE: &str = "imulab demo: two bench IMUs in a 25 °C chamber";
 
 /// The drive of the replay and the study (both bench IMUs, a 10 Hz standalone receiver).
-const DRIVE_SCENE: &str = crate::fusion::study::REFERENCE_DRIVE;
-const STUDY_REQUIREMENTS_M: [f64; 2] = crate::fusion::study::FIT_STUDY_REQUIREMENTS_M;
+const DRIVE_SCENE: &str = crate::study::grades::REFERENCE_DRIVE;
+const STUDY_REQUIREMENTS_M: [f64; 2] = crate::study::grades::FIT_STUDY_REQUIREMENTS_M;
 
 #[derive(clap::Args, Debug)]
 #[command(

@@ -9,8 +9,8 @@ use crate::fusion::kfgins::{self, KfGinsConfig};
 use crate::fusion::mechanisation::NavState;
 use crate::fusion::metrics::{errors, overlap_s, summarise};
 use crate::fusion::navigator::{NavSolution, ReplayOptions, ReplayResult, ReplayStats};
-use crate::fusion::noise;
 use crate::fusion::session;
+use crate::study::noise;
 use anyhow::{bail, Context};
 use clap::Args;
 use std::path::{Path, PathBuf};
@@ -223,7 +223,9 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
     let options = ReplayOptions {
         outages: outages.clone(),
         smooth: args.smooth,
-        calibration,
+        calibration: calibration.map(|c| {
+            std::sync::Arc::new(c) as std::sync::Arc<dyn crate::fusion::navigator::RowCorrection>
+        }),
         ..ReplayOptions::default()
     };
     let r = session::replay_session(
@@ -346,7 +348,7 @@ fn noise_model(
     if args.config.is_some() {
         return Ok(None);
     }
-    match session::simulated_imu_preset(session, imu_device) {
+    match crate::study::simulated_imu_preset(session, imu_device) {
         Some(preset) => Ok(Some(noise::model_from_preset(&preset)?)),
         None => Ok(None),
     }

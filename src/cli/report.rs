@@ -38,7 +38,7 @@ pub struct ReportArgs {
     pub study: Option<PathBuf>,
     /// Monte Carlo runs of the report's own sensor-grade study of the fitted IMUs (the
     /// reference 15-minute drive; 0 = none, the analytic bound only).
-    #[arg(long, default_value_t = crate::fusion::study::FIT_STUDY_RUNS, conflicts_with = "study")]
+    #[arg(long, default_value_t = crate::study::grades::FIT_STUDY_RUNS, conflicts_with = "study")]
     pub study_runs: usize,
     /// Page title.
     #[arg(long, default_value = "IMU noise report")]
@@ -64,7 +64,7 @@ pub fn run(mut args: ReportArgs) -> anyhow::Result<()> {
         args.analysis.options.temperature_column = Some("temp".into());
     }
     let given = match &args.study {
-        Some(p) => Some(crate::fusion::study::StudyResult::from_json_file(p)?),
+        Some(p) => Some(crate::study::grades::StudyResult::from_json_file(p)?),
         None => None,
     };
     let report = analyse_inputs(&args.inputs, &args.analysis)?;
@@ -130,13 +130,13 @@ fn thermal_sections(inputs: &[PathBuf], report: &AllanReport, quiet: bool) -> St
 }
 
 /// The filter-based outage answer for the report's devices: a small study of their fits
-/// (`fusion::study::fit_study`). None, with one line saying why, when a fit does not allow
+/// (`study::grades::fit_study`). None, with one line saying why, when a fit does not allow
 /// it (the page then shows the analytic bound only).
 fn own_study(
     report: &AllanReport,
     runs: usize,
     quiet: bool,
-) -> Option<crate::fusion::study::StudyResult> {
+) -> Option<crate::study::grades::StudyResult> {
     let mut devices: Vec<&str> = Vec::new();
     for a in &report.axes {
         if !devices.contains(&a.device.as_str()) {
@@ -149,7 +149,7 @@ fn own_study(
             devices.join(", ")
         );
     }
-    match crate::fusion::study::fit_study(report, &devices, runs, !quiet) {
+    match crate::study::grades::fit_study(report, &devices, runs, !quiet) {
         Ok(s) => {
             if !quiet {
                 for (k, req) in s.requirements_m().iter().enumerate() {

@@ -1,11 +1,11 @@
-//! `imulab study`: the sensor-grade study (see [`crate::fusion::study`]): Monte Carlo over IMU
+//! `imulab study`: the sensor-grade study (see [`crate::study::grades`]): Monte Carlo over IMU
 //! grades and GNSS outage lengths on a scene's drive; prints and plots the horizontal drift
 //! p50/p95 against outage length per grade and the longest outage each grade bridges within
 //! each requirement.
 
 use crate::fusion::config::FusionConfig;
-use crate::fusion::study::{run_study, Grade, StudyOptions, StudyResult, DEFAULT_REQUIREMENTS_M};
 use crate::sim::scene::Scene;
+use crate::study::grades::{run_study, Grade, StudyOptions, StudyResult, DEFAULT_REQUIREMENTS_M};
 use anyhow::Context;
 use clap::Args;
 use plotters::coord::Shift;
@@ -78,7 +78,7 @@ pub fn run(args: StudyArgs) -> anyhow::Result<()> {
     if args.white_gnss {
         config.gnss.position_error = Default::default();
     } else {
-        crate::fusion::study::model_receiver_error(&mut config, &scene);
+        crate::study::grades::model_receiver_error(&mut config, &scene);
     }
     let grades = args
         .grades
@@ -208,7 +208,7 @@ where
     }
     for (i, g) in result.grades.iter().enumerate() {
         let color = Palette99::pick(i).to_rgba();
-        let pts = |f: fn(&crate::fusion::study::LengthStats) -> f64| -> Vec<(f64, f64)> {
+        let pts = |f: fn(&crate::study::grades::LengthStats) -> f64| -> Vec<(f64, f64)> {
             g.lengths
                 .iter()
                 .map(|l| (l.outage_s, f(l)))

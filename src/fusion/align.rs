@@ -19,7 +19,7 @@ pub const LEVEL_GRAVITY_TOLERANCE: f64 = 1.0;
 /// a standalone receiver's velocity noise of a few cm/s).
 pub const STILL_SPEED_MPS: f64 = 0.5;
 
-use crate::earth::OMEGA_IE;
+use imulab_earth::OMEGA_IE;
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// Roll and pitch (rad) of a body whose accelerometers read the mean specific force `f_b`
@@ -190,8 +190,8 @@ impl StaticLeveller {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::earth;
-    use crate::sim::motion::static_truth;
+    use imulab_earth as earth;
+    use imulab_sim::motion::static_truth;
 
     #[test]
     fn levelling_recovers_roll_and_pitch() {

@@ -4,7 +4,7 @@
 //!
 //! Units are in the key names: `_rad_per_sqrt_s`, `_mps`, `_deg`, `_ppm` and so on.
 
-use crate::fusion::mechanisation::MechanisationOptions;
+use crate::mechanisation::MechanisationOptions;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

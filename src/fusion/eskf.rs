@@ -4,12 +4,12 @@
 //! covariance is never left non-finite), closed-loop feedback of the estimated errors into the
 //! navigation state and sensor-error estimates, and the records an RTS smoother needs.
 //!
-//! `N` is 15 or 21 (see [`crate::fusion::models`] for the state layout); all matrices are
+//! `N` is 15 or 21 (see [`crate::models`] for the state layout); all matrices are
 //! fixed-size, so the filter loop does not allocate (smoother records aside).
 
-use crate::fusion::config::FusionConfig;
-use crate::fusion::mechanisation::{ImuInput, Mechaniser, NavState};
-use crate::fusion::models::{
+use crate::config::FusionConfig;
+use crate::mechanisation::{ImuInput, Mechaniser, NavState};
+use crate::models::{
     self, gnss_error_index, has_scale_factors, Measurement, ATT, BA, BG, POS, SA, SG, VEL,
 };
 use nalgebra::{Cholesky, SMatrix, SVector, UnitQuaternion, Vector3};

@@ -1,8 +1,8 @@
 //! Writes a replayed trajectory as CSV (every state, sensor-error estimates and 1σ) and as a
 //! GeoJSON LineString (for a map), and the error summary against truth as JSON.
 
-use crate::fusion::metrics::ErrorSummary;
-use crate::fusion::navigator::NavSolution;
+use crate::metrics::ErrorSummary;
+use crate::navigator::NavSolution;
 use std::path::Path;
 
 /// Column names of the trajectory CSV, with units.
@@ -137,7 +137,7 @@ pub fn write_geojson(path: &Path, solutions: &[NavSolution]) -> anyhow::Result<(
 
 /// The error summary as a JSON value.
 pub fn summary_json(s: &ErrorSummary) -> serde_json::Value {
-    let spread = |x: &crate::fusion::metrics::Spread| serde_json::json!({ "rms": x.rms, "p95": x.p95, "max": x.max });
+    let spread = |x: &crate::metrics::Spread| serde_json::json!({ "rms": x.rms, "p95": x.p95, "max": x.max });
     serde_json::json!({
         "epochs": s.epochs,
         "horizontal_m": spread(&s.horizontal),

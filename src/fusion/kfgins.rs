@@ -16,10 +16,10 @@
 //! lists `[a, b, c]`, one level of nesting, `#` comments): no YAML crate is in the dependency
 //! set and this subset does not justify one. Anything outside it is an error naming the line.
 
-use crate::fusion::config::{FusionConfig, GaussMarkov};
-use crate::fusion::eskf::SensorErrors;
-use crate::fusion::mechanisation::{wrap_pi, ImuInput, NavState};
-use crate::fusion::navigator::{GnssObservation, NavSolution};
+use crate::config::{FusionConfig, GaussMarkov};
+use crate::eskf::SensorErrors;
+use crate::mechanisation::{wrap_pi, ImuInput, NavState};
+use crate::navigator::{GnssObservation, NavSolution};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -580,18 +580,18 @@ pub fn replay_files(
     config: &KfGinsConfig,
     outages: &[(f64, f64)],
     smooth: bool,
-) -> Result<crate::fusion::navigator::ReplayResult, KfGinsError> {
+) -> Result<crate::navigator::ReplayResult, KfGinsError> {
     replay_files_with(config, &config.fusion_config(), outages, smooth)
 }
 
 /// [`replay_files`] with the filter configuration given (the KF-GINS one with motion
-/// constraints added, see [`crate::fusion::config::Constraints`]).
+/// constraints added, see [`crate::config::Constraints`]).
 pub fn replay_files_with(
     config: &KfGinsConfig,
     fusion: &FusionConfig,
     outages: &[(f64, f64)],
     smooth: bool,
-) -> Result<crate::fusion::navigator::ReplayResult, KfGinsError> {
+) -> Result<crate::navigator::ReplayResult, KfGinsError> {
     let (imu, wheel) = read_imu_with_wheel_speed(
         &config.imu_path,
         config.imu_rate_hz,
@@ -627,14 +627,14 @@ pub fn replay_files_with(
             ),
         });
     }
-    let options = crate::fusion::navigator::ReplayOptions {
+    let options = crate::navigator::ReplayOptions {
         initial: Some(config.initial),
         initial_sensors: config.initial_sensors,
         outages: outages.to_vec(),
         smooth,
         calibration: None,
     };
-    Ok(crate::fusion::navigator::replay_with_wheel_speed(
+    Ok(crate::navigator::replay_with_wheel_speed(
         fusion, imu, gnss, wheel, options,
     ))
 }

@@ -10,7 +10,7 @@
 //! Second order evaluates gravity, Coriolis and ζ at mid-interval (extrapolated); first order
 //! at the start of the interval and integrates position with the old velocity (Euler).
 
-use crate::earth;
+use imulab_earth as earth;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -25,21 +25,6 @@ pub struct NavState {
     pub vel_ned: Vector3<f64>,
     /// Attitude body (FRD) → NED.
     pub quat_nb: UnitQuaternion<f64>,
-}
-
-impl From<&crate::sim::motion::TruthSample> for NavState {
-    /// The simulator's true state as a navigation state (same time, position, velocity and
-    /// attitude): a mechanisation started from it follows the truth.
-    fn from(t: &crate::sim::motion::TruthSample) -> Self {
-        NavState {
-            t_s: t.t_s,
-            lat_rad: t.lat_rad,
-            lon_rad: t.lon_rad,
-            height_m: t.height_m,
-            vel_ned: t.vel_ned,
-            quat_nb: t.quat_nb,
-        }
-    }
 }
 
 impl NavState {

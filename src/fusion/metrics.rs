@@ -2,8 +2,8 @@
 //! errors, normalised estimation error squared (NEES), the share of error components inside
 //! the filter's 3σ, horizontal/vertical RMS, p95 and max, and the drift during each outage.
 
-use crate::fusion::mechanisation::NavState;
-use crate::fusion::navigator::NavSolution;
+use crate::mechanisation::NavState;
+use crate::navigator::NavSolution;
 use nalgebra::{Cholesky, SVector, Vector3};
 
 /// The errors of one output epoch (estimate minus truth).
@@ -278,8 +278,8 @@ pub fn anees(nees: &[Vec<f64>], dof: usize) -> Option<Anees> {
         return None;
     }
     let nu = (m * dof) as f64;
-    let lo = crate::allan::edf::chi_squared_quantile(nu, 0.025)? / m as f64;
-    let hi = crate::allan::edf::chi_squared_quantile(nu, 0.975)? / m as f64;
+    let lo = imulab_allan::edf::chi_squared_quantile(nu, 0.025)? / m as f64;
+    let hi = imulab_allan::edf::chi_squared_quantile(nu, 0.975)? / m as f64;
     let n = per_epoch.len() as f64;
     let share = |f: &dyn Fn(f64) -> bool| per_epoch.iter().filter(|x| f(**x)).count() as f64 / n;
     Some(Anees {

@@ -22,7 +22,5 @@ pub mod mechanisation;
 pub mod metrics;
 pub mod models;
 pub mod navigator;
-pub mod noise;
 pub mod session;
 pub mod smoother;
-pub mod study;

@@ -13,9 +13,9 @@
 //! *Strapdown Inertial Navigation Technology*, ch. 12; Shin 2005, ch. 2) including the
 //! transport-rate couplings, the vertical gravity gradient and the Gauss-Markov sensor errors.
 
-use crate::earth;
-use crate::fusion::config::{FusionConfig, VehicleOptions};
-use crate::fusion::mechanisation::NavState;
+use crate::config::{FusionConfig, VehicleOptions};
+use crate::mechanisation::NavState;
+use imulab_earth as earth;
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 pub const POS: usize = 0;
@@ -496,7 +496,7 @@ mod tests {
             states: 15,
             ..FusionConfig::default()
         };
-        config.gnss.position_error = crate::fusion::config::GnssPositionError {
+        config.gnss.position_error = crate::config::GnssPositionError {
             horizontal_m: 2.0,
             vertical_m: 3.5,
             tau_s: 600.0,

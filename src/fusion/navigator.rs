@@ -4,15 +4,22 @@
 //! duplicate or out-of-order fixes are rejected and counted, never fatal) and collects the
 //! trajectory at the output interval, optionally RTS-smoothed.
 
-use crate::earth;
-use crate::fusion::align::{self, StaticLeveller};
-use crate::fusion::config::FusionConfig;
-use crate::fusion::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
-use crate::fusion::mechanisation::{ImuInput, NavState};
-use crate::fusion::metrics;
-use crate::fusion::models::{self, has_scale_factors, ATT, BA, BG, SA, SG};
-use crate::fusion::smoother;
+use crate::align::{self, StaticLeveller};
+use crate::config::FusionConfig;
+use crate::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
+use crate::mechanisation::{ImuInput, NavState};
+use crate::metrics;
+use crate::models::{self, has_scale_factors, ATT, BA, BG, SA, SG};
+use crate::smoother;
+use imulab_earth as earth;
 use nalgebra::{SMatrix, Vector3};
+
+/// A correction of IMU rows applied before the filter (a calibration: `imulab calibrate`'s
+/// file in the main crate), SI units in place.
+pub trait RowCorrection: std::fmt::Debug + Send + Sync {
+    /// Corrects rows of gyro (rad/s) and accel (m/s²) samples in place.
+    fn apply(&self, gyro: &mut [[f64; 3]], accel: &mut [[f64; 3]]);
+}
 
 /// Receivers that give no accuracy get these 1σ values: horizontal, vertical (m), velocity (m/s).
 pub const FALLBACK_SIGMA: (f64, f64, f64) = (2.5, 5.0, 0.1);
@@ -94,7 +101,7 @@ pub struct ReplayOptions {
     pub smooth: bool,
     /// IMU calibration applied to every session row before thermal compensation and the
     /// filter (`replay --calibration`).
-    pub calibration: Option<crate::calib::Corrector>,
+    pub calibration: Option<std::sync::Arc<dyn RowCorrection>>,
 }
 
 /// Everything a replay produced.

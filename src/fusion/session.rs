@@ -5,13 +5,13 @@
 //! bias with temperature, bias(T) − bias(reference), from the IMU rows (by their `temp`)
 //! before the filter sees them.
 
-use crate::fusion::config::FusionConfig;
-use crate::fusion::mechanisation::{ImuInput, NavState};
-use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions, ReplayResult};
-use crate::store::{DeviceKind, GnssRecord, Session, StoreError, TimeRange};
-use crate::thermal::model::{require_session_temperature, ImuCompensator, ThermalModel};
+use crate::config::FusionConfig;
+use crate::mechanisation::{ImuInput, NavState};
+use crate::navigator::{GnssObservation, Navigator, ReplayOptions, ReplayResult};
 use anyhow::{bail, Context};
 use imulab_drivers::types::FixType;
+use imulab_store::{DeviceKind, GnssRecord, Session, StoreError, TimeRange};
+use imulab_thermal::model::{require_session_temperature, ImuCompensator, ThermalModel};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 /// Rows per block read from the store.
@@ -115,15 +115,6 @@ pub fn observation(r: &GnssRecord, t0_ns: i64) -> Option<GnssObservation> {
     })
 }
 
-/// The simulator preset an IMU of a simulated session was made with: the device model
-/// `simulated <preset>` that `imulab sim` writes into the manifest (None for real devices
-/// and for custom simulated IMUs).
-pub fn simulated_imu_preset(session: &Session, device: &str) -> Option<String> {
-    let d = session.devices().iter().find(|d| d.name == device)?;
-    let preset = d.model.strip_prefix("simulated ")?;
-    crate::sim::presets::imu_preset(preset).map(|_| preset.to_string())
-}
-
 /// The most frequent position-fix class among the rows of GNSS device `gnss` (the only one
 /// when None); None when no row has a position fix.
 pub fn dominant_fix_type(session: &Session, gnss: Option<&str>) -> anyhow::Result<Option<FixType>> {
@@ -181,7 +172,7 @@ pub fn replay_session(
         None => None,
     };
     let t0 = session
-        .stream_summary(&crate::store::layout::imu_path(&out.imu_device))
+        .stream_summary(&imulab_store::layout::imu_path(&out.imu_device))
         .first_t_mono_ns
         .with_context(|| {
             format!(
@@ -324,7 +315,7 @@ pub fn truth_at(truth: &[NavState], t: f64) -> Option<NavState> {
     Some(NavState {
         t_s: t,
         lat_rad: a.lat_rad + w * (b.lat_rad - a.lat_rad),
-        lon_rad: a.lon_rad + w * crate::fusion::mechanisation::wrap_pi(b.lon_rad - a.lon_rad),
+        lon_rad: a.lon_rad + w * crate::mechanisation::wrap_pi(b.lon_rad - a.lon_rad),
         height_m: a.height_m + w * (b.height_m - a.height_m),
         vel_ned: a.vel_ned + w * (b.vel_ned - a.vel_ned),
         quat_nb: a.quat_nb.slerp(&b.quat_nb, w),

@@ -7,8 +7,8 @@
 //! d(k) = A (d(k+1) + δx_update(k+1)); P_s(k) = P(k|k) + A (P_s(k+1) − P(k+1|k)) Aᵀ.
 //! The smoothed state is the filtered nominal with d(k) removed.
 
-use crate::fusion::eskf::{corrected, SensorErrors, SmootherRecord};
-use crate::fusion::mechanisation::NavState;
+use crate::eskf::{corrected, SensorErrors, SmootherRecord};
+use crate::mechanisation::NavState;
 use nalgebra::{Cholesky, SMatrix, SVector};
 
 /// One smoothed epoch.

@@ -8,7 +8,7 @@ use super::svg::{svg_plot, LINE_STYLE_NOTE, SVG_NAMESPACE};
 use super::text::{duration, escape, pretty_unit, sig3};
 use crate::allan::analysis::{AllanReport, AxisResult};
 use crate::allan::units::{thermal_coefficient_in_units, SensorKind};
-use crate::fusion::study::StudyResult;
+use crate::study::grades::StudyResult;
 use std::fmt::Write as _;
 
 /// The analysed axes' health: one sentence when every axis is clean, else the table.

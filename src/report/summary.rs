@@ -5,7 +5,7 @@ use super::text::{escape, pretty_unit, seconds, sig3};
 use crate::allan::analysis::AllanReport;
 use crate::allan::fit::Term;
 use crate::allan::units::SensorKind;
-use crate::fusion::study::{Bridge, StudyResult};
+use crate::study::grades::{Bridge, StudyResult};
 use std::fmt::Write as _;
 
 /// Headline terms of the summary: (label, sensor, term).

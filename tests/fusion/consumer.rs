@@ -14,8 +14,8 @@ use imulab::fusion::mechanisation::ImuInput;
 use imulab::fusion::metrics::{anees, epoch_error};
 use imulab::fusion::navigator::{Navigator, ReplayOptions};
 use imulab::fusion::session::{observation, truth_at};
-use imulab::fusion::study::StudyDrive;
 use imulab::sim::scene::{Scene, START_MONO_NS};
+use imulab::study::grades::StudyDrive;
 use nalgebra::Vector3;
 use std::path::Path;
 
@@ -79,14 +79,14 @@ fn consumer_imu_with_gnss_only_stays_bounded_over_a_drive() {
     let drive = StudyDrive::new(&scene).expect("drive");
     let spec = imulab::sim::presets::imu_preset("consumer").expect("preset");
     let mut config = FusionConfig {
-        imu: imulab::fusion::noise::model_from_spec(&spec, "consumer")
+        imu: imulab::study::noise::model_from_spec(&spec, "consumer")
             .expect("noise")
             .model,
         output_interval_s: 1.0,
         ..FusionConfig::default()
     };
     config.gnss.position_error =
-        imulab::fusion::noise::gnss_error_from_spec(&scene.gnss[0].spec).expect("receiver");
+        imulab::study::noise::gnss_error_from_spec(&scene.gnss[0].spec).expect("receiver");
     let runs: Vec<[Vec<f64>; 2]> = (0..4)
         .map(|k| nees_per_second(&drive, &config, scene.seed + k))
         .collect();

@@ -3,7 +3,6 @@
 
 use crate::support::{city_drive, mems_errors, simulate, SimData};
 use imulab::fusion::config::FusionConfig;
-use imulab::fusion::mechanisation::NavState;
 use imulab::fusion::metrics::{errors, summarise, ErrorSummary};
 use imulab::fusion::navigator::{replay, ReplayOptions, ReplayResult};
 use nalgebra::Vector3;
@@ -47,7 +46,7 @@ fn run(
     smooth: bool,
 ) -> (ReplayResult, ErrorSummary) {
     let opts = ReplayOptions {
-        initial: Some(NavState::from(&d.truth[0])),
+        initial: Some(imulab::study::nav_state(&d.truth[0])),
         outages: outages.clone(),
         smooth,
         ..Default::default()

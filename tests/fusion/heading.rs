@@ -10,10 +10,10 @@ use imulab::fusion::config::FusionConfig;
 use imulab::fusion::mechanisation::ImuInput;
 use imulab::fusion::models::ATT;
 use imulab::fusion::navigator::{Navigator, ReplayOptions};
-use imulab::fusion::noise;
 use imulab::fusion::session::{observation, truth_at};
-use imulab::fusion::study::StudyDrive;
 use imulab::sim::scene::{Scene, START_MONO_NS};
+use imulab::study::grades::StudyDrive;
+use imulab::study::noise;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::path::Path;
 

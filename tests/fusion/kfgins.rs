@@ -67,7 +67,7 @@ fn write_dataset(dir: &Path) -> SimData {
     std::fs::write(dir.join("gnss.txt"), gnss).expect("write gnss");
     let mut truth = String::new();
     for t in d.truth.iter().step_by(10) {
-        let mut nav = NavState::from(t);
+        let mut nav = imulab::study::nav_state(t);
         nav.t_s += SOW0;
         writeln!(truth, "{}", format_nav_line(WEEK, &nav)).expect("fmt");
     }

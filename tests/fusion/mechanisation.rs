@@ -22,7 +22,7 @@ fn stationary_noise_free_imu_stays_put_for_ten_minutes() {
     ] {
         let q = UnitQuaternion::from_euler_angles(0.02, -0.03, 1.1);
         let truth = static_truth(f64::to_radians(lat_deg), 0.3, 120.0, q);
-        let mut nav = NavState::from(&truth);
+        let mut nav = imulab::study::nav_state(&truth);
         let mut mech = Mechaniser::new(MechanisationOptions {
             order,
             coning_sculling: true,
@@ -80,7 +80,7 @@ fn constant_rate_turns_return_to_truth_with_rates_and_increments() {
     let truth: Vec<TruthSample> = MotionGenerator::new(&drive(), 2.0 * rate)
         .expect("plan")
         .collect();
-    let mut by_rates = NavState::from(&truth[0]);
+    let mut by_rates = imulab::study::nav_state(&truth[0]);
     let mut by_incs = by_rates;
     let mut mech_r = Mechaniser::new(MechanisationOptions::default());
     let mut mech_i = Mechaniser::new(MechanisationOptions::default());

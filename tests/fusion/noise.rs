@@ -11,11 +11,12 @@ use imulab::allan::units::{RateUnit, SensorKind};
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::metrics::{errors, summarise, ErrorSummary};
 use imulab::fusion::navigator::ReplayOptions;
-use imulab::fusion::noise;
-use imulab::fusion::session::{replay_session, simulated_imu_preset, truth_at};
+use imulab::fusion::session::{replay_session, truth_at};
 use imulab::sim::outputs::{MemorySink, SessionSink};
 use imulab::sim::scene::Scene;
 use imulab::store::Session;
+use imulab::study::noise;
+use imulab::study::simulated_imu_preset;
 use std::path::{Path, PathBuf};
 
 fn fixture(name: &str) -> PathBuf {

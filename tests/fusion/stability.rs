@@ -3,7 +3,7 @@
 
 use crate::support::{simulate, ImuErrors};
 use imulab::fusion::config::FusionConfig;
-use imulab::fusion::mechanisation::{ImuInput, NavState};
+use imulab::fusion::mechanisation::ImuInput;
 use imulab::fusion::navigator::{replay, GnssObservation, Navigator, ReplayOptions, ReplayResult};
 use imulab::sim::motion::{MotionSpec, Segment};
 use nalgebra::{Cholesky, Vector3};
@@ -77,7 +77,7 @@ fn day_long_static_replay_keeps_covariance_symmetric_positive_definite() {
     let mut nav = Navigator::<15>::new(
         &c,
         ReplayOptions {
-            initial: Some(NavState::from(&d.truth[0])),
+            initial: Some(imulab::study::nav_state(&d.truth[0])),
             ..Default::default()
         },
     );
@@ -130,7 +130,7 @@ fn hours_without_gnss_never_give_nan() {
         d.imu.iter().copied(),
         gnss,
         ReplayOptions {
-            initial: Some(NavState::from(&d.truth[0])),
+            initial: Some(imulab::study::nav_state(&d.truth[0])),
             ..Default::default()
         },
     );
@@ -208,7 +208,7 @@ fn bad_inputs_are_rejected_and_counted() {
         imu,
         gnss,
         ReplayOptions {
-            initial: Some(NavState::from(&d.truth[0])),
+            initial: Some(imulab::study::nav_state(&d.truth[0])),
             ..Default::default()
         },
     );

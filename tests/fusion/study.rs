@@ -7,10 +7,10 @@ use imulab::fusion::config::FusionConfig;
 use imulab::fusion::mechanisation::ImuInput;
 use imulab::fusion::navigator::{Navigator, ReplayOptions};
 use imulab::fusion::session::observation;
-use imulab::fusion::study::{run_study, Grade, StudyDrive, StudyOptions, StudyResult};
 use imulab::sim::imu_model::Channels;
 use imulab::sim::outputs::MemorySink;
 use imulab::sim::scene::{Outputs, Scene, START_MONO_NS};
+use imulab::study::grades::{run_study, Grade, StudyDrive, StudyOptions, StudyResult};
 use nalgebra::Vector3;
 use std::path::Path;
 
@@ -221,7 +221,7 @@ fn fork_without_covariance_follows_the_same_trajectory() {
     let spec = imulab::sim::presets::imu_preset("bench-cheap").expect("preset");
     let config = FusionConfig {
         covariance_interval_s: 0.1,
-        imu: imulab::fusion::noise::model_from_preset("bench-cheap")
+        imu: imulab::study::noise::model_from_preset("bench-cheap")
             .expect("noise")
             .model,
         ..FusionConfig::default()

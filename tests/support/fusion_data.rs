@@ -36,7 +36,7 @@ impl SimData {
         if k < 0.0 || (k / self.imu_rate - t).abs() > 1e-6 {
             return None;
         }
-        self.truth.get(k as usize).map(NavState::from)
+        self.truth.get(k as usize).map(imulab::study::nav_state)
     }
 }
 
@@ -99,7 +99,7 @@ pub fn simulate(
     }
     let mut gnss = Vec::new();
     for t in truth.iter().step_by(gnss_every.max(1)) {
-        let mut nav = NavState::from(t);
+        let mut nav = imulab::study::nav_state(t);
         let lever_n = t.quat_nb * lever_b;
         let omega_b = t.gyro_b;
         let noise_p = normal3(&mut rng);

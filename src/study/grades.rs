@@ -24,18 +24,18 @@
 //! Runs are independent and executed in parallel with rayon (and a run's grades too);
 //! results are collected in run order, so they are identical for any thread count.
 
-use crate::fusion::config::FusionConfig;
-use crate::fusion::mechanisation::{ImuInput, NavState};
-use crate::fusion::navigator::{GnssObservation, Navigator, ReplayOptions};
-use crate::fusion::noise::{self, NoiseModel};
-use crate::fusion::session::{observation, truth_at};
-use crate::sim::gnss_model::GnssSimulator;
-use crate::sim::imu_model::{Channels, ImuSimulator, ImuSpec};
-use crate::sim::motion::{static_truth, MotionGenerator, TruthSample};
-use crate::sim::scene::{GnssEntry, Motion, Scene, START_MONO_NS};
-use crate::sim::truth_file::TruthFileReader;
-use crate::store::{GnssRecord, ImuRecord};
+use crate::noise::{self, NoiseModel};
 use anyhow::{bail, Context};
+use imulab_fusion::config::FusionConfig;
+use imulab_fusion::mechanisation::{ImuInput, NavState};
+use imulab_fusion::navigator::{GnssObservation, Navigator, ReplayOptions};
+use imulab_fusion::session::{observation, truth_at};
+use imulab_sim::gnss_model::GnssSimulator;
+use imulab_sim::imu_model::{Channels, ImuSimulator, ImuSpec};
+use imulab_sim::motion::{static_truth, MotionGenerator, TruthSample};
+use imulab_sim::scene::{GnssEntry, Motion, Scene, START_MONO_NS};
+use imulab_sim::truth_file::TruthFileReader;
+use imulab_store::{GnssRecord, ImuRecord};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -66,8 +66,8 @@ pub struct Grade {
 
 impl Grade {
     /// A grade from a preset name, or from an Allan fit JSON file (`FILE.json[#DEVICE]`).
-    pub fn parse(arg: &str, base: &crate::fusion::config::ImuModel) -> anyhow::Result<Grade> {
-        if let Some(spec) = crate::sim::presets::imu_preset(arg) {
+    pub fn parse(arg: &str, base: &imulab_fusion::config::ImuModel) -> anyhow::Result<Grade> {
+        if let Some(spec) = imulab_sim::presets::imu_preset(arg) {
             return Ok(Grade {
                 name: arg.to_string(),
                 noise: noise::model_from_spec(&spec, &format!("preset {arg}"))?,
@@ -78,7 +78,7 @@ impl Grade {
         if !Path::new(path).exists() {
             bail!(
                 "grade `{arg}` is neither an IMU preset ({}) nor an existing Allan-fit JSON file",
-                crate::sim::presets::imu_preset_names().join(", ")
+                imulab_sim::presets::imu_preset_names().join(", ")
             );
         }
         let report = noise::read_allan_report(Path::new(path))?;
@@ -97,10 +97,10 @@ impl Grade {
     /// A grade from the fit of `device` (None: the only device) in an Allan report; named
     /// after the device. Fails when the fit does not give the white noise of both sensors.
     pub fn from_allan(
-        report: &crate::allan::analysis::AllanReport,
+        report: &imulab_allan::analysis::AllanReport,
         device: Option<&str>,
         origin: &str,
-        base: &crate::fusion::config::ImuModel,
+        base: &imulab_fusion::config::ImuModel,
     ) -> anyhow::Result<Grade> {
         let fit = noise::allan_device(report, device, origin)?;
         let spec = noise::spec_from_allan(&fit)?;
@@ -182,7 +182,7 @@ pub const FIT_STUDY_RUNS: usize = 8;
 /// [`REFERENCE_DRIVE`] with [`FIT_STUDY_OUTAGES_S`] and [`FIT_STUDY_REQUIREMENTS_M`], seed
 /// = the drive's. Fails (naming the device) when a fit does not allow simulating the IMU.
 pub fn fit_study(
-    report: &crate::allan::analysis::AllanReport,
+    report: &imulab_allan::analysis::AllanReport,
     devices: &[&str],
     runs: usize,
     progress: bool,
@@ -217,7 +217,7 @@ pub fn model_receiver_error(config: &mut FusionConfig, scene: &Scene) {
     if let Some(e) = scene
         .gnss
         .first()
-        .and_then(|rx| crate::fusion::noise::gnss_error_from_spec(&rx.spec))
+        .and_then(|rx| crate::noise::gnss_error_from_spec(&rx.spec))
     {
         config.gnss.position_error = e;
     }
@@ -443,7 +443,7 @@ impl StudyDrive {
                 NavState {
                     t_s: session_seconds(START_MONO_NS + sample_ns(k, scene.rate_hz)),
                     quat_nb: UnitQuaternion::from_quaternion(Quaternion::new(q.w, q.i, q.j, q.k)),
-                    ..NavState::from(t)
+                    ..crate::nav_state(t)
                 }
             })
             .collect();
@@ -660,7 +660,7 @@ impl<const N: usize> Fork<N> {
         let heading = |r: &NavState| r.quat_nb.euler_angles().2;
         let turning = window.first().is_some_and(|a| {
             window.iter().any(|b| {
-                crate::fusion::mechanisation::wrap_pi(heading(b) - heading(a))
+                imulab_fusion::mechanisation::wrap_pi(heading(b) - heading(a))
                     .to_degrees()
                     .abs()
                     > TURN_DEG

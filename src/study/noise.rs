@@ -35,12 +35,12 @@
 //!
 //! Terms an Allan fit did not identify fall back to the base model, each with a warning.
 
-use crate::allan::analysis::AllanReport;
-use crate::allan::fit::{Term, BIAS_INSTABILITY_FACTOR};
-use crate::allan::units::SensorKind;
-use crate::fusion::config::{GaussMarkov, GnssPositionError, ImuModel};
-use crate::sim::imu_model::{ImuSpec, TriadErrors, G0};
 use anyhow::{bail, Context};
+use imulab_allan::analysis::AllanReport;
+use imulab_allan::fit::{Term, BIAS_INSTABILITY_FACTOR};
+use imulab_allan::units::SensorKind;
+use imulab_fusion::config::{GaussMarkov, GnssPositionError, ImuModel};
+use imulab_sim::imu_model::{ImuSpec, TriadErrors, G0};
 use std::path::Path;
 
 /// Allan deviation peak of a first-order Gauss-Markov process, relative to its σ.
@@ -176,7 +176,7 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
 /// The filter's model of a receiver's correlated position error for a simulator GNSS spec:
 /// the spec's Gauss-Markov position error (σ horizontal per axis, vertical, τ) as it is.
 /// None when the spec has none (white position noise only).
-pub fn gnss_error_from_spec(spec: &crate::sim::gnss_model::GnssSpec) -> Option<GnssPositionError> {
+pub fn gnss_error_from_spec(spec: &imulab_sim::gnss_model::GnssSpec) -> Option<GnssPositionError> {
     let e = GnssPositionError {
         horizontal_m: spec.horizontal_gm_m,
         vertical_m: spec.vertical_gm_m,
@@ -205,15 +205,15 @@ pub fn gnss_preset_for_fix(fix: imulab_drivers::types::FixType) -> Option<&'stat
 /// 3.5 m vertical, τ 600 s).
 pub fn gnss_error_for_fix(fix: imulab_drivers::types::FixType) -> Option<GnssPositionError> {
     let preset = gnss_preset_for_fix(fix)?;
-    gnss_error_from_spec(&crate::sim::gnss_model::GnssSpec::preset(preset)?)
+    gnss_error_from_spec(&imulab_sim::gnss_model::GnssSpec::preset(preset)?)
 }
 
 /// The filter's IMU model for simulator preset `name`.
 pub fn model_from_preset(name: &str) -> anyhow::Result<NoiseModel> {
-    let spec = crate::sim::presets::imu_preset(name).with_context(|| {
+    let spec = imulab_sim::presets::imu_preset(name).with_context(|| {
         format!(
             "unknown IMU preset `{name}` (known: {})",
-            crate::sim::presets::imu_preset_names().join(", ")
+            imulab_sim::presets::imu_preset_names().join(", ")
         )
     })?;
     model_from_spec(&spec, &format!("preset {name}"))
@@ -343,12 +343,12 @@ pub fn read_allan_report(path: &Path) -> anyhow::Result<AllanReport> {
             path.display()
         )
     })?;
-    if report.schema_version != crate::allan::analysis::SCHEMA_VERSION {
+    if report.schema_version != imulab_allan::analysis::SCHEMA_VERSION {
         bail!(
             "{}: Allan report schema_version {} (this build reads {})",
             path.display(),
             report.schema_version,
-            crate::allan::analysis::SCHEMA_VERSION
+            imulab_allan::analysis::SCHEMA_VERSION
         );
     }
     Ok(report)
