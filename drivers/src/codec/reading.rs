@@ -73,6 +73,13 @@ impl ToReading for ImuSample {
     }
 }
 
+/// A decoder whose frames are readings already (one that yields both kinds).
+impl ToReading for Reading {
+    fn to_reading(self) -> Option<Reading> {
+        Some(self)
+    }
+}
+
 /// Any byte decoder whose frames are [`ToReading`], seen as a [`ReadingDecoder`].
 struct ByteReadings<D> {
     inner: D,
