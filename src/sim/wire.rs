@@ -10,7 +10,9 @@
 //! counter), `vectornav` (VectorNav binary output: Common group TimeStartup, AngularRate,
 //! Accel, IMU group ImuStatus and Temp), `mip` (MicroStrain MIP IMU data set: scaled
 //! accelerometer in g, scaled gyro, shared reference timestamp; MIP carries no
-//! temperature), `slcan` (the CAN frames of `fixtures/imu_can.dbc` through the mapping
+//! temperature; with the scene's `output`, VectorNav DeltaThetaVel and MIP delta theta /
+//! delta velocity over the sample interval instead of or beside the rates), `slcan` (the
+//! CAN frames of `fixtures/imu_can.dbc` through the mapping
 //! `fixtures/imu_can_mapping.toml`, as slcan lines). GNSS protocols (`[[gnss]]`): `gnss`
 //! (default; NMEA GGA and RMC followed by UBX NAV-PVT and NAV-EOE, all for the same
 //! epoch, as a u-blox receiver sends them), `nmea` (GGA and RMC only), `ubx` (NAV-PVT and

@@ -150,7 +150,7 @@ async fn one_receiver_port_logs_its_fixes_and_its_esf_imu_as_two_devices() {
     let devices = format!(
         "[[device]]\nname = \"f9r\"\nprotocol = \"ubx\"\nrate_hz = 10\n\
          serial = {{ port = \"{}\", baud = 460800 }}\n\
-         imu = {{ name = \"f9r_imu\", rate_hz = 100 }}\n",
+         gap_factor = 5\nimu = {{ name = \"f9r_imu\", rate_hz = 100 }}\n",
         pty.slave_path.display()
     );
     let config = config(dir.path(), &devices);
@@ -235,6 +235,18 @@ async fn one_receiver_port_logs_its_fixes_and_its_esf_imu_as_two_devices() {
         assert_eq!(r.t_sensor, v, "row {i}");
         assert_eq!(r.accel, [v / 1024.0, -3.0 * v / 1024.0, 10_000.0 / 1024.0]);
     }
+
+    // `imulab inspect` sees the IMU with its rows and its receiver's gap factor.
+    let report = imulab::cli::inspect::inspect(&session, 0);
+    let imu = report
+        .devices
+        .iter()
+        .find(|d| d.name == "f9r_imu")
+        .expect("inspect lists the IMU");
+    assert_eq!(
+        (imu.kind.as_str(), imu.rows, imu.gap_factor),
+        ("imu", u64::from(2 * FIXES * ESF_PER_FIX), 5.0)
+    );
 
     // The port's faults are the receiver's, counted once.
     let (events, problems) = session.events();
