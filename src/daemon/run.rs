@@ -182,10 +182,14 @@ pub async fn run(
                 .devices
                 .iter()
                 .map(|d| format!(
-                    "{} {} {}",
+                    "{} {} {}{}",
                     d.name,
                     d.protocol.name(),
-                    d.transport.describe()
+                    d.transport.describe(),
+                    d.imu
+                        .as_ref()
+                        .map(|imu| format!(", its IMU {}", imu.name))
+                        .unwrap_or_default()
                 ))
                 .collect::<Vec<_>>()
                 .join("; ")
