@@ -5,7 +5,9 @@
 use std::path::PathBuf;
 
 use imulab_drivers::codec::reading::{DeviceClock, Input, Kind, Reading, ReadingDecoder};
-use imulab_drivers::codec::{DecoderOptions, NamedText, ProtocolEntry, RowsFrom, PROTOCOLS};
+use imulab_drivers::codec::{
+    DecoderOptions, ImuOutput, NamedText, ProtocolEntry, RowsFrom, PROTOCOLS,
+};
 use imulab_drivers::types::{FixType, GnssFix, ImuSample};
 
 fn fixture_text(name: &str) -> NamedText {
@@ -43,6 +45,7 @@ fn imu_reading(k: u32) -> (Reading, DeviceClock) {
     let clock = DeviceClock {
         time_s: t,
         wall_ns: 1_764_000_000_000_000_000 + i64::from(k) * 10_000_000,
+        interval_s: 0.01,
     };
     (Reading::Imu(sample), clock)
 }
@@ -228,6 +231,54 @@ fn delta_outputs_read_back_as_rates_through_their_rows() {
                 close(g.accel.unwrap(), s.accel.unwrap(), 1e-4),
                 "{name}: {g:?} vs {s:?}"
             );
+        }
+    }
+}
+
+/// The VectorNav and MIP rows' encoders set to send deltas or both (the simulator's
+/// `output`): read back with rows from the deltas, the readings sent, within the f32 wire.
+#[test]
+fn vectornav_and_mip_encoders_send_deltas_when_asked() {
+    for name in ["vectornav", "mip"] {
+        let entry = PROTOCOLS.iter().find(|e| e.name == name).expect("a row");
+        for output in [ImuOutput::Deltas, ImuOutput::Both] {
+            let options = DecoderOptions {
+                imu_output: output,
+                rows_from: RowsFrom::Deltas,
+                ..options(entry)
+            };
+            let encoder = (entry.encoder.expect("an encoder"))(&options).expect("opens");
+            let mut bytes = Vec::new();
+            let sent: Vec<ImuSample> = (0..20)
+                .map(|k| {
+                    let (reading, clock) = imu_reading(k);
+                    encoder
+                        .encode(&reading, &clock, &mut bytes)
+                        .expect("encodes");
+                    let Reading::Imu(sample) = reading else {
+                        unreachable!()
+                    };
+                    sample
+                })
+                .collect();
+            let mut decoder = (entry.readings)(&options).expect("opens")();
+            let got = decode(decoder.as_mut(), &bytes);
+            // MIP deltas alone need the interval since the previous packet.
+            let unrated = usize::from(name == "mip" && output == ImuOutput::Deltas);
+            assert_eq!(got.len(), sent.len() - unrated, "{name} {output:?}");
+            for (s, g) in sent[unrated..].iter().zip(&got) {
+                let Reading::Imu(g) = g else {
+                    panic!("{name}: {g:?}")
+                };
+                assert!(
+                    close(g.gyro.unwrap(), s.gyro.unwrap(), 1e-5),
+                    "{name} {output:?}: {g:?}"
+                );
+                assert!(
+                    close(g.accel.unwrap(), s.accel.unwrap(), 1e-4),
+                    "{name} {output:?}: {g:?}"
+                );
+            }
         }
     }
 }

@@ -128,6 +128,12 @@ fn check_config(path: &Path) -> ExitCode {
                 ""
             }
         );
+        if let Some(imu) = &d.imu {
+            text += &format!(
+                "device {}: the UBX ESF IMU of {}, {} Hz\n",
+                imu.name, d.name, imu.rate_hz
+            );
+        }
     }
     if let Err(e) = std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes()) {
         if e.kind() != std::io::ErrorKind::BrokenPipe {

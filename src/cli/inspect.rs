@@ -121,16 +121,18 @@ fn kind_name(kind: EventKind) -> String {
 }
 
 /// `gap_factor` of device `name` in the daemon configuration the session recorded
-/// (`[[device]]` tables), else imulogd's default.
+/// (`[[device]]` tables; a receiver's IMU, `imu.name`, has its receiver's), else imulogd's
+/// default.
 fn gap_factor(m: &Manifest, name: &str) -> f64 {
+    fn name_of(t: Option<&toml::Value>) -> Option<&str> {
+        t.and_then(|t| t.get("name")).and_then(|n| n.as_str())
+    }
+    let names =
+        |d: &toml::Value| name_of(Some(d)) == Some(name) || name_of(d.get("imu")) == Some(name);
     m.config
         .get("device")
         .and_then(|v| v.as_array())
-        .and_then(|devices| {
-            devices
-                .iter()
-                .find(|d| d.get("name").and_then(|n| n.as_str()) == Some(name))
-        })
+        .and_then(|devices| devices.iter().find(|d| names(d)))
         .and_then(|d| d.get("gap_factor"))
         .and_then(|g| g.as_float().or_else(|| g.as_integer().map(|i| i as f64)))
         .unwrap_or(DEFAULT_GAP_FACTOR)

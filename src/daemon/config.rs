@@ -385,6 +385,21 @@ pub struct DeviceConfig {
     /// Keep this device's undecoded bytes (`/raw/<name>`); default: `[session] raw_journal`.
     #[serde(default)]
     pub raw_journal: Option<bool>,
+    /// For a u-blox dead-reckoning receiver (`ubx`, `gnss`): the IMU device its UBX ESF-RAW
+    /// / ESF-MEAS samples on the same port are logged as.
+    #[serde(default)]
+    pub imu: Option<ReceiverImuConfig>,
+}
+
+/// `[device.imu]`: the IMU of a dead-reckoning receiver, a second device of the session fed
+/// from the receiver's port (its rows: `/imu/<name>`, protocol `ubx-esf`).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReceiverImuConfig {
+    /// The IMU device's name (its HDF5 group), distinct from every device's.
+    pub name: String,
+    /// Its nominal sample rate, Hz (gap detection, chunk size, the status).
+    pub rate_hz: f64,
 }
 
 /// `gap_factor` when a device does not set it (also what `imulab inspect` uses for a
@@ -455,6 +470,8 @@ pub struct DeviceSpec {
     pub retry_max_ms: u64,
     /// Whether this device's undecoded bytes are kept (`/raw/<name>`).
     pub raw_journal: bool,
+    /// The receiver's IMU, logged as a device of its own from this device's port.
+    pub imu: Option<ReceiverImuConfig>,
 }
 
 impl DeviceSpec {
@@ -465,6 +482,11 @@ impl DeviceSpec {
             gyro_scale: self.gyro_scale,
             accel_scale: self.accel_scale,
         }
+    }
+
+    /// Rows per second the device delivers at its nominal rates (its own and its IMU's).
+    pub fn rows_rate_hz(&self) -> f64 {
+        self.rate_hz + self.imu.as_ref().map_or(0.0, |imu| imu.rate_hz)
     }
 }
 
@@ -706,6 +728,7 @@ impl Config {
                 devices.push(spec);
             }
         }
+        self.validate_imu_names(&mut issues);
         if issues.0.is_empty() {
             let (floor_mb, set_by_fast) = reserve_floor(&self.session, &devices);
             if self.session.disk_reserve_mb < floor_mb {
@@ -736,6 +759,29 @@ impl Config {
             })
         } else {
             Err(issues.0)
+        }
+    }
+
+    /// A receiver's IMU is a device of the session: its name may be no other device's (nor
+    /// another receiver's IMU's).
+    fn validate_imu_names(&self, issues: &mut Issues) {
+        for (index, device) in self.devices.iter().enumerate() {
+            let Some(imu) = &device.imu else { continue };
+            let device_clash = self.devices.iter().position(|d| d.name == imu.name);
+            let imu_clash = self.devices[..index]
+                .iter()
+                .position(|d| d.imu.as_ref().is_some_and(|other| other.name == imu.name));
+            let owner = match (device_clash, imu_clash) {
+                (Some(j), _) if j == index => "this device's own name".to_string(),
+                (Some(j), _) => format!("the name of device[{j}]"),
+                (None, Some(j)) => format!("the name of device[{j}]'s imu"),
+                (None, None) => continue,
+            };
+            issues.add(
+                format!("device[{index}].imu.name"),
+                format!("`{}` is already {owner}", imu.name),
+                "the receiver's IMU is a device of its own: give it a name no other device has (it names its HDF5 group)",
+            );
         }
     }
 
@@ -864,11 +910,13 @@ pub fn reserve_floor(session: &SessionConfig, devices: &[DeviceSpec]) -> (u64, b
                 fast = true;
                 return 0.0;
             };
+            let imu_row = std::mem::size_of::<imulab_store::ImuRecord>() as f64;
             let row = if d.protocol.is_gnss() {
-                std::mem::size_of::<imulab_store::GnssRecord>()
+                std::mem::size_of::<imulab_store::GnssRecord>() as f64
             } else {
-                std::mem::size_of::<imulab_store::ImuRecord>()
-            } as f64;
+                imu_row
+            };
+            let imu_rows = d.imu.as_ref().map_or(0.0, |imu| imu.rate_hz * imu_row);
             let raw = match (&d.transport, d.raw_journal) {
                 (_, false) => 0.0,
                 (Transport::Serial(s), true) => f64::from(s.baud) / 10.0,
@@ -881,7 +929,7 @@ pub fn reserve_floor(session: &SessionConfig, devices: &[DeviceSpec]) -> (u64, b
                 ) => f64::from(*baud) / 10.0,
                 (_, true) => d.rate_hz * LARGEST_FRAME_BYTES,
             };
-            speed_up * (2.0 * d.rate_hz * row + raw)
+            speed_up * (2.0 * (d.rate_hz * row + imu_rows) + raw)
         })
         .sum();
     let mib = f64::from(1u32 << 20);
@@ -919,13 +967,7 @@ fn validate_device(
     issues: &mut Issues,
 ) -> Option<DeviceSpec> {
     let before = issues.0.len();
-    if d.name.is_empty()
-        || d.name.len() > MAX_DEVICE_NAME_LEN
-        || !d
-            .name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-    {
+    if !valid_device_name(&d.name) {
         issues.add(
             format!("{path}.name"),
             format!("`{}` is not a valid device name", d.name),
@@ -977,6 +1019,9 @@ fn validate_device(
             "remove rows_from, or use it with protocol = \"vectornav\" or \"mip\"",
         );
     }
+    if let Some(imu) = &d.imu {
+        validate_receiver_imu(d.protocol, imu, &format!("{path}.imu"), issues);
+    }
     let body_from_sensor = match &d.axes {
         None => Matrix3::identity(),
         Some(axes) => validate_axes(axes, &format!("{path}.axes"), issues),
@@ -1000,7 +1045,51 @@ fn validate_device(
         retry_initial_ms: d.retry_initial_ms,
         retry_max_ms: d.retry_max_ms,
         raw_journal: d.raw_journal.unwrap_or(session.raw_journal),
+        imu: d.imu.clone(),
     })
+}
+
+/// Whether `name` can name a device (it names HDF5 groups and fits the event records).
+fn valid_device_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= MAX_DEVICE_NAME_LEN
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// `[device.imu]` of a device with `protocol`: a u-blox receiver's port, a usable name and
+/// rate (their clashes with other devices' names are checked with all devices).
+fn validate_receiver_imu(
+    protocol: Protocol,
+    imu: &ReceiverImuConfig,
+    path: &str,
+    issues: &mut Issues,
+) {
+    if !matches!(protocol, Protocol::Ubx | Protocol::Gnss) {
+        issues.add(
+            path.to_string(),
+            format!(
+                "protocol `{}` carries no UBX ESF messages to log as an IMU",
+                protocol.name()
+            ),
+            "use imu with protocol = \"ubx\" or \"gnss\" (a u-blox dead-reckoning receiver's port), or log an IMU-only port with protocol = \"ubx-esf\"",
+        );
+    }
+    if !valid_device_name(&imu.name) {
+        issues.add(
+            format!("{path}.name"),
+            format!("`{}` is not a valid device name", imu.name),
+            "use 1 to 63 letters, digits, - or _",
+        );
+    }
+    if !imu.rate_hz.is_finite() || imu.rate_hz <= 0.0 || imu.rate_hz > 100_000.0 {
+        issues.add(
+            format!("{path}.rate_hz"),
+            format!("{} is not a usable rate", imu.rate_hz),
+            "give the receiver's ESF sample rate in Hz (e.g. 100), above 0 and at most 100000",
+        );
+    }
 }
 
 fn validate_transport(d: &DeviceConfig, path: &str, issues: &mut Issues) -> Option<Transport> {

@@ -226,6 +226,13 @@ impl Tally {
     }
 }
 
+/// The gap detectors of a device task: the device's own rows, and a receiver's IMU rows
+/// (at the IMU's rate) when it has one.
+struct Gaps {
+    device: GapDetector,
+    imu: Option<GapDetector>,
+}
+
 /// Per-connection decoding state.
 struct Decoding {
     decoder: Box<dyn FrameDecoder>,
@@ -299,7 +306,14 @@ impl DeviceTask {
             Duration::from_millis(self.spec.retry_max_ms),
         );
         let mapping = self.spec.imu_mapping();
-        let mut gaps = GapDetector::new(self.spec.rate_hz, self.spec.gap_factor);
+        let mut gaps = Gaps {
+            device: GapDetector::new(self.spec.rate_hz, self.spec.gap_factor),
+            imu: self
+                .spec
+                .imu
+                .as_ref()
+                .map(|imu| GapDetector::new(imu.rate_hz, self.spec.gap_factor)),
+        };
         let mut time_relation = TimeRelationTracker::new(TIME_RELATION_WINDOW_S);
         let mut decoding = Decoding {
             decoder: (self.decoders)(),
@@ -521,7 +535,7 @@ impl DeviceTask {
         mut link: Box<dyn Link>,
         decoding: &mut Decoding,
         mapping: &ImuMapping,
-        gaps: &mut GapDetector,
+        gaps: &mut Gaps,
         time_relation: &mut TimeRelationTracker,
         tally: &mut Tally,
         shutdown: &mut watch::Receiver<bool>,
@@ -530,7 +544,7 @@ impl DeviceTask {
         let opened_mono_ns = clock::mono_ns();
         // A capture has no buffer of the device's: its pieces come as paced.
         let mut burst = (!self.spec.transport.is_file())
-            .then(|| BurstTracker::new(self.spec.rate_hz, opened_mono_ns));
+            .then(|| BurstTracker::new(self.spec.rows_rate_hz(), opened_mono_ns));
         // The batch being collected, and the grid point it is due at the writer (set by its
         // first read): one timer expiry per period, shared with the other devices' tasks.
         let mut batch = Batch::new(self.index);
@@ -719,7 +733,7 @@ impl DeviceTask {
         batch: &mut Batch,
         decoding: &mut Decoding,
         mapping: &ImuMapping,
-        gaps: &mut GapDetector,
+        gaps: &mut Gaps,
         time_relation: &mut TimeRelationTracker,
         tally: &mut Tally,
         finish: bool,
@@ -740,7 +754,8 @@ impl DeviceTask {
                 frame.len()
             }
         };
-        let mut new_gaps: Vec<Gap> = Vec::new();
+        // Each gap with whether it is of a receiver's IMU rows.
+        let mut new_gaps: Vec<(Gap, bool)> = Vec::new();
         let mut ignored = 0u64;
         let gnss_device = self.spec.protocol.is_gnss();
         let decoder = &mut decoding.decoder;
@@ -749,12 +764,19 @@ impl DeviceTask {
         } else {
             decoder.poll()
         } {
-            if matches!(frame, Frame::Gnss(_)) != gnss_device {
+            // A receiver's IMU samples go to its IMU device; other frames of the other kind
+            // than the device's have no table.
+            let detector = match (&frame, gnss_device, gaps.imu.as_mut()) {
+                (Frame::Imu(_), false, _) | (Frame::Gnss(_), true, _) => Some(&mut gaps.device),
+                (Frame::Imu(_), true, imu) => imu,
+                (Frame::Gnss(_), false, _) => None,
+            };
+            let Some(detector) = detector else {
                 ignored += 1;
                 continue;
-            }
-            if let Some(gap) = gaps.observe(at.mono_ns) {
-                new_gaps.push(gap);
+            };
+            if let Some(gap) = detector.observe(at.mono_ns) {
+                new_gaps.push((gap, gnss_device && matches!(frame, Frame::Imu(_))));
             }
             match frame {
                 Frame::Imu(sample) => batch.imu.push(mapping.imu_record(&sample, at)),
@@ -775,15 +797,19 @@ impl DeviceTask {
                 }
             }
         }
-        for gap in &new_gaps {
+        for (gap, of_imu) in &new_gaps {
+            let receiver_imu = self.spec.imu.as_ref().filter(|_| *of_imu);
             let detail = format!(
                 "no samples for {:.3} s (about {} samples missing at {} Hz)",
                 gap.duration_s(),
                 gap.missing_estimate,
-                self.spec.rate_hz
+                receiver_imu.map_or(self.spec.rate_hz, |imu| imu.rate_hz)
             );
             let mut event = self.event(EventKind::Gap, at, detail);
             event.t_mono_ns = gap.from_mono_ns;
+            if let Some(imu) = receiver_imu {
+                event.device = imu.name.clone();
+            }
             batch.events.push(event);
         }
         let total = decoding.total();

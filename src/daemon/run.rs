@@ -135,18 +135,7 @@ pub async fn run(
         free_space,
         status_path,
     } = parts;
-    let shared: Vec<Arc<DeviceShared>> = config
-        .devices
-        .iter()
-        .map(|d| {
-            DeviceShared::new(
-                &d.name,
-                d.protocol.name(),
-                &d.transport.describe(),
-                d.rate_hz,
-            )
-        })
-        .collect();
+    let shared: Vec<Arc<DeviceShared>> = config.devices.iter().map(DeviceShared::of).collect();
     let writer_shared = Arc::new(WriterShared::default());
     writer_shared.counters().session_dir = Some(session_dir.clone());
     let control = Arc::new(WriterControl::default());
@@ -193,10 +182,14 @@ pub async fn run(
                 .devices
                 .iter()
                 .map(|d| format!(
-                    "{} {} {}",
+                    "{} {} {}{}",
                     d.name,
                     d.protocol.name(),
-                    d.transport.describe()
+                    d.transport.describe(),
+                    d.imu
+                        .as_ref()
+                        .map(|imu| format!(", its IMU {}", imu.name))
+                        .unwrap_or_default()
                 ))
                 .collect::<Vec<_>>()
                 .join("; ")

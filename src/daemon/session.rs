@@ -35,6 +35,31 @@ pub fn device_kind(spec: &DeviceSpec) -> DeviceKind {
     }
 }
 
+/// The devices of the session: each configured device, and after a receiver its IMU.
+pub fn device_infos(devices: &[DeviceSpec]) -> Vec<DeviceInfo> {
+    devices
+        .iter()
+        .flat_map(|spec| std::iter::once(device_info(spec)).chain(receiver_imu_info(spec)))
+        .collect()
+}
+
+/// A receiver's IMU (`[device.imu]`): an IMU device of protocol `ubx-esf` on the receiver's
+/// port, whose rows take the receiver's `[device.axes]`; `receiver` names the device whose
+/// port and counters it shares.
+fn receiver_imu_info(spec: &DeviceSpec) -> Option<DeviceInfo> {
+    let imu = spec.imu.as_ref()?;
+    let mut info = device_info(spec);
+    info.name = imu.name.clone();
+    info.kind = DeviceKind::Imu;
+    info.protocol = imulab_drivers::codec::Protocol::UbxEsf.name().to_string();
+    info.rate_hz = imu.rate_hz;
+    info.extra.insert(
+        "receiver".to_string(),
+        toml::Value::String(spec.name.clone()),
+    );
+    Some(info)
+}
+
 fn device_info(spec: &DeviceSpec) -> DeviceInfo {
     let port = match &spec.transport {
         Transport::Serial(s) => s.port.display().to_string(),
@@ -61,6 +86,9 @@ fn device_info(spec: &DeviceSpec) -> DeviceInfo {
         "transport".to_string(),
         toml::Value::String(spec.transport.describe()),
     );
+    if let Some(imu) = &spec.imu {
+        extra.insert("imu".to_string(), toml::Value::String(imu.name.clone()));
+    }
     DeviceInfo {
         name: spec.name.clone(),
         kind: device_kind(spec),
@@ -101,7 +129,7 @@ pub fn writer_options(config: &CheckedConfig) -> WriterOptions {
 
 /// Creates the session in `dir` and returns the sink that writes it.
 pub fn open_session_sink(config: &CheckedConfig, dir: &Path) -> anyhow::Result<StoreSink> {
-    let devices = config.devices.iter().map(device_info).collect();
+    let devices = device_infos(&config.devices);
     let manifest = Manifest::new(devices, config.table.clone());
     let writer = SessionWriter::create(dir, manifest, writer_options(config))
         .map_err(|e| anyhow::anyhow!("cannot create session {}: {e}", dir.display()))?;

@@ -262,6 +262,7 @@ fn read_text(what: &str, path: &Path) -> Result<NamedText, String> {
 pub fn decoder_for(device: &DeviceSpec) -> Result<DecoderFactory, String> {
     let mut options = DecoderOptions {
         rows_from: device.rows_from,
+        esf_imu: device.imu.is_some(),
         ..DecoderOptions::default()
     };
     if let Some(dbc) = &device.dbc {

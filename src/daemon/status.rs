@@ -7,6 +7,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use serde::{Deserialize, Serialize};
 
+use super::config::DeviceSpec;
+
 /// Where a device is in its life.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -55,6 +57,8 @@ pub struct DeviceShared {
     pub protocol: String,
     pub transport: String,
     pub expected_rate_hz: f64,
+    /// The device a receiver's IMU rows are written as (`[device.imu]`); `None`: this one.
+    pub imu_device: Option<String>,
     counters: Mutex<DeviceCounters>,
 }
 
@@ -65,6 +69,20 @@ impl DeviceShared {
             protocol: protocol.to_string(),
             transport: transport.to_string(),
             expected_rate_hz,
+            imu_device: None,
+            counters: Mutex::new(DeviceCounters::default()),
+        })
+    }
+
+    /// The status cell of a configured device: its rate is that of all its rows (a
+    /// receiver's fixes and its IMU's samples).
+    pub fn of(spec: &DeviceSpec) -> Arc<Self> {
+        Arc::new(DeviceShared {
+            name: spec.name.clone(),
+            protocol: spec.protocol.name().to_string(),
+            transport: spec.transport.describe(),
+            expected_rate_hz: spec.rows_rate_hz(),
+            imu_device: spec.imu.as_ref().map(|imu| imu.name.clone()),
             counters: Mutex::new(DeviceCounters::default()),
         })
     }
@@ -125,7 +143,11 @@ pub struct DeviceStatus {
     pub protocol: String,
     pub transport: String,
     pub state: DeviceState,
+    /// Rows per second expected: the device's rate, plus its IMU's for a receiver with one.
     pub expected_rate_hz: f64,
+    /// A receiver's IMU device (`[device.imu]`), whose rows are counted here.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imu_device: Option<String>,
     /// Rows per second over the last status interval.
     pub rate_hz: f64,
     /// Seconds since the last decoded sample (None before the first).
@@ -189,6 +211,7 @@ impl StatusTracker {
                 transport: d.transport.clone(),
                 state: c.state,
                 expected_rate_hz: d.expected_rate_hz,
+                imu_device: d.imu_device.clone(),
                 rate_hz: if dt_s > 0.0 {
                     rows[i].saturating_sub(before[i]) as f64 / dt_s
                 } else {

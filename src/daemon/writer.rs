@@ -549,7 +549,7 @@ impl WriterState {
             sink.append_raw(name, t_mono_ns, bytes)?;
         }
         if !batch.imu.is_empty() {
-            sink.append_imu(name, &batch.imu)?;
+            sink.append_imu(device.imu_device.as_deref().unwrap_or(name), &batch.imu)?;
         }
         if !batch.gnss.is_empty() {
             sink.append_gnss(name, &batch.gnss)?;

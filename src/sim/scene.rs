@@ -17,7 +17,7 @@ use super::presets::{imu_preset, imu_preset_names};
 use super::serve::Fault;
 use super::temperature::TemperatureProfile;
 use super::wire::protocol_for;
-use imulab_drivers::codec::Protocol;
+use imulab_drivers::codec::{ImuOutput, Protocol};
 
 /// Default start of simulated wall-clock time: 2026-01-05T00:00:00Z (a GPS week start is
 /// not needed; any fixed instant keeps runs reproducible).
@@ -136,6 +136,9 @@ pub struct ImuEntry {
     pub channels: Channels,
     /// Protocol it is served in by `imulab sim --serve` (see [`super::wire`]).
     pub protocol: Protocol,
+    /// What a `vectornav` or `mip` IMU sends: its rates, delta theta / delta velocity over
+    /// the sample interval, or both.
+    pub output: ImuOutput,
 }
 
 /// One GNSS receiver of a scene.
@@ -359,6 +362,7 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
     };
     let mut overrides = entry.overrides.clone();
     let protocol = take_protocol(&mut overrides, false)?;
+    let output = take_output(&mut overrides, protocol)?;
     let channels = match overrides.remove("channels") {
         None => Channels::ALL,
         Some(v) => {
@@ -408,17 +412,45 @@ fn imu_entry(entry: &SensorEntry) -> Result<ImuEntry> {
             "thermal" => spec.thermal = value.try_into().map_err(at)?,
             "reference_temp_c" => spec.reference_temp_c = value.try_into().map_err(at)?,
             _ => bail!(
-                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `protocol`, `gyro`, `accel`, `timing`, `thermal`, `reference_temp_c`"
+                "unknown key `{key}`, expected one of `name`, `preset`, `channels`, `protocol`, `output`, `gyro`, `accel`, `timing`, `thermal`, `reference_temp_c`"
             ),
         }
     }
     spec.validate().map_err(|e| anyhow!("{e}"))?;
+    if protocol == Protocol::Vectornav
+        && output != ImuOutput::Rates
+        && !(channels.has_gyro() && channels.has_accel())
+    {
+        bail!("output: VectorNav's DeltaThetaVel carries delta theta and delta velocity together: simulate both gyro and accel, or output = \"rates\"");
+    }
     Ok(ImuEntry {
         name: entry.name.clone(),
         spec,
         channels,
         protocol,
+        output,
     })
+}
+
+/// Removes the `output` key of an IMU table: rates (default), deltas or both, the last two
+/// for the protocols that carry deltas.
+fn take_output(overrides: &mut toml::Table, protocol: Protocol) -> Result<ImuOutput> {
+    let Some(value) = overrides.remove("output") else {
+        return Ok(ImuOutput::Rates);
+    };
+    let output: ImuOutput = value.try_into().map_err(|e| {
+        anyhow!(
+            "output: {} (\"rates\", \"deltas\" or \"both\")",
+            one_line(&e)
+        )
+    })?;
+    if output != ImuOutput::Rates && !matches!(protocol, Protocol::Vectornav | Protocol::Mip) {
+        bail!(
+            "output: protocol `{}` sends rates only (delta theta / delta velocity: vectornav, mip)",
+            protocol.name()
+        );
+    }
+    Ok(output)
 }
 
 /// Removes the `protocol` key from a sensor table and checks it for the sensor kind.

@@ -420,7 +420,7 @@ impl Server {
         let mut wires = Vec::new();
         for imu in &scene.imus {
             wires.push(Wire::Imu(Box::new(
-                ImuWire::new(imu.protocol, imu.channels, scene.rate_hz)
+                ImuWire::with_output(imu.protocol, imu.channels, scene.rate_hz, imu.output)
                     .with_context(|| format!("imu {}", imu.name))?,
             )));
         }

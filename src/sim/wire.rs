@@ -10,7 +10,9 @@
 //! counter), `vectornav` (VectorNav binary output: Common group TimeStartup, AngularRate,
 //! Accel, IMU group ImuStatus and Temp), `mip` (MicroStrain MIP IMU data set: scaled
 //! accelerometer in g, scaled gyro, shared reference timestamp; MIP carries no
-//! temperature), `slcan` (the CAN frames of `fixtures/imu_can.dbc` through the mapping
+//! temperature; with the scene's `output`, VectorNav DeltaThetaVel and MIP delta theta /
+//! delta velocity over the sample interval instead of or beside the rates), `slcan` (the
+//! CAN frames of `fixtures/imu_can.dbc` through the mapping
 //! `fixtures/imu_can_mapping.toml`, as slcan lines). GNSS protocols (`[[gnss]]`): `gnss`
 //! (default; NMEA GGA and RMC followed by UBX NAV-PVT and NAV-EOE, all for the same
 //! epoch, as a u-blox receiver sends them), `nmea` (GGA and RMC only), `ubx` (NAV-PVT and
@@ -37,7 +39,9 @@ use imulab_drivers::codec::gnss::{EpochFix, GnssDecoder, GnssFrame};
 use imulab_drivers::codec::reading::{
     DeviceClock, Input, Kind, Reading, ReadingDecoder, ReadingDecoderFactory, ReadingEncoder,
 };
-use imulab_drivers::codec::{Decoder, DecoderOptions, EncodeError, NamedText, Protocol, PROTOCOLS};
+use imulab_drivers::codec::{
+    Decoder, DecoderOptions, EncodeError, ImuOutput, NamedText, Protocol, RowsFrom, PROTOCOLS,
+};
 use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
 
 use super::imu_model::Channels;
@@ -95,12 +99,28 @@ pub struct ImuWire {
 }
 
 impl ImuWire {
-    /// The wire format of an IMU with `channels` sampled at `rate_hz`.
+    /// The wire format of an IMU with `channels` sampled at `rate_hz`, sending its rates.
     pub fn new(protocol: Protocol, channels: Channels, rate_hz: f64) -> Result<Self> {
+        Self::with_output(protocol, channels, rate_hz, ImuOutput::Rates)
+    }
+
+    /// The wire format of an IMU that sends `output` (rates, deltas over the sample interval,
+    /// or both: VectorNav, MIP). Frames with deltas are decoded back with rows from the
+    /// deltas.
+    pub fn with_output(
+        protocol: Protocol,
+        channels: Channels,
+        rate_hz: f64,
+        output: ImuOutput,
+    ) -> Result<Self> {
         if protocol.kind() != Kind::Imu {
             bail!("an IMU cannot be served as `{}`", protocol.name());
         }
-        let options = options_for(protocol, channels)?;
+        let mut options = options_for(protocol, channels)?;
+        options.imu_output = output;
+        if output != ImuOutput::Rates {
+            options.rows_from = RowsFrom::Deltas;
+        }
         Ok(ImuWire {
             protocol,
             rate_hz,
@@ -121,6 +141,7 @@ impl ImuWire {
             time_s: device_time_s,
             wall_ns: r.t_wall_ns - (r.t_mono_ns - START_MONO_NS)
                 + (device_time_s * 1e9).round() as i64,
+            interval_s: 1.0 / self.rate_hz,
         };
         let sample = ImuSample {
             // The device counter as simulated: the Xbus PacketCounter, the csv time column.

@@ -633,3 +633,62 @@ fn rows_from_deltas_is_only_for_vectornav_and_mip() {
     let e = reject(&vn("rows_from = \"integrals\""));
     assert!(e.to_string().contains("rows_from"), "{e}");
 }
+
+#[test]
+fn a_receivers_imu_needs_a_ubx_port_and_a_name_of_its_own() {
+    let receiver = |protocol: &str, imu: &str| {
+        with_session(
+            "",
+            &format!(
+                "[[device]]\nname = \"f9r\"\nprotocol = \"{protocol}\"\nrate_hz = 10\nserial = {{ port = \"/dev/f9r\" }}\nimu = {imu}\n{IMU}"
+            ),
+        )
+    };
+    let c = parse(
+        &receiver("ubx", "{ name = \"f9r_imu\", rate_hz = 100 }"),
+        "t",
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let imu = c.devices[0].imu.as_ref().expect("imu kept");
+    assert_eq!((imu.name.as_str(), imu.rate_hz), ("f9r_imu", 100.0));
+    assert_eq!(c.devices[0].rows_rate_hz(), 110.0);
+    parse(
+        &receiver("gnss", "{ name = \"f9r_imu\", rate_hz = 100 }"),
+        "t",
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_issue(
+        &receiver("nmea", "{ name = \"f9r_imu\", rate_hz = 100 }"),
+        "device[0].imu",
+        "carries no UBX ESF messages",
+    );
+    // Clashes: another device's name, the receiver's own, another receiver's IMU.
+    assert_issue(
+        &receiver("ubx", "{ name = \"imu-a\", rate_hz = 100 }"),
+        "device[0].imu.name",
+        "already the name of device[1]",
+    );
+    assert_issue(
+        &receiver("ubx", "{ name = \"f9r\", rate_hz = 100 }"),
+        "device[0].imu.name",
+        "this device's own name",
+    );
+    let two = with_session(
+        "",
+        "[[device]]\nname = \"a\"\nprotocol = \"ubx\"\nrate_hz = 10\nserial = { port = \"/dev/a\" }\nimu = { name = \"esf\", rate_hz = 100 }\n\
+         [[device]]\nname = \"b\"\nprotocol = \"gnss\"\nrate_hz = 10\nserial = { port = \"/dev/b\" }\nimu = { name = \"esf\", rate_hz = 100 }\n",
+    );
+    assert_issue(&two, "device[1].imu.name", "the name of device[0]'s imu");
+    assert_issue(
+        &receiver("ubx", "{ name = \"f9r imu\", rate_hz = 100 }"),
+        "device[0].imu.name",
+        "not a valid device name",
+    );
+    assert_issue(
+        &receiver("ubx", "{ name = \"f9r_imu\", rate_hz = 0 }"),
+        "device[0].imu.rate_hz",
+        "not a usable rate",
+    );
+    let e = reject(&receiver("ubx", "{ name = \"f9r_imu\" }"));
+    assert!(e.to_string().contains("rate_hz"), "{e}");
+}

@@ -173,3 +173,133 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
         );
     }
 }
+
+/// The simulator serving delta theta / delta velocity: a VN-100-like IMU sending
+/// DeltaThetaVel only and a 3DM-GX5-like IMU sending scaled rates and deltas, logged by
+/// the daemon with `rows_from = "deltas"`. Every frame is a row (the MIP's first from its
+/// rates: no interval before it), equal to the simulated rates within the f32 wire.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vectornav_and_mip_deltas_from_the_simulator_give_the_simulated_rates() {
+    const SECONDS: f64 = 3.0;
+    let dir = tempfile::tempdir().unwrap();
+    let text = format!(
+        "duration_s = {SECONDS}\nrate_hz = {IMU_HZ}\nseed = 12\n\
+         [location]\nlat_deg = 48.1\nlon_deg = 11.6\nheight_m = 520.0\n\
+         [motion]\nkind = \"static\"\n\
+         [[imu]]\nname = \"vn\"\npreset = \"industrial\"\nprotocol = \"vectornav\"\noutput = \"deltas\"\n\
+         [[imu]]\nname = \"gx5\"\npreset = \"industrial\"\nprotocol = \"mip\"\noutput = \"both\"\n"
+    );
+    let scene = Scene::parse(&text, Path::new(".")).unwrap_or_else(|e| panic!("{e:#}"));
+    let mut server = Server::start(
+        scene,
+        ServeOptions {
+            speed: Speed::Factor(SPEED),
+            link_dir: Some(dir.path().join("dev")),
+            start: StartWhen::OnDemand,
+            record_sent: true,
+            faults: Vec::new(),
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e:#}"));
+    let mut devices = String::new();
+    for e in server.endpoints() {
+        devices.push_str(&format!(
+            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\nrows_from = \"deltas\"\nserial = {{ port = \"{}\", baud = 921600 }}\n",
+            e.sensor,
+            e.protocol.name(),
+            SPEED * IMU_HZ,
+            e.path().display()
+        ));
+    }
+    let text = format!(
+        "[session]\noutput_dir = \"{}\"\nname = \"deltas\"\nflush_interval_ms = 100\n\n{devices}",
+        dir.path().display()
+    );
+    let config = parse(&text, "deltas").unwrap_or_else(|e| panic!("{e}"));
+    let session_dir = dir.path().join("deltas");
+    let status_path = config.status_path();
+    let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
+    let parts = parts_for(&config, sink, session_dir.clone());
+    let (stop, stop_rx) = tokio::sync::watch::channel(false);
+    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
+    let t = Instant::now();
+    while connected_report(&status_path, 2).is_none() {
+        assert!(t.elapsed() < Duration::from_secs(10), "ptys not opened");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    server.begin();
+    let t = Instant::now();
+    while !server.is_finished() {
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "serve did not finish"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let report = server.finish().unwrap_or_else(|e| panic!("{e:#}"));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let _ = stop.send(true);
+    let outcome = daemon.await.unwrap();
+    drop(server);
+    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
+    assert_eq!(report.undelivered_bytes, 0);
+
+    let session = Session::open(&session_dir).expect("the session opens");
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    // f32 deltas (and VectorNav's f32 interval) divided back: a few units of 2^-24 relative.
+    let within = |got: f64, want: f64| (got - want).abs() <= 4e-7 * want.abs() + 1e-12;
+    for stream in &report.streams {
+        let Sent::Imu(sent) = &stream.sent else {
+            panic!("only IMUs here")
+        };
+        assert_eq!(stream.encode_errors, 0, "{:?}", stream.first_encode_error);
+        assert_eq!(sent.len() as f64, SECONDS * IMU_HZ, "{}", stream.sensor);
+        let mut rows = Vec::new();
+        for block in session
+            .imu_blocks(&stream.sensor, TimeRange::all(), 4096)
+            .unwrap()
+        {
+            let block = block.unwrap();
+            rows.extend((0..block.len()).map(|i| block.record(i)));
+        }
+        assert_eq!(
+            rows.len(),
+            sent.len(),
+            "{}: one row per frame",
+            stream.sensor
+        );
+        let mut as_sent_rates = 0;
+        for (k, (row, frame)) in rows.iter().zip(sent).enumerate() {
+            assert!(
+                (row.t_sensor - k as f64 / IMU_HZ).abs() < 1e-9,
+                "{} frame {k}: t_sensor {}",
+                stream.sensor,
+                row.t_sensor
+            );
+            for axis in 0..3 {
+                let (gyro, accel) = (frame.record.gyro[axis], frame.record.accel[axis]);
+                assert!(
+                    within(row.gyro[axis], gyro) && within(row.accel[axis], accel),
+                    "{} frame {k} axis {axis}: {:?} {:?} vs {:?} {:?}",
+                    stream.sensor,
+                    row.gyro,
+                    row.accel,
+                    frame.record.gyro,
+                    frame.record.accel
+                );
+            }
+            let f32_rates = |v: [f64; 3]| v.map(|x| f64::from(x as f32));
+            if row.gyro == f32_rates(frame.record.gyro)
+                && row.accel == f32_rates(frame.record.accel)
+            {
+                as_sent_rates += 1;
+            }
+        }
+        // The rows are the deltas', not the rates' (which the MIP sends too).
+        assert!(
+            as_sent_rates <= 1,
+            "{}: {as_sent_rates} rows equal the f32 rates",
+            stream.sensor
+        );
+    }
+}

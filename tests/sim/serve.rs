@@ -582,3 +582,59 @@ fn scene_protocol_and_fault_keys_are_checked() {
     assert_eq!(s.imus[0].protocol, Protocol::Wit, "IMU default");
     let _ = PathBuf::new();
 }
+
+#[test]
+fn scene_imu_output_is_checked_and_serves_deltas() {
+    use imulab_drivers::codec::ImuOutput;
+    let with = |protocol: &str, output: &str| {
+        TWO_IMUS.replace(
+            "protocol = \"xbus\"",
+            &format!("protocol = \"{protocol}\"\noutput = \"{output}\""),
+        )
+    };
+    let s = Scene::parse(&with("mip", "both"), Path::new(".")).unwrap();
+    assert_eq!(
+        (s.imus[0].output, s.imus[1].output),
+        (ImuOutput::Rates, ImuOutput::Both)
+    );
+    let e = format!(
+        "{:#}",
+        Scene::parse(&with("xbus", "deltas"), Path::new(".")).unwrap_err()
+    );
+    assert!(
+        e.contains("imu[1] (b)") && e.contains("sends rates only"),
+        "{e}"
+    );
+    let e = format!(
+        "{:#}",
+        Scene::parse(&with("mip", "integrals"), Path::new(".")).unwrap_err()
+    );
+    assert!(e.contains("output:") && e.contains("\"deltas\""), "{e}");
+    let gyro_only =
+        with("vectornav", "deltas").replace("name = \"b\"", "name = \"b\"\nchannels = [\"gyro\"]");
+    let e = format!(
+        "{:#}",
+        Scene::parse(&gyro_only, Path::new(".")).unwrap_err()
+    );
+    assert!(e.contains("DeltaThetaVel"), "{e}");
+    // A served frame of deltas decodes back (rows from the deltas) to the record's rates.
+    let s = Scene::parse(&with("vectornav", "deltas"), Path::new(".")).unwrap();
+    let imu = &s.imus[1];
+    let wire = ImuWire::with_output(imu.protocol, imu.channels, s.rate_hz, imu.output).unwrap();
+    let record = imulab::store::ImuRecord {
+        t_mono_ns: imulab::sim::scene::START_MONO_NS + 30_000_000,
+        t_wall_ns: 0,
+        t_sensor: 3.0,
+        gyro: [0.01, -0.02, 0.03],
+        accel: [0.1, -0.2, 9.81],
+        temp: 25.0,
+        status: 0,
+    };
+    let mut bytes = Vec::new();
+    wire.encode(&record, &mut bytes).unwrap();
+    let sample = wire.decode_one(&bytes).expect("a sample");
+    for (got, want) in sample.gyro.unwrap().iter().zip(record.gyro) {
+        assert!((got - want).abs() < 1e-7 * want.abs(), "{got} vs {want}");
+    }
+    assert!((sample.sensor_time.unwrap() - 0.03).abs() < 1e-9);
+}

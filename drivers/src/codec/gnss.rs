@@ -1109,6 +1109,76 @@ impl Decoder for EsfImuDecoder {
     }
 }
 
+/// A u-blox dead-reckoning receiver's one port as both of its devices: the merged fixes
+/// of [`GnssDecoder`] and the IMU samples of its ESF-RAW and ESF-MEAS messages (as
+/// [`EsfImuDecoder`] gives them), in the order they complete. One decoder, so the port's
+/// counters (checksum errors, resyncs) are counted once.
+#[derive(Debug, Clone, Default)]
+pub struct GnssEsfDecoder {
+    gnss: GnssDecoder,
+    ready: VecDeque<Reading>,
+}
+
+impl GnssEsfDecoder {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn take(&mut self, frame: GnssFrame) {
+        match frame {
+            GnssFrame::Fix(epoch) => self.ready.push_back(Reading::Gnss(epoch.fix)),
+            GnssFrame::Ubx(UbxMessage::EsfRaw(raw)) => self
+                .ready
+                .extend(raw.to_imu_samples().into_iter().map(Reading::Imu)),
+            GnssFrame::Ubx(UbxMessage::EsfMeas(meas)) => {
+                self.ready.extend(meas.to_imu_sample().map(Reading::Imu))
+            }
+            GnssFrame::Ubx(_) | GnssFrame::Nmea(_) => {}
+        }
+    }
+}
+
+impl Decoder for GnssEsfDecoder {
+    type Frame = Reading;
+
+    fn push(&mut self, bytes: &[u8]) {
+        self.gnss.push(bytes);
+    }
+
+    fn poll(&mut self) -> Option<Reading> {
+        while self.ready.is_empty() {
+            let frame = self.gnss.poll()?;
+            self.take(frame);
+        }
+        self.ready.pop_front()
+    }
+
+    fn stats(&self) -> DecoderStats {
+        self.gnss.stats()
+    }
+
+    fn finish(&mut self) -> Option<Reading> {
+        while self.ready.is_empty() {
+            let frame = self.gnss.finish()?;
+            self.take(frame);
+        }
+        self.ready.pop_front()
+    }
+}
+
+/// The reading decoders of the `gnss` and `ubx` rows: merged fixes, and with
+/// [`DecoderOptions::esf_imu`](super::DecoderOptions::esf_imu) the receiver's ESF IMU
+/// samples too.
+pub fn readings(
+    options: &super::DecoderOptions,
+) -> Result<super::reading::ReadingDecoderFactory, super::OpenError> {
+    Ok(if options.esf_imu {
+        super::reading::byte_readings(GnssEsfDecoder::new)
+    } else {
+        super::reading::byte_readings(GnssDecoder::new)
+    })
+}
+
 /// Auto-detection score: NMEA sentences plus UBX frames found. This row comes first in the
 /// table, so `auto` picks the mixed decoder (which also yields merged fixes) for pure NMEA
 /// and pure UBX streams too.
@@ -1583,5 +1653,77 @@ $GPGGA,123520,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*4D\r\n";
         assert_eq!(fixes.len(), 2, "{fixes:#?}");
         assert_eq!(fixes[0].1.fix.heading_deg, Some(271.25));
         assert_eq!(fixes[1].1.fix.heading_deg, None);
+    }
+
+    /// ESF-RAW with one sample set (gyro z, accel x) under sensor time tag `tag`.
+    fn esf_raw(tag: u32) -> Vec<u8> {
+        let mut payload = vec![0u8; 4];
+        for (data_type, value) in [(5u32, 4096u32), (16, 1024)] {
+            payload.extend_from_slice(&((data_type << 24) | value).to_le_bytes());
+            payload.extend_from_slice(&tag.to_le_bytes());
+        }
+        let mut out = Vec::new();
+        let msg = UbxMessage::Other(RawMessage {
+            class: 0x10,
+            id: 0x03,
+            payload,
+        });
+        let _ = UbxEncoder.encode(&msg, &mut out);
+        out
+    }
+
+    #[test]
+    fn ubx_with_esf_gives_fixes_and_imu_samples_and_counts_faults_once() {
+        let mut stream = Vec::new();
+        for sec in 0..3u8 {
+            stream.extend(pvt(sec));
+            for k in 0..4 {
+                stream.extend(esf_raw(100 * u32::from(sec) + k));
+            }
+        }
+        let mut bad = esf_raw(999);
+        let last = bad.len() - 1;
+        bad[last] ^= 0x55;
+        stream.extend(bad);
+        let readings = |esf_imu: bool| {
+            let options = crate::codec::DecoderOptions {
+                esf_imu,
+                ..Default::default()
+            };
+            let factory = readings(&options).expect("opens");
+            let mut decoder = factory();
+            decoder.push(crate::codec::reading::Input::Bytes(&stream));
+            let mut out = Vec::new();
+            while let Some(r) = decoder.poll() {
+                out.push(r);
+            }
+            while let Some(r) = decoder.finish() {
+                out.push(r);
+            }
+            (out, decoder.stats())
+        };
+        let (both, stats) = readings(true);
+        let fixes = both
+            .iter()
+            .filter(|r| matches!(r, Reading::Gnss(_)))
+            .count();
+        let imu: Vec<&ImuSample> = both
+            .iter()
+            .filter_map(|r| match r {
+                Reading::Imu(s) => Some(s),
+                Reading::Gnss(_) => None,
+            })
+            .collect();
+        assert_eq!((fixes, imu.len()), (3, 12), "{both:?}");
+        assert_eq!(imu[5].sensor_time, Some(101.0));
+        let deg = std::f64::consts::PI / 180.0;
+        assert_eq!(imu[0].gyro.map(|g| g[2]), Some(deg));
+        assert_eq!(imu[0].accel.map(|a| a[0]), Some(1.0));
+        assert_eq!(stats.checksum_errors, 1);
+        // Without the option the same port gives the fixes alone.
+        let (fixes_only, plain) = readings(false);
+        assert_eq!(fixes_only.len(), 3);
+        assert!(fixes_only.iter().all(|r| matches!(r, Reading::Gnss(_))));
+        assert_eq!(plain, stats);
     }
 }

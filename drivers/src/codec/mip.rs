@@ -20,7 +20,9 @@
 //! as [`MipPacket::Other`]. Neither is a sample.
 
 use super::reading::DeviceClock;
-use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, RowsFrom, Scan, StreamBuffer};
+use super::{
+    accepted_frames, Decoder, EncodeError, Encoder, ImuOutput, Reject, RowsFrom, Scan, StreamBuffer,
+};
 use crate::types::{DecoderStats, ImuSample};
 
 pub const SYNC1: u8 = 0x75;
@@ -563,15 +565,7 @@ pub fn encode_sample(
     clock: &DeviceClock,
     out: &mut Vec<u8>,
 ) -> Result<(), EncodeError> {
-    let data = MipImuData {
-        scaled_accel_g: sample
-            .accel
-            .map(|v| v.map(|x| (x / STANDARD_GRAVITY) as f32)),
-        scaled_gyro: sample.gyro.map(|v| v.map(|x| x as f32)),
-        reference_time_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
-        ..MipImuData::default()
-    };
-    MipEncoder.encode(&MipPacket::Imu(data), out)
+    encode_output(sample, clock, ImuOutput::Rates, out)
 }
 
 /// The IMU data packet of a device set to output integrated motion: delta theta (rad) and
@@ -583,16 +577,43 @@ pub fn encode_delta_sample(
     interval_s: f64,
     out: &mut Vec<u8>,
 ) -> Result<(), EncodeError> {
-    if !(interval_s.is_finite() && interval_s > 0.0) {
+    let clock = DeviceClock {
+        interval_s,
+        ..*clock
+    };
+    encode_output(sample, &clock, ImuOutput::Deltas, out)
+}
+
+/// The IMU data packet of a device set to `output`: [`encode_sample`]'s fields, the deltas of
+/// [`encode_delta_sample`] over the clock's `interval_s`, or both in one packet.
+pub fn encode_output(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    output: ImuOutput,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    let rates = output != ImuOutput::Deltas;
+    let deltas = output != ImuOutput::Rates;
+    let interval_s = clock.interval_s;
+    if deltas && !(interval_s.is_finite() && interval_s > 0.0) {
         return Err(EncodeError::Invalid {
             field: "interval_s",
             reason: "the output period must be positive",
         });
     }
     let data = MipImuData {
-        delta_theta: sample.gyro.map(|v| v.map(|x| (x * interval_s) as f32)),
+        scaled_accel_g: sample
+            .accel
+            .filter(|_| rates)
+            .map(|v| v.map(|x| (x / STANDARD_GRAVITY) as f32)),
+        scaled_gyro: sample.gyro.filter(|_| rates).map(|v| v.map(|x| x as f32)),
+        delta_theta: sample
+            .gyro
+            .filter(|_| deltas)
+            .map(|v| v.map(|x| (x * interval_s) as f32)),
         delta_velocity_gs: sample
             .accel
+            .filter(|_| deltas)
             .map(|v| v.map(|x| (x / STANDARD_GRAVITY * interval_s) as f32)),
         reference_time_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
         ..MipImuData::default()
@@ -613,6 +634,70 @@ pub fn detect_score(sample: &[u8]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn encode_output_of_both_round_trips_through_either_rows_from() {
+        let sample = |k: u32| ImuSample {
+            sensor_time: None,
+            gyro: Some([0.1 * f64::from(k), -0.2, 0.3]),
+            accel: Some([0.5, -1.0, 9.8]),
+            temp_c: None,
+            status: 0,
+        };
+        let clock = |k: u32| DeviceClock {
+            time_s: 100.0 + 0.01 * f64::from(k),
+            interval_s: 0.01,
+            ..DeviceClock::default()
+        };
+        let mut bytes = Vec::new();
+        for k in 1..=3 {
+            encode_output(&sample(k), &clock(k), ImuOutput::Both, &mut bytes).unwrap();
+        }
+        let mut packets = MipDecoder::new();
+        let mut frames = Vec::new();
+        packets.decode(&bytes, |f| frames.push(f));
+        let MipPacket::Imu(first) = &frames[0] else {
+            panic!("{frames:?}")
+        };
+        assert!(first.scaled_gyro.is_some() && first.delta_theta.is_some());
+        assert!(first.scaled_accel_g.is_some() && first.delta_velocity_gs.is_some());
+        let decode = |from: RowsFrom| {
+            let mut d = MipSamples::new(from);
+            let mut out = Vec::new();
+            d.decode(&bytes, |s| out.push(s));
+            out
+        };
+        let close = |got: [f64; 3], want: [f64; 3]| {
+            got.iter()
+                .zip(want)
+                .all(|(g, w)| (g - w).abs() < 1e-5 * w.abs().max(1.0))
+        };
+        let (rates, deltas) = (decode(RowsFrom::Rates), decode(RowsFrom::Deltas));
+        // Every packet carries its rates, so both give a row per packet: from the deltas
+        // once an interval is known (the first packet has none before it).
+        assert_eq!((rates.len(), deltas.len()), (3, 3));
+        assert_eq!(deltas[0], rates[0]);
+        for (k, (r, d)) in (1..=3).zip(rates.iter().zip(&deltas)) {
+            for got in [r, d] {
+                assert!(close(got.gyro.unwrap(), sample(k).gyro.unwrap()), "{got:?}");
+                assert!(
+                    close(got.accel.unwrap(), sample(k).accel.unwrap()),
+                    "{got:?}"
+                );
+            }
+        }
+        assert_ne!(rates[1].accel, deltas[1].accel);
+        // Deltas alone over the clock's interval are encode_delta_sample's packet.
+        let (mut only, mut by_interval) = (Vec::new(), Vec::new());
+        encode_output(&sample(2), &clock(2), ImuOutput::Deltas, &mut only).unwrap();
+        encode_delta_sample(&sample(2), &clock(2), 0.01, &mut by_interval).unwrap();
+        assert_eq!(only, by_interval);
+        let unknown = DeviceClock {
+            interval_s: f64::NAN,
+            ..clock(1)
+        };
+        assert!(encode_output(&sample(1), &unknown, ImuOutput::Both, &mut Vec::new()).is_err());
+    }
 
     #[test]
     fn delta_packets_give_rates_over_the_device_time_interval() {

@@ -170,6 +170,12 @@ pub struct DecoderOptions {
     pub config: Option<NamedText>,
     /// Rates or their integrals, for a device that sends both (VectorNav, MIP).
     pub rows_from: RowsFrom,
+    /// What the encoder of a device that can send rates, their integrals or both
+    /// (VectorNav, MIP) sends.
+    pub imu_output: ImuOutput,
+    /// For `gnss` and `ubx`: also yield the IMU samples of UBX ESF-RAW / ESF-MEAS (a
+    /// dead-reckoning receiver's IMU on its GNSS port) beside the fixes.
+    pub esf_imu: bool,
 }
 
 /// Where an IMU's gyro and accelerometer rows come from when the device sends both its rates
@@ -182,6 +188,17 @@ pub enum RowsFrom {
     #[default]
     Rates,
     Deltas,
+}
+
+/// What a device that can send its rates and their integrals over the sample interval
+/// (VectorNav, MIP) is set to output: the rates, delta theta / delta velocity, or both.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ImuOutput {
+    #[default]
+    Rates,
+    Deltas,
+    Both,
 }
 
 /// The text of a file the caller read, with the name its error messages use.
@@ -274,14 +291,14 @@ fn never(_: &[u8]) -> u32 {
 #[rustfmt::skip]
 pub const PROTOCOLS: &[ProtocolEntry] = &[
     ProtocolEntry { protocol: Protocol::ImuLine, name: "imu-line", summary: "$IMU,t,gx,gy,gz,ax,ay,az[,temp]*CS ASCII lines", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: imu_line::detect_score, json: Some(|_| Ok(Box::new(imu_line::ImuLineDecoder::new()))), readings: |_| Ok(byte_readings(imu_line::ImuLineDecoder::new)), encoder: Some(|_| Ok(imu_encoder(imu_line::encode_sample))) },
-    ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: gnss::detect_score, json: Some(|_| Ok(Box::new(gnss::GnssDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(gnss::encode_fix))) },
+    ProtocolEntry { protocol: Protocol::Gnss, name: "gnss", summary: "NMEA 0183 + u-blox UBX mixed, with merged fixes", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: gnss::detect_score, json: Some(|_| Ok(Box::new(gnss::GnssDecoder::new()))), readings: gnss::readings, encoder: Some(|_| Ok(gnss_encoder(gnss::encode_fix))) },
     ProtocolEntry { protocol: Protocol::UbxEsf, name: "ubx-esf", summary: "u-blox dead-reckoning receiver's IMU (UBX ESF-RAW, ESF-MEAS) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(|_| Ok(Box::new(gnss::EsfImuDecoder::new()))), readings: |_| Ok(byte_readings(gnss::EsfImuDecoder::new)), encoder: None },
-    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: vectornav::detect_score, json: Some(|_| Ok(Box::new(vectornav::VnDecoder::new()))), readings: |o| { let from = o.rows_from; Ok(byte_readings(move || vectornav::VnSamples::new(from))) }, encoder: Some(|_| Ok(imu_encoder(vectornav::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Vectornav, name: "vectornav", summary: "VectorNav VN-100/200/300 binary output and $VN ASCII sentences", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: vectornav::detect_score, json: Some(|_| Ok(Box::new(vectornav::VnDecoder::new()))), readings: |o| { let from = o.rows_from; Ok(byte_readings(move || vectornav::VnSamples::new(from))) }, encoder: Some(|o| { let output = o.imu_output; Ok(imu_encoder(move |s, c, out| vectornav::encode_output(s, c, output, out))) }) },
     ProtocolEntry { protocol: Protocol::Nmea, name: "nmea", summary: "NMEA 0183 sentences", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: nmea::detect_score, json: Some(|_| Ok(Box::new(nmea::NmeaDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(nmea::encode_fix))) },
-    ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: ubx::detect_score, json: Some(|_| Ok(Box::new(ubx::UbxDecoder::new()))), readings: |_| Ok(byte_readings(gnss::GnssDecoder::new)), encoder: Some(|_| Ok(gnss_encoder(ubx::encode_fix))) },
+    ProtocolEntry { protocol: Protocol::Ubx, name: "ubx", summary: "u-blox UBX binary messages", kind: Kind::Gnss, link: Link::Bytes, dbc: false, detect: ubx::detect_score, json: Some(|_| Ok(Box::new(ubx::UbxDecoder::new()))), readings: gnss::readings, encoder: Some(|_| Ok(gnss_encoder(ubx::encode_fix))) },
     ProtocolEntry { protocol: Protocol::Wit, name: "wit", summary: "WitMotion serial IMU (0x55 packets) as IMU samples", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: witmotion::detect_score, json: Some(|_| Ok(Box::new(witmotion::WitImuDecoder::new()))), readings: |_| Ok(byte_readings(witmotion::WitImuDecoder::new)), encoder: Some(|_| Ok(imu_encoder(witmotion::encode_sample))) },
     ProtocolEntry { protocol: Protocol::Xbus, name: "xbus", summary: "Xsens MTi Xbus messages, MTData2 decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: xbus::detect_score, json: Some(|_| Ok(Box::new(xbus::XbusDecoder::new()))), readings: |_| Ok(byte_readings(xbus::XbusDecoder::new)), encoder: Some(|_| Ok(imu_encoder(xbus::encode_sample))) },
-    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: mip::detect_score, json: Some(|_| Ok(Box::new(mip::MipDecoder::new()))), readings: |o| { let from = o.rows_from; Ok(byte_readings(move || mip::MipSamples::new(from))) }, encoder: Some(|_| Ok(imu_encoder(mip::encode_sample))) },
+    ProtocolEntry { protocol: Protocol::Mip, name: "mip", summary: "MicroStrain MIP packets (3DM-GX5, CV7), IMU data set decoded", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: mip::detect_score, json: Some(|_| Ok(Box::new(mip::MipDecoder::new()))), readings: |o| { let from = o.rows_from; Ok(byte_readings(move || mip::MipSamples::new(from))) }, encoder: Some(|o| { let output = o.imu_output; Ok(imu_encoder(move |s, c, out| mip::encode_output(s, c, output, out))) }) },
     ProtocolEntry { protocol: Protocol::Csv, name: "csv", summary: "ASCII/CSV IMU lines (column map from --config)", kind: Kind::Imu, link: Link::Bytes, dbc: false, detect: never, json: Some(csv_line::open_json), readings: csv_line::readings, encoder: Some(csv_line::encoder) },
     ProtocolEntry { protocol: Protocol::Slcan, name: "slcan", summary: "slcan ASCII CAN (with --dbc and --config: IMU samples)", kind: Kind::Imu, link: Link::Bytes, dbc: true, detect: slcan::detect_score, json: Some(dbc::open_slcan_json), readings: dbc::slcan_readings, encoder: Some(dbc::slcan_encoder) },
     ProtocolEntry { protocol: Protocol::Candump, name: "candump", summary: "candump log (with --dbc and --config: IMU samples)", kind: Kind::Imu, link: Link::Bytes, dbc: true, detect: candump::detect_score, json: Some(dbc::open_candump_json), readings: dbc::candump_readings, encoder: None },

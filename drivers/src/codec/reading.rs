@@ -73,6 +73,13 @@ impl ToReading for ImuSample {
     }
 }
 
+/// A decoder whose frames are readings already (one that yields both kinds).
+impl ToReading for Reading {
+    fn to_reading(self) -> Option<Reading> {
+        Some(self)
+    }
+}
+
 /// Any byte decoder whose frames are [`ToReading`], seen as a [`ReadingDecoder`].
 struct ByteReadings<D> {
     inner: D,
@@ -138,6 +145,9 @@ pub struct DeviceClock {
     pub time_s: f64,
     /// Wall-clock time of the sample, ns since the Unix epoch (WitMotion's TIME packet).
     pub wall_ns: i64,
+    /// The sample interval, s (the output period): what a device that sends delta theta /
+    /// delta velocity integrates over; 0 when not known.
+    pub interval_s: f64,
 }
 
 /// An encoder of readings: the wire bytes a device sends for one reading. The sample's

@@ -27,7 +27,9 @@
 use crc::{Crc, Table, CRC_16_XMODEM};
 
 use super::reading::DeviceClock;
-use super::{accepted_frames, Decoder, EncodeError, Encoder, Reject, RowsFrom, Scan, StreamBuffer};
+use super::{
+    accepted_frames, Decoder, EncodeError, Encoder, ImuOutput, Reject, RowsFrom, Scan, StreamBuffer,
+};
 use crate::types::{DecoderStats, ImuSample};
 
 /// Binary packet sync byte.
@@ -1097,32 +1099,7 @@ pub fn encode_sample(
     clock: &DeviceClock,
     out: &mut Vec<u8>,
 ) -> Result<(), EncodeError> {
-    let f32s = |v: [f64; 3]| v.map(|x| x as f32);
-    let temp = sample.temp_c.map(|t| t as f32);
-    let mut common_fields = common::TIME_STARTUP;
-    if sample.gyro.is_some() {
-        common_fields |= common::ANGULAR_RATE;
-    }
-    if sample.accel.is_some() {
-        common_fields |= common::ACCEL;
-    }
-    let imu_fields = imu::IMU_STATUS | if temp.is_some() { imu::TEMP } else { 0 };
-    let packet = VnBinary {
-        fields: VnOutputFields {
-            common: common_fields,
-            imu: imu_fields,
-            ..VnOutputFields::default()
-        },
-        values: VnValues {
-            time_startup_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
-            angular_rate: sample.gyro.map(f32s),
-            accel: sample.accel.map(f32s),
-            temp_c: temp,
-            imu_status: Some((sample.status & 0xFFFF) as u16),
-            ..VnValues::default()
-        },
-        skipped_fields: 0,
-    };
+    let packet = binary_packet(sample, clock, true, None)?;
     VnEncoder.encode(&VnFrame::Binary(packet), out)
 }
 
@@ -1136,39 +1113,86 @@ pub fn encode_delta_sample(
     interval_s: f64,
     out: &mut Vec<u8>,
 ) -> Result<(), EncodeError> {
-    if !(interval_s.is_finite() && interval_s > 0.0) {
-        return Err(EncodeError::Invalid {
-            field: "interval_s",
-            reason: "the integration interval must be positive",
-        });
-    }
-    let (Some(gyro), Some(accel)) = (sample.gyro, sample.accel) else {
-        return Err(EncodeError::Invalid {
-            field: "sample",
-            reason: "DeltaThetaVel carries both delta theta and delta velocity",
-        });
+    let packet = binary_packet(sample, clock, false, Some(interval_s))?;
+    VnEncoder.encode(&VnFrame::Binary(packet), out)
+}
+
+/// The packet of a VectorNav set to `output`: [`encode_sample`]'s, [`encode_delta_sample`]'s
+/// over the clock's `interval_s`, or both in one packet (AngularRate, Accel and
+/// DeltaThetaVel; DeltaThetaVel only when the sample has both triads, as it carries both).
+pub fn encode_output(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    output: ImuOutput,
+    out: &mut Vec<u8>,
+) -> Result<(), EncodeError> {
+    let packet = match output {
+        ImuOutput::Rates => binary_packet(sample, clock, true, None)?,
+        ImuOutput::Deltas => binary_packet(sample, clock, false, Some(clock.interval_s))?,
+        ImuOutput::Both => {
+            let both = sample.gyro.is_some() && sample.accel.is_some();
+            binary_packet(sample, clock, true, both.then_some(clock.interval_s))?
+        }
     };
-    let delta = |v: [f64; 3], scale: f64| v.map(|x| (x * scale * interval_s) as f32);
+    VnEncoder.encode(&VnFrame::Binary(packet), out)
+}
+
+/// The binary packet of one sample: the rates when `rates`, DeltaThetaVel over
+/// `delta_interval_s` when given (it needs both triads and a positive interval).
+fn binary_packet(
+    sample: &ImuSample,
+    clock: &DeviceClock,
+    rates: bool,
+    delta_interval_s: Option<f64>,
+) -> Result<VnBinary, EncodeError> {
+    let f32s = |v: [f64; 3]| v.map(|x| x as f32);
     let temp = sample.temp_c.map(|t| t as f32);
+    let mut common_fields = common::TIME_STARTUP;
+    let mut values = VnValues {
+        time_startup_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
+        temp_c: temp,
+        imu_status: Some((sample.status & 0xFFFF) as u16),
+        ..VnValues::default()
+    };
+    if rates {
+        if sample.gyro.is_some() {
+            common_fields |= common::ANGULAR_RATE;
+        }
+        if sample.accel.is_some() {
+            common_fields |= common::ACCEL;
+        }
+        values.angular_rate = sample.gyro.map(f32s);
+        values.accel = sample.accel.map(f32s);
+    }
+    if let Some(interval_s) = delta_interval_s {
+        if !(interval_s.is_finite() && interval_s > 0.0) {
+            return Err(EncodeError::Invalid {
+                field: "interval_s",
+                reason: "the integration interval must be positive",
+            });
+        }
+        let (Some(gyro), Some(accel)) = (sample.gyro, sample.accel) else {
+            return Err(EncodeError::Invalid {
+                field: "sample",
+                reason: "DeltaThetaVel carries both delta theta and delta velocity",
+            });
+        };
+        let delta = |v: [f64; 3], scale: f64| v.map(|x| (x * scale * interval_s) as f32);
+        common_fields |= common::DELTA_THETA_VEL;
+        values.delta_time_s = Some(interval_s as f32);
+        values.delta_theta_deg = Some(delta(gyro, 180.0 / std::f64::consts::PI));
+        values.delta_velocity = Some(delta(accel, 1.0));
+    }
     let imu_fields = imu::IMU_STATUS | if temp.is_some() { imu::TEMP } else { 0 };
-    let packet = VnBinary {
+    Ok(VnBinary {
         fields: VnOutputFields {
-            common: common::TIME_STARTUP | common::DELTA_THETA_VEL,
+            common: common_fields,
             imu: imu_fields,
             ..VnOutputFields::default()
         },
-        values: VnValues {
-            time_startup_ns: Some((clock.time_s * 1e9).round().max(0.0) as u64),
-            delta_time_s: Some(interval_s as f32),
-            delta_theta_deg: Some(delta(gyro, 180.0 / std::f64::consts::PI)),
-            delta_velocity: Some(delta(accel, 1.0)),
-            temp_c: temp,
-            imu_status: Some((sample.status & 0xFFFF) as u16),
-            ..VnValues::default()
-        },
+        values,
         skipped_fields: 0,
-    };
-    VnEncoder.encode(&VnFrame::Binary(packet), out)
+    })
 }
 
 /// Auto-detection score. At least [`DETECT_MIN_FRAMES`] checksummed VectorNav frames, else
@@ -1192,6 +1216,76 @@ mod tests {
         let mut frames = Vec::new();
         d.decode(bytes, |f| frames.push(f));
         (frames, d.stats())
+    }
+
+    #[test]
+    fn encode_output_of_both_round_trips_through_either_rows_from() {
+        let sample = ImuSample {
+            sensor_time: None,
+            gyro: Some([0.1, -0.2, 0.3]),
+            accel: Some([0.5, -1.0, 9.8]),
+            temp_c: Some(25.0),
+            status: 3,
+        };
+        let clock = DeviceClock {
+            time_s: 12.5,
+            interval_s: 0.005,
+            ..DeviceClock::default()
+        };
+        let decode = |bytes: &[u8], from: RowsFrom| {
+            let mut d = VnSamples::new(from);
+            let mut out = Vec::new();
+            d.decode(bytes, |s| out.push(s));
+            assert_eq!(d.stats().frames_ok, 1, "{:?}", d.stats());
+            out
+        };
+        let close = |got: [f64; 3], want: [f64; 3]| {
+            got.iter()
+                .zip(want)
+                .all(|(g, w)| (g - w).abs() < 1e-6 * w.abs().max(1.0))
+        };
+        let mut both = Vec::new();
+        encode_output(&sample, &clock, ImuOutput::Both, &mut both).unwrap();
+        let (frames, _) = decode_all(&both);
+        let VnFrame::Binary(packet) = &frames[0] else {
+            panic!("{frames:?}")
+        };
+        assert!(packet.values.angular_rate.is_some() && packet.values.delta_theta_deg.is_some());
+        let rates = decode(&both, RowsFrom::Rates);
+        let deltas = decode(&both, RowsFrom::Deltas);
+        for got in [&rates[0], &deltas[0]] {
+            assert!(close(got.gyro.unwrap(), sample.gyro.unwrap()), "{got:?}");
+            assert!(close(got.accel.unwrap(), sample.accel.unwrap()), "{got:?}");
+            assert_eq!((got.sensor_time, got.temp_c), (Some(12.5), Some(25.0)));
+        }
+        // The rates are the f32 rates; the deltas' rows differ from them by the rounding.
+        assert_eq!(rates[0].gyro, Some([0.1f32, -0.2, 0.3].map(f64::from)));
+        assert_ne!(rates[0].gyro, deltas[0].gyro);
+        // Deltas alone over the clock's interval are encode_delta_sample's packet; rates
+        // alone encode_sample's.
+        let (mut only, mut by_interval) = (Vec::new(), Vec::new());
+        encode_output(&sample, &clock, ImuOutput::Deltas, &mut only).unwrap();
+        encode_delta_sample(&sample, &clock, 0.005, &mut by_interval).unwrap();
+        assert_eq!(only, by_interval);
+        assert_eq!(decode(&only, RowsFrom::Rates), deltas);
+        let (mut only, mut plain) = (Vec::new(), Vec::new());
+        encode_output(&sample, &clock, ImuOutput::Rates, &mut only).unwrap();
+        encode_sample(&sample, &clock, &mut plain).unwrap();
+        assert_eq!(only, plain);
+        // Without a known interval there is no delta to send; without both triads no
+        // DeltaThetaVel, so `both` sends the rate alone.
+        let unknown = DeviceClock {
+            interval_s: 0.0,
+            ..clock
+        };
+        assert!(encode_output(&sample, &unknown, ImuOutput::Deltas, &mut Vec::new()).is_err());
+        let gyro_only = ImuSample {
+            accel: None,
+            ..sample
+        };
+        let mut out = Vec::new();
+        encode_output(&gyro_only, &clock, ImuOutput::Both, &mut out).unwrap();
+        assert_eq!(decode(&out, RowsFrom::Deltas)[0].gyro, rates[0].gyro);
     }
 
     #[test]
