@@ -41,8 +41,7 @@
 //! daemon's own decoders; a stream that cannot be read fast enough pushes back on the
 //! generator, which then falls behind its schedule: that counts as not holding the rate.
 
-#[path = "../tests/daemon/common/mod.rs"]
-mod common;
+use imulab_test_support::daemon_support as common;
 
 use std::time::{Duration, Instant};
 

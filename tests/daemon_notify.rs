@@ -4,8 +4,7 @@
 //! STOPPING=1 at shutdown. The test binds the notification socket itself and points
 //! NOTIFY_SOCKET/WATCHDOG_USEC at it (own test binary: the environment is process-wide).
 
-#[path = "daemon/common/mod.rs"]
-mod common;
+use imulab_test_support::daemon_support as common;
 
 use std::os::unix::net::UnixDatagram;
 use std::sync::{Arc, Mutex};

@@ -3,8 +3,7 @@
 //! test binary: signal handlers are process-wide.) Also the `imulogd` binary's
 //! `--check-config` on good and bad files.
 
-#[path = "daemon/common/mod.rs"]
-mod common;
+use imulab_test_support::daemon_support as common;
 
 use std::process::Command;
 use std::time::{Duration, Instant};

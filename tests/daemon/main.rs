@@ -1,7 +1,7 @@
 //! daemon integration tests, one binary (fewer, smaller links).
 
 mod binary;
-mod common;
+use imulab_test_support::daemon_support as common;
 mod config;
 mod disk;
 mod end_to_end;

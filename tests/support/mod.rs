@@ -5,10 +5,13 @@
 //! - [`gyro_noise`]: the Allan benchmark's seeded gyro series (white noise + rate random walk);
 //! - [`fusion_data`]: truth, IMU increments and GNSS fixes for the fusion tests;
 //! - [`space`]: the bytes of an HDF5 chunk file outside its datasets' chunks;
-//! - [`browser`]: headless Chromium for the tests that render a page.
+//! - [`browser`]: headless Chromium for the tests that render a page;
+//! - [`daemon_support`]: the daemon tests' line protocol, in-memory connectors, daemon builder, ptys
+//!   and device byte streams.
 
 pub mod allan_check;
 pub mod browser;
+pub mod daemon_support;
 pub mod fusion_data;
 pub mod gyro_noise;
 pub mod space;

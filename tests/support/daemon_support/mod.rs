@@ -1,9 +1,8 @@
 //! Test helpers for the daemon tests: a tiny checksummed line protocol with its decoder
 //! (for the pipeline tests that check the daemon's own logic: queueing, gaps, back-off,
-//! losses; the real codecs are tested over ptys in `serial.rs` and `end_to_end.rs`), and
+//! losses; the real codecs are tested over ptys in `tests/daemon/serial.rs` and `end_to_end.rs`), and
 //! connectors that hand out in-memory streams. [`daemon`] builds a daemon from a
 //! configuration as `imulogd` does, [`pty`] stands in for serial devices.
-#![allow(dead_code)]
 
 pub mod daemon;
 pub mod encode;
