@@ -14,9 +14,7 @@
 //!
 //! Run: `cargo bench --bench watch` (docs/bench/watch.md).
 
-#[path = "../tests/watch/common.rs"]
-#[allow(dead_code)]
-mod common;
+use imulab_test_support::live_session as common;
 
 use common::{mono_now, LiveSession, Served};
 use std::time::{Duration, Instant};
@@ -71,7 +69,11 @@ fn real_time(seconds: f64, refresh_s: f64) {
     let mut live = LiveSession::create(&session, mono_now());
     live.append(1.0);
     let refresh = format!("{refresh_s}");
-    let served = Served::start(&session, &["--refresh", &refresh]);
+    let served = Served::start(
+        env!("CARGO_BIN_EXE_imulab"),
+        &session,
+        &["--refresh", &refresh],
+    );
     let pid = served.child.id();
     // Let the first look and the process start settle.
     std::thread::sleep(Duration::from_secs(2));
@@ -109,7 +111,11 @@ fn day(hours: f64, refresh_s: f64, speed_up: f64) {
     let mut live = LiveSession::create(&session, mono_now());
     live.append(60.0);
     let refresh = format!("{refresh_s}");
-    let served = Served::start(&session, &["--refresh", &refresh]);
+    let served = Served::start(
+        env!("CARGO_BIN_EXE_imulab"),
+        &session,
+        &["--refresh", &refresh],
+    );
     let pid = served.child.id();
     let started = Instant::now();
     let cpu0 = cpu_s(pid);

@@ -1,5 +1,5 @@
-//! Helpers shared by the `store_*` tests (included with `#[path]`): a small two-IMU + GNSS
-//! session written with known values so readers can compare exactly.
+//! Helpers shared by the store tests: a small two-IMU + GNSS session written with known
+//! values so readers can compare exactly.
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader, Lines};

@@ -4,6 +4,8 @@
 //!   written apart from `imulab::allan`, so the simulator is checked independently;
 //! - [`gyro_noise`]: the Allan benchmark's seeded gyro series (white noise + rate random walk);
 //! - [`fusion_data`]: truth, IMU increments and GNSS fixes for the fusion tests;
+//! - [`live_session`]: a live session written in steps as imulogd does, and `imulab watch`
+//!   serving it;
 //! - [`space`]: the bytes of an HDF5 chunk file outside its datasets' chunks;
 //! - [`browser`]: headless Chromium for the tests that render a page;
 //! - [`daemon_support`]: the daemon tests' line protocol, in-memory connectors, daemon builder, ptys
@@ -14,4 +16,5 @@ pub mod browser;
 pub mod daemon_support;
 pub mod fusion_data;
 pub mod gyro_noise;
+pub mod live_session;
 pub mod space;

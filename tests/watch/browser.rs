@@ -53,7 +53,11 @@ fn chromium_shows_the_live_page_and_its_updates() {
             live.close();
         })
     };
-    let served = Served::start(&session, &["--refresh", "1", "--target", "random-walk=2%"]);
+    let served = Served::start(
+        env!("CARGO_BIN_EXE_imulab"),
+        &session,
+        &["--refresh", "1", "--target", "random-walk=2%"],
+    );
     let url = format!("http://{}/", served.addr);
     let profile = tempfile::tempdir().unwrap();
     let dump = || {

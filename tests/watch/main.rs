@@ -4,7 +4,7 @@
 
 mod browser;
 mod cli;
-mod common;
+use imulab_test_support::live_session as common;
 mod follow;
 mod incremental;
 mod security;

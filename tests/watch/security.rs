@@ -8,7 +8,7 @@ use super::common::{finished_session, Served};
 fn foreign_host_headers_are_refused_on_loopback() {
     let dir = tempfile::tempdir().unwrap();
     let session = finished_session(dir.path(), 30.0);
-    let s = Served::start(&session, &[]);
+    let s = Served::start(env!("CARGO_BIN_EXE_imulab"), &session, &[]);
     let port = s.addr.port();
     for host in [
         format!("127.0.0.1:{port}"),
@@ -40,7 +40,7 @@ fn foreign_host_headers_are_refused_on_loopback() {
 fn only_get_and_head_are_answered() {
     let dir = tempfile::tempdir().unwrap();
     let session = finished_session(dir.path(), 20.0);
-    let s = Served::start(&session, &[]);
+    let s = Served::start(env!("CARGO_BIN_EXE_imulab"), &session, &[]);
     let host = format!("Host: {}", s.addr);
     for method in ["POST", "PUT", "DELETE", "PATCH", "OPTIONS", "TRACE"] {
         for path in ["/", "/files/session.toml", "/nothing"] {
@@ -70,7 +70,7 @@ fn nothing_outside_the_session_is_served() {
     std::os::unix::fs::symlink(dir.path().join("secret.txt"), session.join("link.txt")).unwrap();
     std::fs::create_dir(session.join("sub")).unwrap();
     std::fs::write(session.join("sub").join("inner.txt"), "inner").unwrap();
-    let s = Served::start(&session, &[]);
+    let s = Served::start(env!("CARGO_BIN_EXE_imulab"), &session, &[]);
     let (code, body) = s.get("/files/session.toml");
     assert_eq!(code, 200, "{body}");
     assert!(body.contains("[[devices]]"), "{body}");
@@ -110,7 +110,11 @@ fn connections_are_bounded() {
     use std::io::{Read, Write};
     let dir = tempfile::tempdir().unwrap();
     let session = finished_session(dir.path(), 20.0);
-    let s = Served::start(&session, &["--max-connections", "2"]);
+    let s = Served::start(
+        env!("CARGO_BIN_EXE_imulab"),
+        &session,
+        &["--max-connections", "2"],
+    );
     // Two idle connections hold the two slots (no request sent yet).
     let held: Vec<_> = (0..2)
         .map(|_| std::net::TcpStream::connect(s.addr).unwrap())

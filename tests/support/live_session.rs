@@ -1,6 +1,7 @@
 //! A simulated live session: two IMUs at 150 Hz written with the store's writer in steps,
 //! as imulogd writes them (white rate noise plus a slow random walk of the bias, a
-//! temperature ramp), and a GNSS receiver at 5 Hz.
+//! temperature ramp), and a GNSS receiver at 5 Hz; and `imulab watch` serving it (the watch
+//! tests and `benches/watch.rs`).
 
 use imulab::store::{
     DeviceInfo, DeviceKind, EventKind, EventRecord, GnssRecord, ImuRecord, Manifest, SessionWriter,
@@ -189,10 +190,11 @@ pub struct Served {
 }
 
 impl Served {
-    /// Starts `imulab watch SESSION --listen 127.0.0.1:0 ARGS…` and waits for its address.
-    pub fn start(session: &Path, args: &[&str]) -> Self {
+    /// Starts `IMULAB watch SESSION --listen 127.0.0.1:0 ARGS…` (`imulab` the binary, the
+    /// caller's `env!("CARGO_BIN_EXE_imulab")`) and waits for its address.
+    pub fn start(imulab: &str, session: &Path, args: &[&str]) -> Self {
         use std::io::BufRead;
-        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        let mut child = std::process::Command::new(imulab)
             .arg("watch")
             .arg(session)
             .args(["--listen", "127.0.0.1:0"])
