@@ -18,7 +18,7 @@
 
 pub use imulab_allan as allan;
 pub use imulab_bag as bag;
-pub mod calib;
+pub use imulab_calib as calib;
 pub mod cli;
 pub use imulab_daemon as daemon;
 pub use imulab_earth as earth;

@@ -402,13 +402,6 @@ impl Corrector {
     }
 }
 
-/// The filter's replay applies a calibration through this.
-impl imulab_fusion::navigator::RowCorrection for Corrector {
-    fn apply(&self, gyro: &mut [[f64; 3]], accel: &mut [[f64; 3]]) {
-        Corrector::apply(self, gyro, accel)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,8 +6,8 @@
 use anyhow::{anyhow, bail, Context, Result};
 use std::path::Path;
 
-use crate::allan::input::{open_file, SampleSource};
-use crate::allan::session_source::SessionSource;
+use imulab_allan::input::{open_file, SampleSource};
+use imulab_allan::session_source::SessionSource;
 
 /// The channel names a file must have, in this order after the time.
 pub const TRIAD_CHANNELS: [&str; 6] = [
@@ -54,7 +54,7 @@ impl Recording {
     }
 
     /// A recording of records in memory (a simulation run, a benchmark).
-    pub fn from_records(device: &str, records: &[crate::store::ImuRecord]) -> Recording {
+    pub fn from_records(device: &str, records: &[imulab_store::ImuRecord]) -> Recording {
         let t0 = records.first().map_or(0, |r| r.t_mono_ns);
         Recording {
             source: format!("{device} (in memory)"),
@@ -177,7 +177,7 @@ fn read_source(source: &dyn SampleSource, time: usize, rate_hz: Option<f64>) -> 
 
 /// Latitude (rad) and height of a simulated session's scene, from its `[location]`.
 fn session_place(dir: &Path) -> Option<(f64, f64)> {
-    let session = crate::store::Session::open(dir).ok()?;
+    let session = imulab_store::Session::open(dir).ok()?;
     let loc = session.manifest().config.get("location")?;
     let lat = loc.get("lat_deg")?;
     let lat = lat

@@ -13,9 +13,9 @@ use super::rate_table::{fit_rate_table, read_table, segments, Segment};
 use super::recording::Recording;
 use super::six_position::six_position;
 use super::statics::{detect, Detection, DetectorOptions, StaticInterval};
-use crate::earth;
-use crate::sim::imu_model::G0;
 use anyhow::{bail, Result};
+use imulab_allan::units::STANDARD_GRAVITY as G0;
+use imulab_earth as earth;
 use std::path::PathBuf;
 
 /// The calibration method.

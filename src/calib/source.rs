@@ -4,8 +4,8 @@
 //! block is read with the whole triad even when fewer of its axes are wanted.
 
 use super::file::Corrector;
-use crate::allan::input::{BlockVisitor, InputError, RowVisitor, SampleSource, Timing};
-use crate::allan::units::RateUnit;
+use imulab_allan::input::{BlockVisitor, InputError, RowVisitor, SampleSource, Timing};
+use imulab_allan::units::RateUnit;
 
 /// The gyro and accel channel indices of `source`, by the names `gyro_x … accel_z`.
 fn triads(source: &dyn SampleSource) -> (Option<[usize; 3]>, Option<[usize; 3]>) {

@@ -5,10 +5,10 @@
 //! mean true bias over the run (its turn-on draw included).
 
 use super::file::{lq, TriadModel};
-use crate::sim::imu_model::ImuSpec;
-use crate::sim::scene::Scene;
-use crate::store::{Session, TimeRange};
 use anyhow::{anyhow, Context, Result};
+use imulab_sim::imu_model::ImuSpec;
+use imulab_sim::scene::Scene;
+use imulab_store::{Session, TimeRange};
 use nalgebra::Matrix3;
 use std::path::Path;
 

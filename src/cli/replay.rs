@@ -224,7 +224,8 @@ fn run_session(dir: &Path, args: &ReplayArgs) -> anyhow::Result<()> {
         outages: outages.clone(),
         smooth: args.smooth,
         calibration: calibration.map(|c| {
-            std::sync::Arc::new(c) as std::sync::Arc<dyn crate::fusion::navigator::RowCorrection>
+            std::sync::Arc::new(CalibrationRows(c))
+                as std::sync::Arc<dyn crate::fusion::navigator::RowCorrection>
         }),
         ..ReplayOptions::default()
     };
@@ -661,6 +662,17 @@ fn write_outputs<F: Fn(f64) -> Option<NavState>>(
     }
     println!("wrote {}", out_dir.display());
     Ok(())
+}
+
+/// A calibration file's corrector as the filter's row correction (the calibration crate and
+/// the fusion crate know nothing of each other).
+#[derive(Debug)]
+struct CalibrationRows(crate::calib::Corrector);
+
+impl crate::fusion::navigator::RowCorrection for CalibrationRows {
+    fn apply(&self, gyro: &mut [[f64; 3]], accel: &mut [[f64; 3]]) {
+        self.0.apply(gyro, accel)
+    }
 }
 
 #[cfg(test)]
