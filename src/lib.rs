@@ -6,7 +6,7 @@
 //! - [`allan`]: Allan-family deviations, confidence intervals and the noise-term fit.
 //! - [`report`]: the HTML page, plots, CSV and datasheet table of an analysis, with outage
 //!   answers and the data's health.
-//! - [`fusion`]: strapdown INS, error-state Kalman filter, replay and sensor-grade studies.
+//! - [`fusion`]: strapdown INS, error-state Kalman filter, replay, metrics and the KF-GINS formats.
 //! - [`study`]: the sensor-grade study and the simulator-to-filter noise mapping it uses.
 //! - [`earth`]: the WGS-84 earth model (gravity, radii, rotation) shared by sim and fusion.
 //! - [`noise`]: the IMU noise model's terms, shared by the Allan fit, the simulator and fusion.
