@@ -15,7 +15,9 @@ use imulab::daemon::mapping::ImuMapping;
 use imulab::daemon::run;
 use imulab::daemon::session::open_session_sink;
 use imulab::sim::scene::Scene;
-use imulab::sim::serve::{Fault, FaultKind, Sent, ServeOptions, Server, Speed, StartWhen};
+use imulab::sim::serve::{
+    Fault, FaultKind, Sent, ServeOptions, ServeReport, Server, Speed, StartWhen,
+};
 use imulab::store::{EventKind, ImuRecord, Session, TimeRange};
 
 const SCENE_S: f64 = 8.0;
@@ -39,23 +41,21 @@ fn without_times(mut r: ImuRecord) -> ImuRecord {
     r
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_only_itself() {
-    let dir = tempfile::tempdir().unwrap();
-    let faults = ["vn", "gx5"]
-        .map(|sensor| Fault {
-            sensor: sensor.into(),
-            at_s: 4.0,
-            kind: FaultKind::Garbage,
-            bytes: 300,
-            down_s: 0.0,
-        })
-        .to_vec();
+/// Serves `scene` over ptys at [`SPEED`] (with `faults`), logs every endpoint with the daemon
+/// as `imulogd` would (each device's config with `device_keys` added), and returns the
+/// session, checked free of problems, and what the server sent.
+async fn serve_and_log(
+    dir: &Path,
+    scene: Scene,
+    faults: Vec<Fault>,
+    name: &str,
+    device_keys: &str,
+) -> (Session, ServeReport) {
     let mut server = Server::start(
-        scene(),
+        scene,
         ServeOptions {
             speed: Speed::Factor(SPEED),
-            link_dir: Some(dir.path().join("dev")),
+            link_dir: Some(dir.join("dev")),
             start: StartWhen::OnDemand,
             record_sent: true,
             faults,
@@ -65,7 +65,7 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
     let mut devices = String::new();
     for e in server.endpoints() {
         devices.push_str(&format!(
-            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\nserial = {{ port = \"{}\", baud = 921600 }}\n",
+            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\n{device_keys}serial = {{ port = \"{}\", baud = 921600 }}\n",
             e.sensor,
             e.protocol.name(),
             SPEED * IMU_HZ,
@@ -73,11 +73,11 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
         ));
     }
     let text = format!(
-        "[session]\noutput_dir = \"{}\"\nname = \"vnmip\"\nflush_interval_ms = 100\n\n{devices}",
-        dir.path().display()
+        "[session]\noutput_dir = \"{}\"\nname = \"{name}\"\nflush_interval_ms = 100\n\n{devices}",
+        dir.display()
     );
-    let config = parse(&text, "vectornav-mip").unwrap_or_else(|e| panic!("{e}"));
-    let session_dir = dir.path().join("vnmip");
+    let config = parse(&text, name).unwrap_or_else(|e| panic!("{e}"));
+    let session_dir = dir.join(name);
     let status_path = config.status_path();
     let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
     let parts = parts_for(&config, sink, session_dir.clone());
@@ -104,9 +104,24 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
     drop(server);
     assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
     assert_eq!(report.undelivered_bytes, 0);
-
     let session = Session::open(&session_dir).expect("the session opens");
     assert!(session.problems().is_empty(), "{:?}", session.problems());
+    (session, report)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_only_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let faults = ["vn", "gx5"]
+        .map(|sensor| Fault {
+            sensor: sensor.into(),
+            at_s: 4.0,
+            kind: FaultKind::Garbage,
+            bytes: 300,
+            down_s: 0.0,
+        })
+        .to_vec();
+    let (session, report) = serve_and_log(dir.path(), scene(), faults, "vnmip", "").await;
     let (events, _) = session.events();
     let identity = ImuMapping {
         body_from_sensor: nalgebra::Matrix3::identity(),
@@ -190,62 +205,14 @@ async fn vectornav_and_mip_deltas_from_the_simulator_give_the_simulated_rates() 
          [[imu]]\nname = \"gx5\"\npreset = \"industrial\"\nprotocol = \"mip\"\noutput = \"both\"\n"
     );
     let scene = Scene::parse(&text, Path::new(".")).unwrap_or_else(|e| panic!("{e:#}"));
-    let mut server = Server::start(
+    let (session, report) = serve_and_log(
+        dir.path(),
         scene,
-        ServeOptions {
-            speed: Speed::Factor(SPEED),
-            link_dir: Some(dir.path().join("dev")),
-            start: StartWhen::OnDemand,
-            record_sent: true,
-            faults: Vec::new(),
-        },
+        Vec::new(),
+        "deltas",
+        "rows_from = \"deltas\"\n",
     )
-    .unwrap_or_else(|e| panic!("{e:#}"));
-    let mut devices = String::new();
-    for e in server.endpoints() {
-        devices.push_str(&format!(
-            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\nrows_from = \"deltas\"\nserial = {{ port = \"{}\", baud = 921600 }}\n",
-            e.sensor,
-            e.protocol.name(),
-            SPEED * IMU_HZ,
-            e.path().display()
-        ));
-    }
-    let text = format!(
-        "[session]\noutput_dir = \"{}\"\nname = \"deltas\"\nflush_interval_ms = 100\n\n{devices}",
-        dir.path().display()
-    );
-    let config = parse(&text, "deltas").unwrap_or_else(|e| panic!("{e}"));
-    let session_dir = dir.path().join("deltas");
-    let status_path = config.status_path();
-    let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
-    let parts = parts_for(&config, sink, session_dir.clone());
-    let (stop, stop_rx) = tokio::sync::watch::channel(false);
-    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
-    let t = Instant::now();
-    while connected_report(&status_path, 2).is_none() {
-        assert!(t.elapsed() < Duration::from_secs(10), "ptys not opened");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    server.begin();
-    let t = Instant::now();
-    while !server.is_finished() {
-        assert!(
-            t.elapsed() < Duration::from_secs(60),
-            "serve did not finish"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    let report = server.finish().unwrap_or_else(|e| panic!("{e:#}"));
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let _ = stop.send(true);
-    let outcome = daemon.await.unwrap();
-    drop(server);
-    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
-    assert_eq!(report.undelivered_bytes, 0);
-
-    let session = Session::open(&session_dir).expect("the session opens");
-    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    .await;
     // f32 deltas (and VectorNav's f32 interval) divided back: a few units of 2^-24 relative.
     let within = |got: f64, want: f64| (got - want).abs() <= 4e-7 * want.abs() + 1e-12;
     for stream in &report.streams {
