@@ -56,21 +56,27 @@ fn imulab(args: &[&str]) -> Output {
         .expect("run imulab")
 }
 
-fn simulate(dir: &Path) -> std::path::PathBuf {
-    let scene = dir.join("scene.toml");
-    std::fs::write(&scene, SCENE).unwrap();
-    let session = dir.join("session");
-    let out = imulab(&[
-        "sim",
-        scene.to_str().unwrap(),
-        "-o",
-        session.to_str().unwrap(),
-    ]);
+/// `imulab ARGS…`, which must succeed (its stderr is the failure message).
+fn imulab_ok(args: &[&str]) -> Output {
+    let out = imulab(args);
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    out
+}
+
+fn simulate(dir: &Path) -> std::path::PathBuf {
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, SCENE).unwrap();
+    let session = dir.join("session");
+    imulab_ok(&[
+        "sim",
+        scene.to_str().unwrap(),
+        "-o",
+        session.to_str().unwrap(),
+    ]);
     session
 }
 
@@ -264,12 +270,7 @@ fn compensation_shrinks_the_outage_drift_of_a_thermal_drive() {
         "/fixtures/scenes/thermal_drive.toml"
     );
     let session = dir.path().join("session");
-    let out = imulab(&["sim", scene, "-o", session.to_str().unwrap()]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    imulab_ok(&["sim", scene, "-o", session.to_str().unwrap()]);
     // The scene's own tempcos (°/h/°C, mg/°C about 25 °C) as a model.
     let (dph, mg) = (std::f64::consts::PI / 180.0 / 3600.0, 9.806_65e-3);
     let axes: Vec<serde_json::Value> = [
@@ -433,7 +434,7 @@ fn report_shows_the_thermal_section() {
     let dir = tempfile::tempdir().unwrap();
     let session = simulate(dir.path());
     let html = dir.path().join("report.html");
-    let out = imulab(&[
+    imulab_ok(&[
         "report",
         session.to_str().unwrap(),
         "--html",
@@ -444,11 +445,6 @@ fn report_shows_the_thermal_section() {
         "0",
         "--quiet",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let page = std::fs::read_to_string(&html).unwrap();
     let section = page
         .split("<section id=\"thermal\">")
@@ -508,29 +504,19 @@ fn a_chamber_run_with_poses_gives_the_scale_tempco_and_clean_bias_fits() {
     let dir = tempfile::tempdir().unwrap();
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/scenes/chamber_poses.toml");
     let session = dir.path().join("session");
-    let out = imulab(&[
+    imulab_ok(&[
         "sim",
         scene.to_str().unwrap(),
         "-o",
         session.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let json = dir.path().join("thermal.json");
-    let out = imulab(&[
+    imulab_ok(&[
         "thermal",
         session.to_str().unwrap(),
         "--json",
         json.to_str().unwrap(),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     let axes = doc["devices"][0]["axes"].as_array().unwrap().clone();
     let names: Vec<&str> = axes.iter().map(|a| a["axis"].as_str().unwrap()).collect();
