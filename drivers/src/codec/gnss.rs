@@ -1060,11 +1060,11 @@ pub fn encode_fix(fix: &GnssFix, out: &mut Vec<u8>) -> Result<(), EncodeError> {
 
 /// The IMU of a u-blox dead-reckoning receiver (NEO-M8L, ZED-F9R) on a port of its own:
 /// ESF-RAW (several samples per message) and ESF-MEAS (one) become [`ImuSample`]s; fixes,
-/// other UBX messages and NMEA on the same port are decoded and dropped.
+/// other UBX messages and NMEA on the same port are decoded and dropped (the IMU readings of
+/// [`GnssEsfDecoder`]).
 #[derive(Debug, Clone, Default)]
 pub struct EsfImuDecoder {
-    gnss: GnssDecoder,
-    ready: VecDeque<ImuSample>,
+    port: GnssEsfDecoder,
 }
 
 impl EsfImuDecoder {
@@ -1072,11 +1072,12 @@ impl EsfImuDecoder {
         Self::default()
     }
 
-    fn take(&mut self, frame: GnssFrame) {
-        match frame {
-            GnssFrame::Ubx(UbxMessage::EsfRaw(raw)) => self.ready.extend(raw.to_imu_samples()),
-            GnssFrame::Ubx(UbxMessage::EsfMeas(meas)) => self.ready.extend(meas.to_imu_sample()),
-            _ => {}
+    /// The next IMU sample among `next`'s readings.
+    fn imu(mut next: impl FnMut() -> Option<Reading>) -> Option<ImuSample> {
+        loop {
+            if let Reading::Imu(sample) = next()? {
+                return Some(sample);
+            }
         }
     }
 }
@@ -1085,27 +1086,19 @@ impl Decoder for EsfImuDecoder {
     type Frame = ImuSample;
 
     fn push(&mut self, bytes: &[u8]) {
-        self.gnss.push(bytes);
+        self.port.push(bytes);
     }
 
     fn poll(&mut self) -> Option<ImuSample> {
-        while self.ready.is_empty() {
-            let frame = self.gnss.poll()?;
-            self.take(frame);
-        }
-        self.ready.pop_front()
+        Self::imu(|| self.port.poll())
     }
 
     fn stats(&self) -> DecoderStats {
-        self.gnss.stats()
+        self.port.stats()
     }
 
     fn finish(&mut self) -> Option<ImuSample> {
-        while self.ready.is_empty() {
-            let frame = self.gnss.finish()?;
-            self.take(frame);
-        }
-        self.ready.pop_front()
+        Self::imu(|| self.port.finish())
     }
 }
 
