@@ -308,6 +308,36 @@ fn recovery(seed_count: u64) {
             println!("- {line}");
         }
     }
+    false_warmups(&seeds, &profile, rate, duration);
+}
+
+/// The same runs with the warm-up switched off: how often a transient is reported where none
+/// exists (the price of reporting one whose τ the soak bounds only from below).
+fn false_warmups(seeds: &[u64], profile: &TemperatureProfile, rate: f64, duration: f64) {
+    println!("\n| grade | sensor | runs without a warm-up | reported one |");
+    println!("|---|---|---|---|");
+    for (grade, mut spec) in [
+        ("icm20948-thermal", imu_preset("icm20948-thermal").unwrap()),
+        ("quiet", quiet_grade()),
+    ] {
+        spec.gyro.warmup_bias_dph = [0.0; 3];
+        spec.accel.warmup_bias_mg = [0.0; 3];
+        for sensor in [SensorKind::Accel, SensorKind::Gyro] {
+            let reported = seeds
+                .iter()
+                .filter(|&&seed| {
+                    analyse(
+                        simulate(&spec, sensor, seed, rate, duration, profile),
+                        sensor,
+                        profile,
+                    )
+                    .warmup
+                    .is_some()
+                })
+                .count();
+            println!("| {grade} | {sensor:?} | {} | {reported} |", seeds.len());
+        }
+    }
 }
 
 /// Accelerometer scale factor against temperature: the chamber program of [`recovery`] with

@@ -15,7 +15,8 @@
 use super::drift::{Drift, PlateauCurve};
 use super::polyfit::{fit_branches, fit_polynomial, PolyFit};
 use super::warmup::{
-    amplitude_interval, detection_limit, fit_exponential, tau_interval, transient_found,
+    amplitude_interval, detection_limit, fit_exponential, tau_at_bound, tau_interval,
+    transient_found, ExponentialFit,
 };
 use imulab_allan::analysis::{analyse_axis, AnalysisOptions};
 use imulab_allan::deviation::DeviationKind;
@@ -715,7 +716,7 @@ pub fn analyse_axis_thermal(
             let t0 = blocks.t_s[s];
             let t: Vec<f64> = blocks.t_s[s..e].iter().map(|t| t - t0).collect();
             fit_exponential(&t, &blocks.bias[s..e])
-                .filter(|f| transient_found(f, t[t.len() - 1]))
+                .filter(|f| transient_found(f, t[t.len() - 1], 0.0))
                 .map(|f| t0 + 5.0 * f.tau)
         })
         .unwrap_or(0.0);
@@ -821,9 +822,17 @@ pub fn analyse_axis_thermal(
             let corrected: Vec<f64> = (s..e)
                 .map(|i| blocks.bias[i] - (fit.eval(blocks.temp_c[i]) - base))
                 .collect();
-            // Found against the white noise of the blocks; the intervals add the drift.
+            // Found against the white noise of the blocks and the slow drift, as the detection
+            // limit is stated; the intervals add the drift too.
+            let found = |f: &ExponentialFit| {
+                transient_found(
+                    f,
+                    soak_s,
+                    drift_sigma(&blocks.t_s[s..e], &f.amplitude_weights),
+                )
+            };
             match fit_exponential(&t, &corrected) {
-                Some(f) if transient_found(&f, soak_s) => {
+                Some(f) if found(&f) => {
                     let times = &blocks.t_s[s..e];
                     let drift_tau = drift_sigma(times, &f.tau_weights);
                     let drift_amplitude = drift_sigma(times, &f.amplitude_weights);
@@ -836,6 +845,12 @@ pub fn analyse_axis_thermal(
                         }
                     };
                     let tau_ci = tau_interval(&t, &corrected, &f, inflation(f.se_tau, drift_tau));
+                    if tau_at_bound(&f, soak_s) {
+                        notes.push(format!(
+                            "the warm-up's τ reached half the {soak_s:.0} s first soak, the most the soak can show: τ is at least {:.0} s (95 %) and not bounded above; a longer first soak pins it",
+                            tau_ci[0]
+                        ));
+                    }
                     let [a_lo, a_hi] = amplitude_interval(
                         &t,
                         &corrected,

@@ -102,14 +102,17 @@ fn jacobian_row(t: f64, amplitude: f64, tau: f64) -> Vector3<f64> {
 }
 
 /// Fits settled + A e^(−t/τ) to `(t, y)` by Levenberg–Marquardt on (settled, A, τ), started
-/// from the best τ of a log-spaced scan (settled and A linear for each τ).
+/// from the best τ of a log-spaced scan (settled and A linear for each τ), with τ kept at
+/// most half the span: a warm-up settles within its soak (what [`transient_found`] asks),
+/// and a longer τ is a slope the soak's drift fits as well, whose A and τ run off together.
 pub fn fit_exponential(t: &[f64], y: &[f64]) -> Option<ExponentialFit> {
     let span = t.last()? - t.first()?;
     if t.len() < 6 || span <= 0.0 {
         return None;
     }
     let n = t.len() as f64;
-    let (lo, hi) = ((span / 1000.0).max(1e-3).ln(), span.ln());
+    let tau_max = span / 2.0;
+    let (lo, hi) = ((span / 1000.0).max(1e-3).ln(), tau_max.ln());
     let grid = 60;
     let start = (0..=grid)
         .map(|k| (lo + (hi - lo) * k as f64 / grid as f64).exp())
@@ -145,7 +148,7 @@ pub fn fit_exponential(t: &[f64], y: &[f64]) -> Option<ExponentialFit> {
             continue;
         };
         let trial = p + step;
-        let trial_rss = if trial[2] > 0.0 {
+        let trial_rss = if trial[2] > 0.0 && trial[2] <= tau_max {
             rss_of(&trial)
         } else {
             f64::INFINITY
@@ -198,11 +201,19 @@ pub fn fit_exponential(t: &[f64], y: &[f64]) -> Option<ExponentialFit> {
     })
 }
 
-/// A transient stands out: its amplitude is at least [`DETECTION_SIGMAS`] white-noise
-/// standard errors and its time constant leaves at least half the soak to show the settled
-/// value.
-pub fn transient_found(f: &ExponentialFit, soak_s: f64) -> bool {
-    f.amplitude.abs() > DETECTION_SIGMAS * f.se_amplitude && f.tau < soak_s / 2.0
+/// A transient stands out: its amplitude is at least [`DETECTION_SIGMAS`] standard errors of
+/// the white noise and `drift` (the slow bias drift's σ of the amplitude estimate, 0 for white
+/// noise alone), with a time constant of at most half the soak (the fit's bound; at the bound
+/// the soak gives τ a lower limit only, see [`tau_at_bound`]).
+pub fn transient_found(f: &ExponentialFit, soak_s: f64, drift: f64) -> bool {
+    f.amplitude.abs() > DETECTION_SIGMAS * f.se_amplitude.hypot(drift)
+        && f.tau <= soak_s / 2.0 * (1.0 + 1e-9)
+}
+
+/// Whether the fitted τ sits at its bound, half the soak: the soak is too short to show the
+/// transient settle, and τ is at least the interval's lower end, not bounded above.
+pub fn tau_at_bound(f: &ExponentialFit, soak_s: f64) -> bool {
+    f.tau >= soak_s / 2.0 * (1.0 - 1e-6)
 }
 
 /// From `x0`, where `excess(x0) < 0`, steps by `step` at most `steps` times until
@@ -371,7 +382,7 @@ mod tests {
             let Some(f) = fit_exponential(&t, &y) else {
                 continue;
             };
-            if !transient_found(&f, 600.0) {
+            if !transient_found(&f, 600.0, 0.0) {
                 continue;
             }
             found += 1;
@@ -406,6 +417,22 @@ mod tests {
     }
 
     #[test]
+    fn a_slope_is_fitted_with_tau_at_its_bound_not_run_off() {
+        // A drift over the soak and no transient: the exponential that fits it best has
+        // ever longer τ and larger A; the fit stops at τ = half the span.
+        let t: Vec<f64> = (0..600).map(|i| i as f64).collect();
+        let mut noise = Stream::new(3, "slope");
+        let y: Vec<f64> = t
+            .iter()
+            .map(|&ti| 1e-3 * ti + 0.01 * noise.normal())
+            .collect();
+        let f = fit_exponential(&t, &y).unwrap();
+        assert!(f.tau <= 299.5 * (1.0 + 1e-9), "τ {}", f.tau);
+        assert!(tau_at_bound(&f, 599.0), "τ {}", f.tau);
+        assert!(f.amplitude.abs() < 10.0, "A {}", f.amplitude);
+    }
+
+    #[test]
     fn the_detection_limit_is_what_the_test_finds() {
         // A transient at the limit passes the test in about half the cases.
         let t: Vec<f64> = (0..600).map(|i| i as f64).collect();
@@ -417,7 +444,7 @@ mod tests {
                     .iter()
                     .map(|&ti| limit * (-ti / 100.0).exp() + 0.12 * noise.normal())
                     .collect();
-                fit_exponential(&t, &y).is_some_and(|f| transient_found(&f, 600.0))
+                fit_exponential(&t, &y).is_some_and(|f| transient_found(&f, 600.0, 0.0))
             })
             .count();
         assert!(
