@@ -16,7 +16,7 @@ use super::drift::{Drift, PlateauCurve};
 use super::polyfit::{fit_branches, fit_polynomial, PolyFit};
 use super::warmup::{
     amplitude_interval, detection_limit, fit_exponential, tau_at_bound, tau_interval,
-    transient_found, ExponentialFit,
+    transient_found,
 };
 use imulab_allan::analysis::{analyse_axis, AnalysisOptions};
 use imulab_allan::deviation::DeviationKind;
@@ -824,18 +824,14 @@ pub fn analyse_axis_thermal(
                 .collect();
             // Found against the white noise of the blocks and the slow drift, as the detection
             // limit is stated; the intervals add the drift too.
-            let found = |f: &ExponentialFit| {
-                transient_found(
-                    f,
-                    soak_s,
-                    drift_sigma(&blocks.t_s[s..e], &f.amplitude_weights),
-                )
-            };
-            match fit_exponential(&t, &corrected) {
-                Some(f) if found(&f) => {
-                    let times = &blocks.t_s[s..e];
+            let times = &blocks.t_s[s..e];
+            let fitted = fit_exponential(&t, &corrected).map(|f| {
+                let drift_amplitude = drift_sigma(times, &f.amplitude_weights);
+                (f, drift_amplitude)
+            });
+            match fitted {
+                Some((f, drift_amplitude)) if transient_found(&f, soak_s, drift_amplitude) => {
                     let drift_tau = drift_sigma(times, &f.tau_weights);
-                    let drift_amplitude = drift_sigma(times, &f.amplitude_weights);
                     // The drift's share of each estimate's variance at the solution.
                     let inflation = |se: f64, drift: f64| {
                         if se > 0.0 {
@@ -877,7 +873,7 @@ pub fn analyse_axis_thermal(
                         soak_s,
                     })
                 }
-                Some(f) => {
+                Some((f, _)) => {
                     let limits: Vec<DetectionLimit> = DETECTION_LIMIT_SOAK_FRACTIONS
                         .iter()
                         .filter_map(|&share| {
