@@ -11,6 +11,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use crate::common::daemon::{connected_report, parts_for};
+use crate::common::{gnss_rows, imu_rows};
 use imulab::daemon::config::parse;
 use imulab::daemon::mapping::{gnss_record, ImuMapping};
 use imulab::daemon::run;
@@ -19,7 +20,7 @@ use imulab::sim::scene::Scene;
 use imulab::sim::serve::{
     Fault, FaultKind, Sent, ServeOptions, ServeReport, Server, Speed, StartWhen,
 };
-use imulab::store::{EventKind, GnssRecord, ImuRecord, Session, TimeRange};
+use imulab::store::{EventKind, GnssRecord, ImuRecord, Session};
 
 /// Scene seconds served; at [`SPEED`] this is a little over 2 s of wall time.
 const SCENE_S: f64 = 16.0;
@@ -74,11 +75,43 @@ pub(crate) async fn serve_and_log(
     faults: Vec<Fault>,
     raw_journal: bool,
 ) -> (tempfile::TempDir, ServeReport, std::path::PathBuf) {
-    let dir = tempfile::tempdir().unwrap();
-    let mut server = Server::start(
+    serve_scene_and_log(
         bench_scene(),
+        SPEED,
+        faults,
+        "retry_initial_ms = 20\nretry_max_ms = 100\n",
+        &format!("raw_journal = {raw_journal}\n"),
+    )
+    .await
+}
+
+/// Serves `scene` over ptys at `speed` × real time (with `faults`) to a daemon built from its
+/// configuration as `imulogd` builds it, one device per endpoint (`device_keys` added to each,
+/// `session_keys` to `[session]`), into an HDF5 session; returns what the simulator sent and
+/// where the session is.
+pub(crate) async fn serve_scene_and_log(
+    scene: Scene,
+    speed: f64,
+    faults: Vec<Fault>,
+    device_keys: &str,
+    session_keys: &str,
+) -> (tempfile::TempDir, ServeReport, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    // Accelerated, the devices really do send `speed` times faster; the configured rate
+    // sizes the store's chunks (one flush interval each) and the gap detector.
+    let rate_of = |sensor: &str| {
+        speed
+            * scene
+                .gnss
+                .iter()
+                .find(|g| g.name == sensor)
+                .map_or(scene.rate_hz, |g| g.spec.rate_hz)
+    };
+    let mut devices = String::new();
+    let mut server = Server::start(
+        scene.clone(),
         ServeOptions {
-            speed: Speed::Factor(SPEED),
+            speed: Speed::Factor(speed),
             link_dir: Some(dir.path().join("dev")),
             start: StartWhen::OnDemand,
             record_sent: true,
@@ -86,25 +119,21 @@ pub(crate) async fn serve_and_log(
         },
     )
     .unwrap_or_else(|e| panic!("{e:#}"));
-
-    let mut devices = String::new();
     for e in server.endpoints() {
-        // Accelerated, the devices really do send SPEED times faster; the configured rate
-        // sizes the store's chunks (one flush interval each) and the gap detector.
-        let rate = SPEED * if e.sensor == "rx" { GNSS_HZ } else { IMU_HZ };
         devices.push_str(&format!(
-            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {rate}\nretry_initial_ms = 20\nretry_max_ms = 100\nserial = {{ port = \"{}\", baud = 921600 }}\n",
+            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\n{device_keys}serial = {{ port = \"{}\", baud = 921600 }}\n",
             e.sensor,
             e.protocol.name(),
+            rate_of(&e.sensor),
             e.path().display()
         ));
     }
     let text = format!(
-        "[session]\noutput_dir = \"{}\"\nname = \"bench\"\nflush_interval_ms = 100\nraw_journal = {raw_journal}\n\n{devices}",
+        "[session]\noutput_dir = \"{}\"\nname = \"logged\"\nflush_interval_ms = 100\n{session_keys}\n{devices}",
         dir.path().display()
     );
     let config = parse(&text, "end-to-end").unwrap_or_else(|e| panic!("{e}"));
-    let session_dir = dir.path().join("bench");
+    let session_dir = dir.path().join("logged");
     let status_path = config.status_path();
     let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
     let parts = parts_for(&config, sink, session_dir.clone());
@@ -112,11 +141,9 @@ pub(crate) async fn serve_and_log(
     let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
 
     // Start the scene once the daemon has every device open (the status file says so).
+    let endpoints = server.endpoints().len();
     let t = Instant::now();
-    loop {
-        if connected_report(&status_path, 3).is_some() {
-            break;
-        }
+    while connected_report(&status_path, endpoints).is_none() {
         assert!(
             t.elapsed() < Duration::from_secs(10),
             "the daemon did not open the ptys"
@@ -141,8 +168,8 @@ pub(crate) async fn serve_and_log(
     drop(server);
     assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
     println!(
-        "served {SCENE_S} s of scene in {wall_s:.2} s (×{SPEED}); undelivered bytes {}",
-        report.undelivered_bytes
+        "served {} s of scene in {wall_s:.2} s (×{speed}); undelivered bytes {}",
+        scene.duration_s, report.undelivered_bytes
     );
     assert_eq!(report.undelivered_bytes, 0);
     (dir, report, session_dir)
@@ -195,14 +222,7 @@ async fn simulated_bench_is_logged_completely_exactly_once_with_its_values() {
         assert_eq!(stream.frames_overflowed, 0, "{}", stream.sensor);
         match &stream.sent {
             Sent::Imu(sent) => {
-                let mut rows = Vec::new();
-                for block in session
-                    .imu_blocks(&stream.sensor, TimeRange::all(), 4096)
-                    .unwrap()
-                {
-                    let block = block.unwrap();
-                    rows.extend((0..block.len()).map(|i| block.record(i)));
-                }
+                let rows = imu_rows(&session, &stream.sensor);
                 assert_eq!(
                     rows.len(),
                     sent.len(),
@@ -268,14 +288,7 @@ async fn simulated_bench_is_logged_completely_exactly_once_with_its_values() {
                 );
             }
             Sent::Gnss(sent) => {
-                let mut rows = Vec::new();
-                for block in session
-                    .gnss_blocks(&stream.sensor, TimeRange::all(), 4096)
-                    .unwrap()
-                {
-                    let block = block.unwrap();
-                    rows.extend((0..block.len()).map(|i| block.record(i)));
-                }
+                let rows = gnss_rows(&session, &stream.sensor);
                 // The mixed receiver's epochs (UBX and NMEA merged), in the order they were sent.
                 let fixes: Vec<GnssRecord> = sent
                     .iter()
@@ -328,15 +341,6 @@ async fn simulated_bench_is_logged_completely_exactly_once_with_its_values() {
             }
         }
     }
-}
-
-fn imu_rows(session: &Session, device: &str) -> Vec<ImuRecord> {
-    let mut rows = Vec::new();
-    for block in session.imu_blocks(device, TimeRange::all(), 4096).unwrap() {
-        let block = block.unwrap();
-        rows.extend((0..block.len()).map(|i| block.record(i)));
-    }
-    rows
 }
 
 /// Faults from the simulator: garbage in the WitMotion stream costs no frame (a resync

@@ -10,30 +10,13 @@ use std::time::{Duration, Instant};
 use crate::common::daemon::parts_for;
 use crate::common::encode::wit_sample;
 use crate::common::pty::Pty;
+use crate::common::{gnss_rows, imu_rows};
 use crate::end_to_end::{same, serve_and_log, without_times_gnss, without_times_imu};
 use imulab::daemon::config::parse;
 use imulab::daemon::session::open_session_sink;
 use imulab::daemon::source::connector_for;
 use imulab::daemon::{run, Outcome};
-use imulab::store::{EventKind, GnssRecord, ImuRecord, Session, TimeRange};
-
-fn imu_rows(session: &Session, name: &str) -> Vec<ImuRecord> {
-    let mut rows = Vec::new();
-    for block in session.imu_blocks(name, TimeRange::all(), 4096).unwrap() {
-        let block = block.unwrap();
-        rows.extend((0..block.len()).map(|i| block.record(i)));
-    }
-    rows
-}
-
-fn gnss_rows(session: &Session, name: &str) -> Vec<GnssRecord> {
-    let mut rows = Vec::new();
-    for block in session.gnss_blocks(name, TimeRange::all(), 4096).unwrap() {
-        let block = block.unwrap();
-        rows.extend((0..block.len()).map(|i| block.record(i)));
-    }
-    rows
-}
+use imulab::store::{EventKind, Session};
 
 /// Runs the daemon on `text` until it stops by itself (at most `limit`); returns how it ended
 /// and how long it ran.

@@ -8,6 +8,7 @@
 use std::time::Duration;
 
 use crate::common::daemon::parts_for;
+use crate::common::imu_rows;
 use crate::common::pty::Pty;
 use crate::serial::{config, start};
 use imulab::daemon::run;
@@ -223,11 +224,7 @@ async fn one_receiver_port_logs_its_fixes_and_its_esf_imu_as_two_devices() {
         assert!((lat - want_lat).abs() < 1e-7 && (lon - want_lon).abs() < 1e-7);
     }
 
-    let mut rows = Vec::new();
-    for block in session.imu_blocks("f9r_imu", TimeRange::all(), 64).unwrap() {
-        let block = block.unwrap();
-        rows.extend((0..block.len()).map(|i| block.record(i)));
-    }
+    let rows = imu_rows(&session, "f9r_imu");
     assert_eq!(rows.len(), (2 * FIXES * ESF_PER_FIX) as usize);
     for (i, r) in rows.iter().enumerate() {
         // The receiver's sensor time tag is the IMU's sensor clock.

@@ -6,19 +6,14 @@
 //! garbage costs no frame and is a resync event.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
 
-use crate::common::daemon::{connected_report, parts_for};
+use crate::common::imu_rows;
+use crate::end_to_end::serve_scene_and_log;
 use imulab::daemon::clock::Arrival;
-use imulab::daemon::config::parse;
 use imulab::daemon::mapping::ImuMapping;
-use imulab::daemon::run;
-use imulab::daemon::session::open_session_sink;
 use imulab::sim::scene::Scene;
-use imulab::sim::serve::{
-    Fault, FaultKind, Sent, ServeOptions, ServeReport, Server, Speed, StartWhen,
-};
-use imulab::store::{EventKind, ImuRecord, Session, TimeRange};
+use imulab::sim::serve::{Fault, FaultKind, Sent};
+use imulab::store::{EventKind, ImuRecord, Session};
 
 const SCENE_S: f64 = 8.0;
 const SPEED: f64 = 8.0;
@@ -41,77 +36,15 @@ fn without_times(mut r: ImuRecord) -> ImuRecord {
     r
 }
 
-/// Serves `scene` over ptys at [`SPEED`] (with `faults`), logs every endpoint with the daemon
-/// as `imulogd` would (each device's config with `device_keys` added), and returns the
-/// session, checked free of problems, and what the server sent.
-async fn serve_and_log(
-    dir: &Path,
-    scene: Scene,
-    faults: Vec<Fault>,
-    name: &str,
-    device_keys: &str,
-) -> (Session, ServeReport) {
-    let mut server = Server::start(
-        scene,
-        ServeOptions {
-            speed: Speed::Factor(SPEED),
-            link_dir: Some(dir.join("dev")),
-            start: StartWhen::OnDemand,
-            record_sent: true,
-            faults,
-        },
-    )
-    .unwrap_or_else(|e| panic!("{e:#}"));
-    let mut devices = String::new();
-    for e in server.endpoints() {
-        devices.push_str(&format!(
-            "[[device]]\nname = \"{}\"\nprotocol = \"{}\"\nrate_hz = {}\n{device_keys}serial = {{ port = \"{}\", baud = 921600 }}\n",
-            e.sensor,
-            e.protocol.name(),
-            SPEED * IMU_HZ,
-            e.path().display()
-        ));
-    }
-    let text = format!(
-        "[session]\noutput_dir = \"{}\"\nname = \"{name}\"\nflush_interval_ms = 100\n\n{devices}",
-        dir.display()
-    );
-    let config = parse(&text, name).unwrap_or_else(|e| panic!("{e}"));
-    let session_dir = dir.join(name);
-    let status_path = config.status_path();
-    let sink = Box::new(open_session_sink(&config, &session_dir).unwrap());
-    let parts = parts_for(&config, sink, session_dir.clone());
-    let (stop, stop_rx) = tokio::sync::watch::channel(false);
-    let daemon = tokio::spawn(async move { run(&config, parts, stop_rx).await });
-    let t = Instant::now();
-    while connected_report(&status_path, 2).is_none() {
-        assert!(t.elapsed() < Duration::from_secs(10), "ptys not opened");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    server.begin();
-    let t = Instant::now();
-    while !server.is_finished() {
-        assert!(
-            t.elapsed() < Duration::from_secs(60),
-            "serve did not finish"
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    let report = server.finish().unwrap_or_else(|e| panic!("{e:#}"));
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let _ = stop.send(true);
-    let outcome = daemon.await.unwrap();
-    drop(server);
-    assert_eq!(outcome.exit_code(), 0, "{outcome:?}");
-    assert_eq!(report.undelivered_bytes, 0);
-    let session = Session::open(&session_dir).expect("the session opens");
+/// The session `serve_scene_and_log` wrote, checked free of problems.
+fn opened(session_dir: &Path) -> Session {
+    let session = Session::open(session_dir).expect("the session opens");
     assert!(session.problems().is_empty(), "{:?}", session.problems());
-    (session, report)
+    session
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_only_itself() {
-    let dir = tempfile::tempdir().unwrap();
     let faults = ["vn", "gx5"]
         .map(|sensor| Fault {
             sensor: sensor.into(),
@@ -121,7 +54,8 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
             down_s: 0.0,
         })
         .to_vec();
-    let (session, report) = serve_and_log(dir.path(), scene(), faults, "vnmip", "").await;
+    let (_dir, report, session_dir) = serve_scene_and_log(scene(), SPEED, faults, "", "").await;
+    let session = opened(&session_dir);
     let (events, _) = session.events();
     let identity = ImuMapping {
         body_from_sensor: nalgebra::Matrix3::identity(),
@@ -139,14 +73,7 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
         assert_eq!(stream.encode_errors, 0, "{:?}", stream.first_encode_error);
         assert_eq!(stream.garbage_bytes, 300);
         assert_eq!(sent.len() as f64, SCENE_S * IMU_HZ, "{}", stream.sensor);
-        let mut rows = Vec::new();
-        for block in session
-            .imu_blocks(&stream.sensor, TimeRange::all(), 4096)
-            .unwrap()
-        {
-            let block = block.unwrap();
-            rows.extend((0..block.len()).map(|i| block.record(i)));
-        }
+        let rows = imu_rows(&session, &stream.sensor);
         assert_eq!(
             rows.len(),
             sent.len(),
@@ -196,7 +123,6 @@ async fn vectornav_and_mip_over_ptys_are_logged_completely_and_garbage_costs_onl
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn vectornav_and_mip_deltas_from_the_simulator_give_the_simulated_rates() {
     const SECONDS: f64 = 3.0;
-    let dir = tempfile::tempdir().unwrap();
     let text = format!(
         "duration_s = {SECONDS}\nrate_hz = {IMU_HZ}\nseed = 12\n\
          [location]\nlat_deg = 48.1\nlon_deg = 11.6\nheight_m = 520.0\n\
@@ -205,14 +131,9 @@ async fn vectornav_and_mip_deltas_from_the_simulator_give_the_simulated_rates() 
          [[imu]]\nname = \"gx5\"\npreset = \"industrial\"\nprotocol = \"mip\"\noutput = \"both\"\n"
     );
     let scene = Scene::parse(&text, Path::new(".")).unwrap_or_else(|e| panic!("{e:#}"));
-    let (session, report) = serve_and_log(
-        dir.path(),
-        scene,
-        Vec::new(),
-        "deltas",
-        "rows_from = \"deltas\"\n",
-    )
-    .await;
+    let (_dir, report, session_dir) =
+        serve_scene_and_log(scene, SPEED, Vec::new(), "rows_from = \"deltas\"\n", "").await;
+    let session = opened(&session_dir);
     // f32 deltas (and VectorNav's f32 interval) divided back: a few units of 2^-24 relative.
     let within = |got: f64, want: f64| (got - want).abs() <= 4e-7 * want.abs() + 1e-12;
     for stream in &report.streams {
@@ -221,14 +142,7 @@ async fn vectornav_and_mip_deltas_from_the_simulator_give_the_simulated_rates() 
         };
         assert_eq!(stream.encode_errors, 0, "{:?}", stream.first_encode_error);
         assert_eq!(sent.len() as f64, SECONDS * IMU_HZ, "{}", stream.sensor);
-        let mut rows = Vec::new();
-        for block in session
-            .imu_blocks(&stream.sensor, TimeRange::all(), 4096)
-            .unwrap()
-        {
-            let block = block.unwrap();
-            rows.extend((0..block.len()).map(|i| block.record(i)));
-        }
+        let rows = imu_rows(&session, &stream.sensor);
         assert_eq!(
             rows.len(),
             sent.len(),

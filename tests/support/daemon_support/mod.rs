@@ -13,6 +13,7 @@ use std::io;
 use std::sync::{Arc, Mutex};
 
 use imulab::daemon::source::{BoxFuture, Connector, Frame, FrameDecoder, Input, Link};
+use imulab::store::{GnssRecord, ImuRecord, Session, TimeRange};
 use imulab_drivers::transport::{StreamTransport, TransportError};
 use imulab_drivers::types::{DecoderStats, GnssFix, ImuSample};
 
@@ -186,4 +187,24 @@ impl Connector for QueueConnector {
 /// A minimal valid config text with the given device tables appended.
 pub fn config_text(output_dir: &str, devices: &str) -> String {
     format!("[session]\noutput_dir = \"{output_dir}\"\nflush_interval_ms = 100\n\n{devices}")
+}
+
+/// Every IMU row of device `name` in `session`, in order.
+pub fn imu_rows(session: &Session, name: &str) -> Vec<ImuRecord> {
+    let mut rows = Vec::new();
+    for block in session.imu_blocks(name, TimeRange::all(), 4096).unwrap() {
+        let block = block.unwrap();
+        rows.extend((0..block.len()).map(|i| block.record(i)));
+    }
+    rows
+}
+
+/// Every GNSS row of device `name` in `session`, in order.
+pub fn gnss_rows(session: &Session, name: &str) -> Vec<GnssRecord> {
+    let mut rows = Vec::new();
+    for block in session.gnss_blocks(name, TimeRange::all(), 4096).unwrap() {
+        let block = block.unwrap();
+        rows.extend((0..block.len()).map(|i| block.record(i)));
+    }
+    rows
 }
