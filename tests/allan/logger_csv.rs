@@ -189,6 +189,31 @@ fn time_columns_found_by_name_and_temperature_is_not_an_axis() {
     }
 }
 
+/// A phone app's epoch nanoseconds (1.7·10¹⁸, beyond f64's exact integers): read as
+/// floats, 10 ms steps came out as 9.999872 or 10.000128 ms and τ0 as 0.00999999 s.
+#[test]
+fn epoch_nanosecond_stamps_give_the_exact_interval() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = write_file(
+        dir.path(),
+        "phone.csv",
+        "timestamp,gx",
+        ",",
+        '.',
+        |i| (1_700_000_000_123_456_789u64 + 10_000_000 * i as u64).to_string(),
+        &[white(14, GYRO_SIGMA)],
+    );
+    let out = dir.path().join("p.json");
+    let (stdout, _) = ok(&[
+        "allan",
+        file.to_str().unwrap(),
+        "--json",
+        out.to_str().unwrap(),
+    ]);
+    close(tau0(&json(&out), 0), 0.01, 1e-12, "τ0");
+    assert!(stdout.contains("tau0 0.01 s"), "{stdout}");
+}
+
 #[test]
 fn millis_timestamps_are_read_as_milliseconds() {
     let dir = tempfile::tempdir().unwrap();

@@ -158,8 +158,19 @@ impl CsvSource {
         self.delimiter
     }
 
-    fn parse_field(&self, c: usize, field: &[u8], line: u64) -> Result<f64, InputError> {
+    /// Parses field `field` of column `c`; `first` is the column's first integer beyond
+    /// f64's exact range, if any ([`relative_large_integer`]).
+    fn parse_field(
+        &self,
+        c: usize,
+        field: &[u8],
+        line: u64,
+        first: &mut Option<i64>,
+    ) -> Result<f64, InputError> {
         let text = std::str::from_utf8(field).unwrap_or("");
+        if let Some(v) = relative_large_integer(text.trim(), first) {
+            return Ok(v);
+        }
         parse_number(text, self.delimiter == Delimiter::Byte(b';')).ok_or_else(|| {
             InputError::Parse {
                 path: self.path.clone(),
@@ -197,6 +208,7 @@ impl CsvSource {
         })?;
         let reader = BufReader::with_capacity(1 << 20, file);
         let mut values = vec![0.0; wanted.len()];
+        let mut firsts = vec![None; wanted.len()];
         let mut header_pending = self.has_header;
         let mut row = 0u64;
         for (number, line) in reader.lines().enumerate() {
@@ -214,11 +226,11 @@ impl CsvSource {
             }
             let line_number = number as u64 + 1;
             let fields: Vec<&str> = text.split_whitespace().collect();
-            for (slot, &c) in values.iter_mut().zip(wanted) {
+            for ((slot, first), &c) in values.iter_mut().zip(&mut firsts).zip(wanted) {
                 let field = fields
                     .get(c)
                     .ok_or_else(|| self.missing(c, line_number, fields.len()))?;
-                *slot = self.parse_field(c, field.as_bytes(), line_number)?;
+                *slot = self.parse_field(c, field.as_bytes(), line_number, first)?;
             }
             visit(row, &values)?;
             row += 1;
@@ -256,6 +268,7 @@ impl SampleSource for CsvSource {
             .from_reader(BufReader::with_capacity(1 << 20, file));
         let mut record = csv::ByteRecord::new();
         let mut values = vec![0.0; wanted.len()];
+        let mut firsts = vec![None; wanted.len()];
         let mut row = 0u64;
         loop {
             let more = reader
@@ -269,17 +282,31 @@ impl SampleSource for CsvSource {
                 break;
             }
             let line = record.position().map(|p| p.line()).unwrap_or(row + 1);
-            for (slot, &c) in values.iter_mut().zip(wanted) {
+            for ((slot, first), &c) in values.iter_mut().zip(&mut firsts).zip(wanted) {
                 let field = record
                     .get(c)
                     .ok_or_else(|| self.missing(c, line, record.len()))?;
-                *slot = self.parse_field(c, field, line)?;
+                *slot = self.parse_field(c, field, line, first)?;
             }
             visit(row, &values)?;
             row += 1;
         }
         Ok(())
     }
+}
+
+/// An integer beyond 2⁵³ (epoch nanoseconds are ~1.7·10¹⁸) has no exact f64: read as one,
+/// 10 ms steps came out as 9.999872 or 10.000128 ms. Such a column is read relative to its
+/// first integer (`first`, set on the first), so its intervals stay exact; None for any
+/// other text.
+fn relative_large_integer(text: &str, first: &mut Option<i64>) -> Option<f64> {
+    const EXACT: i64 = 1 << 53;
+    let v: i64 = text.parse().ok()?;
+    if first.is_none() && v.abs() <= EXACT {
+        return None;
+    }
+    let base = *first.get_or_insert(v);
+    Some(v.checked_sub(base)? as f64)
 }
 
 /// Parses a number; empty fields and the usual NaN spellings read as NaN so the gap
