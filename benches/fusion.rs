@@ -3,7 +3,8 @@
 //! varied one at a time; then the speed of a 1 h, 200 Hz IMU + 10 Hz GNSS replay (15 and 21
 //! states); then the ANEES of each IMU preset over 50 seeds (`-- nees` runs only that;
 //! `-- nees GRADE… --runs=N` some presets with N seeds; `white` runs the filter without the
-//! receiver-error states, its fixes inflated by a correlation time instead).
+//! receiver-error states, its fixes inflated by a correlation time instead;
+//! `--one-bias-state` without the turn-on bias states; `--nhc-sigma=S` another NHC σ).
 //! `-- drift` runs only the first table, `-- speed` only the speed.
 //! Then imulab (NHC off and on) against KF-GINS on the same exported KF-GINS files (skipped
 //! when the KF-GINS binary is absent; `-- kf-gins` runs only that part).
@@ -456,13 +457,20 @@ fn nees_table() {
     } else {
         imulab::study::noise::gnss_error_from_spec(&scene.gnss[0].spec)
     };
+    // `--one-bias-state`: one bias state per axis for turn-on and in-run bias together.
+    let one_bias_state = args.iter().any(|a| a == "--one-bias-state");
     let sets: [(&str, bool, bool); 3] = [
         ("GNSS only", false, false),
         ("NHC", true, false),
         ("NHC + ZUPT + ZARU", true, true),
     ];
     println!(
-        "\nNEES consistency: {NEES_SCENE}, {runs_per_row} seeds per row, GNSS withheld {NEES_OUTAGE_S:.0} s every {NEES_OUTAGE_EVERY_S:.0} s, 15 states, NEES of the 9 navigation states once a second from the filter start\n"
+        "\nNEES consistency: {NEES_SCENE}, {runs_per_row} seeds per row, GNSS withheld {NEES_OUTAGE_S:.0} s every {NEES_OUTAGE_EVERY_S:.0} s, {}, NEES of the 9 navigation states once a second from the filter start\n",
+        if one_bias_state {
+            "one bias state per axis"
+        } else {
+            "in-run and turn-on bias states"
+        }
     );
     println!("| IMU preset | constraints | ANEES (9 expected) | 95 % band of one epoch | epochs inside / below / above | largest epoch ANEES | position / velocity / attitude ANEES (3 each) | verdict |");
     println!("|---|---|---:|---:|---:|---:|---:|---|");
@@ -476,6 +484,13 @@ fn nees_table() {
                 ..FusionConfig::default()
             };
             config.nhc.enabled = nhc;
+            if let Some(sigma) = args
+                .iter()
+                .find_map(|a| a.strip_prefix("--nhc-sigma=")?.parse::<f64>().ok())
+            {
+                config.nhc.sigma_mps = sigma;
+            }
+            config.turn_on_states = !one_bias_state;
             config.zupt.enabled = still;
             config.zaru.enabled = still;
             if let Some(e) = gnss_error {
@@ -485,6 +500,7 @@ fn nees_table() {
             let runs: Vec<Vec<[f64; 4]>> = (0..runs_per_row as u64)
                 .into_par_iter()
                 .map(|k| match config.filter_states() {
+                    24 => nees_run::<24>(&drive, &spec, &config, seed0 + k),
                     18 => nees_run::<18>(&drive, &spec, &config, seed0 + k),
                     _ => nees_run::<15>(&drive, &spec, &config, seed0 + k),
                 })

@@ -65,6 +65,14 @@ pub struct ImuModel {
     /// Initial 1σ of the accelerometer bias, m/s²; absent: `accel_bias.sigma`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accel_bias_initial_sigma: Option<f64>,
+    /// Stationary 1σ of the in-run gyro bias alone, rad/s (e.g. a flicker bias's spread over
+    /// its band, above the Allan-peak GM's σ); absent: `gyro_bias.sigma`. Used with
+    /// `turn_on_states`, where the rest of the initial σ is the turn-on bias.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gyro_bias_in_run_sigma: Option<f64>,
+    /// Stationary 1σ of the in-run accelerometer bias alone, m/s²; absent: `accel_bias.sigma`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accel_bias_in_run_sigma: Option<f64>,
     /// Gyro rate random walk (Allan K), rad/s/√s: white noise on the bias besides the
     /// Gauss-Markov driving noise.
     pub gyro_rrw_rad_per_s_sqrt_s: f64,
@@ -92,20 +100,65 @@ impl ImuModel {
     /// follows: the in-run bias with that axis's g-sensitivity part, see
     /// [`bias_state_process`].
     pub fn gyro_bias_state(&self, axis: usize) -> GaussMarkov {
-        let in_run = GaussMarkov {
-            sigma: self
-                .gyro_bias
-                .sigma
-                .hypot(self.gyro_bias_g_sensitivity_sigma[axis]),
-            tau_s: self.gyro_bias.tau_s,
-        };
-        bias_state_process(&in_run, self.gyro_bias_sigma0())
+        bias_state_process(&self.gyro_bias_in_run(axis), self.gyro_bias_sigma0())
     }
 
     /// The process the filter's accelerometer bias state follows, see
     /// [`bias_state_process`].
     pub fn accel_bias_state(&self) -> GaussMarkov {
         bias_state_process(&self.accel_bias, self.accel_bias_sigma0())
+    }
+
+    /// The in-run gyro bias GM of body axis `axis` (with its g-sensitivity part).
+    fn gyro_bias_in_run(&self, axis: usize) -> GaussMarkov {
+        GaussMarkov {
+            sigma: self
+                .gyro_bias
+                .sigma
+                .hypot(self.gyro_bias_g_sensitivity_sigma[axis]),
+            tau_s: self.gyro_bias.tau_s,
+        }
+    }
+
+    /// The process of the gyro bias state of body axis `axis` when the turn-on bias has
+    /// states of its own ([`FusionConfig::turn_on_states`]): the in-run GM's driving noise
+    /// with the in-run σ (`gyro_bias_in_run_sigma`, with the g-sensitivity part) as its
+    /// stationary σ, see [`bias_state_process`].
+    pub fn gyro_in_run_state(&self, axis: usize) -> GaussMarkov {
+        let sigma = self
+            .gyro_bias_in_run_sigma
+            .unwrap_or(self.gyro_bias.sigma)
+            .hypot(self.gyro_bias_g_sensitivity_sigma[axis]);
+        bias_state_process(&self.gyro_bias_in_run(axis), sigma)
+    }
+
+    /// The accelerometer's counterpart of [`ImuModel::gyro_in_run_state`].
+    pub fn accel_in_run_state(&self) -> GaussMarkov {
+        let sigma = self
+            .accel_bias_in_run_sigma
+            .unwrap_or(self.accel_bias.sigma);
+        bias_state_process(&self.accel_bias, sigma)
+    }
+
+    /// 1σ of the gyro turn-on bias of body axis `axis`: the part of the initial σ the in-run
+    /// state does not hold, √(σ0² − σ²) (0 when it holds it all).
+    pub fn gyro_turn_on_sigma(&self, axis: usize) -> f64 {
+        excess_sigma(self.gyro_bias_sigma0(), self.gyro_in_run_state(axis).sigma)
+    }
+
+    /// 1σ of the accelerometer turn-on bias, as [`ImuModel::gyro_turn_on_sigma`].
+    pub fn accel_turn_on_sigma(&self) -> f64 {
+        excess_sigma(self.accel_bias_sigma0(), self.accel_in_run_state().sigma)
+    }
+}
+
+/// √(total² − part²), 0 when the part is the larger (NaN-safe: a NaN total gives 0).
+fn excess_sigma(total: f64, part: f64) -> f64 {
+    let d = total * total - part * part;
+    if d > 0.0 {
+        d.sqrt()
+    } else {
+        0.0
     }
 }
 
@@ -167,6 +220,8 @@ impl Default for ImuModel {
             },
             gyro_bias_initial_sigma: None,
             accel_bias_initial_sigma: None,
+            gyro_bias_in_run_sigma: None,
+            accel_bias_in_run_sigma: None,
             gyro_rrw_rad_per_s_sqrt_s: 0.0,
             accel_rrw_mps2_per_sqrt_s: 0.0,
             gyro_bias_g_sensitivity_sigma: [0.0; 3],
@@ -466,6 +521,13 @@ impl Default for InitialSigma {
 pub struct FusionConfig {
     /// 15 states (position, velocity, attitude, gyro and accel bias) or 21 (plus scale factors).
     pub states: usize,
+    /// The turn-on bias of each gyro and accelerometer axis as a random-constant state of its
+    /// own (6 states more), beside the in-run bias state. With one state per axis, that state
+    /// carries both: it keeps the initial σ as its stationary σ, so once the bias is estimated
+    /// its σ grows back towards the whole turn-on σ wherever it is not observed (a long
+    /// straight, an outage), while the true turn-on bias stays constant; the filter is then
+    /// cautious. With these states only the in-run part wanders.
+    pub turn_on_states: bool,
     pub mechanisation: MechanisationOptions,
     pub imu: ImuModel,
     pub gnss: GnssOptions,
@@ -483,15 +545,11 @@ pub struct FusionConfig {
 }
 
 impl FusionConfig {
-    /// States of the filter: `states` (15 or 21) plus 3 for the GNSS position error when
-    /// it is modelled ([`GnssPositionError`]): 15, 18, 21 or 24.
+    /// States of the filter: `states` (15 or 21), plus 6 for the turn-on biases
+    /// ([`FusionConfig::turn_on_states`]), plus 3 for the GNSS position error when it is
+    /// modelled ([`GnssPositionError`]): 15 to 30 (see [`crate::models::Layout`]).
     pub fn filter_states(&self) -> usize {
-        self.states
-            + if self.gnss.position_error.enabled() {
-                3
-            } else {
-                0
-            }
+        crate::models::Layout::of(self).states
     }
 }
 
@@ -499,6 +557,7 @@ impl Default for FusionConfig {
     fn default() -> Self {
         Self {
             states: 15,
+            turn_on_states: false,
             mechanisation: MechanisationOptions::default(),
             imu: ImuModel::default(),
             gnss: GnssOptions::default(),
@@ -612,6 +671,8 @@ impl FusionConfig {
         for (key, v) in [
             ("imu.gyro_bias_initial_sigma", imu.gyro_bias_initial_sigma),
             ("imu.accel_bias_initial_sigma", imu.accel_bias_initial_sigma),
+            ("imu.gyro_bias_in_run_sigma", imu.gyro_bias_in_run_sigma),
+            ("imu.accel_bias_in_run_sigma", imu.accel_bias_in_run_sigma),
         ] {
             if let Some(v) = v {
                 check(key, v, v >= 0.0, nonneg)?;
@@ -904,5 +965,17 @@ mod tests {
         assert_eq!(sensitive.gyro_bias_state(1), model.gyro_bias_state(1));
         assert_eq!(sensitive.gyro_bias_state(2), model.gyro_bias_state(2));
         assert_eq!(model.accel_bias_state(), model.accel_bias);
+        // With the turn-on bias as states of its own, the bias state keeps the in-run driving
+        // noise within the in-run σ, and the turn-on state holds the rest of the initial σ.
+        let split = ImuModel {
+            gyro_bias_in_run_sigma: Some(2.0 * in_run.sigma),
+            ..model
+        };
+        let s = split.gyro_in_run_state(2);
+        assert!((s.sigma - 2.0 * in_run.sigma).abs() < 1e-12);
+        assert!((s.driving_psd() / in_run.driving_psd() - 1.0).abs() < 1e-12);
+        assert!((split.gyro_turn_on_sigma(2).hypot(s.sigma) - 5.0).abs() < 1e-12);
+        assert_eq!(model.gyro_in_run_state(2), in_run);
+        assert_eq!(sensitive.gyro_turn_on_sigma(1), model.gyro_turn_on_sigma(1));
     }
 }

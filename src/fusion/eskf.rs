@@ -4,14 +4,12 @@
 //! covariance is never left non-finite), closed-loop feedback of the estimated errors into the
 //! navigation state and sensor-error estimates, and the records an RTS smoother needs.
 //!
-//! `N` is 15 or 21 (see [`crate::models`] for the state layout); all matrices are
+//! `N` is 15 to 30 (see [`crate::models::Layout`] for the state layout); all matrices are
 //! fixed-size, so the filter loop does not allocate (smoother records aside).
 
 use crate::config::FusionConfig;
 use crate::mechanisation::{ImuInput, Mechaniser, NavState};
-use crate::models::{
-    self, gnss_error_index, has_scale_factors, Measurement, ATT, BA, BG, POS, SA, SG, VEL,
-};
+use crate::models::{self, Layout, Measurement, ATT, BA, BG, POS, SA, SG, VEL};
 use nalgebra::{Cholesky, SMatrix, SVector, UnitQuaternion, Vector3};
 
 /// Estimated sensor errors (subtracted from the raw IMU data before mechanisation).
@@ -153,6 +151,11 @@ pub struct Ins<const N: usize> {
     pub p: SMatrix<f64, N, N>,
     pub stats: FilterStats,
     config: FusionConfig,
+    layout: Layout,
+    /// The in-run parts of the gyro and accelerometer bias estimates when the turn-on biases
+    /// have states of their own: they decay as their process does, within the sums in
+    /// `sensors`.
+    in_run_bias: (Vector3<f64>, Vector3<f64>),
     mech: Mechaniser,
     q_psd: SVector<f64, N>,
     /// Accumulated over the current covariance interval: time, ∫ω dt, ∫f dt.
@@ -181,18 +184,35 @@ struct SmootherLog<const N: usize> {
 pub fn initial_covariance<const N: usize>(config: &FusionConfig) -> SMatrix<f64, N, N> {
     let i = &config.initial;
     let imu = &config.imu;
+    let layout = Layout::of(config);
     let mut d = SVector::<f64, N>::zeros();
     for k in 0..3 {
         d[POS + k] = i.position_m.powi(2);
         d[VEL + k] = i.velocity_mps.powi(2);
-        d[BG + k] = imu.gyro_bias_sigma0().powi(2);
-        d[BA + k] = imu.accel_bias_sigma0().powi(2);
-        if has_scale_factors(N) {
+        if let Some(t) = layout.turn_on {
+            // The in-run states start at their process's σ, the turn-on ones at the rest.
+            d[BG + k] = imu
+                .gyro_in_run_state(k)
+                .sigma
+                .min(imu.gyro_bias_sigma0())
+                .powi(2);
+            d[BA + k] = imu
+                .accel_in_run_state()
+                .sigma
+                .min(imu.accel_bias_sigma0())
+                .powi(2);
+            d[t + k] = imu.gyro_turn_on_sigma(k).powi(2);
+            d[t + 3 + k] = imu.accel_turn_on_sigma().powi(2);
+        } else {
+            d[BG + k] = imu.gyro_bias_sigma0().powi(2);
+            d[BA + k] = imu.accel_bias_sigma0().powi(2);
+        }
+        if layout.scale_factors {
             d[SG + k] = imu.gyro_scale.sigma.powi(2);
             d[SA + k] = imu.accel_scale.sigma.powi(2);
         }
     }
-    if let Some(ge) = gnss_error_index(N) {
+    if let Some(ge) = layout.gnss_error {
         for (k, s) in config.gnss.position_error.sigma_ned().iter().enumerate() {
             d[ge + k] = s * s;
         }
@@ -206,15 +226,18 @@ pub fn initial_covariance<const N: usize>(config: &FusionConfig) -> SMatrix<f64,
 
 impl<const N: usize> Ins<N> {
     /// Starts the filter at `nav` with the configured initial uncertainty. `N` must match
-    /// `config.filter_states()` (15, 18, 21 or 24).
+    /// `config.filter_states()` (15 to 30, [`Layout`]).
     pub fn new(nav: NavState, config: &FusionConfig, smoothing: bool) -> Self {
-        debug_assert!(matches!(N, 15 | 18 | 21 | 24));
+        let layout = Layout::of(config);
+        debug_assert_eq!(N, layout.states);
         Self {
             nav,
             sensors: SensorErrors::default(),
             p: initial_covariance::<N>(config),
             stats: FilterStats::default(),
             config: *config,
+            layout,
+            in_run_bias: (Vector3::zeros(), Vector3::zeros()),
             mech: Mechaniser::new(config.mechanisation),
             q_psd: models::process_noise_psd::<N>(config),
             acc_dt: 0.0,
@@ -233,6 +256,39 @@ impl<const N: usize> Ins<N> {
 
     pub fn config(&self) -> &FusionConfig {
         &self.config
+    }
+
+    /// Where each group of states sits.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// Sets the gyro bias estimate and its covariance from a measurement of the whole bias
+    /// (the static alignment): `sigma` is each axis's 1σ after it. With turn-on states, the
+    /// in-run and turn-on states are updated jointly, as a Kalman update of their sum would.
+    pub fn set_gyro_bias(&mut self, bias: Vector3<f64>, sigma: Vector3<f64>) {
+        self.sensors.gyro_bias = bias;
+        self.in_run_bias.0 = Vector3::zeros();
+        for (i, s) in sigma.iter().enumerate() {
+            let post = s.powi(2).max(1e-24);
+            let Some(t) = self.layout.turn_on else {
+                self.p[(BG + i, BG + i)] = post;
+                continue;
+            };
+            let (pg, pc) = (self.p[(BG + i, BG + i)], self.p[(t + i, t + i)]);
+            let prior = pg + pc;
+            if post >= prior {
+                continue;
+            }
+            // The measurement variance r that takes the sum from `prior` to `post`, and the
+            // update of [g, c] by z = g + c + noise: P − P Hᵀ (H P Hᵀ + r)⁻¹ H P, H = [1 1].
+            let s_inv = (prior - post) / (prior * prior);
+            self.in_run_bias.0[i] = bias[i] * pg / prior;
+            self.p[(BG + i, BG + i)] = pg - pg * pg * s_inv;
+            self.p[(t + i, t + i)] = pc - pc * pc * s_inv;
+            self.p[(BG + i, t + i)] = -pg * pc * s_inv;
+            self.p[(t + i, BG + i)] = -pg * pc * s_inv;
+        }
     }
 
     /// Bias-corrected angular rate of the latest IMU step, rad/s.
@@ -304,7 +360,19 @@ impl<const N: usize> Ins<N> {
             return;
         }
         let dt = self.acc_dt;
-        if gnss_error_index(N).is_some() {
+        if self.layout.turn_on.is_some() {
+            // The in-run estimates follow their process's mean, as the error states do.
+            let imu = &self.config.imu;
+            let accel = (-dt * imu.accel_in_run_state().decay()).exp();
+            for i in 0..3 {
+                let gyro = (-dt * imu.gyro_in_run_state(i).decay()).exp();
+                self.sensors.gyro_bias[i] -= self.in_run_bias.0[i] * (1.0 - gyro);
+                self.in_run_bias.0[i] *= gyro;
+                self.sensors.accel_bias[i] -= self.in_run_bias.1[i] * (1.0 - accel);
+                self.in_run_bias.1[i] *= accel;
+            }
+        }
+        if self.layout.gnss_error.is_some() {
             // The estimate follows the process's mean, so that F's decay holds for the
             // error state too.
             self.sensors.gnss_position_error *= (-dt / self.config.gnss.position_error.tau_s).exp();
@@ -347,6 +415,9 @@ impl<const N: usize> Ins<N> {
     /// Joseph-form update with measurement `m`; `gate` > 0 rejects NIS above it.
     pub fn update<const M: usize>(&mut self, m: &Measurement<M, N>, gate: f64) -> UpdateOutcome {
         self.propagate_covariance();
+        let mut h = m.h;
+        self.layout.share_bias_columns(&mut h);
+        let m = &Measurement { z: m.z, h, r: m.r };
         let ht = m.h.transpose();
         let s = m.h * self.p * ht + m.r;
         let s = 0.5 * (s + s.transpose());
@@ -376,10 +447,14 @@ impl<const N: usize> Ins<N> {
             self.stats.pd_events += 1;
             return UpdateOutcome::Rejected;
         }
-        let (nav, sensors) = corrected(&self.nav, &self.sensors, &dx);
+        let (nav, sensors) = corrected(&self.layout, &self.nav, &self.sensors, &dx);
         if !is_sane(&nav) {
             self.stats.divergence_resets += 1;
             return UpdateOutcome::Rejected;
+        }
+        if self.layout.turn_on.is_some() {
+            self.in_run_bias.0 -= dx.fixed_rows::<3>(BG);
+            self.in_run_bias.1 -= dx.fixed_rows::<3>(BA);
         }
         self.p = p;
         self.nav = nav;
@@ -415,8 +490,9 @@ impl<const N: usize> Ins<N> {
 }
 
 /// The nominal state and sensor errors after removing the estimated error `dx`
-/// (estimate minus truth).
+/// (estimate minus truth) of a filter laid out as `layout`.
 pub fn corrected<const N: usize>(
+    layout: &Layout,
     nav: &NavState,
     sensors: &SensorErrors,
     dx: &SVector<f64, N>,
@@ -430,12 +506,71 @@ pub fn corrected<const N: usize>(
     nav.quat_nb = UnitQuaternion::from_scaled_axis(v3(ATT)) * nav.quat_nb;
     s.gyro_bias -= v3(BG);
     s.accel_bias -= v3(BA);
-    if has_scale_factors(N) {
+    if let Some(t) = layout.turn_on {
+        s.gyro_bias -= v3(t);
+        s.accel_bias -= v3(t + 3);
+    }
+    if layout.scale_factors {
         s.gyro_scale -= v3(SG);
         s.accel_scale -= v3(SA);
     }
-    if let Some(ge) = gnss_error_index(N) {
+    if let Some(ge) = layout.gnss_error {
         s.gnss_position_error -= v3(ge);
     }
     (nav, s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A measurement of the whole gyro bias leaves the sum of the in-run and turn-on states
+    /// with the measured σ, shares the rest as a Kalman update of the sum would, and
+    /// correlates the two negatively.
+    #[test]
+    fn the_aligned_gyro_bias_updates_both_parts_of_the_bias() {
+        let mut config = FusionConfig {
+            turn_on_states: true,
+            ..FusionConfig::default()
+        };
+        config.imu.gyro_bias_initial_sigma = Some(5.0 * config.imu.gyro_bias.sigma);
+        let nav = NavState {
+            t_s: 0.0,
+            lat_rad: 0.8,
+            lon_rad: 0.2,
+            height_m: 100.0,
+            vel_ned: Vector3::zeros(),
+            quat_nb: UnitQuaternion::identity(),
+        };
+        let mut ins = Ins::<21>::new(nav, &config, false);
+        let t = ins.layout().turn_on.expect("turn-on states");
+        let sigma = Vector3::repeat(0.5 * config.imu.gyro_bias.sigma);
+        let bias = Vector3::new(1e-4, -2e-4, 3e-4);
+        ins.set_gyro_bias(bias, sigma);
+        assert_eq!(ins.sensors.gyro_bias, bias);
+        for i in 0..3 {
+            let (g, c, gc) = (
+                ins.p[(BG + i, BG + i)],
+                ins.p[(t + i, t + i)],
+                ins.p[(BG + i, t + i)],
+            );
+            let sum = g + c + 2.0 * gc;
+            assert!(
+                (sum - sigma[i].powi(2)).abs() < 1e-9 * sum,
+                "{sum} {}",
+                sigma[i]
+            );
+            assert!(gc < 0.0 && gc == ins.p[(t + i, BG + i)]);
+            assert!(g < config.imu.gyro_bias.sigma.powi(2));
+        }
+        assert!(Cholesky::new(ins.p).is_some());
+        // One state per axis: the state takes the σ as it is.
+        let one = FusionConfig {
+            turn_on_states: false,
+            ..config
+        };
+        let mut ins = Ins::<15>::new(nav, &one, false);
+        ins.set_gyro_bias(bias, sigma);
+        assert!((ins.p[(BG, BG)] - sigma.x.powi(2)).abs() < 1e-30);
+    }
 }

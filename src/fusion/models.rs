@@ -1,12 +1,13 @@
 //! Process and measurement models of the loosely coupled error-state filter.
 //!
-//! Error state (estimate minus truth), N = 15 or 21:
+//! Error state (estimate minus truth), N = 15 to 30 ([`Layout`]):
 //! `δr` NED position error (m) 0..3, `δv` NED velocity error 3..6, `φ` attitude error 6..9
 //! defined by C_b^n(est) = (I − [φ×]) C_b^n(true), gyro bias error 9..12 (rad/s), accel bias
 //! error 12..15 (m/s²), and with 21 states gyro 15..18 and accel 18..21 scale-factor errors.
-//! With the GNSS position error modelled (`config::GnssPositionError`) three more states
-//! follow, the last three (15..18 of 18, 21..24 of 24): the error of the receiver's
-//! correlated position-error estimate (estimate minus truth, NED, m).
+//! With `turn_on_states` six random-constant turn-on bias errors follow (gyro, then accel):
+//! the sensor's bias is the bias state plus its turn-on state. With the GNSS position error
+//! modelled (`config::GnssPositionError`) three more states come last: the error of the
+//! receiver's correlated position-error estimate (estimate minus truth, NED, m).
 //! The sensors are modelled as ω̃ = (I + diag s_g) ω + b_g + noise, f̃ likewise.
 //!
 //! The continuous error dynamics are the usual ψ-angle model in NED (Titterton & Weston,
@@ -26,14 +27,56 @@ pub const BA: usize = 12;
 pub const SG: usize = 15;
 pub const SA: usize = 18;
 
-/// Whether a filter of `n` states carries the scale factors (21 or 24 states).
-pub const fn has_scale_factors(n: usize) -> bool {
-    n >= 21
+/// Which optional groups of states a filter carries, and where. After the 15 base states
+/// come the scale factors (6, at [`SG`] and [`SA`]), then the turn-on biases (6: gyro, then
+/// accelerometer), then the GNSS position error (3, always last). Each of the first two
+/// groups adds 6 states and the last 3, so the count alone tells only whether the GNSS
+/// states are there ([`gnss_error_index`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layout {
+    pub states: usize,
+    pub scale_factors: bool,
+    /// First of the six turn-on bias states (gyro x, y, z, then accelerometer x, y, z).
+    pub turn_on: Option<usize>,
+    pub gnss_error: Option<usize>,
 }
 
-/// First of the three GNSS position-error states of a filter of `n` states (18 or 24).
+impl Layout {
+    pub fn of(config: &FusionConfig) -> Self {
+        let scale_factors = config.states == 21;
+        let mut n = if scale_factors { 21 } else { 15 };
+        let turn_on = config.turn_on_states.then_some(n);
+        if turn_on.is_some() {
+            n += 6;
+        }
+        let gnss_error = config.gnss.position_error.enabled().then_some(n);
+        if gnss_error.is_some() {
+            n += 3;
+        }
+        Self {
+            states: n,
+            scale_factors,
+            turn_on,
+            gnss_error,
+        }
+    }
+
+    /// Gives the turn-on states the columns of the in-run bias states in `h`: the sensor's
+    /// bias is their sum, so every model sees the two alike.
+    pub fn share_bias_columns<const R: usize, const N: usize>(&self, h: &mut SMatrix<f64, R, N>) {
+        if let Some(t) = self.turn_on {
+            let gyro = h.fixed_columns::<3>(BG).into_owned();
+            let accel = h.fixed_columns::<3>(BA).into_owned();
+            h.fixed_columns_mut::<3>(t).copy_from(&gyro);
+            h.fixed_columns_mut::<3>(t + 3).copy_from(&accel);
+        }
+    }
+}
+
+/// First of the three GNSS position-error states of a filter of `n` states: they are there
+/// exactly when `n` is a multiple of 6 (15 base states and groups of 6, see [`Layout`]).
 pub const fn gnss_error_index(n: usize) -> Option<usize> {
-    if n == 18 || n == 24 {
+    if n.is_multiple_of(6) {
         Some(n - 3)
     } else {
         None
@@ -115,7 +158,17 @@ pub fn dynamics_matrix<const N: usize>(
             f[(ge + i, ge + i)] = -decay;
         }
     }
-    if has_scale_factors(N) {
+    let layout = Layout::of(config);
+    if let Some(t) = layout.turn_on {
+        // Random constants: their rows stay zero; they enter as the in-run biases do.
+        f.fixed_view_mut::<3, 3>(ATT, t).copy_from(&c_bn);
+        f.fixed_view_mut::<3, 3>(VEL, t + 3).copy_from(&(-c_bn));
+        for i in 0..3 {
+            f[(BG + i, BG + i)] = -imu.gyro_in_run_state(i).decay();
+            f[(BA + i, BA + i)] = -imu.accel_in_run_state().decay();
+        }
+    }
+    if layout.scale_factors {
         f.fixed_view_mut::<3, 3>(ATT, SG)
             .copy_from(&(c_bn * Matrix3::from_diagonal(gyro_b)));
         f.fixed_view_mut::<3, 3>(VEL, SA)
@@ -132,13 +185,19 @@ pub fn dynamics_matrix<const N: usize>(
 /// velocity (VRW) and attitude (ARW) and the Gauss-Markov driving noises.
 pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, N> {
     let imu = &config.imu;
+    let layout = Layout::of(config);
     let mut q = SVector::<f64, N>::zeros();
     for i in 0..3 {
         q[VEL + i] = imu.vrw_mps_per_sqrt_s.powi(2);
         q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
-        q[BG + i] = imu.gyro_bias_state(i).driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
-        q[BA + i] = imu.accel_bias_state().driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
-        if has_scale_factors(N) {
+        let (gyro, accel) = if layout.turn_on.is_some() {
+            (imu.gyro_in_run_state(i), imu.accel_in_run_state())
+        } else {
+            (imu.gyro_bias_state(i), imu.accel_bias_state())
+        };
+        q[BG + i] = gyro.driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
+        q[BA + i] = accel.driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
+        if layout.scale_factors {
             q[SG + i] = imu.gyro_scale.driving_psd();
             q[SA + i] = imu.accel_scale.driving_psd();
         }
@@ -487,7 +546,28 @@ mod tests {
         assert_eq!(gnss_error_index(18), Some(15));
         assert_eq!(gnss_error_index(24), Some(21));
         assert_eq!(gnss_error_index(21), None);
-        assert!(!has_scale_factors(18) && has_scale_factors(24));
+        assert_eq!(gnss_error_index(30), Some(27));
+        // Every combination of the optional groups: the count and the index agree.
+        for states in [15, 21] {
+            for turn_on_states in [false, true] {
+                for gnss in [false, true] {
+                    let mut c = FusionConfig {
+                        states,
+                        turn_on_states,
+                        ..FusionConfig::default()
+                    };
+                    if gnss {
+                        c.gnss.position_error.horizontal_m = 2.0;
+                        c.gnss.position_error.vertical_m = 3.0;
+                        c.gnss.position_error.tau_s = 600.0;
+                    }
+                    let l = Layout::of(&c);
+                    assert_eq!(gnss_error_index(l.states), l.gnss_error, "{l:?}");
+                    assert_eq!(l.scale_factors, states == 21);
+                    assert_eq!(l.turn_on.is_some(), turn_on_states);
+                }
+            }
+        }
         // Without the states the estimate is not added (15 states have nowhere to put it).
         let m15 = gnss_position::<15>(&n, &lever, &Vector3::zeros(), 0.7, 0.1, 100.0, &sigma);
         assert!((m15.z + e0 - m0.z).norm() < 1e-9);

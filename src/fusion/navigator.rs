@@ -9,7 +9,7 @@ use crate::config::FusionConfig;
 use crate::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
 use crate::mechanisation::{ImuInput, NavState};
 use crate::metrics;
-use crate::models::{self, has_scale_factors, ATT, BA, BG, SA, SG};
+use crate::models::{self, Layout, ATT, BA, BG, SA, SG};
 use crate::smoother;
 use imulab_earth as earth;
 use nalgebra::{SMatrix, Vector3};
@@ -147,21 +147,28 @@ pub struct Navigator<const N: usize> {
 }
 
 fn solution<const N: usize>(ins: &Ins<N>) -> NavSolution {
-    solution_from(&ins.nav, &ins.sensors, &ins.p)
+    solution_from(ins.layout(), &ins.nav, &ins.sensors, &ins.p)
 }
 
 fn solution_from<const N: usize>(
+    layout: &Layout,
     nav: &NavState,
     sensors: &SensorErrors,
     p: &SMatrix<f64, N, N>,
 ) -> NavSolution {
-    let sigma = |i: usize| {
-        if i < SG || has_scale_factors(N) {
-            Vector3::new(
-                p[(i, i)].sqrt(),
-                p[(i + 1, i + 1)].sqrt(),
-                p[(i + 2, i + 2)].sqrt(),
-            )
+    // 1σ of the sum of state `i + k` and, with turn-on states, its turn-on partner `j + k`.
+    let sigma = |i: usize, partner: Option<usize>| {
+        Vector3::from_fn(|k, _| {
+            let v = p[(i + k, i + k)];
+            match partner {
+                Some(j) => (v + p[(j + k, j + k)] + 2.0 * p[(i + k, j + k)]).sqrt(),
+                None => v.sqrt(),
+            }
+        })
+    };
+    let scale = |i: usize| {
+        if layout.scale_factors {
+            sigma(i, None)
         } else {
             Vector3::repeat(f64::NAN)
         }
@@ -170,7 +177,12 @@ fn solution_from<const N: usize>(
         nav: *nav,
         sensors: *sensors,
         cov_nav: p.fixed_view::<9, 9>(0, 0).into_owned(),
-        sigma_sensors: [sigma(BG), sigma(BA), sigma(SG), sigma(SA)],
+        sigma_sensors: [
+            sigma(BG, layout.turn_on),
+            sigma(BA, layout.turn_on.map(|t| t + 3)),
+            scale(SG),
+            scale(SA),
+        ],
     }
 }
 
@@ -564,14 +576,18 @@ impl<const N: usize> Navigator<N> {
         if let (Some(f_b), Some(ins)) = (self.leveller.mean_specific_force(), self.ins.as_mut()) {
             // The levelled tilt error is the accelerometer bias over g (fully correlated).
             if let Some(j) = align::levelling_tilt_jacobian(&f_b, &quat_nb) {
-                let p_ba = ins.p.fixed_view::<3, 3>(BA, BA).into_owned();
-                let cross = j * p_ba;
-                let tilt = ins.p.fixed_view::<2, 2>(ATT, ATT).into_owned() + cross * j.transpose();
+                // The bias is the in-run state plus, where it has states, the turn-on one.
+                let turn_on = ins.layout().turn_on.map(|t| t + 3);
+                let mut tilt = ins.p.fixed_view::<2, 2>(ATT, ATT).into_owned();
+                for b in std::iter::once(BA).chain(turn_on) {
+                    let cross = j * ins.p.fixed_view::<3, 3>(b, b);
+                    tilt += cross * j.transpose();
+                    ins.p.fixed_view_mut::<2, 3>(ATT, b).copy_from(&cross);
+                    ins.p
+                        .fixed_view_mut::<3, 2>(b, ATT)
+                        .copy_from(&cross.transpose());
+                }
                 ins.p.fixed_view_mut::<2, 2>(ATT, ATT).copy_from(&tilt);
-                ins.p.fixed_view_mut::<2, 3>(ATT, BA).copy_from(&cross);
-                ins.p
-                    .fixed_view_mut::<3, 2>(BA, ATT)
-                    .copy_from(&cross.transpose());
             }
         }
         if self.leveller.duration_s() >= a.level_s {
@@ -586,10 +602,7 @@ impl<const N: usize> Navigator<N> {
                     imu.arw_rad_per_sqrt_s,
                     imu.gyro_bias_sigma0(),
                 );
-                ins.sensors.gyro_bias = b.bias;
-                for i in 0..3 {
-                    ins.p[(BG + i, BG + i)] = b.sigma[i].powi(2).max(1e-24);
-                }
+                ins.set_gyro_bias(b.bias, b.sigma);
             }
         }
         if let (Some(ge), Some(ins)) = (models::gnss_error_index(N), self.ins.as_mut()) {
@@ -612,11 +625,12 @@ impl<const N: usize> Navigator<N> {
     pub fn finish(mut self) -> ReplayResult {
         if let Some(mut ins) = self.ins.take() {
             let records = ins.finish();
+            let layout = *ins.layout();
             if self.result.filtered.last().map(|s| s.nav.t_s) != Some(ins.nav.t_s) {
                 self.result.filtered.push(solution(&ins));
             }
             if self.options.smooth {
-                let (epochs, skipped) = smoother::smooth(&records);
+                let (epochs, skipped) = smoother::smooth(&layout, &records);
                 self.result.stats.smoother_skipped = skipped;
                 let step = self.config.output_interval_s;
                 let mut next = f64::NEG_INFINITY;
@@ -624,7 +638,7 @@ impl<const N: usize> Navigator<N> {
                     if e.nav.t_s + 1e-9 >= next {
                         self.result
                             .smoothed
-                            .push(solution_from(&e.nav, &e.sensors, &e.p));
+                            .push(solution_from(&layout, &e.nav, &e.sensors, &e.p));
                         next = ((e.nav.t_s + 1e-9) / step).floor() * step + step;
                     }
                 }
@@ -661,6 +675,8 @@ pub fn replay_with_wheel_speed(
     options: ReplayOptions,
 ) -> ReplayResult {
     match config.filter_states() {
+        30 => run::<30>(config, imu, gnss, wheel, options),
+        27 => run::<27>(config, imu, gnss, wheel, options),
         24 => run::<24>(config, imu, gnss, wheel, options),
         21 => run::<21>(config, imu, gnss, wheel, options),
         18 => run::<18>(config, imu, gnss, wheel, options),

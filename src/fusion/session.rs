@@ -236,6 +236,8 @@ pub fn replay_session(
         };
     }
     out.result = match config.filter_states() {
+        30 => stream_with!(30),
+        27 => stream_with!(27),
         24 => stream_with!(24),
         21 => stream_with!(21),
         18 => stream_with!(18),

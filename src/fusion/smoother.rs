@@ -9,6 +9,7 @@
 
 use crate::eskf::{corrected, SensorErrors, SmootherRecord};
 use crate::mechanisation::NavState;
+use crate::models::Layout;
 use nalgebra::{Cholesky, SMatrix, SVector};
 
 /// One smoothed epoch.
@@ -19,9 +20,13 @@ pub struct SmoothedEpoch<const N: usize> {
     pub p: SMatrix<f64, N, N>,
 }
 
-/// Runs the backward pass. Epochs whose predicted covariance cannot be factorised keep their
-/// filtered values (counted in the returned number).
-pub fn smooth<const N: usize>(records: &[SmootherRecord<N>]) -> (Vec<SmoothedEpoch<N>>, usize) {
+/// Runs the backward pass over the records of a filter laid out as `layout`. Epochs whose
+/// predicted covariance cannot be factorised keep their filtered values (counted in the
+/// returned number).
+pub fn smooth<const N: usize>(
+    layout: &Layout,
+    records: &[SmootherRecord<N>],
+) -> (Vec<SmoothedEpoch<N>>, usize) {
     let mut out: Vec<SmoothedEpoch<N>> = Vec::with_capacity(records.len());
     let mut skipped = 0;
     let Some(last) = records.last() else {
@@ -56,7 +61,7 @@ pub fn smooth<const N: usize>(records: &[SmootherRecord<N>]) -> (Vec<SmoothedEpo
                 (SVector::zeros(), rec.p_post)
             }
         };
-        let (nav, sensors) = corrected(&rec.nav, &rec.sensors, &d);
+        let (nav, sensors) = corrected(layout, &rec.nav, &rec.sensors, &d);
         out.push(SmoothedEpoch { nav, sensors, p });
         d_next = d;
         p_next = p;

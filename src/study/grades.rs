@@ -762,6 +762,8 @@ fn one_run(
         every: check_every,
     };
     Ok(match config.filter_states() {
+        30 => replay_run::<30>(imu, gnss, truth, &config, starts, &checks),
+        27 => replay_run::<27>(imu, gnss, truth, &config, starts, &checks),
         24 => replay_run::<24>(imu, gnss, truth, &config, starts, &checks),
         21 => replay_run::<21>(imu, gnss, truth, &config, starts, &checks),
         18 => replay_run::<18>(imu, gnss, truth, &config, starts, &checks),

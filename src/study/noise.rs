@@ -18,7 +18,10 @@
 //!   2.5·F for 1–5000 s); for an Allan fit, the GM σ (an Allan curve says nothing about the
 //!   turn-on bias). The filter keeps this σ as its bias state's stationary σ and keeps the
 //!   GM's driving noise (`config::bias_state_process`): the turn-on bias and the flicker's
-//!   slow part are constants over a drive, which a GM of τ_c ≈ 37 s would forget.
+//!   slow part are constants over a drive, which a GM of τ_c ≈ 37 s would forget. σ_in-run
+//!   is kept too (`*_bias_in_run_sigma`): with the turn-on bias as states of its own
+//!   (`turn_on_states`), the bias state wanders within it and the turn-on state holds the
+//!   rest of the initial σ.
 //! - scale factors (21 states): the preset's scale-factor error as a random constant (100 ppm
 //!   when the preset gives none); an Allan fit does not identify them, so they fall back.
 //! - gyro g-sensitivity G (a preset's `g_sensitivity_dph_per_g`), which the 15/21-state
@@ -90,7 +93,8 @@ pub fn flicker_band_sigma(floor: f64, band_s: [f64; 2]) -> f64 {
     floor * (ratio.ln() / (2.0 * std::f64::consts::LN_2)).sqrt()
 }
 
-fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64) {
+/// The in-run bias GM, the stationary σ of the in-run bias, the initial σ and the random walk.
+fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64, f64) {
     let floor = max3(t.instability_floor);
     let band = t.bias_instability_band_s;
     let gm = if floor > 0.0 {
@@ -105,7 +109,7 @@ fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64) {
     // The in-run bias's spread: the GM's σ, or the flicker's over its band when larger.
     let in_run = gm.sigma.max(flicker_band_sigma(floor, band));
     let initial = (in_run.powi(2) + max3(t.turn_on_sigma).powi(2) + max3(t.bias).powi(2)).sqrt();
-    (gm, initial, max3(t.random_walk))
+    (gm, in_run, initial, max3(t.random_walk))
 }
 
 fn scale(t: &TriadErrors) -> GaussMarkov {
@@ -126,8 +130,8 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
         .accel
         .to_si()
         .map_err(|e| anyhow::anyhow!("{origin}: accel: {e}"))?;
-    let (mut gyro_bias, mut gyro_b0, gyro_rrw) = triad_bias(&gyro);
-    let (accel_bias, accel_b0, accel_rrw) = triad_bias(&accel);
+    let (mut gyro_bias, gyro_in_run, mut gyro_b0, gyro_rrw) = triad_bias(&gyro);
+    let (accel_bias, accel_in_run, accel_b0, accel_rrw) = triad_bias(&accel);
     let mut gyro_bias_g_sensitivity_sigma = [0.0; 3];
     if let Some(g) = spec.gyro.g_sensitivity_si() {
         // Largest bias one axis gets per m/s² of specific force in any direction.
@@ -164,6 +168,8 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
             accel_scale: scale(&accel),
             gyro_bias_initial_sigma: Some(gyro_b0),
             accel_bias_initial_sigma: Some(accel_b0),
+            gyro_bias_in_run_sigma: Some(gyro_in_run),
+            accel_bias_in_run_sigma: Some(accel_in_run),
             gyro_rrw_rad_per_s_sqrt_s: gyro_rrw,
             accel_rrw_mps2_per_sqrt_s: accel_rrw,
             gyro_bias_g_sensitivity_sigma,

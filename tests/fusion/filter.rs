@@ -318,3 +318,82 @@ fn an_output_at_a_fix_epoch_carries_the_fix_update() {
     // filter's accuracy with GNSS (0.3 m receiver σ here).
     assert!(s.horizontal_gnss.rms < 0.5, "{:?}", s.horizontal_gnss);
 }
+
+/// The turn-on bias states change nothing where the turn-on σ is zero: the same trajectory
+/// as one state per axis, to rounding (the sensor's bias is the sum of the two states).
+#[test]
+fn turn_on_states_without_a_turn_on_bias_replay_as_one_state() {
+    let d = data(4, false);
+    let mut one = config(15);
+    // Random constants, so that neither filter's estimate decays.
+    one.imu.gyro_bias.tau_s = 0.0;
+    one.imu.accel_bias.tau_s = 0.0;
+    let two = FusionConfig {
+        turn_on_states: true,
+        ..one
+    };
+    assert_eq!(two.filter_states(), 21);
+    let (a, _) = run(&d, &one, vec![(300.0, 60.0)], true);
+    let (b, _) = run(&d, &two, vec![(300.0, 60.0)], true);
+    assert_eq!(a.filtered.len(), b.filtered.len());
+    let worst = |x: &[imulab::fusion::navigator::NavSolution],
+                 y: &[imulab::fusion::navigator::NavSolution]| {
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| {
+                let (n, e, dn) = (
+                    (p.nav.lat_rad - q.nav.lat_rad) * 6.4e6,
+                    (p.nav.lon_rad - q.nav.lon_rad) * 6.4e6,
+                    p.nav.height_m - q.nav.height_m,
+                );
+                (n * n + e * e + dn * dn).sqrt()
+                    + (p.sensors.gyro_bias - q.sensors.gyro_bias).norm() * 1e3
+                    + (p.sigma_sensors[0] - q.sigma_sensors[0]).norm() * 1e3
+            })
+            .fold(0.0, f64::max)
+    };
+    let (filtered, smoothed) = (
+        worst(&a.filtered, &b.filtered),
+        worst(&a.smoothed, &b.smoothed),
+    );
+    println!("largest difference: filtered {filtered:.2e}, smoothed {smoothed:.2e}");
+    assert!(
+        filtered < 1e-6 && smoothed < 1e-6,
+        "{filtered:e} {smoothed:e}"
+    );
+}
+
+/// With a turn-on bias far above the in-run one, the turn-on states estimate the sum: every
+/// bias inside 3σ of the total, the z gyro and vertical accelerometer observed, NEES sane.
+#[test]
+fn turn_on_states_estimate_the_whole_bias_inside_its_sigma() {
+    let seed = 5;
+    let d = data(seed, false);
+    let truth_errors = mems_errors(seed);
+    let mut c = config(15);
+    c.turn_on_states = true;
+    // The test IMU's biases are constant: a small in-run part, the rest turn-on.
+    c.imu.gyro_bias_initial_sigma = Some(c.imu.gyro_bias.sigma);
+    c.imu.accel_bias_initial_sigma = Some(c.imu.accel_bias.sigma);
+    c.imu.gyro_bias.sigma *= 0.1;
+    c.imu.accel_bias.sigma *= 0.1;
+    let (r, s) = run(&d, &c, vec![], false);
+    println!("{s:?}");
+    assert_eq!(r.stats.filter.pd_events, 0);
+    assert!(s.inside_3sigma > 0.97, "inside 3σ {}", s.inside_3sigma);
+    assert!(
+        s.nees_mean > 2.0 && s.nees_mean < 18.0,
+        "NEES {}",
+        s.nees_mean
+    );
+    let last = r.filtered.last().expect("output");
+    for i in 0..3 {
+        let eg = last.sensors.gyro_bias[i] - truth_errors.gyro_bias[i];
+        let ea = last.sensors.accel_bias[i] - truth_errors.accel_bias[i];
+        assert!(eg.abs() < 3.0 * last.sigma_sensors[0][i], "gyro {i}: {eg}");
+        assert!(ea.abs() < 3.0 * last.sigma_sensors[1][i], "accel {i}: {ea}");
+    }
+    let total = c.imu.gyro_bias_sigma0();
+    assert!(last.sigma_sensors[0].z < 0.5 * total);
+    assert!(last.sigma_sensors[1].z < 0.2 * c.imu.accel_bias_sigma0());
+}

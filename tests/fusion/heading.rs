@@ -46,10 +46,16 @@ impl Bin {
 }
 
 /// Replays `runs` seeds of fixture scene `scene` with IMU preset `preset` (the study's way:
-/// GNSS throughout, covariance every 0.1 s, the preset's datasheet noise model) and collects
-/// the heading error against the filter's heading σ once a second from `from_s` on, in bins
-/// of `bin_s` seconds.
-fn heading_bins(scene: &str, preset: &str, runs: u64, from_s: f64, bin_s: f64) -> Vec<Bin> {
+/// GNSS throughout, covariance every 0.1 s, the preset's datasheet noise model) with a filter
+/// of `N` states (15, or 21 with the turn-on bias states) and collects the heading error
+/// against the filter's heading σ once a second from `from_s` on, in bins of `bin_s` seconds.
+fn heading_bins<const N: usize>(
+    scene: &str,
+    preset: &str,
+    runs: u64,
+    from_s: f64,
+    bin_s: f64,
+) -> Vec<Bin> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("fixtures/scenes")
         .join(scene);
@@ -59,8 +65,10 @@ fn heading_bins(scene: &str, preset: &str, runs: u64, from_s: f64, bin_s: f64) -
     let config = FusionConfig {
         covariance_interval_s: 0.1,
         imu: noise::model_from_spec(&spec, preset).expect("model").model,
+        turn_on_states: N == 21,
         ..FusionConfig::default()
     };
+    assert_eq!(config.filter_states(), N);
     let mut bins = vec![Bin::default(); ((drive.end_s() - from_s) / bin_s).ceil() as usize + 1];
     for run in 0..runs {
         let seed = scene.seed + run;
@@ -71,7 +79,7 @@ fn heading_bins(scene: &str, preset: &str, runs: u64, from_s: f64, bin_s: f64) -
             .filter_map(|r| observation(r, START_MONO_NS))
             .collect();
         let mut fixes = gnss.iter().peekable();
-        let mut nav = Navigator::<15>::new(&config, ReplayOptions::default());
+        let mut nav = Navigator::<N>::new(&config, ReplayOptions::default());
         let mut next_check = from_s;
         for r in drive.imu_records(&spec, seed).expect("imu") {
             let t = (r.t_mono_ns - START_MONO_NS) as f64 * 1e-9;
@@ -112,7 +120,7 @@ fn heading_bins(scene: &str, preset: &str, runs: u64, from_s: f64, bin_s: f64) -
 #[test]
 fn heading_covariance_covers_the_error_on_a_long_straight() {
     for preset in ["tactical", "industrial"] {
-        let bins = heading_bins("heading_straight.toml", preset, 6, 165.0, 1e6);
+        let bins = heading_bins::<15>("heading_straight.toml", preset, 6, 165.0, 1e6);
         let [b] = bins.as_slice() else {
             panic!("one bin expected, got {}", bins.len())
         };
@@ -134,6 +142,30 @@ fn heading_covariance_covers_the_error_on_a_long_straight() {
     }
 }
 
+/// With the turn-on biases as states of their own, the tactical unit's heading σ on the
+/// straight no longer grows back towards the whole 4 °/h turn-on σ: its heading NEES rises
+/// from the cautious one-state figure towards 1, still covering the error.
+#[test]
+fn turn_on_bias_states_keep_the_heading_sigma_from_outgrowing_the_error() {
+    let one = heading_bins::<15>("heading_straight.toml", "tactical", 6, 165.0, 1e6);
+    let two = heading_bins::<21>("heading_straight.toml", "tactical", 6, 165.0, 1e6);
+    let ([one], [two]) = (one.as_slice(), two.as_slice()) else {
+        panic!("one bin each expected")
+    };
+    println!(
+        "tactical heading NEES: one bias state {:.2} (rms σ {:.3}°), with turn-on states {:.2} (rms σ {:.3}°), rms error {:.3}° / {:.3}°",
+        one.nees(),
+        one.rms_sigma_deg(),
+        two.nees(),
+        two.rms_sigma_deg(),
+        one.rms_err_deg(),
+        two.rms_err_deg()
+    );
+    assert!(two.rms_sigma_deg() < one.rms_sigma_deg(), "σ not smaller");
+    assert!(two.nees() > one.nees(), "NEES not closer to 1");
+    assert!(two.nees() < 3.0 && two.inside() > 0.9, "{two:?}");
+}
+
 /// The table of docs/bench/fusion.md ("Heading consistency"): heading NEES, rms error and
 /// rms σ per 100 s of the 30-minute study drive, 4 runs, for each grade. Slow in the dev
 /// profile; run with `cargo test --release --test fusion heading_over_time -- --ignored
@@ -142,7 +174,7 @@ fn heading_covariance_covers_the_error_on_a_long_straight() {
 #[ignore = "report for docs/bench/fusion.md"]
 fn heading_over_time_on_the_study_drive() {
     for preset in ["bench-cheap", "bench-dear", "industrial", "tactical"] {
-        let bins = heading_bins("drive_30min.toml", preset, 4, 100.0, 100.0);
+        let bins = heading_bins::<15>("drive_30min.toml", preset, 4, 100.0, 100.0);
         println!("{preset}\n    t s  NEESψ  rms δψ °  rms σψ °  inside 3σ");
         let (mut nees, mut n) = (0.0, 0);
         for (k, b) in bins.iter().enumerate() {
