@@ -148,6 +148,35 @@ fn stable32_alphas_and_bounds_match_every_row() {
         }
     }
     eprintln!("all tables: alpha {alpha_total}/{alpha_rows}, bounds {bound_total}/{bound_rows}");
+    if super::results::requested() {
+        let row = super::results::Row::new(
+            "allan-stable32",
+            super::results::ALLAN,
+            9,
+            "Stable32 noise ID and bounds",
+            "docs/bench/allan.md",
+        )
+        .data(format!("{} Stable32 tables", tables.len()))
+        .ours(format!(
+            "α {alpha_total}/{alpha_rows}, bounds {bound_total}/{bound_rows} within {BOUND_TOLERANCE:.0e}"
+        ))
+        .target("100 %")
+        .met(failed.is_empty())
+        .command(format!(
+            "IMULAB_BENCH_RESULTS=benches/results cargo test{} --test allan stable32",
+            if cfg!(debug_assertions) { "" } else { " --release" }
+        ));
+        super::results::write(
+            "stable32",
+            "test",
+            serde_json::json!({ "tables": tables.iter().map(|t| t.0.clone()).collect::<Vec<_>>(), "bound_tolerance": BOUND_TOLERANCE }),
+            serde_json::json!({
+                "alpha_matched": alpha_total, "alpha_rows": alpha_rows,
+                "bounds_matched": bound_total, "bounds": bound_rows, "failed": failed,
+            }),
+            &[row],
+        );
+    }
     assert!(
         failed.is_empty(),
         "tables with rows that differ from Stable32: {failed:?}"
