@@ -26,7 +26,7 @@ if [ ! -f "$ours" ]; then
     exit 1
 fi
 if [ "${1:-}" = process ]; then
-    bin="$root/target/release/imulab"
+    bin="${CARGO_TARGET_DIR:-$root/target}/release/imulab"
     if [ ! -x "$bin" ]; then
         echo "missing $bin: run 'cargo build --release --bin imulab' first" >&2
         exit 1
