@@ -799,6 +799,7 @@ fn memory_benchmark(days: f64, format: &str) {
     .ours(format!("{three:.0} MB ({:.2}× one axis)", three / axis_mb))
     .target("∝ one axis")
     .met(three <= 1.1 * one)
+    .timed()
     .command(format!(
         "cargo bench --bench allan -- memory {days} session"
     ))];
@@ -918,6 +919,7 @@ fn session_read_benchmark(flush_s: u64) {
     .ours(format!("{:.2} s", report.wall))
     .target("< 0.5 s")
     .met(report.wall < 0.5)
+    .timed()
     .command(format!("cargo bench --bench allan -- session {flush_s}"));
     results::write(
         "allan",

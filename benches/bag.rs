@@ -384,6 +384,7 @@ fn write_results(measured: &[(&str, f64, f64, f64, f64)], both: bool) {
         .ratio(format!("{:.0}-{:.0}× faster", peer / hi, peer / lo))
         .target("< 5 s")
         .met(hi < 5.0)
+        .timed()
         .command("cargo bench --bench bag");
     results::write(
         "bag",

@@ -677,6 +677,7 @@ fn cli_rows() {
     .ours(format!("{} s wall", results::range(lo, hi, 2)))
     .target("< 1 s")
     .met(hi < 1.0)
+    .timed()
     .command(command);
     let replay = results::Row::new(
         "calib-replay",

@@ -375,6 +375,7 @@ fn speed_table(base: &FusionConfig, e: &fusion_support::ImuErrors) {
     ))
     .target("≥ 1 M / 0.7 M")
     .met(rates[0].2 >= 1.0 && rates[1].2 >= 0.7)
+    .timed()
     .command("cargo bench --bench fusion -- speed");
     results::write(
         "fusion",
@@ -1129,6 +1130,7 @@ fn study_runs() {
     .ours(format!("{time_s:.1} s"))
     .target("< 1 min")
     .met(time_s < 60.0)
+    .timed()
     .command("same");
     results::write(
         "fusion",

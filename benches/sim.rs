@@ -410,6 +410,7 @@ fn throughput() {
     .ours(format!("{six:.3} s CPU"))
     .target("< 1 s")
     .met(six < 1.0)
+    .timed()
     .command("cargo bench --bench sim -- throughput");
     results::write(
         "sim",

@@ -461,6 +461,7 @@ fn write_results(hours: f64, written: &[serde_json::Value], command: &str) {
     .ratio(format!("{:.1}×", f(peer, "cpu_s") / cpu))
     .target("< 5 s")
     .met(cpu < 5.0)
+    .timed()
     .command(command);
     results::write(
         "store",

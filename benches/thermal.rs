@@ -663,6 +663,7 @@ fn timing() {
     .ours(format!("{total:.2} s (load {load:.1})"))
     .target("< 2 s, one axis")
     .met(total < 2.0)
+    .timed()
     .command("cargo bench --bench thermal -- timing");
     results::write(
         "thermal",

@@ -214,6 +214,7 @@ fn main() {
     ))
     .target("< 2 %")
     .met(pct < 2.0)
+    .timed()
     .command("cargo bench --bench watch");
     results::write(
         "watch",

@@ -51,6 +51,7 @@ pub struct Row {
     met: String,
     command: String,
     not_met: Option<(String, String)>,
+    timed: bool,
 }
 
 impl Row {
@@ -72,6 +73,7 @@ impl Row {
             met: dash(),
             command: dash(),
             not_met: None,
+            timed: false,
         }
     }
     pub fn data(mut self, v: impl Into<String>) -> Self {
@@ -107,6 +109,11 @@ impl Row {
     /// The command that produces this row's JSON (`…` abbreviates the one of the row above).
     pub fn command(mut self, v: impl Into<String>) -> Self {
         self.command = v.into();
+        self
+    }
+    /// A timing: when missed at a load of 1 or more, the reason given is the load.
+    pub fn timed(mut self) -> Self {
+        self.timed = true;
         self
     }
     /// An entry of "Targets not met, and why": the target in a few words and the reason.
@@ -174,15 +181,31 @@ pub fn write(bench: &str, mode: &str, args: Value, figures: Value, rows: &[Row])
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());
+    let load = load_average();
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let rows: Vec<Value> = rows
+        .iter()
+        .map(|r| {
+            let mut v = r.to_json();
+            // A timing missed while other jobs shared the cores says so.
+            if r.timed && r.met == "no" && r.not_met.is_none() && load >= 1.0 {
+                v["not_met"] = json!({
+                    "what": format!("{} {}", r.measured, r.target),
+                    "why": format!("measured at load {load:.1} on {cores} cores; `benches/record_all` reruns it on an idle machine"),
+                });
+            }
+            v
+        })
+        .collect();
     let doc = json!({
         "bench": bench,
         "mode": mode,
         "args": args,
         "recorded_unix_s": now,
-        "load_1min_at_end": load_average(),
-        "cores": std::thread::available_parallelism().map_or(0, |n| n.get()),
+        "load_1min_at_end": load,
+        "cores": cores,
         "figures": figures,
-        "rows": rows.iter().map(Row::to_json).collect::<Vec<_>>(),
+        "rows": rows,
     });
     let dir = results_dir();
     std::fs::create_dir_all(&dir).expect("create the results directory");

@@ -205,6 +205,7 @@ fn main() {
     .ours(format!("{nmea:.0} / {ubx:.0} MB/s"))
     .target("≥ 200 / 500 MB/s")
     .met(nmea >= 200.0 && ubx >= 500.0)
+    .timed()
     .command("cargo bench -p imulab-drivers --bench decode");
     results::write(
         "decode",

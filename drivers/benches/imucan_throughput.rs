@@ -401,6 +401,7 @@ fn write_results() {
     ))
     .target("≥ 500 MB/s")
     .met(rates.iter().all(|r| *r >= 500.0))
+    .timed()
     .command("cargo bench -p imulab-drivers --bench imucan_throughput");
     results::write(
         "imucan_throughput",
