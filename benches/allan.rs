@@ -17,6 +17,9 @@
 //! `cargo bench --bench allan -- --only KIND[:GRID] [--runs N]` (the per-type table for the
 //! matching rows alone, best of N runs, e.g. `--only oadev:octave --runs 30` under `perf`).
 
+#[path = "support/results.rs"]
+mod results;
+
 use clap::Parser;
 use imulab::allan::analysis::{analyse_axis, AnalysisOptions, AxisResult};
 use imulab::allan::fit::{fit_noise_terms, Term};
@@ -28,6 +31,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use rayon::prelude::*;
+use serde_json::json;
 use std::time::Instant;
 
 // The synthetic data, shared with `examples/allan_probe.rs`.
@@ -224,6 +228,7 @@ fn main() {
         (DeviationKind::Totdev, TauGrid::Octave, "octave"),
     ];
     let runs = only.as_ref().map_or(3, |o| o.2.max(1));
+    let mut kinds_json = Vec::new();
     // Phase building, deviations, noise identification, EDF and intervals are all timed; the
     // copy of the input (which the analysis consumes) is not.
     for (kind, grid, label) in &cases {
@@ -256,6 +261,15 @@ fn main() {
             six.wall,
             six.cpu
         );
+        let points = &result[0].curve.points;
+        kinds_json.push(json!({
+            "kind": kind.name(), "grid": label, "taus": points.len(),
+            "one_axis_s": one.wall, "one_axis_cpu_s": one.cpu,
+            "one_thread_s": serial.wall, "one_thread_cpu_s": serial.cpu,
+            "six_axes_s": six.wall, "six_axes_cpu_s": six.cpu,
+            "axis0_tau_s": points.iter().map(|p| p.tau).collect::<Vec<_>>(),
+            "axis0_deviation": points.iter().map(|p| p.deviation).collect::<Vec<_>>(),
+        }));
     }
 
     if only.is_some() {
@@ -340,6 +354,7 @@ fn main() {
         "| grid | taus | time 6 axes [s] | mean abs error N | mean abs error K | K identified |"
     );
     println!("|---|---|---|---|---|---|");
+    let mut grids_json = Vec::new();
     for (grid, label) in [
         (TauGrid::Octave, "octave"),
         (TauGrid::Decade, "decade"),
@@ -382,6 +397,12 @@ fn main() {
                 "-".into()
             }
         );
+        grids_json.push(json!({
+            "grid": label, "taus": taus, "six_axes_s": t,
+            "mean_abs_rel_err_n": en / 6.0,
+            "mean_abs_rel_err_k": (kid > 0).then(|| ek / kid as f64),
+            "k_identified_of_6": kid,
+        }));
     }
 
     // 4. f32 vs f64: input precision and naive f32 accumulation against the f64 compensated path,
@@ -421,6 +442,12 @@ fn main() {
         "| naive f32 phase (no mean removal, plain sum) | {tn:.3} | {:.2e} |",
         naive
     );
+    let precision_json = json!([
+        {"variant": "f64 input, compensated f64 phase (default)", "time_s": t_ref, "max_rel_err": null},
+        {"variant": "f32 input", "time_s": t32, "max_rel_err": max_rel(&reference, &c32)},
+        {"variant": "plain f64 phase", "time_s": tp, "max_rel_err": plain},
+        {"variant": "naive f32 phase", "time_s": tn, "max_rel_err": naive},
+    ]);
 
     // 5. Coverage of the fit's 95 % term intervals on independent simulated runs
     //    (100 s crossover regime of tests/allan/fit.rs: 600 000 samples at 100 Hz).
@@ -484,6 +511,29 @@ fn main() {
     for p in &c.points {
         println!("{:.6e} {:.10e}", p.tau, p.deviation);
     }
+
+    // The figures for `benches/allan_vs_allantools.sh` (which owns the rows against
+    // allantools) and the run-time-against-error plot of BENCHMARKS.md.
+    results::write(
+        "allan",
+        "speed",
+        json!({ "samples": SAMPLES, "rate_hz": RATE_HZ, "axes": 6, "rayon_threads": threads }),
+        json!({
+            "kinds": kinds_json,
+            "report_with_fit": {
+                "in_memory_s": report.wall, "in_memory_cpu_s": report.cpu,
+                "one_thread_s": report_serial.wall, "from_npy_s": end_to_end.wall,
+                "from_session_s": from_session.wall,
+            },
+            "grids": grids_json,
+            "precision": precision_json,
+            "fit_coverage": {
+                "runs": runs, "n_identified": identified[0], "n_covered": covered[0],
+                "k_identified": identified[1], "k_covered": covered[1],
+            },
+        }),
+        &[],
+    );
 }
 
 #[derive(clap::Parser)]
@@ -681,6 +731,7 @@ fn memory_benchmark(days: f64, format: &str) {
     let axis_mb = rows as f64 * 8.0 / 1e6;
     println!("| run | peak RSS [MB] | one axis [MB] | all 6 axes [MB] | peak / one axis | wall [s] | CPU [s] |");
     println!("|---|---|---|---|---|---|---|");
+    let mut runs = Vec::new();
     let gyro_axes = if format == "npy" { "0,1,2" } else { "x,y,z" };
     let one_axis = if format == "npy" { "0" } else { "x" };
     for (label, axes) in [
@@ -721,6 +772,9 @@ fn memory_benchmark(days: f64, format: &str) {
             peak_mb / axis_mb,
             user + system
         );
+        runs.push(json!({
+            "run": label, "peak_rss_mb": peak_mb, "wall_s": wall, "cpu_s": user + system,
+        }));
         let text = String::from_utf8_lossy(&output.stdout);
         for line in text
             .lines()
@@ -731,6 +785,35 @@ fn memory_benchmark(days: f64, format: &str) {
     }
     std::fs::remove_dir_all(&dir).expect("delete the benchmark data");
     println!("\ninput deleted");
+    // Memory in proportion to one axis: reading three axes peaks no higher than one (10 %).
+    let peak = |i: usize| runs[i]["peak_rss_mb"].as_f64().unwrap_or(f64::NAN);
+    let (three, one) = (peak(0), peak(1));
+    let rows = [results::Row::new(
+        "allan-memory",
+        results::ALLAN,
+        6,
+        "memory",
+        "docs/bench/allan.md",
+    )
+    .data(format!("{days} days × 150 Hz, 3 axes"))
+    .ours(format!("{three:.0} MB ({:.2}× one axis)", three / axis_mb))
+    .target("∝ one axis")
+    .met(three <= 1.1 * one)
+    .timed()
+    .command(format!(
+        "cargo bench --bench allan -- memory {days} session"
+    ))];
+    results::write(
+        "allan",
+        &format!("memory-{format}"),
+        json!({ "days": days, "format": format, "rows": rows_total(days) }),
+        json!({ "disk_mb": disk as f64 / 1e6, "one_axis_mb": axis_mb, "runs": runs }),
+        if format == "session" { &rows } else { &[] },
+    );
+}
+
+fn rows_total(days: f64) -> usize {
+    (days * 86_400.0 * RATE_HZ) as usize
 }
 
 /// The session read path: six axes + time of 6 h read through `read_axes` (what `imulab
@@ -824,6 +907,30 @@ fn session_read_benchmark(flush_s: u64) {
         report.wall,
         report.cpu,
         doc.axes.len()
+    );
+    let row = results::Row::new(
+        "allan-session-report",
+        results::ALLAN,
+        4,
+        "six-axis report with fit",
+        "docs/bench/allan.md",
+    )
+    .data(format!("6 h session, {files} files"))
+    .ours(format!("{:.2} s", report.wall))
+    .target("< 0.5 s")
+    .met(report.wall < 0.5)
+    .timed()
+    .command(format!("cargo bench --bench allan -- session {flush_s}"));
+    results::write(
+        "allan",
+        "session",
+        json!({ "flush_s": flush_s, "rows": SAMPLES, "axes": 6 }),
+        json!({
+            "files": files,
+            "read_six_axes_s": read.wall, "read_six_axes_cpu_s": read.cpu,
+            "report_with_fit_s": report.wall, "report_with_fit_cpu_s": report.cpu,
+        }),
+        &[row],
     );
 }
 

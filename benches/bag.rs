@@ -7,6 +7,9 @@
 //!
 //! Run: `cargo bench --bench bag` (both formats) or `cargo bench --bench bag -- mcap|ros1`.
 
+#[path = "support/results.rs"]
+mod results;
+
 use imulab::bag::messages::cdr;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -324,6 +327,7 @@ fn main() {
     );
     println!("| bag | size [MB] | wall [s] | CPU [s] | peak RSS [MB] | allan_variance_ros scaled [s] | ratio |");
     println!("|---|---|---|---|---|---|---|");
+    let mut measured = Vec::new();
     type WriteBag = fn(&Path);
     let formats: [(&str, &str, WriteBag); 2] = [
         ("mcap", "imu-8h-200hz.mcap", write_mcap),
@@ -354,5 +358,45 @@ fn main() {
             "| {name} ({file}) | {size:.0} | {wall:.2} | {cpu:.2} | {rss:.0} | {peer:.0} | {:.4} |",
             wall / peer
         );
+        measured.push((name, size, wall, cpu, rss));
     }
+    write_results(&measured, only.is_none());
+}
+
+/// The ROS bag row (both formats, so only a run of both writes it).
+fn write_results(measured: &[(&str, f64, f64, f64, f64)], both: bool) {
+    use serde_json::json;
+    let peer = PEER_S * MESSAGES as f64 / PEER_SAMPLES;
+    let walls: Vec<f64> = measured.iter().map(|m| m.2).collect();
+    let (lo, hi) = results::min_max(&walls);
+    let row = results::Row::new("allan-bag", results::ALLAN, 5, "ROS bag", "docs/import.md")
+        .data(format!(
+            "8 h × 200 Hz, {:.2} M messages, load {:.1}",
+            MESSAGES as f64 / 1e6,
+            results::load_average()
+        ))
+        .ours(format!(
+            "MCAP {:.2} s, ROS 1 {:.2} s",
+            walls.first().copied().unwrap_or(f64::NAN),
+            walls.get(1).copied().unwrap_or(f64::NAN)
+        ))
+        .peer(format!("allan_variance_ros (published): {peer:.0} s"))
+        .ratio(format!("{:.0}-{:.0}× faster", peer / hi, peer / lo))
+        .target("< 5 s")
+        .met(hi < 5.0)
+        .timed()
+        .command("cargo bench --bench bag");
+    results::write(
+        "bag",
+        if both { "both" } else { "one" },
+        json!({ "messages": MESSAGES, "peer_published_s": PEER_S, "peer_samples": PEER_SAMPLES }),
+        json!({ "bags": measured.iter().map(|m| json!({
+            "format": m.0, "size_mb": m.1, "wall_s": m.2, "cpu_s": m.3, "peak_rss_mb": m.4,
+        })).collect::<Vec<_>>() }),
+        if both {
+            std::slice::from_ref(&row)
+        } else {
+            &[]
+        },
+    );
 }

@@ -57,6 +57,8 @@ use tokio::io::AsyncWriteExt;
 
 #[path = "daemon_load/pty.rs"]
 mod pty;
+#[path = "support/results.rs"]
+mod results;
 
 #[path = "daemon_load/floor.rs"]
 mod floor;

@@ -10,6 +10,12 @@
 //! when the KF-GINS binary is absent; `-- kf-gins` runs only that part).
 //! Prints markdown tables (copied into docs/bench/fusion.md). Run times are the thread's CPU
 //! time (CLOCK_THREAD_CPUTIME_ID), so a busy shared machine does not inflate them.
+//! `-- study` runs the release `imulab study` twice (the open-sky requirement study and the
+//! 100-run study) with `--json` and times it. `speed`, `nees`, `kf-gins` and `study` write
+//! their BENCHMARKS.md rows to `benches/results/fusion-<mode>.json`.
+
+#[path = "support/results.rs"]
+mod results;
 
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::mechanisation::{ImuInput, IntegrationOrder, NavState};
@@ -19,6 +25,7 @@ use imulab::sim::motion::{MotionSpec, Segment};
 use imulab_test_support::fusion_data as fusion_support;
 use imulab_test_support::fusion_data::{mems_errors, simulate, SimData};
 use nalgebra::Vector3;
+use serde_json::json;
 use std::time::Instant;
 
 /// CPU time consumed by this thread, s.
@@ -196,6 +203,11 @@ fn main() {
         speed_table(&bench_config(), &bench_errors());
         return;
     }
+    // `-- study` runs only the two `imulab study` runs.
+    if std::env::args().any(|a| a == "study") {
+        study_runs();
+        return;
+    }
     // `-- nees` runs only the Monte Carlo consistency table.
     if std::env::args().any(|a| a == "nees") {
         nees_table();
@@ -329,6 +341,7 @@ fn speed_table(base: &FusionConfig, e: &fusion_support::ImuErrors) {
     println!("\nSpeed: {hours:.2} h of 200 Hz IMU ({} samples) + 10 Hz GNSS ({} fixes), one core, best of 3 (thread CPU time)\n", d.imu.len(), d.gnss.len());
     println!("| states | CPU s | IMU samples per CPU-second | target |");
     println!("|---|---:|---:|---:|");
+    let mut rates = Vec::new();
     for (states, target) in [(15, "≥ 1 M"), (21, "≥ 0.7 M")] {
         let config = FusionConfig { states, ..*base };
         let mut best = f64::INFINITY;
@@ -347,7 +360,33 @@ fn speed_table(base: &FusionConfig, e: &fusion_support::ImuErrors) {
             "| {states} | {best:.3} | {:.2} M | {target} |",
             d.imu.len() as f64 / best / 1e6
         );
+        rates.push((states, best, d.imu.len() as f64 / best / 1e6));
     }
+    let row = results::Row::new(
+        "fusion-speed",
+        results::FUSION,
+        1,
+        "replay speed",
+        "docs/bench/fusion.md",
+    )
+    .data(format!("{hours:.0} h of 200 Hz IMU + 10 Hz GNSS"))
+    .ours(format!(
+        "15 states {:.2} M, 21 states {:.2} M samples/CPU-s",
+        rates[0].2, rates[1].2
+    ))
+    .target("≥ 1 M / 0.7 M")
+    .met(rates[0].2 >= 1.0 && rates[1].2 >= 0.7)
+    .timed()
+    .command("cargo bench --bench fusion -- speed");
+    results::write(
+        "fusion",
+        "speed",
+        json!({ "hours": hours, "imu_samples": d.imu.len(), "gnss_fixes": d.gnss.len(), "best_of": 3 }),
+        json!({ "runs": rates.iter().map(|(states, cpu, m)| json!({
+            "states": states, "cpu_s": cpu, "m_samples_per_cpu_s": m,
+        })).collect::<Vec<_>>() }),
+        &[row],
+    );
 }
 
 /// Runs of the consistency table per grade and constraint set.
@@ -474,6 +513,8 @@ fn nees_table() {
     );
     println!("| IMU preset | constraints | ANEES (9 expected) | 95 % band of one epoch | epochs inside / below / above | largest epoch ANEES | position / velocity / attitude ANEES (3 each) | verdict |");
     println!("|---|---|---:|---:|---:|---:|---:|---|");
+    let mut cells = Vec::new();
+    let all_grades = grades.len() == all.len();
     for grade in grades {
         let spec = imulab::sim::presets::imu_preset(grade).expect("preset");
         let noise = imulab::study::noise::model_from_spec(&spec, grade).expect("noise");
@@ -511,6 +552,22 @@ fn nees_table() {
                     .collect()
             };
             let blocks = [1, 2, 3].map(|i| anees(&part(i), 3).map_or(f64::NAN, |a| a.mean));
+            let verdict = |a: &imulab::fusion::metrics::Anees| {
+                if a.mean < a.band.0 {
+                    "cautious"
+                } else if a.mean > a.band.1 {
+                    "over-confident"
+                } else {
+                    "consistent"
+                }
+            };
+            if let Some(a) = anees(&part(0), 9) {
+                cells.push(json!({
+                    "grade": grade, "constraints": name, "anees": a.mean,
+                    "band": [a.band.0, a.band.1], "inside": a.inside, "below": a.below,
+                    "above": a.above, "max": a.max, "blocks": blocks, "verdict": verdict(&a),
+                }));
+            }
             match anees(&part(0), 9) {
                 Some(a) => println!(
                     "| {grade} | {name} | {:.2} | [{:.2}, {:.2}] | {:.0} / {:.0} / {:.0} % | {:.1} | {:.2} / {:.2} / {:.2} | {} |",
@@ -536,6 +593,92 @@ fn nees_table() {
             }
         }
     }
+    nees_results(&cells, runs_per_row, gnss_error.is_none(), all_grades);
+}
+
+/// The NEES row: ANEES of the GNSS-only and NHC runs over the grades, in band or not.
+fn nees_results(cells: &[serde_json::Value], runs: usize, white: bool, all_grades: bool) {
+    let of = |set: &str| -> Vec<&serde_json::Value> {
+        cells.iter().filter(|c| c["constraints"] == set).collect()
+    };
+    let span = |set: &str| {
+        let v: Vec<f64> = of(set).iter().filter_map(|c| c["anees"].as_f64()).collect();
+        let (lo, hi) = results::min_max(&v);
+        results::range(lo, hi, 2)
+    };
+    let band = cells.first().map_or([f64::NAN; 2], |c| {
+        [
+            c["band"][0].as_f64().unwrap_or(f64::NAN),
+            c["band"][1].as_f64().unwrap_or(f64::NAN),
+        ]
+    });
+    let consistent: Vec<String> = cells
+        .iter()
+        .filter(|c| c["verdict"] == "consistent")
+        .map(|c| {
+            format!(
+                "{} {}",
+                c["grade"].as_str().unwrap_or(""),
+                c["constraints"].as_str().unwrap_or("")
+            )
+        })
+        .collect();
+    let others: std::collections::BTreeSet<&str> = cells
+        .iter()
+        .filter_map(|c| c["verdict"].as_str())
+        .filter(|v| *v != "consistent")
+        .collect();
+    let met = if others.is_empty() {
+        "yes".to_string()
+    } else {
+        format!(
+            "in band: {}; others {}",
+            if consistent.is_empty() {
+                "none".into()
+            } else {
+                consistent.join(", ")
+            },
+            others.into_iter().collect::<Vec<_>>().join(" or ")
+        )
+    };
+    let mut args = vec![format!("--runs={runs}")];
+    if white {
+        args.push("white".into());
+    }
+    // Only the full table (every grade, the default seeds, the receiver's error states) owns
+    // the row.
+    let row = results::Row::new(
+        "fusion-nees",
+        results::FUSION,
+        4,
+        "NEES",
+        "docs/bench/fusion.md",
+    )
+    .data(format!(
+        "{runs} seeds, {NEES_OUTAGE_S:.0} s outages; band [{:.2}, {:.2}]",
+        band[0], band[1]
+    ))
+    .ours(format!(
+        "GNSS only {}, NHC {}",
+        span("GNSS only"),
+        span("NHC")
+    ))
+    .target("in band")
+    .met_text(met)
+    .command("cargo bench --bench fusion -- nees");
+    let owns = all_grades && runs == NEES_RUNS && !white;
+    results::write(
+        "fusion",
+        if owns { "nees" } else { "nees-partial" },
+        json!({ "scene": NEES_SCENE, "runs": runs, "outage_s": NEES_OUTAGE_S,
+                "outage_every_s": NEES_OUTAGE_EVERY_S, "white_gnss": white }),
+        json!({ "cells": cells }),
+        if owns {
+            std::slice::from_ref(&row)
+        } else {
+            &[]
+        },
+    );
 }
 
 /// Where the KF-GINS binary is: `KF_GINS_BIN`, else the build under /work/peers.
@@ -708,9 +851,10 @@ const ODOMETER_SIGMA_MPS: f64 = 0.05;
 /// files, per IMU grade.
 fn kf_gins_anchor() {
     let Some(bin) = kf_gins_binary() else {
-        println!("\nKF-GINS comparison skipped: no KF-GINS binary (set KF_GINS_BIN or build it at /work/peers/KF-GINS/bin/KF-GINS)");
+        println!("\nKF-GINS comparison skipped: no KF-GINS binary (set KF_GINS_BIN or build it at /work/peers/KF-GINS/bin/KF-GINS); benches/results/fusion-kf-gins.json left as it is");
         return;
     };
+    let mut per_grade = Vec::new();
     println!("\nAgainst KF-GINS ({}): 30 min drive, 200 Hz IMU, 10 Hz GNSS position σ 0.3/0.6 m, GNSS removed from the file for 60 s every 180 s\n", bin.display());
     println!("| IMU grade | filter | RMS of per-outage max horiz. drift, m | GNSS-on horiz. RMS, m | outages |");
     println!("|---|---|---:|---:|---:|");
@@ -788,6 +932,12 @@ fn kf_gins_anchor() {
         for (name, (drift, gnss_rms, n)) in &rows {
             println!("| {grade} | {name} | {drift:.2} | {gnss_rms:.3} | {n} |");
         }
+        per_grade.push(json!({
+            "grade": grade,
+            "runs": rows.iter().map(|(name, (drift, rms, n))| json!({
+                "filter": name, "rms_drift_m": drift, "gnss_on_rms_m": rms, "outages": n,
+            })).collect::<Vec<_>>(),
+        }));
         if let Some((_, (kf_drift, kf_rms, _))) = rows.iter().find(|r| r.0 == "KF-GINS") {
             for (label, i) in [("NHC on", 1), ("NHC + odometer", 2)] {
                 let (ours_drift, ours_rms, _) = rows[i].1;
@@ -799,4 +949,213 @@ fn kf_gins_anchor() {
             }
         }
     }
+    kf_gins_results(&bin, &per_grade);
+}
+
+/// The two KF-GINS rows (NHC, NHC + odometer; industrial / tactical) when KF-GINS ran for
+/// both grades.
+fn kf_gins_results(bin: &std::path::Path, per_grade: &[serde_json::Value]) {
+    let get = |g: &serde_json::Value, filter: &str| {
+        g["runs"].as_array().and_then(|r| {
+            let r = r.iter().find(|r| r["filter"] == filter)?;
+            Some((r["rms_drift_m"].as_f64()?, r["gnss_on_rms_m"].as_f64()?))
+        })
+    };
+    let mut rows = Vec::new();
+    let kf: Option<Vec<(f64, f64)>> = per_grade.iter().map(|g| get(g, "KF-GINS")).collect();
+    if let Some(kf) = kf.filter(|k| k.len() == 2) {
+        let pair = |v: [f64; 2], digits: usize| format!("{:.digits$} / {:.digits$}", v[0], v[1]);
+        let peer = format!(
+            "KF-GINS {} m; {} m",
+            pair([kf[0].0, kf[1].0], 2),
+            pair([kf[0].1, kf[1].1], 3)
+        );
+        for (i, (id, filter, measured, data)) in [
+            (
+                "fusion-kf-gins-nhc",
+                "imulab, NHC on",
+                "drift vs KF-GINS, NHC",
+                "30 min drive, 11 × 60 s outages, industrial / tactical",
+            ),
+            (
+                "fusion-kf-gins-odometer",
+                "imulab, NHC + odometer",
+                "drift vs KF-GINS, NHC + odometer",
+                "same, wheel speed",
+            ),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let Some(ours): Option<Vec<(f64, f64)>> =
+                per_grade.iter().map(|g| get(g, filter)).collect()
+            else {
+                continue;
+            };
+            let drift = [ours[0].0 / kf[0].0, ours[1].0 / kf[1].0];
+            let rms = [ours[0].1 / kf[0].1, ours[1].1 / kf[1].1];
+            let ok = drift.iter().all(|r| *r <= 0.5) && rms.iter().all(|r| *r <= 1.0);
+            let ours_text = format!(
+                "{}{} m; {} m",
+                if i == 0 { "RMS drift " } else { "" },
+                pair([ours[0].0, ours[1].0], 2),
+                pair([ours[0].1, ours[1].1], 3)
+            );
+            rows.push(
+                results::Row::new(
+                    id,
+                    results::FUSION,
+                    2 + i as u32,
+                    measured,
+                    "docs/bench/fusion.md",
+                )
+                .data(data)
+                .ours(ours_text)
+                .peer(if i == 0 { peer.clone() } else { "same".into() })
+                .ratio(format!("{}; {}", pair(drift, 2), pair(rms, 2)))
+                .target("≤ 0.5×; ≤ 1×")
+                .met(ok)
+                .command(if i == 0 {
+                    "KF_GINS_BIN=… cargo bench --bench fusion -- kf-gins"
+                } else {
+                    "same"
+                }),
+            );
+        }
+    }
+    results::write(
+        "fusion",
+        "kf-gins",
+        json!({ "kf_gins_bin": bin.display().to_string(), "drive_min": 30, "outage_s": 60, "every_s": 180 }),
+        json!({ "grades": per_grade }),
+        &rows,
+    );
+}
+
+/// Runs the release `imulab study` with `--json` into a temporary file, timed; its JSON is
+/// kept whole in the results.
+fn study_run(args: &[&str]) -> (f64, serde_json::Value) {
+    let json_path = std::env::temp_dir().join(format!("imulab-study-{}.json", std::process::id()));
+    let root = results::workspace_root();
+    let t = Instant::now();
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .current_dir(&root)
+        .arg("study")
+        .args(args)
+        .arg("--json")
+        .arg(&json_path)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("run imulab study");
+    let wall = t.elapsed().as_secs_f64();
+    assert!(status.success(), "imulab study {args:?}: {status}");
+    let text = std::fs::read_to_string(&json_path).expect("read the study JSON");
+    let _ = std::fs::remove_file(&json_path);
+    (wall, serde_json::from_str(&text).expect("the study JSON"))
+}
+
+/// The open-sky requirement study (longest outage within 1 m per grade, and the drift curves
+/// of the plot) and the 100-run study's wall time.
+fn study_runs() {
+    let sky_args = [
+        "fixtures/scenes/drive_30min_open_sky.toml",
+        "--grades",
+        "consumer,bench-cheap,industrial,tactical",
+        "--outages",
+        "5,10,30,60,120",
+        "--require",
+        "0.1,1,10",
+        "--runs",
+        "20",
+    ];
+    let (sky_s, sky) = study_run(&sky_args);
+    println!("open-sky study: {sky_s:.1} s");
+    let time_args = [
+        "fixtures/scenes/drive_30min.toml",
+        "--grades",
+        "bench-cheap,bench-dear,industrial,tactical",
+        "--outages",
+        "5,10,30,60",
+        "--runs",
+        "100",
+    ];
+    let (time_s, timed) = study_run(&time_args);
+    println!("100-run study: {time_s:.1} s");
+    // Longest outage within 1 m, by grade, ascending.
+    let mut within: Vec<(String, f64, bool)> = sky["grades"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|g| {
+            let b = g["bridges"]
+                .as_array()?
+                .iter()
+                .find(|b| b["requirement_m"] == 1.0)?;
+            Some((
+                g["name"].as_str()?.to_string(),
+                b["longest_s"].as_f64()?,
+                b["beyond_horizon"].as_bool().unwrap_or(false),
+            ))
+        })
+        .collect();
+    within.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let separated = within.windows(2).all(|w| w[1].1 > w[0].1);
+    let grades = within.len();
+    let runs = sky["runs"].as_u64().unwrap_or(0);
+    let sky_row = results::Row::new(
+        "study-within-1m",
+        results::FUSION,
+        5,
+        "longest outage within 1 m",
+        "docs/bench/fusion.md",
+    )
+    .data(format!(
+        "`{}`, {grades} presets × {runs} runs",
+        sky_args[0].trim_start_matches("fixtures/scenes/")
+    ))
+    .ours(format!(
+        "{} s ({})",
+        within
+            .iter()
+            .map(|w| format!("{}{:.1}", if w.2 { "≥ " } else { "" }, w.1))
+            .collect::<Vec<_>>()
+            .join(" / "),
+        within
+            .iter()
+            .map(|w| w.0.as_str())
+            .collect::<Vec<_>>()
+            .join(" / ")
+    ))
+    .target("grades separated")
+    .met(separated)
+    .command("cargo bench --bench fusion -- study");
+    let n_grades = timed["grades"].as_array().map_or(0, Vec::len);
+    let n_outages = time_args[4].split(',').count();
+    let time_row = results::Row::new(
+        "study-time",
+        results::FUSION,
+        6,
+        "study time",
+        "docs/bench/fusion.md",
+    )
+    .data(format!(
+        "`{}`, {} runs × {n_grades} grades × {n_outages} outages",
+        time_args[0].trim_start_matches("fixtures/scenes/"),
+        timed["runs"].as_u64().unwrap_or(0)
+    ))
+    .ours(format!("{time_s:.1} s"))
+    .target("< 1 min")
+    .met(time_s < 60.0)
+    .timed()
+    .command("same");
+    results::write(
+        "fusion",
+        "study",
+        json!({ "binary": "imulab (bench profile)", "open_sky": sky_args, "timed": time_args }),
+        json!({
+            "open_sky": { "wall_s": sky_s, "requirements_m": [0.1, 1.0, 10.0], "study": sky },
+            "timed": { "wall_s": time_s, "study": timed },
+        }),
+        &[sky_row, time_row],
+    );
 }

@@ -6,7 +6,11 @@
 //!
 //! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings).
 
+#[path = "support/results.rs"]
+mod results;
+
 use imulab_test_support::allan_check as sim_support;
+use serde_json::json;
 
 use std::io::Read;
 use std::os::unix::fs::OpenOptionsExt;
@@ -303,6 +307,7 @@ rate_hz = 10
     println!("\n## Serving (`imulab sim --serve`): three 200 Hz IMUs (wit, xbus, slcan) + 10 Hz NMEA/UBX GNSS on ptys\n");
     println!("| speed | scene (s) | wall (s) | frames | bytes | frames/s | lateness median (ms) | p99 (ms) | max (ms) |");
     println!("|---|---|---|---|---|---|---|---|---|");
+    let mut runs = Vec::new();
     for (speed, duration) in [
         (Speed::Max, 600.0),
         (Speed::Factor(1.0), 10.0),
@@ -341,13 +346,45 @@ rate_hz = 10
             q(0.99),
             q(1.0)
         );
+        let at = |p: f64| (!late.is_empty()).then(|| late[((late.len() - 1) as f64 * p) as usize]);
+        runs.push(json!({
+            "speed": match speed { Speed::Max => "max".to_string(), Speed::Factor(f) => format!("{f}") },
+            "scene_s": duration, "wall_s": wall, "frames": frames, "bytes": bytes,
+            "lateness_ms_p50": at(0.5), "lateness_ms_p99": at(0.99), "lateness_ms_max": at(1.0),
+        }));
     }
+    let max = &runs[0];
+    let p99 = runs
+        .iter()
+        .filter_map(|r| r["lateness_ms_p99"].as_f64())
+        .fold(0.0f64, f64::max);
+    let row = results::Row::new(
+        "sim-serve",
+        results::SIM_CALIB_THERMAL,
+        2,
+        "serving ptys",
+        "docs/bench/sim.md",
+    )
+    .data(format!("{} frames", max["frames"]))
+    .ours(format!(
+        "{:.2} s; p99 lateness {p99:.2} ms",
+        max["wall_s"].as_f64().unwrap_or(f64::NAN)
+    ))
+    .command("cargo bench --bench sim -- serve");
+    results::write(
+        "sim",
+        "serve",
+        json!({ "imus": 3, "gnss": 1, "rate_hz": 200 }),
+        json!({ "runs": runs }),
+        &[row],
+    );
 }
 
 fn throughput() {
     println!("## Full error model, one 6-axis IMU, 150 Hz, single thread\n");
     println!("| duration | samples | CPU (s) | wall (s) | samples/s (CPU) | CPU s per sim. hour |");
     println!("|---|---|---|---|---|---|");
+    let mut runs = Vec::new();
     for hours in [0.75, 1.5, 3.0, 6.0] {
         let s = scene(hours * 3600.0, STATIC, RAMP, FULL_IMU, false);
         let (t, wall, n, _) = time_scene(&s, 3);
@@ -356,7 +393,32 @@ fn throughput() {
             n as f64 / t,
             t / hours
         );
+        runs.push(json!({ "hours": hours, "samples": n, "cpu_s": t, "wall_s": wall }));
     }
+    let six = runs
+        .last()
+        .and_then(|r| r["cpu_s"].as_f64())
+        .unwrap_or(f64::NAN);
+    let row = results::Row::new(
+        "sim-model",
+        results::SIM_CALIB_THERMAL,
+        1,
+        "error model",
+        "docs/bench/sim.md",
+    )
+    .data("6 h × 150 Hz, both triads")
+    .ours(format!("{six:.3} s CPU"))
+    .target("< 1 s")
+    .met(six < 1.0)
+    .timed()
+    .command("cargo bench --bench sim -- throughput");
+    results::write(
+        "sim",
+        "throughput",
+        json!({ "rate_hz": 150, "best_of": 3 }),
+        json!({ "runs": runs }),
+        &[row],
+    );
 }
 
 fn needs(six_h: f64) {

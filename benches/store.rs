@@ -10,6 +10,10 @@
 //! the reader tables (whole rows of every stream from the first case; then the IMU rows of
 //! the first case and of the 10 s chunk case, as whole rows and as the analysis' columns).
 
+#[path = "support/results.rs"]
+mod results;
+
+use serde_json::json;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -347,6 +351,14 @@ fn main() {
     println!("| case | rows | raw MB | disk MB | disk/raw | files | write CPU s | write wall s | Mrows/s (CPU) |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut read_dirs = Vec::new();
+    // `cargo bench` adds `--bench` to the arguments.
+    let given: Vec<&str> = args[1..]
+        .iter()
+        .map(String::as_str)
+        .filter(|a| *a != "--bench")
+        .collect();
+    let command = format!("cargo bench --bench store -- {}", given.join(" "));
+    let mut written = Vec::new();
     for (i, case) in cases.iter().enumerate() {
         if only.as_ref().is_some_and(|o| !o.contains(&i)) {
             continue;
@@ -365,6 +377,10 @@ fn main() {
             r.wall_s,
             r.rows as f64 / r.cpu_s / 1e6
         );
+        written.push(json!({
+            "case": i, "label": case.label, "rows": r.rows, "raw_bytes": r.raw_bytes,
+            "disk_bytes": r.disk_bytes, "files": r.files, "cpu_s": r.cpu_s, "wall_s": r.wall_s,
+        }));
         // The default case (1 s chunks) and the 10 s one are read back below.
         if read_dirs.is_empty() || case.flush == 10 * s && case.deflate == 1 {
             read_dirs.push((case.label, dir));
@@ -372,7 +388,9 @@ fn main() {
             let _ = std::fs::remove_dir_all(&dir);
         }
     }
+    write_results(hours, &written, &command);
     let skip_read = args.iter().any(|a| a == "--no-read");
+    let mut reads = Vec::new();
     for (i, (label, dir)) in read_dirs.iter().enumerate() {
         if skip_read {
             break;
@@ -406,10 +424,87 @@ fn main() {
                 "| {label} | {how} | {rows} | {cpu:.2} | {wall:.2} | {:.2} |",
                 rows as f64 / cpu / 1e6
             );
+            reads.push(json!({
+                "session": label, "columns": columns, "rows": rows, "cpu_s": cpu, "wall_s": wall,
+            }));
         }
     }
+    read_results(hours, &reads, &command);
     for (_, dir) in &read_dirs {
         let _ = std::fs::remove_dir_all(dir);
     }
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// The writer row: the default layout's CPU time against the layout before the journal
+/// (cases 0 and 1), when both ran.
+fn write_results(hours: f64, written: &[serde_json::Value], command: &str) {
+    let case = |i: u64| written.iter().find(|w| w["case"] == i);
+    let (Some(ours), Some(peer)) = (case(0), case(1)) else {
+        return;
+    };
+    let f = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+    let cpu = f(ours, "cpu_s");
+    let row = results::Row::new(
+        "store-writer",
+        results::ACQUISITION,
+        1,
+        "writer CPU",
+        "docs/bench/store.md",
+    )
+    .data(format!(
+        "{hours} h, 2 IMUs 150 Hz + GNSS, {:.1} M rows",
+        f(ours, "rows") / 1e6
+    ))
+    .ours(format!("{cpu:.2} s, {:.0} MB", f(ours, "disk_bytes") / 1e6))
+    .peer(format!("1 s chunks, no journal: {:.2} s", f(peer, "cpu_s")))
+    .ratio(format!("{:.1}×", f(peer, "cpu_s") / cpu))
+    .target("< 5 s")
+    .met(cpu < 5.0)
+    .timed()
+    .command(command);
+    results::write(
+        "store",
+        "write",
+        json!({ "hours": hours, "command": command }),
+        json!({ "cases": written }),
+        &[row],
+    );
+}
+
+/// The reader row: the first case's IMU rows as the analysis' columns against whole rows.
+fn read_results(hours: f64, reads: &[serde_json::Value], command: &str) {
+    let first = reads.first().map(|r| r["session"].clone());
+    let pick = |columns: bool| {
+        reads
+            .iter()
+            .find(|r| Some(&r["session"]) == first.as_ref() && r["columns"] == columns)
+            .map(|r| {
+                r["rows"].as_f64().unwrap_or(f64::NAN)
+                    / r["cpu_s"].as_f64().unwrap_or(f64::NAN)
+                    / 1e6
+            })
+    };
+    let (Some(columns), Some(rows)) = (pick(true), pick(false)) else {
+        return;
+    };
+    let row = results::Row::new(
+        "store-reader",
+        results::ACQUISITION,
+        2,
+        "reader",
+        "docs/bench/store.md",
+    )
+    .data("IMU columns of that session")
+    .ours(format!("{columns:.2} M rows/CPU-s"))
+    .peer(format!("whole rows: {rows:.2} M"))
+    .ratio(format!("{:.1}×", columns / rows))
+    .command(command);
+    results::write(
+        "store",
+        "read",
+        json!({ "hours": hours, "command": command }),
+        json!({ "reads": reads }),
+        &[row],
+    );
 }

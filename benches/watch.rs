@@ -14,6 +14,9 @@
 //!
 //! Run: `cargo bench --bench watch` (docs/bench/watch.md).
 
+#[path = "support/results.rs"]
+mod results;
+
 use imulab_test_support::live_session as common;
 
 use common::{mono_now, LiveSession, Served};
@@ -63,7 +66,7 @@ fn fetch_page(served: &Served) {
     assert_eq!(code, 200, "the watch page did not answer");
 }
 
-fn real_time(seconds: f64, refresh_s: f64) {
+fn real_time(seconds: f64, refresh_s: f64) -> serde_json::Value {
     let dir = tempfile::tempdir().unwrap();
     let session = dir.path().join("run");
     let mut live = LiveSession::create(&session, mono_now());
@@ -102,10 +105,16 @@ fn real_time(seconds: f64, refresh_s: f64) {
         mem_mib(pid, "VmRSS"),
         mem_mib(pid, "VmHWM")
     );
+    let figures = serde_json::json!({
+        "wall_s": wall, "cpu_s": cpu, "cpu_pct": 100.0 * cpu / wall,
+        "rss_mib": mem_mib(pid, "VmRSS"), "peak_mib": mem_mib(pid, "VmHWM"),
+    });
     live.close();
+    figures
 }
 
-fn day(hours: f64, refresh_s: f64, speed_up: f64) {
+fn day(hours: f64, refresh_s: f64, speed_up: f64) -> serde_json::Value {
+    let mut reports = Vec::new();
     let dir = tempfile::tempdir().unwrap();
     let session = dir.path().join("run");
     let mut live = LiveSession::create(&session, mono_now());
@@ -140,6 +149,11 @@ fn day(hours: f64, refresh_s: f64, speed_up: f64) {
             // One more refresh, so the watcher has caught up with what was written.
             std::thread::sleep(Duration::from_secs_f64(refresh_s * 2.0 + 1.0));
             fetch_page(&served);
+            reports.push(serde_json::json!({
+                "data_h": data_h, "wall_s": started.elapsed().as_secs_f64(),
+                "cpu_s": cpu_s(pid) - cpu0, "rss_mib": mem_mib(pid, "VmRSS"),
+                "peak_mib": mem_mib(pid, "VmHWM"),
+            }));
             println!(
                 "  {data_h:5.1} h  {:6.0} s  {:6.1} s  {:6.1}  {:6.1}",
                 started.elapsed().as_secs_f64(),
@@ -171,6 +185,7 @@ fn day(hours: f64, refresh_s: f64, speed_up: f64) {
         100.0 * cpu / (data_h * 3600.0)
     );
     live.close();
+    serde_json::json!({ "data_h": data_h, "cpu_s": cpu, "reports": reports })
 }
 
 fn main() {
@@ -179,10 +194,33 @@ fn main() {
         return;
     }
     let refresh_s = env_f64("IMULAB_WATCH_BENCH_REFRESH_S", 5.0);
-    real_time(env_f64("IMULAB_WATCH_BENCH_REAL_S", 120.0), refresh_s);
-    day(
-        env_f64("IMULAB_WATCH_BENCH_DAY_H", 24.0),
-        refresh_s,
-        env_f64("IMULAB_WATCH_BENCH_SPEEDUP", 0.0),
+    let real_s = env_f64("IMULAB_WATCH_BENCH_REAL_S", 120.0);
+    let live = real_time(real_s, refresh_s);
+    let day_h = env_f64("IMULAB_WATCH_BENCH_DAY_H", 24.0);
+    let speed_up = env_f64("IMULAB_WATCH_BENCH_SPEEDUP", 0.0);
+    let a_day = day(day_h, refresh_s, speed_up);
+    let pct = live["cpu_pct"].as_f64().unwrap_or(f64::NAN);
+    let row = results::Row::new(
+        "watch",
+        results::ACQUISITION,
+        12,
+        "`imulab watch`",
+        "docs/bench/watch.md",
+    )
+    .data(format!("live 2 IMUs + GNSS, page every {refresh_s} s"))
+    .ours(format!(
+        "{pct:.2} % of a core, {:.1} MiB",
+        live["rss_mib"].as_f64().unwrap_or(f64::NAN)
+    ))
+    .target("< 2 %")
+    .met(pct < 2.0)
+    .timed()
+    .command("cargo bench --bench watch");
+    results::write(
+        "watch",
+        "live",
+        serde_json::json!({ "refresh_s": refresh_s, "real_s": real_s, "day_h": day_h, "speed_up": speed_up }),
+        serde_json::json!({ "real_time": live, "day": a_day }),
+        &[row],
     );
 }

@@ -11,7 +11,12 @@
 //! `--rrw` adds a rate random walk (°/h/√h or mg/√h), `--lsb` rounds the output to an LSB
 //! (°/s or mg), `--tempco` a bias temperature coefficient (°/h/°C or mg/°C) with the chamber
 //! drifting linearly by `--ramp-c` °C over the run (0: held at the reference temperature).
-//! Figures in docs/bench/allan.md ("term recovery") come from this program.
+//! Figures in docs/bench/allan.md ("term recovery") come from this program. A run without
+//! `--rrw`, `--lsb` and `--tempco` writes its summary and BENCHMARKS.md row to
+//! `benches/results/term_recovery-seeds.json`.
+
+#[path = "../benches/support/results.rs"]
+mod results;
 
 use clap::Parser;
 use imulab::allan::fit::{fit_noise_terms, slope_readings, Term, BIAS_INSTABILITY_FACTOR};
@@ -123,6 +128,7 @@ fn main() -> Result<(), String> {
         si.random_walk[i],
     );
     println!("hours seed | fit B [95 %] id | B/spec | spec in? | slope B (τmin) /spec | fit N/spec | K [95 %] | χ²r");
+    let mut summaries = Vec::new();
     for &hours in &args.hours {
         let n = (hours * 3600.0 * args.rate).round() as usize;
         let mut ratios = Vec::new();
@@ -201,8 +207,65 @@ fn main() -> Result<(), String> {
             mean(&slope_ratios),
             1.0 / BIAS_INSTABILITY_FACTOR
         );
+        summaries.push(serde_json::json!({
+            "hours": hours, "fit_b_over_spec_mean": mean(&ratios), "identified": identified,
+            "spec_inside_95": covered, "seeds": args.seeds, "interval_high_over_low_median": median(&mut widths),
+            "slope_b_over_spec_mean": mean(&slope_ratios),
+        }));
+    }
+    if args.rrw.is_none() && args.lsb.is_none() && args.tempco.is_none() {
+        write_results(&args, &summaries);
     }
     Ok(())
+}
+
+/// The row: fitted/true B over the run lengths, and the truth inside the fit's 95 % interval
+/// in at least 90 % of the seeds of every length.
+fn write_results(args: &Args, summaries: &[serde_json::Value]) {
+    let f = |s: &serde_json::Value, k: &str| s[k].as_f64().unwrap_or(f64::NAN);
+    let ratios: Vec<f64> = summaries
+        .iter()
+        .map(|s| f(s, "fit_b_over_spec_mean"))
+        .collect();
+    let (lo, hi) = results::min_max(&ratios);
+    let covered = summaries
+        .iter()
+        .all(|s| f(s, "spec_inside_95") >= 0.9 * args.seeds as f64);
+    let hours: Vec<String> = args.hours.iter().map(|h| h.to_string()).collect();
+    let (h_lo, h_hi) = results::min_max(&args.hours);
+    let row = results::Row::new(
+        "allan-term-recovery",
+        results::ALLAN,
+        7,
+        "bias instability read back",
+        "docs/bench/allan.md",
+    )
+    .data(format!(
+        "{} {}, {} seeds, {}-{} h",
+        args.preset, args.sensor, args.seeds, h_lo, h_hi
+    ))
+    .ours(format!("fitted/true {}", results::range(lo, hi, 2)))
+    .target("in 95 % CI")
+    .met(covered)
+    .command(format!(
+        "cargo run{} --example term_recovery -- --preset {} --sensor {} --axis {} --hours {} --seeds {}",
+        if cfg!(debug_assertions) { "" } else { " --release" },
+        args.preset,
+        args.sensor,
+        args.axis,
+        hours.join(","),
+        args.seeds
+    ));
+    results::write(
+        "term_recovery",
+        "seeds",
+        serde_json::json!({
+            "preset": args.preset, "sensor": args.sensor, "axis": args.axis, "hours": args.hours,
+            "seeds": args.seeds, "rate_hz": args.rate,
+        }),
+        serde_json::json!({ "per_length": summaries }),
+        &[row],
+    );
 }
 
 fn median(v: &mut [f64]) -> f64 {

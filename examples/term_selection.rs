@@ -9,7 +9,11 @@
 //! cargo run --release --example term_selection -- [--hours 6] [--seeds 20] [--rate 150]
 //! ```
 //!
-//! The table in docs/bench/allan.md ("term selection") comes from this program.
+//! The table in docs/bench/allan.md ("term selection") comes from this program; it writes
+//! its counts and BENCHMARKS.md row to `benches/results/term_selection-seeds.json`.
+
+#[path = "../benches/support/results.rs"]
+mod results;
 
 use clap::Parser;
 use imulab::allan::fit::{fit_noise_terms, Term};
@@ -42,6 +46,7 @@ fn main() -> Result<(), String> {
     let present = [Term::RandomWalk, Term::BiasInstability];
     // [term] -> (reported, runs)
     let mut totals = [(0usize, 0usize); 5];
+    let mut cases = Vec::new();
     println!(
         "{} h at {} Hz, {} seeds, axis {}: reported / runs per term (N, B present; Q, K, R absent)",
         args.hours, args.rate, args.seeds, args.axis
@@ -103,6 +108,10 @@ fn main() -> Result<(), String> {
                 if gyro { "gyro" } else { "accel" },
                 cells.join(" ")
             );
+            cases.push(serde_json::json!({
+                "preset": name, "sensor": if gyro { "gyro" } else { "accel" },
+                "reported": reported.iter().zip(Term::ALL).map(|(r, t)| (t.symbol().to_string(), *r)).collect::<std::collections::BTreeMap<_, _>>(),
+            }));
             for (j, r) in reported.iter().enumerate() {
                 totals[j].0 += r;
                 totals[j].1 += args.seeds as usize;
@@ -127,5 +136,89 @@ fn main() -> Result<(), String> {
             );
         }
     }
+    write_results(&args, &totals, &present, cases);
     Ok(())
+}
+
+/// The term-selection row: absent terms reported, present ones missed, each ≤ 5 %; a term
+/// over 5 % names the preset and sensor most of its wrong calls come from.
+fn write_results(
+    args: &Args,
+    totals: &[(usize, usize); 5],
+    present: &[Term],
+    cases: Vec<serde_json::Value>,
+) {
+    let runs = totals[0].1;
+    let wrong_in = |c: &serde_json::Value, term: Term| {
+        let r = c["reported"][term.symbol()].as_u64().unwrap_or(0);
+        if present.contains(&term) {
+            args.seeds - r
+        } else {
+            r
+        }
+    };
+    let (mut reported, mut missed, mut over) = (Vec::new(), Vec::new(), None);
+    for (j, term) in Term::ALL.iter().enumerate() {
+        let (r, n) = totals[j];
+        let wrong = if present.contains(term) { n - r } else { r };
+        if present.contains(term) {
+            missed.push(format!("{} {wrong}", term.symbol()));
+        } else {
+            reported.push(format!("{} {r}", term.symbol()));
+        }
+        if wrong as f64 > 0.05 * n as f64 && over.is_none() {
+            over = Some((*term, wrong, n));
+        }
+    }
+    let presets = cases.len() / 2;
+    let mut row = results::Row::new(
+        "allan-term-selection",
+        results::ALLAN,
+        8,
+        "term selection",
+        "docs/bench/allan.md",
+    )
+    .data(format!(
+        "{presets} presets × 2 sensors × {} seeds, {} h",
+        args.seeds, args.hours
+    ))
+    .ours(format!(
+        "of {runs} each: absent reported {}; present missed {}",
+        reported.join(", "),
+        missed.join(", ")
+    ))
+    .target("≤ 5 %")
+    .met(over.is_none())
+    .command(format!(
+        "cargo run{} --example term_selection -- --hours {} --seeds {}",
+        if cfg!(debug_assertions) {
+            ""
+        } else {
+            " --release"
+        },
+        args.hours,
+        args.seeds
+    ));
+    if let Some((term, wrong, n)) = over {
+        if let Some(worst) = cases.iter().max_by_key(|c| wrong_in(c, term)) {
+            row = row.not_met(
+                format!("Term selection ≤ 5 % ({} {wrong}/{n})", term.symbol()),
+                format!(
+                    "{} of them are the {} {} runs, in {} of its {} seeds",
+                    wrong_in(worst, term),
+                    worst["preset"].as_str().unwrap_or(""),
+                    worst["sensor"].as_str().unwrap_or(""),
+                    wrong_in(worst, term),
+                    args.seeds
+                ),
+            );
+        }
+    }
+    results::write(
+        "term_selection",
+        "seeds",
+        serde_json::json!({ "hours": args.hours, "seeds": args.seeds, "rate_hz": args.rate, "axis": args.axis }),
+        serde_json::json!({ "cases": cases, "per_term": Term::ALL.iter().zip(totals).map(|(t, (r, n))| serde_json::json!({"term": t.symbol(), "reported": r, "runs": n})).collect::<Vec<_>>() }),
+        &[row],
+    );
 }

@@ -364,6 +364,7 @@ fn one_run(o: &Options, speed: f64) -> RunResult {
 }
 
 pub fn main(args: Vec<String>) {
+    let given: Vec<String> = args.iter().filter(|a| *a != "--bench").cloned().collect();
     let o = match parse_options(args) {
         Ok(o) => o,
         Err(e) => {
@@ -416,6 +417,7 @@ pub fn main(args: Vec<String>) {
         )
         .expect("curve");
     }
+    let mut done: Vec<RunResult> = Vec::new();
     for &speed in &o.speeds {
         for run in 1..=o.runs {
             let r = one_run(&o, speed);
@@ -479,6 +481,127 @@ pub fn main(args: Vec<String>) {
                     .expect("curve");
                 }
             }
+            done.push(r);
         }
     }
+    write_results(&o, &done, &given);
+}
+
+/// The run's figures, and its BENCHMARKS.md row when it is one of the three the table has:
+/// 1× (CPU), 100× (frames held), and a soak with rotation (RSS flat).
+fn write_results(o: &Options, runs: &[RunResult], given: &[String]) {
+    use super::results::{self, Row};
+    use serde_json::json;
+    let command = format!("cargo bench --bench daemon_load -- pty {}", given.join(" "));
+    let figures = json!({ "runs": runs.iter().map(|r| {
+        let rss: Vec<f64> = r.samples.iter().map(|s| s.rss_mib).collect();
+        json!({
+            "speed": r.speed, "scene_s": r.scene_s, "serve_wall_s": r.serve_wall_s,
+            "daemon_cpu_s": r.daemon_cpu_s, "daemon_cpu_pct": 100.0 * r.daemon_cpu_s / r.serve_wall_s,
+            "server_cpu_s": r.server_cpu_s, "expected": r.expected, "written": r.written,
+            "dropped": r.dropped, "overflow_events": r.overflow_events,
+            "server_overflowed": r.server_overflowed, "undelivered": r.undelivered,
+            "frames_bad": r.frames_bad, "gaps": r.gaps, "exit": r.exit, "held": r.held(),
+            "session_mib": r.session_mib, "load_before": r.load.before, "load_after": r.load.after,
+            "rss_mib": rss,
+        })
+    }).collect::<Vec<_>>() });
+    let args = json!({
+        "secs": o.secs, "speeds": o.speeds, "runs": o.runs, "sample_s": o.sample_s,
+        "raw_journal": o.raw_journal, "nice": o.nice, "rotate_sim_min": o.rotate_sim_min,
+        "keep_awake": o.keep_awake, "imulogd": o.imulogd.display().to_string(),
+    });
+    let speed = match o.speeds[..] {
+        [s] => s,
+        _ => {
+            results::write("daemon_load", "pty", args, figures, &[]);
+            return;
+        }
+    };
+    let held = runs.iter().all(RunResult::held);
+    let minutes = o.secs / 60.0;
+    let (row, mode) = if o.rotate_sim_min.is_some() {
+        // Flat: the second half of the run peaks no more than 2 % above the first half.
+        let flat = runs.iter().all(|r| {
+            let half = r.samples.len() / 2;
+            let peak = |v: &[Sample]| v.iter().map(|s| s.rss_mib).fold(f64::NAN, f64::max);
+            peak(&r.samples[half..]) <= 1.02 * peak(&r.samples[..half])
+        });
+        let rss: Vec<f64> = runs
+            .iter()
+            .flat_map(|r| {
+                r.samples
+                    .iter()
+                    .skip(r.samples.len() / 4)
+                    .map(|s| s.rss_mib)
+            })
+            .collect();
+        let (lo, hi) = results::min_max(&rss);
+        let row = Row::new(
+            "daemon-soak",
+            results::ACQUISITION,
+            11,
+            "imulogd soak",
+            "docs/bench/daemon.md",
+        )
+        .data(format!(
+            "{:.0} sim. h at {speed}×, rotation",
+            o.secs * speed / 3600.0
+        ))
+        .ours(format!(
+            "RSS {} MiB after the first quarter, {}",
+            results::range(lo, hi, 1),
+            if flat { "flat" } else { "growing" }
+        ))
+        .target("flat")
+        .met(flat && held)
+        .command(command);
+        (row, "pty-soak")
+    } else if speed == 1.0 {
+        let pct: Vec<f64> = runs
+            .iter()
+            .map(|r| 100.0 * r.daemon_cpu_s / r.serve_wall_s)
+            .collect();
+        let (lo, hi) = results::min_max(&pct);
+        let ok = hi < 1.0;
+        let row = Row::new(
+            "daemon-1x",
+            results::ACQUISITION,
+            9,
+            "imulogd at 1×",
+            "docs/bench/daemon.md",
+        )
+        .data(format!("2 IMUs + GNSS on ptys, {:.0} s", o.secs))
+        .ours(format!("{} % of a core", results::range(lo, hi, 2)))
+        .target("< 1 %")
+        .met_text(if ok { "yes" } else { "no (VM floor)" })
+        .command(command);
+        (row, "pty-1x")
+    } else if speed >= 100.0 {
+        let frames: u64 = runs.iter().map(|r| r.written).sum();
+        let dropped: u64 = runs
+            .iter()
+            .map(|r| r.dropped + r.server_overflowed + r.undelivered)
+            .sum();
+        let row = Row::new(
+            "daemon-100x",
+            results::ACQUISITION,
+            10,
+            format!("imulogd at {speed}×").as_str(),
+            "docs/bench/daemon.md",
+        )
+        .data(format!("same, {minutes:.0} min"))
+        .ours(format!(
+            "{:.1} M frames, {dropped} dropped",
+            frames as f64 / 1e6
+        ))
+        .target(format!("{speed}×"))
+        .met(held)
+        .command(command);
+        (row, "pty-100x")
+    } else {
+        results::write("daemon_load", "pty", args, figures, &[]);
+        return;
+    };
+    results::write("daemon_load", mode, args, figures, &[row]);
 }

@@ -4,7 +4,18 @@
 //!
 //! Run: `cargo bench -p imulab-drivers --bench decode` (release profile).
 
+#[path = "../../benches/support/results.rs"]
+mod results;
+
+use serde_json::json;
+use std::sync::Mutex;
 use std::time::Instant;
+
+/// A codec's name, MB in, MB/s of CPU, MB/s of wall and frames/s of CPU.
+type Measured = (String, f64, f64, f64, f64);
+
+/// Every codec's figures as printed.
+static MEASURED: Mutex<Vec<Measured>> = Mutex::new(Vec::new());
 
 use imulab_drivers::codec::gnss::GnssDecoder;
 use imulab_drivers::codec::nmea::NmeaDecoder;
@@ -112,6 +123,13 @@ fn run<D: Decoder>(name: &str, data: &[u8], mut decoder: D) {
         best_wall
     };
     let stats = decoder.stats();
+    MEASURED.lock().expect("measured").push((
+        name.to_string(),
+        data.len() as f64 / 1e6,
+        data.len() as f64 / 1e6 / secs,
+        data.len() as f64 / 1e6 / best_wall,
+        frames as f64 / secs,
+    ));
     println!(
         "| {name:<28} | {:>6.1} | {:>8.0} | {:>8.0} | {:>10.0} | {:>8} |",
         data.len() as f64 / 1e6,
@@ -163,4 +181,39 @@ fn main() {
         }
         run("gpsd captures (GnssDecoder)", &all, GnssDecoder::new());
     }
+    let measured = MEASURED.lock().expect("measured").clone();
+    let rate = |name: &str| {
+        measured
+            .iter()
+            .find(|m| m.0 == name)
+            .map_or(f64::NAN, |m| m.2)
+    };
+    let (nmea, ubx) = (rate("nmea (NmeaDecoder)"), rate("ubx (UbxDecoder)"));
+    let gpsd = measured.iter().any(|m| m.0.starts_with("gpsd"));
+    let row = results::Row::new(
+        "decode-gnss",
+        results::ACQUISITION,
+        6,
+        "NMEA / UBX decode",
+        "docs/bench/drivers.md",
+    )
+    .data(if gpsd {
+        "gpsd captures + simulated"
+    } else {
+        "simulated"
+    })
+    .ours(format!("{nmea:.0} / {ubx:.0} MB/s"))
+    .target("≥ 200 / 500 MB/s")
+    .met(nmea >= 200.0 && ubx >= 500.0)
+    .timed()
+    .command("cargo bench -p imulab-drivers --bench decode");
+    results::write(
+        "decode",
+        "gnss",
+        json!({ "chunk_bytes": CHUNK, "target_bytes": TARGET_BYTES }),
+        json!({ "codecs": measured.iter().map(|m| json!({
+            "codec": m.0, "mb": m.1, "mb_per_cpu_s": m.2, "mb_per_wall_s": m.3, "frames_per_cpu_s": m.4,
+        })).collect::<Vec<_>>() }),
+        &[row],
+    );
 }

@@ -5,6 +5,15 @@
 //! Rates are computed from the thread's CPU time (CLOCK_THREAD_CPUTIME_ID), so they measure
 //! one core's throughput even on a loaded machine; wall-clock rates are printed beside them.
 
+#[path = "../../benches/support/results.rs"]
+mod results;
+
+/// A codec's name, MB in, frames, frames expected, MB/s of CPU and MB/s of wall.
+type Measured = (String, f64, usize, usize, f64, f64);
+
+/// Every codec's figures as printed.
+static MEASURED: std::sync::Mutex<Vec<Measured>> = std::sync::Mutex::new(Vec::new());
+
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -77,6 +86,14 @@ fn report(
     expected_frames: usize,
     (cpu, wall, frames): (f64, f64, usize),
 ) {
+    MEASURED.lock().expect("measured").push((
+        name.to_string(),
+        bytes.len() as f64 / 1e6,
+        frames,
+        expected_frames,
+        bytes.len() as f64 / cpu / 1e6,
+        bytes.len() as f64 / wall / 1e6,
+    ));
     // Assemblers emit one sample per cycle; the other decoders one frame per encoded frame.
     println!(
         "| {name:<28} | {:>6.1} | {:>9} | {:>9} | {:>7.0} | {:>9.2} | {:>7.0} |",
@@ -350,5 +367,50 @@ fn main() {
             || DbcStreamDecoder::new(CandumpDecoder::new(), |r| Some(r.frame), imu.clone()),
             &bytes,
         ),
+    );
+    write_results();
+}
+
+/// The row of the four IMU binary protocols (MB/s of CPU).
+fn write_results() {
+    use serde_json::json;
+    let measured = MEASURED.lock().expect("measured").clone();
+    let rate = |prefix: &str| {
+        measured
+            .iter()
+            .find(|m| m.0.starts_with(prefix))
+            .map_or(f64::NAN, |m| m.4)
+    };
+    let rates = [
+        rate("witmotion packets"),
+        rate("xbus MTData2"),
+        rate("vectornav binary 86 B"),
+        rate("mip IMU 90 B"),
+    ];
+    let row = results::Row::new(
+        "decode-imu",
+        results::ACQUISITION,
+        7,
+        "WitMotion / Xbus / VectorNav / MIP",
+        "docs/bench/drivers.md",
+    )
+    .data("simulated streams")
+    .ours(format!(
+        "{} MB/s",
+        rates.map(|r| format!("{r:.0}")).join(" / ")
+    ))
+    .target("≥ 500 MB/s")
+    .met(rates.iter().all(|r| *r >= 500.0))
+    .timed()
+    .command("cargo bench -p imulab-drivers --bench imucan_throughput");
+    results::write(
+        "imucan_throughput",
+        "imu",
+        json!({}),
+        json!({ "codecs": measured.iter().map(|m| json!({
+            "codec": m.0, "mb": m.1, "frames": m.2, "expected_frames": m.3,
+            "mb_per_cpu_s": m.4, "mb_per_wall_s": m.5,
+        })).collect::<Vec<_>>() }),
+        &[row],
     );
 }

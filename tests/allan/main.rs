@@ -5,6 +5,8 @@ mod logger_csv;
 mod plots;
 mod reference;
 mod report;
+#[path = "../../benches/support/results.rs"]
+mod results;
 mod robustness;
 mod session;
 mod stable32;

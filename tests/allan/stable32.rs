@@ -122,6 +122,8 @@ fn stable32_alphas_and_bounds_match_every_row() {
     let not_identified = "ocxo/stable32_totdev_alltau.txt";
     let mut failed = Vec::new();
     let (mut alpha_total, mut alpha_rows, mut bound_total, mut bound_rows) = (0, 0, 0, 0);
+    // α of the tables whose α are identifications.
+    let mut identified = (0, 0);
     for (file, phase, name, relative) in &tables {
         let rows = read_table(&dir.join(file));
         let grid = TauGrid::List(rows.iter().map(|r| r.tau).collect());
@@ -140,6 +142,10 @@ fn stable32_alphas_and_bounds_match_every_row() {
         }
         alpha_total += counts.alpha_matched;
         alpha_rows += counts.rows;
+        if file != not_identified {
+            identified.0 += counts.alpha_matched;
+            identified.1 += counts.rows;
+        }
         bound_total += counts.bounds_matched;
         bound_rows += counts.bounds;
         let alphas_ok = counts.alpha_matched == counts.rows || file == not_identified;
@@ -148,6 +154,41 @@ fn stable32_alphas_and_bounds_match_every_row() {
         }
     }
     eprintln!("all tables: alpha {alpha_total}/{alpha_rows}, bounds {bound_total}/{bound_rows}");
+    if super::results::requested() {
+        let row = super::results::Row::new(
+            "allan-stable32",
+            super::results::ALLAN,
+            9,
+            "Stable32 noise ID and bounds",
+            "docs/bench/allan.md",
+        )
+        .data(format!("{} Stable32 tables", tables.len()))
+        .ours(format!(
+            "α {}/{}, bounds {bound_total}/{bound_rows} within {BOUND_TOLERANCE:.0e}",
+            identified.0, identified.1
+        ))
+        .target("100 %")
+        .met(failed.is_empty())
+        .command(format!(
+            "IMULAB_BENCH_RESULTS=benches/results cargo test{} --test allan stable32",
+            if cfg!(debug_assertions) {
+                ""
+            } else {
+                " --release"
+            }
+        ));
+        super::results::write(
+            "stable32",
+            "test",
+            serde_json::json!({ "tables": tables.iter().map(|t| t.0.clone()).collect::<Vec<_>>(), "bound_tolerance": BOUND_TOLERANCE }),
+            serde_json::json!({
+                "alpha_matched": alpha_total, "alpha_rows": alpha_rows,
+                "alpha_matched_identified": identified.0, "alpha_rows_identified": identified.1,
+                "bounds_matched": bound_total, "bounds": bound_rows, "failed": failed,
+            }),
+            &[row],
+        );
+    }
     assert!(
         failed.is_empty(),
         "tables with rows that differ from Stable32: {failed:?}"

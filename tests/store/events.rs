@@ -79,6 +79,34 @@ fn a_trickle_of_events_does_not_store_the_events_chunk_again_and_again() {
     let one = measure("one", usize::MAX);
     // Deterministic sizes: 17 791 now, 48 963 with the chunk stored with every data chunk.
     let cost = trickle.saturating_sub(one);
+    if super::results::requested() {
+        let row = super::results::Row::new(
+            "store-events",
+            super::results::ACQUISITION,
+            3,
+            "`/events` space",
+            "docs/bench/store.md",
+        )
+        .data("5 min, 300 events")
+        .ours(format!("{cost} B"))
+        .target("≤ 25 000 B")
+        .met(cost <= 25_000)
+        .command(format!(
+            "IMULAB_BENCH_RESULTS=benches/results cargo test{} --test store events::",
+            if cfg!(debug_assertions) {
+                ""
+            } else {
+                " --release"
+            }
+        ));
+        super::results::write(
+            "store_events",
+            "test",
+            serde_json::json!({ "seconds": 300, "event_every_s": 10 }),
+            serde_json::json!({ "outside_chunks_trickle": trickle, "outside_chunks_one_event": one, "cost": cost }),
+            &[row],
+        );
+    }
     assert!(
         cost <= 25_000,
         "300 events cost {cost} bytes outside their chunks ({trickle} vs {one} with one event)"

@@ -225,7 +225,39 @@ fn killed_at_many_points_recover_keeps_all_but_the_last_flush_interval() {
          lost (100 Hz, 1 s flush interval); {rebuilt} partial files needed a rebuild from \
          the journal (a kill leaves the HDF5 file repairable)"
     );
+    if super::results::requested() {
+        // Rows of one IMU in a flush interval (100 Hz, 1 s).
+        let interval_rows = (FLUSH_NS / 10_000_000) as usize;
+        let row = super::results::Row::new(
+            "store-kill",
+            super::results::ACQUISITION,
+            4,
+            "crash",
+            "docs/bench/store.md",
+        )
+        .data(format!("{KILL_POINTS} SIGKILLs of a writer"))
+        .ours(format!(
+            "≤ {max_lost_rows} rows lost per kill; recover always succeeds"
+        ))
+        .target("≤ 1 flush interval")
+        .met(max_lost_rows <= interval_rows)
+        .command(FAULTS_COMMAND);
+        super::results::write(
+            "store_faults",
+            "kill",
+            serde_json::json!({ "kill_points": KILL_POINTS, "flush_ns": FLUSH_NS }),
+            serde_json::json!({ "max_lost_rows": max_lost_rows, "rebuilt": rebuilt }),
+            &[row],
+        );
+    }
 }
+
+/// The command that writes the fault rows' JSON.
+const FAULTS_COMMAND: &str = if cfg!(debug_assertions) {
+    "IMULAB_BENCH_RESULTS=benches/results cargo test --test store faults::"
+} else {
+    "IMULAB_BENCH_RESULTS=benches/results cargo test --release --test store faults::"
+};
 
 /// How a damaged copy of the session is made.
 #[derive(Debug, Clone, Copy)]
@@ -448,6 +480,32 @@ fn damaged_files_never_hang_a_reader_and_recover_keeps_what_survives() {
         rebuilt_truncations.len(),
         rebuilds.len() - rebuilt_truncations.len(),
     );
+    if super::results::requested() {
+        let row = super::results::Row::new(
+            "store-damage",
+            super::results::ACQUISITION,
+            5,
+            "damaged files",
+            "docs/bench/store.md",
+        )
+        .data(format!("{truncations} truncations, {overwrites} overwrites"))
+        .ours(format!(
+            "no reader hangs; ≤ {max_lost} of {base_rows} rows lost, {rebuilt} rebuilt from the journal"
+        ))
+        .target("recover keeps what survives")
+        .met(rebuilt >= 4)
+        .command(FAULTS_COMMAND);
+        super::results::write(
+            "store_faults",
+            "damage",
+            serde_json::json!({ "truncations": truncations, "overwrites": overwrites }),
+            serde_json::json!({
+                "rebuilt": rebuilt, "rebuilt_lost_max": rebuilt_lost, "max_lost": max_lost,
+                "base_rows": base_rows,
+            }),
+            &[row],
+        );
+    }
     assert!(rebuilt >= 4, "{rebuilt} rebuilt");
 }
 

@@ -7,6 +7,8 @@ mod faults;
 mod journal;
 mod python;
 mod recover;
+#[path = "../../benches/support/results.rs"]
+mod results;
 mod rotation;
 mod roundtrip;
 use imulab_test_support::space;
