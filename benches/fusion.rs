@@ -593,11 +593,17 @@ fn nees_table() {
             }
         }
     }
-    nees_results(&cells, runs_per_row, gnss_error.is_none(), all_grades);
+    nees_results(
+        &cells,
+        runs_per_row,
+        gnss_error.is_none(),
+        all_grades && !one_bias_state && !args.iter().any(|a| a.starts_with("--nhc-sigma=")),
+    );
 }
 
 /// The NEES row: ANEES of the GNSS-only and NHC runs over the grades, in band or not.
-fn nees_results(cells: &[serde_json::Value], runs: usize, white: bool, all_grades: bool) {
+/// `default_filter`: every grade with the table's own filter (turn-on states, default NHC σ).
+fn nees_results(cells: &[serde_json::Value], runs: usize, white: bool, default_filter: bool) {
     let of = |set: &str| -> Vec<&serde_json::Value> {
         cells.iter().filter(|c| c["constraints"] == set).collect()
     };
@@ -666,7 +672,7 @@ fn nees_results(cells: &[serde_json::Value], runs: usize, white: bool, all_grade
     .target("in band")
     .met_text(met)
     .command("cargo bench --bench fusion -- nees");
-    let owns = all_grades && runs == NEES_RUNS && !white;
+    let owns = default_filter && runs == NEES_RUNS && !white;
     results::write(
         "fusion",
         if owns { "nees" } else { "nees-partial" },

@@ -4,7 +4,8 @@
 //! next to the configured ones, and serving throughput and pacing on ptys. Prints markdown
 //! tables; see docs/bench/sim.md.
 //!
-//! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings).
+//! Run: `cargo bench --bench sim` (release; single-threaded rayon pool for the timings);
+//! `cargo bench --bench sim -- demo` times `imulab demo` as a user runs it.
 
 #[path = "support/results.rs"]
 mod results;
@@ -222,6 +223,59 @@ fn main() {
     if run_section("serve") {
         serve();
     }
+    // Not in the default set: it runs the whole demo through the release binaries.
+    if wanted.iter().any(|w| w == "demo") {
+        demo();
+    }
+}
+
+/// `imulab demo` as a user runs it: the release binary (with the `imulogd` beside it) into a
+/// temporary directory; wall time, CPU and peak RSS of the demo and its children.
+fn demo() {
+    let out = std::env::temp_dir().join(format!("imulab-demo-bench-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let start = Instant::now();
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
+        .args(["demo", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("run imulab demo");
+    let wall = start.elapsed().as_secs_f64();
+    assert!(status.success(), "imulab demo: {status}");
+    // SAFETY: getrusage only writes the struct it is given.
+    let usage = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_CHILDREN, &mut u);
+        u
+    };
+    let seconds = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    let cpu = seconds(usage.ru_utime) + seconds(usage.ru_stime);
+    let peak_mb = usage.ru_maxrss as f64 / 1024.0;
+    let _ = std::fs::remove_dir_all(&out);
+    println!(
+        "imulab demo: {wall:.1} s wall, {cpu:.1} s CPU (with imulogd), peak RSS {peak_mb:.0} MB"
+    );
+    let row = results::Row::new(
+        "demo",
+        results::FUSION,
+        9,
+        "`imulab demo`",
+        "docs/bench/demo.md",
+    )
+    .data("30 sim. min through imulogd, report, replay, study")
+    .ours(format!("{wall:.1} s, {peak_mb:.0} MB"))
+    .target("≈ 2 min")
+    .met(wall < 150.0)
+    .timed()
+    .command("cargo bench --bench sim -- demo");
+    results::write(
+        "sim",
+        "demo",
+        json!({ "command": "imulab demo --out TMP" }),
+        json!({ "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": peak_mb }),
+        &[row],
+    );
 }
 
 /// Serves `scene` to one draining reader thread per endpoint; returns the report.
