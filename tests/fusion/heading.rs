@@ -143,8 +143,8 @@ fn heading_covariance_covers_the_error_on_a_long_straight() {
 }
 
 /// With the turn-on biases as states of their own, the tactical unit's heading σ on the
-/// straight no longer grows back towards the whole 4 °/h turn-on σ: its heading NEES rises
-/// from the cautious one-state figure towards 1, still covering the error.
+/// straight does not grow back towards the whole 4 °/h turn-on σ as one state per axis lets
+/// it: its heading NEES is above the one-state figure, nearer 1, and still covers the error.
 #[test]
 fn turn_on_bias_states_keep_the_heading_sigma_from_outgrowing_the_error() {
     let one = heading_bins::<15>("heading_straight.toml", "tactical", 6, 165.0, 1e6);
