@@ -19,6 +19,10 @@
 #[path = "support/results.rs"]
 mod results;
 
+#[path = "support/cli.rs"]
+mod cli;
+use cli::{imulab, outage_drifts, profile_flag};
+
 use imulab::calib::recording::Recording;
 use imulab::calib::run::{calibrate, Gravity, Mode, Options};
 use imulab::calib::statics::DetectorOptions;
@@ -580,44 +584,6 @@ fn main() {
         json!({ "grades": grade_figures, "rate_table": rate_table }),
         &rows,
     );
-}
-
-/// `--profile dev` when this is a dev build (the command that reproduces the figures).
-fn profile_flag() -> &'static str {
-    if cfg!(debug_assertions) {
-        " --profile dev"
-    } else {
-        ""
-    }
-}
-
-/// Runs the `imulab` binary of this build from the workspace root; wall time and stdout.
-fn imulab(args: &[&str]) -> (f64, String) {
-    let start = Instant::now();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args(args)
-        .output()
-        .expect("run imulab");
-    let wall = start.elapsed().as_secs_f64();
-    assert!(
-        out.status.success(),
-        "imulab {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (wall, String::from_utf8_lossy(&out.stdout).into())
-}
-
-/// Per-outage maximum horizontal drift of a replay's `errors.json` (filtered solution).
-fn outage_drifts(out_dir: &Path) -> Vec<f64> {
-    let text = std::fs::read_to_string(out_dir.join("errors.json")).expect("errors.json");
-    let v: serde_json::Value = serde_json::from_str(&text).expect("errors.json");
-    v["filtered"]["outages"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(|o| o["max_horizontal_m"].as_f64())
-        .collect()
 }
 
 fn rms(v: &[f64]) -> f64 {

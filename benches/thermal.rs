@@ -10,6 +10,10 @@
 #[path = "support/results.rs"]
 mod results;
 
+#[path = "support/cli.rs"]
+mod cli;
+use cli::{imulab, outage_drifts, profile_flag};
+
 use imulab::allan::input::AxisSeries;
 use imulab::allan::units::{RateUnit, SensorKind};
 use imulab::sim::imu_model::{Channels, ImuSimulator, ImuSpec, G0};
@@ -672,41 +676,6 @@ fn timing() {
         json!({ "axes_s": axes, "total_s": total }),
         &[row],
     );
-}
-
-/// `--profile dev` when this is a dev build (the command that reproduces the figures).
-fn profile_flag() -> &'static str {
-    if cfg!(debug_assertions) {
-        " --profile dev"
-    } else {
-        ""
-    }
-}
-
-/// Runs the `imulab` binary of this build from the workspace root.
-fn imulab(args: &[&str]) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_imulab"))
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args(args)
-        .output()
-        .expect("run imulab");
-    assert!(
-        out.status.success(),
-        "imulab {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-/// Per-outage maximum horizontal drift of a replay's `errors.json` (filtered solution).
-fn outage_drifts(out_dir: &std::path::Path) -> Vec<f64> {
-    let text = std::fs::read_to_string(out_dir.join("errors.json")).expect("errors.json");
-    let v: serde_json::Value = serde_json::from_str(&text).expect("errors.json");
-    v["filtered"]["outages"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(|o| o["max_horizontal_m"].as_f64())
-        .collect()
 }
 
 /// `thermal_drive.toml` replayed with 30 s outages every 120 s, without and with the model

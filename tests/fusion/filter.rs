@@ -1,7 +1,7 @@
 //! The error-state filter on simulated drives: NEES consistency, bias (and scale) convergence,
 //! outage drift inside the predicted 3σ, the RTS smoother's gain, alignment from GNSS track.
 
-use crate::support::{city_drive, mems_errors, simulate, SimData};
+use crate::support::{city_drive, mems_errors, simulate, ImuErrors, SimData};
 use imulab::fusion::config::FusionConfig;
 use imulab::fusion::metrics::{errors, summarise, ErrorSummary};
 use imulab::fusion::navigator::{replay, ReplayOptions, ReplayResult};
@@ -57,6 +57,36 @@ fn run(
     (r, s)
 }
 
+/// A run without rejected updates, 97 % of the errors inside 3σ, NEES 2-18, and every final
+/// gyro and accelerometer bias within 3σ of the truth; the last output.
+fn consistent_with_biases_inside_3_sigma<'a>(
+    r: &'a ReplayResult,
+    s: &ErrorSummary,
+    truth: &ImuErrors,
+) -> &'a imulab::fusion::navigator::NavSolution {
+    assert_eq!(r.stats.filter.pd_events, 0);
+    assert!(s.inside_3sigma > 0.97, "inside 3σ {}", s.inside_3sigma);
+    assert!(
+        s.nees_mean > 2.0 && s.nees_mean < 18.0,
+        "NEES {}",
+        s.nees_mean
+    );
+    let last = r.filtered.last().expect("output");
+    for i in 0..3 {
+        let eg = last.sensors.gyro_bias[i] - truth.gyro_bias[i];
+        let ea = last.sensors.accel_bias[i] - truth.accel_bias[i];
+        assert!(
+            eg.abs() < 3.0 * last.sigma_sensors[0][i],
+            "gyro bias {i}: err {eg}"
+        );
+        assert!(
+            ea.abs() < 3.0 * last.sigma_sensors[1][i],
+            "accel bias {i}: err {ea}"
+        );
+    }
+    last
+}
+
 #[test]
 fn fifteen_states_are_consistent_and_biases_converge() {
     for seed in [1, 2] {
@@ -66,27 +96,8 @@ fn fifteen_states_are_consistent_and_biases_converge() {
         let (r, s) = run(&d, &c, vec![], false);
         println!("seed {seed}: {s:?}\nstats {:?}", r.stats);
         assert_eq!(r.stats.gnss_used as usize, d.gnss.len());
-        assert_eq!(r.stats.filter.pd_events, 0);
-        assert!(s.inside_3sigma > 0.97, "inside 3σ {}", s.inside_3sigma);
-        assert!(
-            s.nees_mean > 2.0 && s.nees_mean < 18.0,
-            "NEES {}",
-            s.nees_mean
-        );
         assert!(s.horizontal.rms < 0.5, "{:?}", s.horizontal);
-        let last = r.filtered.last().expect("output");
-        for i in 0..3 {
-            let eg = last.sensors.gyro_bias[i] - truth_errors.gyro_bias[i];
-            let ea = last.sensors.accel_bias[i] - truth_errors.accel_bias[i];
-            assert!(
-                eg.abs() < 3.0 * last.sigma_sensors[0][i],
-                "gyro bias {i}: err {eg}"
-            );
-            assert!(
-                ea.abs() < 3.0 * last.sigma_sensors[1][i],
-                "accel bias {i}: err {ea}"
-            );
-        }
+        let last = consistent_with_biases_inside_3_sigma(&r, &s, &truth_errors);
         // Observable with turns and gravity: z gyro bias and vertical accel bias.
         assert!(last.sigma_sensors[0].z < 0.5 * c.imu.gyro_bias.sigma);
         assert!(last.sigma_sensors[1].z < 0.2 * c.imu.accel_bias.sigma);
@@ -379,20 +390,7 @@ fn turn_on_states_estimate_the_whole_bias_inside_its_sigma() {
     c.imu.accel_bias.sigma *= 0.1;
     let (r, s) = run(&d, &c, vec![], false);
     println!("{s:?}");
-    assert_eq!(r.stats.filter.pd_events, 0);
-    assert!(s.inside_3sigma > 0.97, "inside 3σ {}", s.inside_3sigma);
-    assert!(
-        s.nees_mean > 2.0 && s.nees_mean < 18.0,
-        "NEES {}",
-        s.nees_mean
-    );
-    let last = r.filtered.last().expect("output");
-    for i in 0..3 {
-        let eg = last.sensors.gyro_bias[i] - truth_errors.gyro_bias[i];
-        let ea = last.sensors.accel_bias[i] - truth_errors.accel_bias[i];
-        assert!(eg.abs() < 3.0 * last.sigma_sensors[0][i], "gyro {i}: {eg}");
-        assert!(ea.abs() < 3.0 * last.sigma_sensors[1][i], "accel {i}: {ea}");
-    }
+    let last = consistent_with_biases_inside_3_sigma(&r, &s, &truth_errors);
     let total = c.imu.gyro_bias_sigma0();
     assert!(last.sigma_sensors[0].z < 0.5 * total);
     assert!(last.sigma_sensors[1].z < 0.2 * c.imu.accel_bias_sigma0());
