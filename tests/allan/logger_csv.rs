@@ -190,7 +190,7 @@ fn time_columns_found_by_name_and_temperature_is_not_an_axis() {
 }
 
 /// A phone app's epoch nanoseconds (1.7·10¹⁸, beyond f64's exact integers): read as
-/// floats, 10 ms steps came out as 9.999872 or 10.000128 ms and τ0 as 0.00999999 s.
+/// floats, 10 ms steps come out as 9.999872 or 10.000128 ms and τ0 as 0.00999999 s.
 #[test]
 fn epoch_nanosecond_stamps_give_the_exact_interval() {
     let dir = tempfile::tempdir().unwrap();

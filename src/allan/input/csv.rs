@@ -296,7 +296,7 @@ impl SampleSource for CsvSource {
 }
 
 /// An integer beyond 2⁵³ (epoch nanoseconds are ~1.7·10¹⁸) has no exact f64: read as one,
-/// 10 ms steps came out as 9.999872 or 10.000128 ms. Such a column is read relative to its
+/// 10 ms steps come out as 9.999872 or 10.000128 ms. Such a column is read relative to its
 /// first integer (`first`, set on the first), so its intervals stay exact; None for any
 /// other text.
 fn relative_large_integer(text: &str, first: &mut Option<i64>) -> Option<f64> {
