@@ -21,7 +21,7 @@ mod results;
 
 #[path = "support/cli.rs"]
 mod cli;
-use cli::{imulab, outage_drifts, profile_flag};
+use cli::{imulab, profile_flag, replay_drifts};
 
 use imulab::calib::recording::Recording;
 use imulab::calib::run::{calibrate, Gravity, Mode, Options};
@@ -602,27 +602,13 @@ fn cli_rows() {
         .map(|_| imulab(&["calibrate", &p("T"), "-o", &p("cal.json")]).0)
         .collect();
     imulab(&["sim", "fixtures/scenes/drive_calib.toml", "-o", &p("D")]);
-    imulab(&[
-        "replay",
+    let raw = replay_drifts(&p("D"), "every:180:60", &tmp.join("R0"), &[]);
+    let calibration = p("cal.json");
+    let cal = replay_drifts(
         &p("D"),
-        "--outages",
         "every:180:60",
-        "--out",
-        &p("R0"),
-    ]);
-    imulab(&[
-        "replay",
-        &p("D"),
-        "--outages",
-        "every:180:60",
-        "--calibration",
-        &p("cal.json"),
-        "--out",
-        &p("R1"),
-    ]);
-    let (raw, cal) = (
-        outage_drifts(&tmp.join("R0")),
-        outage_drifts(&tmp.join("R1")),
+        &tmp.join("R1"),
+        &["--calibration", &calibration],
     );
     let _ = std::fs::remove_dir_all(&tmp);
     let (lo, hi) = results::min_max(&times);

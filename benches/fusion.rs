@@ -561,34 +561,28 @@ fn nees_table() {
                     "consistent"
                 }
             };
-            if let Some(a) = anees(&part(0), 9) {
-                cells.push(json!({
-                    "grade": grade, "constraints": name, "anees": a.mean,
-                    "band": [a.band.0, a.band.1], "inside": a.inside, "below": a.below,
-                    "above": a.above, "max": a.max, "blocks": blocks, "verdict": verdict(&a),
-                }));
-            }
             match anees(&part(0), 9) {
-                Some(a) => println!(
-                    "| {grade} | {name} | {:.2} | [{:.2}, {:.2}] | {:.0} / {:.0} / {:.0} % | {:.1} | {:.2} / {:.2} / {:.2} | {} |",
-                    a.mean,
-                    a.band.0,
-                    a.band.1,
-                    100.0 * a.inside,
-                    100.0 * a.below,
-                    100.0 * a.above,
-                    a.max,
-                    blocks[0],
-                    blocks[1],
-                    blocks[2],
-                    if a.mean < a.band.0 {
-                        "cautious"
-                    } else if a.mean > a.band.1 {
-                        "over-confident"
-                    } else {
-                        "consistent"
-                    }
-                ),
+                Some(a) => {
+                    cells.push(json!({
+                        "grade": grade, "constraints": name, "anees": a.mean,
+                        "band": [a.band.0, a.band.1], "inside": a.inside, "below": a.below,
+                        "above": a.above, "max": a.max, "blocks": blocks, "verdict": verdict(&a),
+                    }));
+                    println!(
+                        "| {grade} | {name} | {:.2} | [{:.2}, {:.2}] | {:.0} / {:.0} / {:.0} % | {:.1} | {:.2} / {:.2} / {:.2} | {} |",
+                        a.mean,
+                        a.band.0,
+                        a.band.1,
+                        100.0 * a.inside,
+                        100.0 * a.below,
+                        100.0 * a.above,
+                        a.max,
+                        blocks[0],
+                        blocks[1],
+                        blocks[2],
+                        verdict(&a)
+                    )
+                }
                 None => println!("| {grade} | {name} | no common epochs | | | | | |"),
             }
         }

@@ -12,7 +12,7 @@ mod results;
 
 #[path = "support/cli.rs"]
 mod cli;
-use cli::{imulab, outage_drifts, profile_flag};
+use cli::{imulab, profile_flag, replay_drifts};
 
 use imulab::allan::input::AxisSeries;
 use imulab::allan::units::{RateUnit, SensorKind};
@@ -686,14 +686,7 @@ fn cli_replay() {
     std::fs::create_dir_all(&tmp).expect("temporary directory");
     let p = |name: &str| tmp.join(name).display().to_string();
     imulab(&["sim", "fixtures/scenes/thermal_drive.toml", "-o", &p("S")]);
-    imulab(&[
-        "replay",
-        &p("S"),
-        "--outages",
-        "every:120:30",
-        "--out",
-        &p("R0"),
-    ]);
+    let raw = replay_drifts(&p("S"), "every:120:30", &tmp.join("R0"), &[]);
     imulab(&[
         "sim",
         "fixtures/scenes/thermal_drive_chamber.toml",
@@ -701,19 +694,12 @@ fn cli_replay() {
         &p("C"),
     ]);
     imulab(&["thermal", &p("C"), "--model", &p("fitted.json")]);
-    imulab(&[
-        "replay",
+    let model = p("fitted.json");
+    let comp = replay_drifts(
         &p("S"),
-        "--outages",
         "every:120:30",
-        "--out",
-        &p("R1"),
-        "--compensate",
-        &p("fitted.json"),
-    ]);
-    let (raw, comp) = (
-        outage_drifts(&tmp.join("R0")),
-        outage_drifts(&tmp.join("R1")),
+        &tmp.join("R1"),
+        &["--compensate", &model],
     );
     let _ = std::fs::remove_dir_all(&tmp);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;

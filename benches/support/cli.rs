@@ -42,3 +42,13 @@ pub fn outage_drifts(out_dir: &Path) -> Vec<f64> {
         .filter_map(|o| o["max_horizontal_m"].as_f64())
         .collect()
 }
+
+/// Replays session `session` with GNSS withheld by `outages` into `out`, with `extra`
+/// arguments (a calibration, a compensation model), and returns its per-outage drifts.
+pub fn replay_drifts(session: &str, outages: &str, out: &Path, extra: &[&str]) -> Vec<f64> {
+    let out_arg = out.display().to_string();
+    let mut args = vec!["replay", session, "--outages", outages, "--out", &out_arg];
+    args.extend_from_slice(extra);
+    imulab(&args);
+    outage_drifts(out)
+}
