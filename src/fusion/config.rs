@@ -305,6 +305,11 @@ pub struct NhcOptions {
     pub enabled: bool,
     /// σ of the lateral and vertical body velocity, m/s.
     pub sigma_mps: f64,
+    /// Side-slip the lateral σ allows for in turns, degrees per m/s² of lateral
+    /// acceleration: a car's body yaws into a turn by about this much per m/s², so its lateral
+    /// velocity is speed × tan(slip × lateral acceleration) there (a passenger car: 0.1-0.4;
+    /// 0 for a vehicle that does not slip, such as a rail vehicle).
+    pub slip_deg_per_mps2: f64,
     /// Apply only above this speed, m/s.
     pub min_speed_mps: f64,
     /// Apply at most this often, s.
@@ -316,6 +321,7 @@ impl Default for NhcOptions {
         Self {
             enabled: false,
             sigma_mps: 0.1,
+            slip_deg_per_mps2: 0.2,
             min_speed_mps: 1.0,
             interval_s: 0.2,
         }
@@ -760,6 +766,12 @@ impl FusionConfig {
             self.nhc.sigma_mps,
             self.nhc.sigma_mps > 0.0,
             pos,
+        )?;
+        check(
+            "nhc.slip_deg_per_mps2",
+            self.nhc.slip_deg_per_mps2,
+            (0.0..=5.0).contains(&self.nhc.slip_deg_per_mps2),
+            "must be within [0, 5]",
         )?;
         check(
             "nhc.min_speed_mps",

@@ -14,7 +14,7 @@
 //! *Strapdown Inertial Navigation Technology*, ch. 12; Shin 2005, ch. 2) including the
 //! transport-rate couplings, the vertical gravity gradient and the Gauss-Markov sensor errors.
 
-use crate::config::{FusionConfig, VehicleOptions};
+use crate::config::{FusionConfig, NhcOptions, VehicleOptions};
 use crate::mechanisation::NavState;
 use imulab_earth as earth;
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -404,21 +404,34 @@ fn vehicle_velocity<const N: usize>(
 }
 
 /// Non-holonomic constraint: the vehicle point's lateral and vertical velocity in the
-/// vehicle frame are zero.
+/// vehicle frame are zero, within `options.sigma_mps`; in a turn the lateral σ also allows
+/// for the side-slip there, speed × tan(`slip_deg_per_mps2` × lateral acceleration), with the
+/// lateral acceleration speed × yaw rate from the filter's own estimate.
 pub fn non_holonomic<const N: usize>(
     nav: &NavState,
     gyro_b: &Vector3<f64>,
     vehicle: &VehicleOptions,
-    sigma: f64,
+    options: &NhcOptions,
 ) -> Measurement<2, N> {
     let (v_v, h_v) = vehicle_velocity::<N>(nav, gyro_b, vehicle);
     let mut h = SMatrix::<f64, 2, N>::zeros();
     h.row_mut(0).copy_from(&h_v.row(1));
     h.row_mut(1).copy_from(&h_v.row(2));
+    let yaw_rate = (vehicle.imu_to_vehicle() * gyro_b).z;
+    let lateral_accel = v_v.x * yaw_rate;
+    let slip = v_v.x
+        * (options.slip_deg_per_mps2.to_radians() * lateral_accel)
+            .abs()
+            .min(0.5)
+            .tan();
+    let sigma2 = options.sigma_mps * options.sigma_mps;
     Measurement {
         z: SVector::<f64, 2>::new(v_v.y, v_v.z),
         h,
-        r: SMatrix::<f64, 2, 2>::identity() * sigma * sigma,
+        r: SMatrix::<f64, 2, 2>::from_diagonal(&SVector::<f64, 2>::new(
+            sigma2 + slip * slip,
+            sigma2,
+        )),
     }
 }
 
@@ -597,11 +610,21 @@ mod tests {
     fn nhc_jacobian_matches_perturbation() {
         let n = nav();
         let gyro = Vector3::new(0.02, -0.01, 0.3);
-        let m0 = non_holonomic::<21>(&n, &gyro, &VehicleOptions::default(), 0.1);
+        let m0 = non_holonomic::<21>(
+            &n,
+            &gyro,
+            &VehicleOptions::default(),
+            &NhcOptions::default(),
+        );
         let phi = Vector3::new(-2e-4, 1e-4, 2e-4);
         let mut p = n;
         p.quat_nb = UnitQuaternion::from_scaled_axis(-phi) * n.quat_nb;
-        let m1 = non_holonomic::<21>(&p, &gyro, &VehicleOptions::default(), 0.1);
+        let m1 = non_holonomic::<21>(
+            &p,
+            &gyro,
+            &VehicleOptions::default(),
+            &NhcOptions::default(),
+        );
         let mut dx = SVector::<f64, 21>::zeros();
         dx.fixed_rows_mut::<3>(ATT).copy_from(&phi);
         assert!((m1.z - m0.z - m0.h * dx).norm() < 1e-6);

@@ -370,12 +370,7 @@ impl<const N: usize> Navigator<N> {
             return;
         }
         self.last_nhc_t = ins.nav.t_s;
-        let m = models::non_holonomic::<N>(
-            &ins.nav,
-            &ins.last_gyro(),
-            &self.config.vehicle,
-            c.sigma_mps,
-        );
+        let m = models::non_holonomic::<N>(&ins.nav, &ins.last_gyro(), &self.config.vehicle, &c);
         if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
             self.result.stats.nhc_updates += 1;
         }

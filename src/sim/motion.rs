@@ -9,8 +9,14 @@
 //! Runge-Kutta step between samples, so a noise-free strapdown mechanisation of `gyro_b` and
 //! `accel_b` reproduces the trajectory (see `tests/fusion/mechanisation.rs`).
 //!
-//! The vehicle has zero roll and no side-slip: the body x axis points along the velocity
-//! (pitch = flight-path angle while climbing), y to the right, z down (FRD).
+//! By default the vehicle has zero roll and no side-slip: the body x axis points along the
+//! velocity (pitch = flight-path angle while climbing), y to the right, z down (FRD), so the
+//! non-holonomic constraint (no lateral or vertical body velocity) holds exactly. A real car
+//! breaks it a little, and [`VehicleDynamics`] adds the two ways it does: tyre side-slip in
+//! turns (the body yaws further into the turn than its velocity, by an angle proportional to
+//! the lateral acceleration) and heave from the road (a vertical velocity that grows with
+//! speed, as a sum of incommensurate sinusoids in the suspension's 1-4 Hz band). Both are
+//! closed-form in time, so the IMU output still integrates exactly to the trajectory.
 
 use imulab_earth as earth;
 use nalgebra::{UnitQuaternion, Vector3};
@@ -47,7 +53,30 @@ pub struct MotionSpec {
     /// Initial forward speed, m/s.
     pub speed_mps: f64,
     pub segments: Vec<Segment>,
+    /// How the vehicle breaks the non-holonomic constraint (none by default).
+    #[serde(default)]
+    pub vehicle: VehicleDynamics,
 }
+
+/// The motion of a real car's body that the segments' ideal path leaves out: what makes its
+/// lateral and vertical body velocity non-zero.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VehicleDynamics {
+    /// Side-slip gradient: the body yaws this many degrees further into the turn than the
+    /// velocity per m/s² of lateral acceleration (a passenger car at road speed: 0.1-0.4;
+    /// 0 = no slip).
+    pub slip_deg_per_mps2: f64,
+    /// RMS vertical body velocity from the road at speeds well above 5 m/s, m/s (half of it
+    /// at 5 m/s, none at a standstill; a car on a good road: 0.01-0.05; 0 = a flat ride).
+    pub heave_mps: f64,
+}
+
+/// Heave frequencies (Hz), phases (rad): incommensurate, within a car body's and wheel's
+/// vertical modes, so the sum does not repeat within a drive.
+const HEAVE_MODES: [(f64, f64); 4] = [(1.13, 0.4), (1.71, 2.1), (2.37, 4.0), (3.61, 5.3)];
+/// Speed (m/s) at which the heave reaches half its RMS.
+const HEAVE_HALF_SPEED_MPS: f64 = 5.0;
 
 /// The true state and error-free IMU output at one instant.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -93,6 +122,8 @@ pub enum MotionError {
         "motion spec: segment {index} (climb) needs forward speed ≥ 0.1 m/s, have {speed_mps} m/s"
     )]
     ClimbTooSlow { index: usize, speed_mps: f64 },
+    #[error("motion spec: vehicle.slip_deg_per_mps2 = {} must be within ±5 and vehicle.heave_mps = {} within [0, 1]", .0.slip_deg_per_mps2, .0.heave_mps)]
+    Vehicle(VehicleDynamics),
     #[error("motion spec: {samples} samples is too many (duration × rate)")]
     TooLong { samples: f64 },
 }
@@ -123,14 +154,19 @@ struct Kinematics {
     speed_rate: f64,
     heading: f64,
     heading_rate: f64,
+    heading_accel: f64,
+    /// Vertical velocity of the path (a climb), m/s down.
     vel_down: f64,
     vel_down_rate: f64,
+    /// Vertical velocity of the body over the path (road heave), m/s down.
+    heave: f64,
+    heave_rate: f64,
 }
 
 impl Kinematics {
     fn vel_ned(&self) -> Vector3<f64> {
         let (s, c) = self.heading.sin_cos();
-        Vector3::new(self.speed * c, self.speed * s, self.vel_down)
+        Vector3::new(self.speed * c, self.speed * s, self.vel_down + self.heave)
     }
 }
 
@@ -154,6 +190,7 @@ pub struct MotionGenerator {
     cursor: usize,
     /// Position at the next sample's time: lat (rad), lon (rad, unwrapped), height (m).
     position: Vector3<f64>,
+    vehicle: VehicleDynamics,
 }
 
 fn finite(field: &str, value: f64) -> Result<f64, MotionError> {
@@ -179,6 +216,11 @@ impl MotionGenerator {
             return Err(MotionError::Latitude(lat));
         }
         let lon = finite("lon_deg", spec.lon_deg)?;
+        let slip = finite("vehicle.slip_deg_per_mps2", spec.vehicle.slip_deg_per_mps2)?;
+        let heave = finite("vehicle.heave_mps", spec.vehicle.heave_mps)?;
+        if slip.abs() > 5.0 || !(0.0..=1.0).contains(&heave) {
+            return Err(MotionError::Vehicle(spec.vehicle));
+        }
         let height = finite("height_m", spec.height_m)?;
         let mut heading = finite("heading_deg", spec.heading_deg)?.to_radians();
         let mut speed = finite("speed_mps", spec.speed_mps)?;
@@ -264,6 +306,7 @@ impl MotionGenerator {
             next_index: 0,
             cursor: 0,
             position: Vector3::new(lat.to_radians(), lon.to_radians(), height),
+            vehicle: spec.vehicle,
         })
     }
 
@@ -275,6 +318,28 @@ impl MotionGenerator {
     /// Kinematics at time `t`; moves the phase cursor forward (times must not go backwards
     /// by more than one phase, which the RK4 sub-steps of one sample interval never do).
     fn kinematics(&mut self, t: f64) -> Kinematics {
+        let mut k = self.path_kinematics(t);
+        let rms = self.vehicle.heave_mps;
+        if rms > 0.0 {
+            // w = rms·g(v)·S(t): S of unit RMS, g = v/(v + v½) rising from 0 at a standstill.
+            let amplitude = rms * (2.0 / HEAVE_MODES.len() as f64).sqrt();
+            let (mut sum, mut sum_rate) = (0.0, 0.0);
+            for (f, phase) in HEAVE_MODES {
+                let (sn, cs) = (TAU * f * t + phase).sin_cos();
+                sum += amplitude * sn;
+                sum_rate += amplitude * TAU * f * cs;
+            }
+            let g = k.speed / (k.speed + HEAVE_HALF_SPEED_MPS);
+            let g_rate =
+                HEAVE_HALF_SPEED_MPS / (k.speed + HEAVE_HALF_SPEED_MPS).powi(2) * k.speed_rate;
+            k.heave = g * sum;
+            k.heave_rate = g_rate * sum + g * sum_rate;
+        }
+        k
+    }
+
+    /// Kinematics of the segments' ideal path at time `t`, see [`Self::kinematics`].
+    fn path_kinematics(&mut self, t: f64) -> Kinematics {
         while self.cursor + 1 < self.phases.len() && t >= self.phases[self.cursor + 1].t0 {
             self.cursor += 1;
         }
@@ -286,8 +351,11 @@ impl MotionGenerator {
             speed_rate: 0.0,
             heading,
             heading_rate: 0.0,
+            heading_accel: 0.0,
             vel_down: 0.0,
             vel_down_rate: 0.0,
+            heave: 0.0,
+            heave_rate: 0.0,
         };
         let Some(phase) = self.phases.get(self.cursor).copied() else {
             return hold(self.final_speed, self.final_heading);
@@ -306,6 +374,7 @@ impl MotionGenerator {
             Profile::Heading { dpsi } => {
                 k.heading = phase.heading0 + dpsi * s;
                 k.heading_rate = dpsi / d * ds;
+                k.heading_accel = dpsi / (d * d) * dds;
             }
             Profile::Vertical { dh } => {
                 k.vel_down = -dh / d * ds;
@@ -336,14 +405,19 @@ impl MotionGenerator {
         } else {
             (0.0, 0.0)
         };
-        let quat_nb = UnitQuaternion::from_euler_angles(0.0, pitch, k.heading);
+        // Side-slip: the body yaws K·a_lat further into the turn than the path's heading.
+        let slip_gain = self.vehicle.slip_deg_per_mps2.to_radians();
+        let yaw = k.heading + slip_gain * k.speed * k.heading_rate;
+        let yaw_rate = k.heading_rate
+            + slip_gain * (k.speed_rate * k.heading_rate + k.speed * k.heading_accel);
+        let quat_nb = UnitQuaternion::from_euler_angles(0.0, pitch, yaw);
         let (sp, cp) = pitch.sin_cos();
-        let omega_nb_b = Vector3::new(-k.heading_rate * sp, pitch_rate, k.heading_rate * cp);
+        let omega_nb_b = Vector3::new(-yaw_rate * sp, pitch_rate, yaw_rate * cp);
         let (sh, ch) = k.heading.sin_cos();
         let accel_ned = Vector3::new(
             k.speed_rate * ch - k.speed * k.heading_rate * sh,
             k.speed_rate * sh + k.speed * k.heading_rate * ch,
-            k.vel_down_rate,
+            k.vel_down_rate + k.heave_rate,
         );
         let w_ie = earth::earth_rate_ned(lat);
         let w_en = earth::transport_rate_ned(lat, h, &vel);
@@ -436,6 +510,7 @@ mod tests {
             heading_deg: 30.0,
             speed_mps: 0.0,
             segments,
+            vehicle: VehicleDynamics::default(),
         }
     }
 

@@ -12,7 +12,7 @@ use serde::Deserialize;
 use super::attitude::{AttitudeProgram, RateTableSpec, TumbleSpec};
 use super::gnss_model::{GnssSpec, GNSS_PRESETS};
 use super::imu_model::{Channels, ImuSpec};
-use super::motion::{MotionSpec, Segment};
+use super::motion::{MotionSpec, Segment, VehicleDynamics};
 use super::presets::{imu_preset, imu_preset_names};
 use super::serve::Fault;
 use super::temperature::TemperatureProfile;
@@ -74,6 +74,8 @@ enum MotionFile {
         #[serde(default)]
         speed_mps: f64,
         segments: Vec<Segment>,
+        #[serde(default)]
+        vehicle: VehicleDynamics,
     },
     TruthFile {
         path: PathBuf,
@@ -238,6 +240,7 @@ impl Scene {
                 heading_deg,
                 speed_mps,
                 segments,
+                vehicle,
             } => Motion::Segments(MotionSpec {
                 lat_deg: loc.lat_deg,
                 lon_deg: loc.lon_deg,
@@ -245,6 +248,7 @@ impl Scene {
                 heading_deg,
                 speed_mps,
                 segments,
+                vehicle,
             }),
             MotionFile::TruthFile { path } => Motion::TruthFile(base_dir.join(path)),
             MotionFile::Tumble(spec) => {

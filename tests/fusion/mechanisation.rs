@@ -44,6 +44,7 @@ fn stationary_noise_free_imu_stays_put_for_ten_minutes() {
 
 fn drive() -> MotionSpec {
     MotionSpec {
+        vehicle: Default::default(),
         lat_deg: 52.0,
         lon_deg: 4.0,
         height_m: 30.0,
@@ -133,4 +134,66 @@ fn constant_rate_turns_return_to_truth_with_rates_and_increments() {
         "{worst:?}"
     );
     assert!(dp < 0.01 && dv < 1e-3 && da < 1e-6);
+}
+
+#[test]
+fn a_car_with_side_slip_and_heave_integrates_to_its_truth_and_breaks_nhc_by_its_own_amounts() {
+    use imulab::sim::motion::VehicleDynamics;
+    let rate = 200.0;
+    let vehicle = VehicleDynamics {
+        slip_deg_per_mps2: 0.25,
+        heave_mps: 0.03,
+    };
+    let truth: Vec<TruthSample> = MotionGenerator::new(&MotionSpec { vehicle, ..drive() }, rate)
+        .expect("plan")
+        .collect();
+    let mut nav = imulab::study::nav_state(&truth[0]);
+    let mut mech = Mechaniser::new(MechanisationOptions::default());
+    let (mut worst, mut lateral_max, mut slip_max) = ((0.0f64, 0.0f64, 0.0f64), 0.0f64, 0.0f64);
+    let (mut vertical_sq, mut moving) = (0.0, 0usize);
+    for s in &truth {
+        mech.step(
+            &mut nav,
+            &ImuInput::Rates {
+                t_s: s.t_s,
+                gyro: s.gyro_b,
+                accel: s.accel_b,
+            },
+        );
+        let e = errors(&nav, s);
+        worst = (worst.0.max(e.0), worst.1.max(e.1), worst.2.max(e.2));
+        let v_body = s.quat_nb.inverse() * s.vel_ned;
+        let speed = s.vel_ned.xy().norm();
+        lateral_max = lateral_max.max(v_body.y.abs());
+        if speed > 14.9 {
+            vertical_sq += v_body.z * v_body.z;
+            moving += 1;
+        }
+        slip_max = slip_max.max((v_body.y / v_body.x.max(1e-9)).abs().atan());
+    }
+    let vertical_rms = (vertical_sq / moving as f64).sqrt();
+    println!(
+        "worst: pos {} m vel {} m/s att {} rad; lateral body velocity max {lateral_max:.3} m/s, slip max {:.3}°, vertical RMS at 15 m/s {vertical_rms:.4} m/s",
+        worst.0, worst.1, worst.2, slip_max.to_degrees()
+    );
+    assert!(
+        worst.0 < 0.01 && worst.1 < 1e-3 && worst.2 < 1e-6,
+        "{worst:?}"
+    );
+    // The sharpest turn, 90° in 6 s at 15 m/s, peaks at a heading rate of 2·(π/2)/6 rad/s: a
+    // lateral acceleration of 7.85 m/s², so 0.25°/(m/s²) slips 1.96° and moves 0.51 m/s
+    // sideways.
+    let a_lat = 15.0 * std::f64::consts::PI / 6.0;
+    let slip = (0.25 * a_lat).to_radians();
+    assert!(
+        (slip_max - slip).abs() < 0.02 * slip,
+        "{slip_max} vs {slip}"
+    );
+    assert!((lateral_max - 15.0 * slip.sin()).abs() < 0.02 * 15.0 * slip.sin());
+    // Heave at 15 m/s: 0.03 m/s × 15 / (15 + 5).
+    let expected = 0.03 * 15.0 / 20.0;
+    assert!(
+        (vertical_rms - expected).abs() < 0.25 * expected,
+        "{vertical_rms} vs {expected}"
+    );
 }

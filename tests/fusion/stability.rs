@@ -10,6 +10,7 @@ use nalgebra::{Cholesky, Vector3};
 
 fn static_spec(hours: f64) -> MotionSpec {
     MotionSpec {
+        vehicle: Default::default(),
         lat_deg: -27.5,
         lon_deg: 153.0,
         height_m: 40.0,

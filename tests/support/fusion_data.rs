@@ -134,6 +134,7 @@ pub fn simulate(
 /// A 5-minute drive: start, figure of turns, climb, stop and go.
 pub fn city_drive() -> MotionSpec {
     MotionSpec {
+        vehicle: Default::default(),
         lat_deg: 48.1,
         lon_deg: 11.6,
         height_m: 520.0,
