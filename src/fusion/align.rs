@@ -19,6 +19,7 @@ pub const LEVEL_GRAVITY_TOLERANCE: f64 = 1.0;
 /// a standalone receiver's velocity noise of a few cm/s).
 pub const STILL_SPEED_MPS: f64 = 0.5;
 
+use crate::config::Axes;
 use imulab_earth::OMEGA_IE;
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -89,8 +90,8 @@ pub fn static_gyro_bias(
     roll: f64,
     pitch: f64,
     lat_rad: f64,
-    arw: f64,
-    sigma0: f64,
+    arw: &Axes,
+    sigma0: &Axes,
 ) -> StaticGyroBias {
     let c_nb = attitude(roll, pitch, 0.0).to_rotation_matrix();
     let c_bn = c_nb.matrix().transpose();
@@ -98,11 +99,11 @@ pub fn static_gyro_bias(
     let vertical = c_bn * Vector3::new(0.0, 0.0, -OMEGA_IE * sin);
     let measured = mean_w - vertical;
     let mut bias = Vector3::zeros();
-    let mut sigma = Vector3::repeat(sigma0);
+    let mut sigma = Vector3::from(sigma0.0);
     for i in 0..3 {
         let horizontal = OMEGA_IE * cos * c_bn[(i, 0)].hypot(c_bn[(i, 1)]);
-        let r = horizontal.powi(2) + arw.powi(2) / duration_s;
-        let p0 = sigma0.powi(2);
+        let r = horizontal.powi(2) + arw[i].powi(2) / duration_s;
+        let p0 = sigma0[i].powi(2);
         if !(r.is_finite() && p0.is_finite() && p0 + r > 0.0) {
             continue;
         }
@@ -249,14 +250,30 @@ mod tests {
         let earth_vertical = c_bn * Vector3::new(0.0, 0.0, -OMEGA_IE * lat.sin());
         let mean = bias + earth_vertical;
         // A prior far wider than the measurement: the estimate is the measurement.
-        let b = static_gyro_bias(&mean, 60.0, roll, pitch, lat, 1e-6, 0.1);
+        let b = static_gyro_bias(
+            &mean,
+            60.0,
+            roll,
+            pitch,
+            lat,
+            &Axes::all(1e-6),
+            &Axes::all(0.1),
+        );
         assert!((b.bias - bias).norm() < 1e-6, "{:?}", b.bias);
         let horizontal = OMEGA_IE * lat.cos();
         assert!(b.sigma.x > 0.99 * horizontal && b.sigma.x < 1.01 * horizontal);
         // The vertical axis is free of the unknown horizontal earth rate (tilt aside).
         assert!(b.sigma.z < 0.1 * horizontal, "{}", b.sigma.z);
         // A prior tighter than the earth rate's horizontal part barely moves.
-        let tight = static_gyro_bias(&mean, 60.0, roll, pitch, lat, 1e-4, 1e-6);
+        let tight = static_gyro_bias(
+            &mean,
+            60.0,
+            roll,
+            pitch,
+            lat,
+            &Axes::all(1e-4),
+            &Axes::all(1e-6),
+        );
         assert!(tight.bias.x.abs() < 0.01 * bias.x, "{}", tight.bias.x);
         assert!(tight.sigma.x > 0.99e-6 && tight.sigma.x <= 1e-6);
     }

@@ -9,12 +9,29 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// A first-order Gauss-Markov process: stationary σ and correlation time τ. τ = ∞ (or any
-/// τ ≤ 0 written as `0`) makes it a random constant with initial σ.
+/// τ ≤ 0 written as `0`) makes it a random constant with initial σ. The IMU's processes have
+/// one σ per body axis (`GaussMarkov<Axes>`) and one τ; [`GaussMarkov::axis`] gives one
+/// axis's scalar process.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct GaussMarkov {
-    pub sigma: f64,
+pub struct GaussMarkov<S = f64> {
+    pub sigma: S,
     pub tau_s: f64,
+}
+
+impl GaussMarkov<Axes> {
+    /// The process of body axis `axis` (0 = x, 1 = y, 2 = z).
+    pub fn axis(&self, axis: usize) -> GaussMarkov {
+        GaussMarkov {
+            sigma: self.sigma[axis],
+            tau_s: self.tau_s,
+        }
+    }
+
+    /// The decay rate 1/τ (0 for a random constant), the same on every axis.
+    pub fn decay(&self) -> f64 {
+        self.axis(0).decay()
+    }
 }
 
 impl GaussMarkov {
@@ -41,43 +58,125 @@ impl GaussMarkov {
     }
 }
 
+/// One figure per body axis x, y, z. In TOML a number is the same figure on every axis and a
+/// list of three is one per axis; it is written back as a number when the three are equal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Axes(pub [f64; 3]);
+
+impl Axes {
+    /// The same figure on every axis.
+    pub const fn all(v: f64) -> Self {
+        Self([v; 3])
+    }
+
+    /// The largest of the three.
+    pub fn max(&self) -> f64 {
+        self.0.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+    }
+
+    /// Each axis through `f`.
+    pub fn map(self, f: impl Fn(f64) -> f64) -> Self {
+        Self(self.0.map(f))
+    }
+}
+
+impl From<f64> for Axes {
+    fn from(v: f64) -> Self {
+        Self::all(v)
+    }
+}
+
+impl std::ops::Index<usize> for Axes {
+    type Output = f64;
+    fn index(&self, axis: usize) -> &f64 {
+        &self.0[axis]
+    }
+}
+
+impl std::ops::Mul<f64> for Axes {
+    type Output = Axes;
+    fn mul(self, k: f64) -> Axes {
+        self.map(|v| v * k)
+    }
+}
+
+impl std::ops::Mul<Axes> for f64 {
+    type Output = Axes;
+    fn mul(self, a: Axes) -> Axes {
+        a * self
+    }
+}
+
+impl std::ops::MulAssign<f64> for Axes {
+    fn mul_assign(&mut self, k: f64) {
+        *self = *self * k;
+    }
+}
+
+impl Serialize for Axes {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let [x, y, z] = self.0;
+        if x == y && y == z {
+            x.serialize(s)
+        } else {
+            self.0.serialize(s)
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Axes {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged, expecting = "a number, or a list of three numbers (x, y, z)")]
+        enum OneOrThree {
+            One(f64),
+            Three([f64; 3]),
+        }
+        Ok(match OneOrThree::deserialize(d)? {
+            OneOrThree::One(v) => Axes::all(v),
+            OneOrThree::Three(v) => Axes(v),
+        })
+    }
+}
+
 /// IMU noise and sensor-error model. Gyro quantities in rad, accel in m/s, scale factors as
-/// fractions (1e-3 = 1000 ppm).
+/// fractions (1e-3 = 1000 ppm). Every σ and noise density is per body axis ([`Axes`]: one
+/// number for all three, or a list x, y, z).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ImuModel {
     /// Angle random walk, rad/√s.
-    pub arw_rad_per_sqrt_s: f64,
+    pub arw_rad_per_sqrt_s: Axes,
     /// Velocity random walk, m/s/√s.
-    pub vrw_mps_per_sqrt_s: f64,
+    pub vrw_mps_per_sqrt_s: Axes,
     /// Gyro bias, rad/s.
-    pub gyro_bias: GaussMarkov,
+    pub gyro_bias: GaussMarkov<Axes>,
     /// Accelerometer bias, m/s².
-    pub accel_bias: GaussMarkov,
+    pub accel_bias: GaussMarkov<Axes>,
     /// Gyro scale-factor error (used with 21 states), fraction.
-    pub gyro_scale: GaussMarkov,
+    pub gyro_scale: GaussMarkov<Axes>,
     /// Accelerometer scale-factor error (used with 21 states), fraction.
-    pub accel_scale: GaussMarkov,
+    pub accel_scale: GaussMarkov<Axes>,
     /// Initial 1σ of the gyro bias, rad/s (turn-on bias and in-run bias together); absent:
     /// `gyro_bias.sigma`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub gyro_bias_initial_sigma: Option<f64>,
+    pub gyro_bias_initial_sigma: Option<Axes>,
     /// Initial 1σ of the accelerometer bias, m/s²; absent: `accel_bias.sigma`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub accel_bias_initial_sigma: Option<f64>,
+    pub accel_bias_initial_sigma: Option<Axes>,
     /// Stationary 1σ of the in-run gyro bias alone, rad/s (e.g. a flicker bias's spread over
     /// its band, above the Allan-peak GM's σ); absent: `gyro_bias.sigma`. Used with
     /// `turn_on_states`, where the rest of the initial σ is the turn-on bias.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub gyro_bias_in_run_sigma: Option<f64>,
+    pub gyro_bias_in_run_sigma: Option<Axes>,
     /// Stationary 1σ of the in-run accelerometer bias alone, m/s²; absent: `accel_bias.sigma`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub accel_bias_in_run_sigma: Option<f64>,
+    pub accel_bias_in_run_sigma: Option<Axes>,
     /// Gyro rate random walk (Allan K), rad/s/√s: white noise on the bias besides the
     /// Gauss-Markov driving noise.
-    pub gyro_rrw_rad_per_s_sqrt_s: f64,
+    pub gyro_rrw_rad_per_s_sqrt_s: Axes,
     /// Accelerometer bias random walk (Allan K), m/s²/√s.
-    pub accel_rrw_mps2_per_sqrt_s: f64,
+    pub accel_rrw_mps2_per_sqrt_s: Axes,
     /// In-run gyro bias from g-sensitivity per body axis (x, y, z), rad/s 1σ: the bias each
     /// axis gets from the vehicle's own specific-force changes, a Gauss-Markov part with
     /// `gyro_bias.tau_s` added to `gyro_bias` on that axis only.
@@ -85,37 +184,33 @@ pub struct ImuModel {
 }
 
 impl ImuModel {
-    /// Initial 1σ of the gyro bias state.
-    pub fn gyro_bias_sigma0(&self) -> f64 {
-        self.gyro_bias_initial_sigma.unwrap_or(self.gyro_bias.sigma)
+    /// Initial 1σ of the gyro bias state of body axis `axis` (0 = x, 1 = y, 2 = z).
+    pub fn gyro_bias_sigma0(&self, axis: usize) -> f64 {
+        self.gyro_bias_initial_sigma.unwrap_or(self.gyro_bias.sigma)[axis]
     }
 
-    /// Initial 1σ of the accelerometer bias state.
-    pub fn accel_bias_sigma0(&self) -> f64 {
+    /// Initial 1σ of the accelerometer bias state of body axis `axis`.
+    pub fn accel_bias_sigma0(&self, axis: usize) -> f64 {
         self.accel_bias_initial_sigma
-            .unwrap_or(self.accel_bias.sigma)
+            .unwrap_or(self.accel_bias.sigma)[axis]
     }
 
-    /// The process the filter's gyro bias state of body axis `axis` (0 = x, 1 = y, 2 = z)
-    /// follows: the in-run bias with that axis's g-sensitivity part, see
-    /// [`bias_state_process`].
+    /// The process the filter's gyro bias state of body axis `axis` follows: the in-run bias
+    /// with that axis's g-sensitivity part, see [`bias_state_process`].
     pub fn gyro_bias_state(&self, axis: usize) -> GaussMarkov {
-        bias_state_process(&self.gyro_bias_in_run(axis), self.gyro_bias_sigma0())
+        bias_state_process(&self.gyro_bias_in_run(axis), self.gyro_bias_sigma0(axis))
     }
 
-    /// The process the filter's accelerometer bias state follows, see
+    /// The process the filter's accelerometer bias state of body axis `axis` follows, see
     /// [`bias_state_process`].
-    pub fn accel_bias_state(&self) -> GaussMarkov {
-        bias_state_process(&self.accel_bias, self.accel_bias_sigma0())
+    pub fn accel_bias_state(&self, axis: usize) -> GaussMarkov {
+        bias_state_process(&self.accel_bias.axis(axis), self.accel_bias_sigma0(axis))
     }
 
     /// The in-run gyro bias GM of body axis `axis` (with its g-sensitivity part).
     fn gyro_bias_in_run(&self, axis: usize) -> GaussMarkov {
         GaussMarkov {
-            sigma: self
-                .gyro_bias
-                .sigma
-                .hypot(self.gyro_bias_g_sensitivity_sigma[axis]),
+            sigma: self.gyro_bias.sigma[axis].hypot(self.gyro_bias_g_sensitivity_sigma[axis]),
             tau_s: self.gyro_bias.tau_s,
         }
     }
@@ -125,30 +220,35 @@ impl ImuModel {
     /// with the in-run σ (`gyro_bias_in_run_sigma`, with the g-sensitivity part) as its
     /// stationary σ, see [`bias_state_process`].
     pub fn gyro_in_run_state(&self, axis: usize) -> GaussMarkov {
-        let sigma = self
-            .gyro_bias_in_run_sigma
-            .unwrap_or(self.gyro_bias.sigma)
+        let sigma = self.gyro_bias_in_run_sigma.unwrap_or(self.gyro_bias.sigma)[axis]
             .hypot(self.gyro_bias_g_sensitivity_sigma[axis]);
         bias_state_process(&self.gyro_bias_in_run(axis), sigma)
     }
 
     /// The accelerometer's counterpart of [`ImuModel::gyro_in_run_state`].
-    pub fn accel_in_run_state(&self) -> GaussMarkov {
+    pub fn accel_in_run_state(&self, axis: usize) -> GaussMarkov {
         let sigma = self
             .accel_bias_in_run_sigma
-            .unwrap_or(self.accel_bias.sigma);
-        bias_state_process(&self.accel_bias, sigma)
+            .unwrap_or(self.accel_bias.sigma)[axis];
+        bias_state_process(&self.accel_bias.axis(axis), sigma)
     }
 
     /// 1σ of the gyro turn-on bias of body axis `axis`: the part of the initial σ the in-run
     /// state does not hold, √(σ0² − σ²) (0 when it holds it all).
     pub fn gyro_turn_on_sigma(&self, axis: usize) -> f64 {
-        excess_sigma(self.gyro_bias_sigma0(), self.gyro_in_run_state(axis).sigma)
+        excess_sigma(
+            self.gyro_bias_sigma0(axis),
+            self.gyro_in_run_state(axis).sigma,
+        )
     }
 
-    /// 1σ of the accelerometer turn-on bias, as [`ImuModel::gyro_turn_on_sigma`].
-    pub fn accel_turn_on_sigma(&self) -> f64 {
-        excess_sigma(self.accel_bias_sigma0(), self.accel_in_run_state().sigma)
+    /// 1σ of the accelerometer turn-on bias of body axis `axis`, as
+    /// [`ImuModel::gyro_turn_on_sigma`].
+    pub fn accel_turn_on_sigma(&self, axis: usize) -> f64 {
+        excess_sigma(
+            self.accel_bias_sigma0(axis),
+            self.accel_in_run_state(axis).sigma,
+        )
     }
 }
 
@@ -200,30 +300,30 @@ impl Default for ImuModel {
     /// overconfident on simulated drives), scale factors 1000 ppm over 1 h.
     fn default() -> Self {
         Self {
-            arw_rad_per_sqrt_s: 0.3f64.to_radians() / 60.0,
-            vrw_mps_per_sqrt_s: 0.1 / 60.0,
+            arw_rad_per_sqrt_s: Axes::all(0.3f64.to_radians() / 60.0),
+            vrw_mps_per_sqrt_s: Axes::all(0.1 / 60.0),
             gyro_bias: GaussMarkov {
-                sigma: 20f64.to_radians() / 3600.0,
+                sigma: Axes::all(20f64.to_radians() / 3600.0),
                 tau_s: 300.0,
             },
             accel_bias: GaussMarkov {
-                sigma: 5e-3 * 9.81,
+                sigma: Axes::all(5e-3 * 9.81),
                 tau_s: 300.0,
             },
             gyro_scale: GaussMarkov {
-                sigma: 1e-3,
+                sigma: Axes::all(1e-3),
                 tau_s: 3600.0,
             },
             accel_scale: GaussMarkov {
-                sigma: 1e-3,
+                sigma: Axes::all(1e-3),
                 tau_s: 3600.0,
             },
             gyro_bias_initial_sigma: None,
             accel_bias_initial_sigma: None,
             gyro_bias_in_run_sigma: None,
             accel_bias_in_run_sigma: None,
-            gyro_rrw_rad_per_s_sqrt_s: 0.0,
-            accel_rrw_mps2_per_sqrt_s: 0.0,
+            gyro_rrw_rad_per_s_sqrt_s: Axes::all(0.0),
+            accel_rrw_mps2_per_sqrt_s: Axes::all(0.0),
             gyro_bias_g_sensitivity_sigma: [0.0; 3],
         }
     }
@@ -305,11 +405,14 @@ pub struct NhcOptions {
     pub enabled: bool,
     /// σ of the lateral and vertical body velocity, m/s.
     pub sigma_mps: f64,
-    /// Side-slip the lateral σ allows for in turns, degrees per m/s² of lateral
-    /// acceleration: a car's body yaws into a turn by about this much per m/s², so its lateral
-    /// velocity is speed × tan(slip × lateral acceleration) there (a passenger car: 0.1-0.4;
-    /// 0 for a vehicle that does not slip, such as a rail vehicle).
+    /// Side-slip gradient at the vehicle point, degrees per m/s² of lateral acceleration: in
+    /// a turn a car's body yaws this much further into the turn than the velocity of its rear
+    /// axle per m/s², so the lateral velocity there is −speed × tan(gradient × lateral
+    /// acceleration), which the constraint expects (a passenger car: 0.1-0.4; 0 for a vehicle
+    /// that does not slip, such as a rail vehicle).
     pub slip_deg_per_mps2: f64,
+    /// 1σ of that gradient, same unit: how well it is known (a car not measured: half of it).
+    pub slip_sigma_deg_per_mps2: f64,
     /// Apply only above this speed, m/s.
     pub min_speed_mps: f64,
     /// Apply at most this often, s.
@@ -322,6 +425,7 @@ impl Default for NhcOptions {
             enabled: false,
             sigma_mps: 0.1,
             slip_deg_per_mps2: 0.2,
+            slip_sigma_deg_per_mps2: 0.1,
             min_speed_mps: 1.0,
             interval_s: 0.2,
         }
@@ -647,25 +751,19 @@ impl FusionConfig {
         let nonneg = "must be finite and ≥ 0";
         let pos = "must be finite and > 0";
         let imu = &self.imu;
-        check(
-            "imu.arw_rad_per_sqrt_s",
-            imu.arw_rad_per_sqrt_s,
-            imu.arw_rad_per_sqrt_s >= 0.0,
-            nonneg,
-        )?;
-        check(
-            "imu.vrw_mps_per_sqrt_s",
-            imu.vrw_mps_per_sqrt_s,
-            imu.vrw_mps_per_sqrt_s >= 0.0,
-            nonneg,
-        )?;
+        let per_axis = |key: &'static str, v: Axes| -> Result<(), ConfigError> {
+            v.0.iter()
+                .try_for_each(|&x| check(key, x, x >= 0.0, nonneg))
+        };
+        per_axis("imu.arw_rad_per_sqrt_s", imu.arw_rad_per_sqrt_s)?;
+        per_axis("imu.vrw_mps_per_sqrt_s", imu.vrw_mps_per_sqrt_s)?;
         for (key, gm) in [
             ("imu.gyro_bias.sigma", imu.gyro_bias),
             ("imu.accel_bias.sigma", imu.accel_bias),
             ("imu.gyro_scale.sigma", imu.gyro_scale),
             ("imu.accel_scale.sigma", imu.accel_scale),
         ] {
-            check(key, gm.sigma, gm.sigma >= 0.0, nonneg)?;
+            per_axis(key, gm.sigma)?;
             if gm.tau_s.is_nan() {
                 return Err(ConfigError::Invalid {
                     key: "imu.*.tau_s",
@@ -681,20 +779,16 @@ impl FusionConfig {
             ("imu.accel_bias_in_run_sigma", imu.accel_bias_in_run_sigma),
         ] {
             if let Some(v) = v {
-                check(key, v, v >= 0.0, nonneg)?;
+                per_axis(key, v)?;
             }
         }
-        check(
+        per_axis(
             "imu.gyro_rrw_rad_per_s_sqrt_s",
             imu.gyro_rrw_rad_per_s_sqrt_s,
-            imu.gyro_rrw_rad_per_s_sqrt_s >= 0.0,
-            nonneg,
         )?;
-        check(
+        per_axis(
             "imu.accel_rrw_mps2_per_sqrt_s",
             imu.accel_rrw_mps2_per_sqrt_s,
-            imu.accel_rrw_mps2_per_sqrt_s >= 0.0,
-            nonneg,
         )?;
         for v in imu.gyro_bias_g_sensitivity_sigma {
             check("imu.gyro_bias_g_sensitivity_sigma", v, v >= 0.0, nonneg)?;
@@ -771,6 +865,12 @@ impl FusionConfig {
             "nhc.slip_deg_per_mps2",
             self.nhc.slip_deg_per_mps2,
             (0.0..=5.0).contains(&self.nhc.slip_deg_per_mps2),
+            "must be within [0, 5]",
+        )?;
+        check(
+            "nhc.slip_sigma_deg_per_mps2",
+            self.nhc.slip_sigma_deg_per_mps2,
+            (0.0..=5.0).contains(&self.nhc.slip_sigma_deg_per_mps2),
             "must be within [0, 5]",
         )?;
         check(
@@ -912,7 +1012,36 @@ mod tests {
         .expect("valid");
         assert_eq!(c.states, 21);
         assert_eq!(c.gnss.lever_arm_m, [0.5, 0.0, -1.2]);
-        assert!((c.imu.gyro_bias.driving_psd() - 2e-10 / 100.0).abs() < 1e-20);
+        assert!((c.imu.gyro_bias.axis(2).driving_psd() - 2e-10 / 100.0).abs() < 1e-20);
+    }
+
+    #[test]
+    fn imu_figures_are_one_number_or_one_per_axis() {
+        let c = FusionConfig::from_toml_str(
+            "[imu]\narw_rad_per_sqrt_s = 1e-4\nvrw_mps_per_sqrt_s = [1e-3, 2e-3, 3e-3]\n[imu.accel_bias]\nsigma = [1e-4, 5e-4, 2e-4]\ntau_s = 300.0\n",
+            "test",
+        )
+        .expect("valid");
+        assert_eq!(c.imu.arw_rad_per_sqrt_s, Axes::all(1e-4));
+        assert_eq!(c.imu.vrw_mps_per_sqrt_s, Axes([1e-3, 2e-3, 3e-3]));
+        assert_eq!(c.imu.accel_bias_state(1).sigma, 5e-4);
+        assert_eq!(c.imu.accel_bias_sigma0(2), 2e-4);
+        // Written back: equal axes as one number, different ones as a list.
+        let text = toml::to_string(&c).expect("serialise");
+        assert!(text.contains("arw_rad_per_sqrt_s = 0.0001\n"), "{text}");
+        assert!(
+            text.contains("vrw_mps_per_sqrt_s = [0.001, 0.002, 0.003]"),
+            "{text}"
+        );
+        let back = FusionConfig::from_toml_str(&text, "back").expect("reads back");
+        assert_eq!(back.imu, c.imu);
+        let e = FusionConfig::from_toml_str("[imu]\narw_rad_per_sqrt_s = [1e-4, 2e-4]\n", "x")
+            .expect_err("two axes");
+        assert!(e.to_string().contains("list of three"), "{e}");
+        let e =
+            FusionConfig::from_toml_str("[imu]\nvrw_mps_per_sqrt_s = [1e-3, -1e-3, 1e-3]\n", "x")
+                .expect_err("negative axis");
+        assert!(e.to_string().contains("imu.vrw_mps_per_sqrt_s"), "{e}");
     }
 
     #[test]
@@ -961,8 +1090,11 @@ mod tests {
         assert_eq!((s.sigma, s.decay(), s.driving_psd()), (5.0, 0.0, 0.0));
         // What the filter uses.
         let model = ImuModel {
-            gyro_bias: in_run,
-            gyro_bias_initial_sigma: Some(5.0),
+            gyro_bias: GaussMarkov {
+                sigma: Axes::all(in_run.sigma),
+                tau_s: in_run.tau_s,
+            },
+            gyro_bias_initial_sigma: Some(Axes::all(5.0)),
             ..ImuModel::default()
         };
         assert_eq!(model.gyro_bias_state(2), bias_state_process(&in_run, 5.0));
@@ -976,11 +1108,11 @@ mod tests {
         );
         assert_eq!(sensitive.gyro_bias_state(1), model.gyro_bias_state(1));
         assert_eq!(sensitive.gyro_bias_state(2), model.gyro_bias_state(2));
-        assert_eq!(model.accel_bias_state(), model.accel_bias);
+        assert_eq!(model.accel_bias_state(1), model.accel_bias.axis(1));
         // With the turn-on bias as states of its own, the bias state keeps the in-run driving
         // noise within the in-run σ, and the turn-on state holds the rest of the initial σ.
         let split = ImuModel {
-            gyro_bias_in_run_sigma: Some(2.0 * in_run.sigma),
+            gyro_bias_in_run_sigma: Some(Axes::all(2.0 * in_run.sigma)),
             ..model
         };
         let s = split.gyro_in_run_state(2);

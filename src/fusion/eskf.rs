@@ -194,22 +194,22 @@ pub fn initial_covariance<const N: usize>(config: &FusionConfig) -> SMatrix<f64,
             d[BG + k] = imu
                 .gyro_in_run_state(k)
                 .sigma
-                .min(imu.gyro_bias_sigma0())
+                .min(imu.gyro_bias_sigma0(k))
                 .powi(2);
             d[BA + k] = imu
-                .accel_in_run_state()
+                .accel_in_run_state(k)
                 .sigma
-                .min(imu.accel_bias_sigma0())
+                .min(imu.accel_bias_sigma0(k))
                 .powi(2);
             d[t + k] = imu.gyro_turn_on_sigma(k).powi(2);
-            d[t + 3 + k] = imu.accel_turn_on_sigma().powi(2);
+            d[t + 3 + k] = imu.accel_turn_on_sigma(k).powi(2);
         } else {
-            d[BG + k] = imu.gyro_bias_sigma0().powi(2);
-            d[BA + k] = imu.accel_bias_sigma0().powi(2);
+            d[BG + k] = imu.gyro_bias_sigma0(k).powi(2);
+            d[BA + k] = imu.accel_bias_sigma0(k).powi(2);
         }
         if layout.scale_factors {
-            d[SG + k] = imu.gyro_scale.sigma.powi(2);
-            d[SA + k] = imu.accel_scale.sigma.powi(2);
+            d[SG + k] = imu.gyro_scale.sigma[k].powi(2);
+            d[SA + k] = imu.accel_scale.sigma[k].powi(2);
         }
     }
     if let Some(ge) = layout.gnss_error {
@@ -363,8 +363,8 @@ impl<const N: usize> Ins<N> {
         if self.layout.turn_on.is_some() {
             // The in-run estimates follow their process's mean, as the error states do.
             let imu = &self.config.imu;
-            let accel = (-dt * imu.accel_in_run_state().decay()).exp();
             for i in 0..3 {
+                let accel = (-dt * imu.accel_in_run_state(i).decay()).exp();
                 let gyro = (-dt * imu.gyro_in_run_state(i).decay()).exp();
                 self.sensors.gyro_bias[i] -= self.in_run_bias.0[i] * (1.0 - gyro);
                 self.in_run_bias.0[i] *= gyro;
@@ -544,7 +544,7 @@ mod tests {
         };
         let mut ins = Ins::<21>::new(nav, &config, false);
         let t = ins.layout().turn_on.expect("turn-on states");
-        let sigma = Vector3::repeat(0.5 * config.imu.gyro_bias.sigma);
+        let sigma = Vector3::from((0.5 * config.imu.gyro_bias.sigma).0);
         let bias = Vector3::new(1e-4, -2e-4, 3e-4);
         ins.set_gyro_bias(bias, sigma);
         assert_eq!(ins.sensors.gyro_bias, bias);
@@ -561,7 +561,7 @@ mod tests {
                 sigma[i]
             );
             assert!(gc < 0.0 && gc == ins.p[(t + i, BG + i)]);
-            assert!(g < config.imu.gyro_bias.sigma.powi(2));
+            assert!(g < config.imu.gyro_bias.sigma[i].powi(2));
         }
         assert!(Cholesky::new(ins.p).is_some());
         // One state per axis: the state takes the σ as it is.

@@ -16,7 +16,7 @@
 //! lists `[a, b, c]`, one level of nesting, `#` comments): no YAML crate is in the dependency
 //! set and this subset does not justify one. Anything outside it is an error naming the line.
 
-use crate::config::{FusionConfig, GaussMarkov};
+use crate::config::{Axes, FusionConfig, GaussMarkov};
 use crate::eskf::SensorErrors;
 use crate::mechanisation::{wrap_pi, ImuInput, NavState};
 use crate::navigator::{GnssObservation, NavSolution};
@@ -360,9 +360,9 @@ impl KfGinsConfig {
         Ok(config)
     }
 
-    /// Our filter configuration for this KF-GINS setup: 21 states, the IMU model with the
-    /// largest per-axis value of each noise (our model is isotropic), the lever arm, and
-    /// initial σ (largest axis; roll/pitch share one σ).
+    /// Our filter configuration for this KF-GINS setup: 21 states, the IMU model with each
+    /// noise per axis as the YAML gives it, the lever arm, and initial σ (largest axis;
+    /// roll/pitch share one σ).
     /// Separate initial sensor-error σ (`initbgstd` …) are not applied; check
     /// [`KfGinsConfig::initial_bias_std`] to warn about them.
     pub fn fusion_config(&self) -> FusionConfig {
@@ -370,12 +370,13 @@ impl KfGinsConfig {
             states: 21,
             ..FusionConfig::default()
         };
+        let axes = |v: &Vector3<f64>| Axes([v.x, v.y, v.z]);
         let gm = |v: &Vector3<f64>| GaussMarkov {
-            sigma: v.max(),
+            sigma: axes(v),
             tau_s: self.corr_time_s,
         };
-        c.imu.arw_rad_per_sqrt_s = self.arw.max();
-        c.imu.vrw_mps_per_sqrt_s = self.vrw.max();
+        c.imu.arw_rad_per_sqrt_s = axes(&self.arw);
+        c.imu.vrw_mps_per_sqrt_s = axes(&self.vrw);
         c.imu.gyro_bias = gm(&self.gyro_bias_std);
         c.imu.accel_bias = gm(&self.accel_bias_std);
         c.imu.gyro_scale = gm(&self.gyro_scale_std);

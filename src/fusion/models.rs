@@ -14,7 +14,7 @@
 //! *Strapdown Inertial Navigation Technology*, ch. 12; Shin 2005, ch. 2) including the
 //! transport-rate couplings, the vertical gravity gradient and the Gauss-Markov sensor errors.
 
-use crate::config::{FusionConfig, NhcOptions, VehicleOptions};
+use crate::config::{Axes, FusionConfig, NhcOptions, VehicleOptions};
 use crate::mechanisation::NavState;
 use imulab_earth as earth;
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -147,10 +147,9 @@ pub fn dynamics_matrix<const N: usize>(
 
     // Sensor errors as first-order Gauss-Markov processes.
     let imu = &config.imu;
-    let accel_decay = imu.accel_bias_state().decay();
     for i in 0..3 {
         f[(BG + i, BG + i)] = -imu.gyro_bias_state(i).decay();
-        f[(BA + i, BA + i)] = -accel_decay;
+        f[(BA + i, BA + i)] = -imu.accel_bias_state(i).decay();
     }
     if let Some(ge) = gnss_error_index(N) {
         let decay = 1.0 / config.gnss.position_error.tau_s;
@@ -165,7 +164,7 @@ pub fn dynamics_matrix<const N: usize>(
         f.fixed_view_mut::<3, 3>(VEL, t + 3).copy_from(&(-c_bn));
         for i in 0..3 {
             f[(BG + i, BG + i)] = -imu.gyro_in_run_state(i).decay();
-            f[(BA + i, BA + i)] = -imu.accel_in_run_state().decay();
+            f[(BA + i, BA + i)] = -imu.accel_in_run_state(i).decay();
         }
     }
     if layout.scale_factors {
@@ -188,18 +187,21 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
     let layout = Layout::of(config);
     let mut q = SVector::<f64, N>::zeros();
     for i in 0..3 {
-        q[VEL + i] = imu.vrw_mps_per_sqrt_s.powi(2);
-        q[ATT + i] = imu.arw_rad_per_sqrt_s.powi(2);
+        // Body-axis noise enters the navigation-frame velocity and attitude rotated, so the
+        // per-axis densities are a full 3×3 block there; its diagonal, the mean of the three,
+        // is what this diagonal form keeps (exact when the axes are alike).
+        q[VEL + i] = mean_square(&imu.vrw_mps_per_sqrt_s);
+        q[ATT + i] = mean_square(&imu.arw_rad_per_sqrt_s);
         let (gyro, accel) = if layout.turn_on.is_some() {
-            (imu.gyro_in_run_state(i), imu.accel_in_run_state())
+            (imu.gyro_in_run_state(i), imu.accel_in_run_state(i))
         } else {
-            (imu.gyro_bias_state(i), imu.accel_bias_state())
+            (imu.gyro_bias_state(i), imu.accel_bias_state(i))
         };
-        q[BG + i] = gyro.driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s.powi(2);
-        q[BA + i] = accel.driving_psd() + imu.accel_rrw_mps2_per_sqrt_s.powi(2);
+        q[BG + i] = gyro.driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s[i].powi(2);
+        q[BA + i] = accel.driving_psd() + imu.accel_rrw_mps2_per_sqrt_s[i].powi(2);
         if layout.scale_factors {
-            q[SG + i] = imu.gyro_scale.driving_psd();
-            q[SA + i] = imu.accel_scale.driving_psd();
+            q[SG + i] = imu.gyro_scale.axis(i).driving_psd();
+            q[SA + i] = imu.accel_scale.axis(i).driving_psd();
         }
     }
     if let Some(ge) = gnss_error_index(N) {
@@ -209,6 +211,12 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
         }
     }
     q
+}
+
+/// The mean of the squares of a per-axis density: the diagonal of its rotation into the
+/// navigation frame for any attitude when the axes are alike, its trace / 3 otherwise.
+fn mean_square(a: &Axes) -> f64 {
+    a.0.iter().map(|v| v * v).sum::<f64>() / 3.0
 }
 
 /// Navigation error states (position, velocity, attitude); the sensor-error states after
@@ -403,10 +411,14 @@ fn vehicle_velocity<const N: usize>(
     (c_bv * v_b, h)
 }
 
-/// Non-holonomic constraint: the vehicle point's lateral and vertical velocity in the
-/// vehicle frame are zero, within `options.sigma_mps`; in a turn the lateral σ also allows
-/// for the side-slip there, speed × tan(`slip_deg_per_mps2` × lateral acceleration), with the
-/// lateral acceleration speed × yaw rate from the filter's own estimate.
+/// Non-holonomic constraint: the vehicle point's vertical velocity in the vehicle frame is
+/// zero and its lateral velocity is the side-slip's, within `options.sigma_mps`. In a turn
+/// a car's body yaws further into the turn than the velocity of its rear axle (the rear
+/// tyres slip to give the centripetal force), by about `slip_deg_per_mps2` × the lateral
+/// acceleration a = v·ω_z (from the filter's own speed and bias-corrected yaw rate), so the
+/// lateral velocity there is −v·tan(slip·a) (right-handed FRD: a right turn slips left).
+/// The gradient's own uncertainty, `slip_sigma_deg_per_mps2`, adds v·tan(σ_slip·|a|) to the
+/// lateral σ in quadrature.
 pub fn non_holonomic<const N: usize>(
     nav: &NavState,
     gyro_b: &Vector3<f64>,
@@ -414,22 +426,34 @@ pub fn non_holonomic<const N: usize>(
     options: &NhcOptions,
 ) -> Measurement<2, N> {
     let (v_v, h_v) = vehicle_velocity::<N>(nav, gyro_b, vehicle);
+    let c_bv = vehicle.imu_to_vehicle();
+    let yaw_rate = (c_bv * gyro_b).z;
+    let lateral_accel = v_v.x * yaw_rate;
+    let gradient = options.slip_deg_per_mps2.to_radians();
+    let angle = |gradient_deg: f64| (gradient_deg.to_radians() * lateral_accel).clamp(-0.5, 0.5);
+    let slip_angle = angle(options.slip_deg_per_mps2);
+    let slip = -v_v.x * slip_angle.tan();
+    let slip_sigma = v_v.x * angle(options.slip_sigma_deg_per_mps2).tan();
     let mut h = SMatrix::<f64, 2, N>::zeros();
     h.row_mut(0).copy_from(&h_v.row(1));
     h.row_mut(1).copy_from(&h_v.row(2));
-    let yaw_rate = (vehicle.imu_to_vehicle() * gyro_b).z;
-    let lateral_accel = v_v.x * yaw_rate;
-    let slip = v_v.x
-        * (options.slip_deg_per_mps2.to_radians() * lateral_accel)
-            .abs()
-            .min(0.5)
-            .tan();
+    if slip_angle.abs() < 0.5 {
+        // The expected slip moves with the forward speed and the yaw rate (ω̂ = ω − δb).
+        let sec2 = 1.0 + slip_angle.tan().powi(2);
+        let d_speed = -slip_angle.tan() - v_v.x * sec2 * gradient * yaw_rate;
+        let d_yaw_rate = -v_v.x * sec2 * gradient * v_v.x;
+        let mut row = h.row(0) - d_speed * h_v.row(0);
+        for k in 0..3 {
+            row[BG + k] += d_yaw_rate * c_bv[(2, k)];
+        }
+        h.row_mut(0).copy_from(&row);
+    }
     let sigma2 = options.sigma_mps * options.sigma_mps;
     Measurement {
-        z: SVector::<f64, 2>::new(v_v.y, v_v.z),
+        z: SVector::<f64, 2>::new(v_v.y - slip, v_v.z),
         h,
         r: SMatrix::<f64, 2, 2>::from_diagonal(&SVector::<f64, 2>::new(
-            sigma2 + slip * slip,
+            sigma2 + slip_sigma * slip_sigma,
             sigma2,
         )),
     }
@@ -616,18 +640,31 @@ mod tests {
             &VehicleOptions::default(),
             &NhcOptions::default(),
         );
+        // In a 0.3 rad/s turn the expected side-slip is part of the lateral row and moves
+        // with the speed and the yaw rate's bias.
+        assert!(m0.r[(0, 0)] > m0.r[(1, 1)]);
         let phi = Vector3::new(-2e-4, 1e-4, 2e-4);
+        let dv = Vector3::new(0.01, -0.02, 0.005);
+        let db = Vector3::new(1e-4, -2e-4, 3e-4);
         let mut p = n;
         p.quat_nb = UnitQuaternion::from_scaled_axis(-phi) * n.quat_nb;
+        p.vel_ned += dv;
         let m1 = non_holonomic::<21>(
             &p,
-            &gyro,
+            &(gyro - db),
             &VehicleOptions::default(),
             &NhcOptions::default(),
         );
         let mut dx = SVector::<f64, 21>::zeros();
         dx.fixed_rows_mut::<3>(ATT).copy_from(&phi);
-        assert!((m1.z - m0.z - m0.h * dx).norm() < 1e-6);
+        dx.fixed_rows_mut::<3>(VEL).copy_from(&dv);
+        dx.fixed_rows_mut::<3>(BG).copy_from(&db);
+        // First-order terms are up to 2·10⁻² m/s; the rest is second order.
+        assert!(
+            (m1.z - m0.z - m0.h * dx).norm() < 1e-5,
+            "{}",
+            m1.z - m0.z - m0.h * dx
+        );
     }
 
     /// With mounting angles and a lever arm: the vehicle-frame velocity is what the

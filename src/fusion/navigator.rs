@@ -594,8 +594,8 @@ impl<const N: usize> Navigator<N> {
                     roll,
                     pitch,
                     fix.lat_rad,
-                    imu.arw_rad_per_sqrt_s,
-                    imu.gyro_bias_sigma0(),
+                    &imu.arw_rad_per_sqrt_s,
+                    &imu.gyro_bias_initial_sigma.unwrap_or(imu.gyro_bias.sigma),
                 );
                 ins.set_gyro_bias(b.bias, b.sigma);
             }

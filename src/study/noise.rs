@@ -3,7 +3,8 @@
 //! writes. The same mapping builds the simulator spec of a grade given as an Allan fit, so a
 //! study simulates and filters one and the same IMU description.
 //!
-//! Mapping (per sensor; the largest axis is used, except for the g-sensitivity's in-run part):
+//! Mapping (per body axis for a preset; for an Allan fit, whose axes are columns of a file, the
+//! largest axis of each sensor on all three):
 //! - white noise: ARW N (rad/√s) and VRW N (m/s/√s) as they are;
 //! - bias instability: a flat Allan floor F (ADEV, = 0.664·B of the fit) becomes a first-order
 //!   Gauss-Markov bias whose Allan deviation peaks at the floor where the floor is lowest:
@@ -42,7 +43,7 @@ use anyhow::{bail, Context};
 use imulab_allan::analysis::AllanReport;
 use imulab_allan::fit::{Term, BIAS_INSTABILITY_FACTOR};
 use imulab_allan::units::SensorKind;
-use imulab_fusion::config::{GaussMarkov, GnssPositionError, ImuModel};
+use imulab_fusion::config::{Axes, GaussMarkov, GnssPositionError, ImuModel};
 use imulab_sim::imu_model::{ImuSpec, TriadErrors, G0};
 use std::path::Path;
 
@@ -93,29 +94,41 @@ pub fn flicker_band_sigma(floor: f64, band_s: [f64; 2]) -> f64 {
     floor * (ratio.ln() / (2.0 * std::f64::consts::LN_2)).sqrt()
 }
 
-/// The in-run bias GM, the stationary σ of the in-run bias, the initial σ and the random walk.
-fn triad_bias(t: &TriadErrors) -> (GaussMarkov, f64, f64, f64) {
-    let floor = max3(t.instability_floor);
+/// Per body axis: the in-run bias GM, the stationary σ of the in-run bias, the initial σ and
+/// the random walk. The GM's τ comes from the band, the same on every axis.
+fn triad_bias(t: &TriadErrors) -> (GaussMarkov<Axes>, Axes, Axes, Axes) {
     let band = t.bias_instability_band_s;
-    let gm = if floor > 0.0 {
-        gauss_markov_from_floor(floor, (band[0] * band[1]).sqrt())
+    let tau_min = (band[0] * band[1]).sqrt();
+    let floor = t.instability_floor.map(f64::abs);
+    // No in-run instability on any axis: a random constant (τ = 0 means constant).
+    let tau_s = if floor.iter().any(|f| *f > 0.0) {
+        gauss_markov_from_floor(1.0, tau_min).tau_s
     } else {
-        // No in-run instability: a random constant (τ = 0 means constant).
-        GaussMarkov {
-            sigma: 0.0,
-            tau_s: 0.0,
-        }
+        0.0
+    };
+    let gm = GaussMarkov {
+        sigma: Axes(floor.map(|f| gauss_markov_from_floor(f, tau_min).sigma)),
+        tau_s,
     };
     // The in-run bias's spread: the GM's σ, or the flicker's over its band when larger.
-    let in_run = gm.sigma.max(flicker_band_sigma(floor, band));
-    let initial = (in_run.powi(2) + max3(t.turn_on_sigma).powi(2) + max3(t.bias).powi(2)).sqrt();
-    (gm, in_run, initial, max3(t.random_walk))
+    let in_run = Axes(std::array::from_fn(|i| {
+        gm.sigma[i].max(flicker_band_sigma(floor[i], band))
+    }));
+    let initial = Axes(std::array::from_fn(|i| {
+        (in_run[i].powi(2) + t.turn_on_sigma[i].powi(2) + t.bias[i].powi(2)).sqrt()
+    }));
+    (gm, in_run, initial, Axes(t.random_walk.map(f64::abs)))
 }
 
-fn scale(t: &TriadErrors) -> GaussMarkov {
-    let s = max3(t.scale_factor);
+fn scale(t: &TriadErrors) -> GaussMarkov<Axes> {
     GaussMarkov {
-        sigma: if s > 0.0 { s } else { DEFAULT_SCALE_SIGMA },
+        sigma: Axes(t.scale_factor.map(|s| {
+            if s != 0.0 {
+                s.abs()
+            } else {
+                DEFAULT_SCALE_SIGMA
+            }
+        })),
         tau_s: 0.0,
     }
 }
@@ -134,9 +147,10 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
     let (accel_bias, accel_in_run, accel_b0, accel_rrw) = triad_bias(&accel);
     let mut gyro_bias_g_sensitivity_sigma = [0.0; 3];
     if let Some(g) = spec.gyro.g_sensitivity_si() {
-        // Largest bias one axis gets per m/s² of specific force in any direction.
-        let per_mps2 = (0..3).map(|i| g.row(i).norm()).fold(0.0, f64::max);
-        gyro_b0 = gyro_b0.hypot(per_mps2 * G0);
+        // The bias each axis gets per m/s² of specific force in any direction, at 1 g.
+        gyro_b0 = Axes(std::array::from_fn(|i| {
+            gyro_b0[i].hypot(g.row(i).norm() * G0)
+        }));
         // The vehicle's own specific-force changes are horizontal (body x and y of a level
         // mount): each axis's in-run part is its sensitivity to those two inputs.
         for (axis, sigma) in gyro_bias_g_sensitivity_sigma.iter_mut().enumerate() {
@@ -160,8 +174,8 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
     }
     Ok(NoiseModel {
         model: ImuModel {
-            arw_rad_per_sqrt_s: max3(gyro.white_density),
-            vrw_mps_per_sqrt_s: max3(accel.white_density),
+            arw_rad_per_sqrt_s: Axes(gyro.white_density.map(f64::abs)),
+            vrw_mps_per_sqrt_s: Axes(accel.white_density.map(f64::abs)),
             gyro_bias,
             accel_bias,
             gyro_scale: scale(&gyro),
@@ -385,13 +399,17 @@ pub fn model_from_allan(fit: &AllanDevice, base: &ImuModel, origin: &str) -> Noi
             continue;
         }
         match terms.white {
-            Some(n) if gyro => m.arw_rad_per_sqrt_s = n,
-            Some(n) => m.vrw_mps_per_sqrt_s = n,
+            Some(n) if gyro => m.arw_rad_per_sqrt_s = Axes::all(n),
+            Some(n) => m.vrw_mps_per_sqrt_s = Axes::all(n),
             None => missing(&format!("{sensor} white noise (ARW/VRW)")),
         }
         match (terms.floor, terms.tau_min) {
             (Some(floor), Some(tau)) => {
-                let gm = gauss_markov_from_floor(floor, tau);
+                let one = gauss_markov_from_floor(floor, tau);
+                let gm = GaussMarkov {
+                    sigma: Axes::all(one.sigma),
+                    tau_s: one.tau_s,
+                };
                 if gyro {
                     m.gyro_bias = gm;
                     m.gyro_bias_initial_sigma = None;
@@ -403,8 +421,8 @@ pub fn model_from_allan(fit: &AllanDevice, base: &ImuModel, origin: &str) -> Noi
             _ => missing(&format!("{sensor} bias instability")),
         }
         match terms.random_walk {
-            Some(k) if gyro => m.gyro_rrw_rad_per_s_sqrt_s = k,
-            Some(k) => m.accel_rrw_mps2_per_sqrt_s = k,
+            Some(k) if gyro => m.gyro_rrw_rad_per_s_sqrt_s = Axes::all(k),
+            Some(k) => m.accel_rrw_mps2_per_sqrt_s = Axes::all(k),
             None => {} // Not identified usually means below what the record shows: keep base.
         }
     }
@@ -489,22 +507,22 @@ mod tests {
     fn preset_mapping_uses_datasheet_values() {
         let m = model_from_preset("tactical").expect("preset").model;
         // ARW 0.15 °/√h = 0.15° / 60 per √s.
-        assert!((m.arw_rad_per_sqrt_s - 0.15f64.to_radians() / 60.0).abs() < 1e-12);
+        assert!((m.arw_rad_per_sqrt_s[0] - 0.15f64.to_radians() / 60.0).abs() < 1e-12);
         // Gyro bias instability: the datasheet's Allan minimum 0.5 °/h is the floor (the
         // preset holds B = 0.5 / 0.664) → GM σ = floor / 0.6174, τ_c = √(1·5000) / 1.89.
         let floor = 0.5f64.to_radians() / 3600.0;
-        assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
+        assert!((m.gyro_bias.sigma[2] - floor / GM_ADEV_PEAK).abs() < 1e-12);
         assert!((m.gyro_bias.tau_s - 5000f64.sqrt() / GM_ADEV_PEAK_TAU).abs() < 1e-9);
         assert!(model_from_preset("nope").is_err());
         // The consumer preset's turn-on bias dominates its initial σ.
         let c = model_from_preset("consumer").expect("preset").model;
-        assert!(c.gyro_bias_sigma0() > 10.0 * c.gyro_bias.sigma);
+        assert!(c.gyro_bias_sigma0(0) > 10.0 * c.gyro_bias.sigma[0]);
         // Its g-sensitivity, 0.1 °/s/g on each axis's own input, is in the model: in-run
         // 0.1 °/s · 0.2 on x and y (horizontal inputs), none on z (its input is the constant
         // 1 g); initial σ = √(floor σ² + turn-on² + (0.1 °/s · 1)²).
         let floor_sigma = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0 / GM_ADEV_PEAK;
         let dynamic = 0.1f64.to_radians() * VEHICLE_ACCEL_SIGMA_G;
-        assert!((c.gyro_bias.sigma - floor_sigma).abs() < 1e-12);
+        assert!((c.gyro_bias.sigma[0] - floor_sigma).abs() < 1e-12);
         let per_axis = c.gyro_bias_g_sensitivity_sigma;
         assert!((per_axis[0] - dynamic).abs() < 1e-12 && (per_axis[1] - dynamic).abs() < 1e-12);
         assert_eq!(per_axis[2], 0.0);
@@ -514,25 +532,36 @@ mod tests {
             (band_sigma.powi(2) + (20f64 / 3.0).to_radians().powi(2) + 0.1f64.to_radians().powi(2))
                 .sqrt();
         assert!(
-            (c.gyro_bias_sigma0() - initial).abs() < 1e-9,
+            (c.gyro_bias_sigma0(0) - initial).abs() < 1e-9,
             "{} vs {initial}",
-            c.gyro_bias_sigma0()
+            c.gyro_bias_sigma0(0)
         );
         // Presets without g-sensitivity keep the floor's σ on every axis.
-        assert!((m.gyro_bias.sigma - floor / GM_ADEV_PEAK).abs() < 1e-12);
+        assert!((m.gyro_bias.sigma[2] - floor / GM_ADEV_PEAK).abs() < 1e-12);
         assert_eq!(m.gyro_bias_g_sensitivity_sigma, [0.0; 3]);
         // The initial σ holds the flicker's spread over the band and the turn-on bias.
         let band = floor * (5000f64.ln() / (2.0 * std::f64::consts::LN_2)).sqrt();
         assert!((band / floor - 2.48).abs() < 0.01, "{}", band / floor);
         let turn_on = 4f64.to_radians() / 3600.0;
-        assert!((m.gyro_bias_sigma0() - band.hypot(turn_on)).abs() < 1e-12);
+        assert!((m.gyro_bias_sigma0(1) - band.hypot(turn_on)).abs() < 1e-12);
         // Without a turn-on bias the initial σ is the band's, above the Allan-peak GM's.
         let i = model_from_preset("industrial").expect("preset").model;
         let floor = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0;
-        assert!((i.gyro_bias_sigma0() - flicker_band_sigma(floor, [1.0, 5000.0])).abs() < 1e-15);
-        assert!(i.gyro_bias_sigma0() > 1.5 * i.gyro_bias.sigma);
+        assert!((i.gyro_bias_sigma0(2) - flicker_band_sigma(floor, [1.0, 5000.0])).abs() < 1e-15);
+        assert!(i.gyro_bias_sigma0(2) > 1.5 * i.gyro_bias.sigma[2]);
         assert_eq!(flicker_band_sigma(floor, [10.0, 10.0]), 0.0);
         assert_eq!(flicker_band_sigma(0.0, [1.0, 10.0]), 0.0);
+        // Axes that differ keep their own figures: bench-cheap's accelerometer instability
+        // is 0.029 / 0.074 / 0.043 mg and its VRW 6.6 / 7.9 / 8.5 mg/√h on x / y / z.
+        let b = model_from_preset("bench-cheap").expect("preset").model;
+        let s = b.accel_bias.sigma;
+        assert!(
+            (s[1] / s[0] - 0.074 / 0.029).abs() < 1e-9
+                && (s[2] / s[0] - 0.043 / 0.029).abs() < 1e-9
+        );
+        let v = b.vrw_mps_per_sqrt_s;
+        assert!((v[2] / v[0] - 8.5 / 6.6).abs() < 1e-9, "{v:?}");
+        assert!(b.accel_bias_sigma0(0) < b.accel_bias_sigma0(1));
     }
 
     #[test]

@@ -25,8 +25,8 @@ fn static_spec(hours: f64) -> MotionSpec {
 fn errors() -> ImuErrors {
     let c = FusionConfig::default().imu;
     ImuErrors {
-        arw: c.arw_rad_per_sqrt_s,
-        vrw: c.vrw_mps_per_sqrt_s,
+        arw: c.arw_rad_per_sqrt_s.max(),
+        vrw: c.vrw_mps_per_sqrt_s.max(),
         gyro_bias: Vector3::new(2e-5, -4e-5, 3e-5),
         accel_bias: Vector3::new(0.02, -0.03, 0.04),
         gyro_scale: Vector3::zeros(),

@@ -134,7 +134,12 @@ pub fn simulate(
 /// A 5-minute drive: start, figure of turns, climb, stop and go.
 pub fn city_drive() -> MotionSpec {
     MotionSpec {
-        vehicle: Default::default(),
+        // A car's body: side-slip in the turns and road heave (docs/simulator.md), as the
+        // filter's default NHC expects of a car.
+        vehicle: imulab::sim::motion::VehicleDynamics {
+            slip_deg_per_mps2: 0.2,
+            heave_mps: 0.03,
+        },
         lat_deg: 48.1,
         lon_deg: 11.6,
         height_m: 520.0,
@@ -196,11 +201,11 @@ pub fn mems_errors(seed: u64) -> ImuErrors {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x5eed);
     let cfg = imulab::fusion::config::FusionConfig::default().imu;
     ImuErrors {
-        arw: cfg.arw_rad_per_sqrt_s,
-        vrw: cfg.vrw_mps_per_sqrt_s,
-        gyro_bias: cfg.gyro_bias.sigma * normal3(&mut rng),
-        accel_bias: cfg.accel_bias.sigma * normal3(&mut rng),
-        gyro_scale: cfg.gyro_scale.sigma * normal3(&mut rng),
-        accel_scale: cfg.accel_scale.sigma * normal3(&mut rng),
+        arw: cfg.arw_rad_per_sqrt_s.max(),
+        vrw: cfg.vrw_mps_per_sqrt_s.max(),
+        gyro_bias: Vector3::from(cfg.gyro_bias.sigma.0).component_mul(&normal3(&mut rng)),
+        accel_bias: Vector3::from(cfg.accel_bias.sigma.0).component_mul(&normal3(&mut rng)),
+        gyro_scale: Vector3::from(cfg.gyro_scale.sigma.0).component_mul(&normal3(&mut rng)),
+        accel_scale: Vector3::from(cfg.accel_scale.sigma.0).component_mul(&normal3(&mut rng)),
     }
 }
