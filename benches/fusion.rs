@@ -520,30 +520,46 @@ fn nees_table() {
     println!("| IMU preset | constraints | ANEES (9 expected) | 95 % band of one epoch | epochs inside / below / above | largest epoch ANEES | position / velocity / attitude ANEES (3 each) | verdict |");
     println!("|---|---|---:|---:|---:|---:|---:|---|");
     // NHC as a user who measured this car would set it (what a consistency check asks: the
-    // filter's model of the truth): the car's slip gradient, known to 10 %, and as σ the RMS
-    // of its true vertical body velocity while the constraint applies (its heave). The
-    // defaults (0.1 m/s, ±0.1 °/(m/s²)) are for a car nobody measured and are cautious here.
+    // filter's model of the truth): the car's slip gradient, known to 10 %; as σ the RMS of
+    // its true vertical body velocity while the constraint applies (its heave), and as the
+    // lateral σ the RMS of its true lateral body velocity beyond the slip it expects (at
+    // least 5 mm/s). The defaults (0.1 m/s, ±0.1 °/(m/s²)) are for a car nobody measured and
+    // are cautious here.
     let car = match &scene.motion {
         imulab::sim::scene::Motion::Segments(spec) => spec.vehicle,
         _ => panic!("{NEES_SCENE}: not a drive"),
     };
     let defaults = imulab::fusion::config::NhcOptions::default();
-    let vertical: Vec<f64> = drive
-        .truth_nav()
-        .iter()
-        .filter(|t| t.vel_ned.norm() >= defaults.min_speed_mps)
-        .map(|t| (t.quat_nb.inverse() * t.vel_ned).z)
-        .collect();
-    let heave_rms = (vertical.iter().map(|v| v * v).sum::<f64>() / vertical.len() as f64).sqrt();
+    let gradient = car.slip_deg_per_mps2.to_radians();
+    let truth = drive.truth_nav();
+    let (mut lateral, mut vertical, mut n) = (0.0, 0.0, 0usize);
+    for w in truth.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        if b.vel_ned.norm() < defaults.min_speed_mps {
+            continue;
+        }
+        let v = b.quat_nb.inverse() * b.vel_ned;
+        // Yaw rate from the attitude's change: the turn the filter's gyro sees.
+        let yaw_rate = (a.quat_nb.inverse() * b.quat_nb).scaled_axis().z / (b.t_s - a.t_s);
+        let expected = -v.x * (gradient * v.x * yaw_rate).tan();
+        lateral += (v.y - expected).powi(2);
+        vertical += v.z * v.z;
+        n += 1;
+    }
+    let rms = |sum: f64| (sum / n.max(1) as f64).sqrt().max(0.005);
     let nhc_told = imulab::fusion::config::NhcOptions {
-        sigma_mps: heave_rms.max(0.005),
+        sigma_mps: rms(vertical),
+        lateral_sigma_mps: Some(rms(lateral)),
         slip_deg_per_mps2: car.slip_deg_per_mps2,
         slip_sigma_deg_per_mps2: 0.1 * car.slip_deg_per_mps2,
         ..defaults
     };
     println!(
-        "NHC told the car: σ {:.4} m/s (its vertical body velocity RMS while moving), slip gradient {} ± {:.3} °/(m/s²), unless flags say otherwise\n",
-        nhc_told.sigma_mps, nhc_told.slip_deg_per_mps2, nhc_told.slip_sigma_deg_per_mps2
+        "NHC told the car: σ vertical {:.4} m/s, lateral {:.4} m/s (its true body velocity RMS while moving, the lateral beyond the expected slip), slip gradient {} ± {:.3} °/(m/s²), unless flags say otherwise\n",
+        nhc_told.sigma_mps,
+        rms(lateral),
+        nhc_told.slip_deg_per_mps2,
+        nhc_told.slip_sigma_deg_per_mps2
     );
     let mut cells = Vec::new();
     let all_grades = grades.len() == all.len();
@@ -563,6 +579,7 @@ fn nees_table() {
                 .find_map(|a| a.strip_prefix("--nhc-sigma=")?.parse::<f64>().ok())
             {
                 config.nhc.sigma_mps = sigma;
+                config.nhc.lateral_sigma_mps = None;
             }
             if let Some(slip) = args
                 .iter()

@@ -403,8 +403,12 @@ impl Default for GnssOptions {
 #[serde(default, deny_unknown_fields)]
 pub struct NhcOptions {
     pub enabled: bool,
-    /// σ of the lateral and vertical body velocity, m/s.
+    /// σ of the vertical body velocity (road heave, bounce), and of the lateral one unless
+    /// `lateral_sigma_mps` is given, m/s.
     pub sigma_mps: f64,
+    /// σ of the lateral body velocity beyond the expected side-slip, m/s; absent: `sigma_mps`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lateral_sigma_mps: Option<f64>,
     /// Side-slip gradient at the vehicle point, degrees per m/s² of lateral acceleration: in
     /// a turn a car's body yaws this much further into the turn than the velocity of its rear
     /// axle per m/s², so the lateral velocity there is −speed × tan(gradient × lateral
@@ -424,6 +428,7 @@ impl Default for NhcOptions {
         Self {
             enabled: false,
             sigma_mps: 0.1,
+            lateral_sigma_mps: None,
             slip_deg_per_mps2: 0.2,
             slip_sigma_deg_per_mps2: 0.1,
             min_speed_mps: 1.0,
@@ -861,6 +866,9 @@ impl FusionConfig {
             self.nhc.sigma_mps > 0.0,
             pos,
         )?;
+        if let Some(v) = self.nhc.lateral_sigma_mps {
+            check("nhc.lateral_sigma_mps", v, v > 0.0, pos)?;
+        }
         check(
             "nhc.slip_deg_per_mps2",
             self.nhc.slip_deg_per_mps2,
@@ -1058,6 +1066,9 @@ mod tests {
         assert!(e.to_string().contains("covariance_interval_s"), "{e}");
         let e = FusionConfig::from_toml_str("[nhc]\nsigma_mps = nan\n", "x").expect_err("nan");
         assert!(e.to_string().contains("nhc.sigma_mps"), "{e}");
+        let e = FusionConfig::from_toml_str("[nhc]\nlateral_sigma_mps = -0.1\n", "x")
+            .expect_err("negative");
+        assert!(e.to_string().contains("nhc.lateral_sigma_mps"), "{e}");
     }
 
     /// The bias state keeps the initial σ as its stationary σ and the in-run driving noise;

@@ -412,7 +412,8 @@ fn vehicle_velocity<const N: usize>(
 }
 
 /// Non-holonomic constraint: the vehicle point's vertical velocity in the vehicle frame is
-/// zero and its lateral velocity is the side-slip's, within `options.sigma_mps`. In a turn
+/// zero within `options.sigma_mps` and its lateral velocity is the side-slip's, within
+/// `lateral_sigma_mps` (absent: `sigma_mps`). In a turn
 /// a car's body yaws further into the turn than the velocity of its rear axle (the rear
 /// tyres slip to give the centripetal force), by about `slip_deg_per_mps2` × the lateral
 /// acceleration a = v·ω_z (from the filter's own speed and bias-corrected yaw rate), so the
@@ -448,13 +449,13 @@ pub fn non_holonomic<const N: usize>(
         }
         h.row_mut(0).copy_from(&row);
     }
-    let sigma2 = options.sigma_mps * options.sigma_mps;
+    let lateral = options.lateral_sigma_mps.unwrap_or(options.sigma_mps);
     Measurement {
         z: SVector::<f64, 2>::new(v_v.y - slip, v_v.z),
         h,
         r: SMatrix::<f64, 2, 2>::from_diagonal(&SVector::<f64, 2>::new(
-            sigma2 + slip_sigma * slip_sigma,
-            sigma2,
+            lateral * lateral + slip_sigma * slip_sigma,
+            options.sigma_mps * options.sigma_mps,
         )),
     }
 }
@@ -643,6 +644,13 @@ mod tests {
         // In a 0.3 rad/s turn the expected side-slip is part of the lateral row and moves
         // with the speed and the yaw rate's bias.
         assert!(m0.r[(0, 0)] > m0.r[(1, 1)]);
+        let tight = NhcOptions {
+            lateral_sigma_mps: Some(0.01),
+            slip_sigma_deg_per_mps2: 0.0,
+            ..NhcOptions::default()
+        };
+        let m = non_holonomic::<21>(&n, &gyro, &VehicleOptions::default(), &tight);
+        assert!((m.r[(0, 0)] - 1e-4).abs() < 1e-15 && (m.r[(1, 1)] - 0.01).abs() < 1e-15);
         let phi = Vector3::new(-2e-4, 1e-4, 2e-4);
         let dv = Vector3::new(0.01, -0.02, 0.005);
         let db = Vector3::new(1e-4, -2e-4, 3e-4);
