@@ -18,7 +18,7 @@
 #[path = "support/results.rs"]
 mod results;
 
-use imulab::fusion::config::FusionConfig;
+use imulab::fusion::config::{Axes, FusionConfig};
 use imulab::fusion::mechanisation::{ImuInput, IntegrationOrder, NavState};
 use imulab::fusion::metrics::{errors, summarise};
 use imulab::fusion::navigator::{replay, ReplayOptions};
@@ -395,6 +395,11 @@ fn speed_table(base: &FusionConfig, e: &fusion_support::ImuErrors) {
     );
 }
 
+/// The number after `prefix` in the first command-line argument that has it (`--nhc-slip=0.2`).
+fn flag_value(prefix: &str) -> Option<f64> {
+    std::env::args().find_map(|a| a.strip_prefix(prefix)?.parse::<f64>().ok())
+}
+
 /// Runs of the consistency table per grade and constraint set.
 const NEES_RUNS: usize = 50;
 /// The scene of the consistency table and its withheld GNSS: 60 s every 180 s.
@@ -574,23 +579,14 @@ fn nees_table() {
                 ..FusionConfig::default()
             };
             config.nhc.enabled = nhc;
-            if let Some(sigma) = args
-                .iter()
-                .find_map(|a| a.strip_prefix("--nhc-sigma=")?.parse::<f64>().ok())
-            {
+            if let Some(sigma) = flag_value("--nhc-sigma=") {
                 config.nhc.sigma_mps = sigma;
                 config.nhc.lateral_sigma_mps = None;
             }
-            if let Some(slip) = args
-                .iter()
-                .find_map(|a| a.strip_prefix("--nhc-slip=")?.parse::<f64>().ok())
-            {
+            if let Some(slip) = flag_value("--nhc-slip=") {
                 config.nhc.slip_deg_per_mps2 = slip;
             }
-            if let Some(sigma) = args
-                .iter()
-                .find_map(|a| a.strip_prefix("--nhc-slip-sigma=")?.parse::<f64>().ok())
-            {
+            if let Some(sigma) = flag_value("--nhc-slip-sigma=") {
                 config.nhc.slip_sigma_deg_per_mps2 = sigma;
             }
             config.turn_on_states = !one_bias_state;
@@ -836,7 +832,7 @@ fn write_kf_gins_inputs(
     let t0 = d.imu[0].t_s();
     let init = truth_near(d, t0).expect("truth at the first IMU epoch");
     let (roll, pitch, yaw) = init.quat_nb.euler_angles();
-    let v3 = |a: imulab::fusion::config::Axes, unit: f64| {
+    let v3 = |a: Axes, unit: f64| {
         format!(
             "[{:.9}, {:.9}, {:.9}]",
             a[0] * unit,
@@ -917,9 +913,7 @@ fn kf_gins_anchor() {
     };
     // `--nhc-slip=K --nhc-slip-sigma=S`: the NHC rows with another side-slip gradient and σ
     // (then benches/results is left as it is).
-    let flag =
-        |name: &str| std::env::args().find_map(|a| a.strip_prefix(name)?.parse::<f64>().ok());
-    let (slip, slip_sigma) = (flag("--nhc-slip="), flag("--nhc-slip-sigma="));
+    let (slip, slip_sigma) = (flag_value("--nhc-slip="), flag_value("--nhc-slip-sigma="));
     let mut per_grade = Vec::new();
     println!("\nAgainst KF-GINS ({}): 30 min drive, 200 Hz IMU, 10 Hz GNSS position σ 0.3/0.6 m, GNSS removed from the file for 60 s every 180 s\n", bin.display());
     println!("| IMU grade | filter | RMS of per-outage max horiz. drift, m | GNSS-on horiz. RMS, m | outages |");
@@ -931,9 +925,8 @@ fn kf_gins_anchor() {
         let mut rng_errors = mems_errors(21 + k as u64);
         let base = FusionConfig::default().imu;
         // The errors drawn for the default model, rescaled axis by axis to the preset's σ.
-        let ratio = |x: imulab::fusion::config::Axes, y: imulab::fusion::config::Axes| {
-            Vector3::from_fn(|i, _| if y[i] > 0.0 { x[i] / y[i] } else { 0.0 })
-        };
+        let ratio =
+            |x: Axes, y: Axes| Vector3::from_fn(|i, _| if y[i] > 0.0 { x[i] / y[i] } else { 0.0 });
         rng_errors.arw = model.arw_rad_per_sqrt_s.max();
         rng_errors.vrw = model.vrw_mps_per_sqrt_s.max();
         rng_errors.gyro_bias = rng_errors

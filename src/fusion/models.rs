@@ -413,9 +413,9 @@ fn vehicle_velocity<const N: usize>(
 
 /// Non-holonomic constraint: the vehicle point's vertical velocity in the vehicle frame is
 /// zero within `options.sigma_mps` and its lateral velocity is the side-slip's, within
-/// `lateral_sigma_mps` (absent: `sigma_mps`). In a turn
-/// a car's body yaws further into the turn than the velocity of its rear axle (the rear
-/// tyres slip to give the centripetal force), by about `slip_deg_per_mps2` × the lateral
+/// `lateral_sigma_mps` (absent: `sigma_mps`). In a turn a car's body yaws further into the
+/// turn than the velocity of its rear axle (the rear tyres slip to give the centripetal
+/// force), by about `slip_deg_per_mps2` × the lateral
 /// acceleration a = v·ω_z (from the filter's own speed and bias-corrected yaw rate), so the
 /// lateral velocity there is −v·tan(slip·a) (right-handed FRD: a right turn slips left).
 /// The gradient's own uncertainty, `slip_sigma_deg_per_mps2`, adds v·tan(σ_slip·|a|) to the

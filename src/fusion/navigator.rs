@@ -5,7 +5,7 @@
 //! trajectory at the output interval, optionally RTS-smoothed.
 
 use crate::align::{self, StaticLeveller};
-use crate::config::FusionConfig;
+use crate::config::{Axes, FusionConfig};
 use crate::eskf::{FilterStats, Ins, SensorErrors, UpdateOutcome};
 use crate::mechanisation::{ImuInput, NavState};
 use crate::metrics;
@@ -595,7 +595,7 @@ impl<const N: usize> Navigator<N> {
                     pitch,
                     fix.lat_rad,
                     &imu.arw_rad_per_sqrt_s,
-                    &imu.gyro_bias_initial_sigma.unwrap_or(imu.gyro_bias.sigma),
+                    &Axes(std::array::from_fn(|i| imu.gyro_bias_sigma0(i))),
                 );
                 ins.set_gyro_bias(b.bias, b.sigma);
             }
