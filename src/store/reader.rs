@@ -63,24 +63,33 @@ pub struct ChunkFileInfo {
     pub problem: Option<String>,
 }
 
+/// A chunk file of the session. It is opened when a reader reaches it and closed when the
+/// reader moves on: HDF5 holds about half a MiB per open file, so a multi-day session kept
+/// open whole would cost hundreds of MiB beside the data read.
 #[derive(Clone)]
 struct ChunkEntry {
     info: ChunkFileInfo,
-    file: Option<hdf5::File>,
+    /// The hint for a partial file's open error (live writer or not), `None` for a final file.
+    partial_hint: Option<String>,
 }
 
 /// A chunk file opened for reading, or why it was skipped.
 type OpenedFile = Result<(ChunkFileInfo, hdf5::File), StoreError>;
 
 impl ChunkEntry {
-    /// The open file, or the error that says why the file was skipped.
-    fn readable(self) -> OpenedFile {
-        match self.file {
-            Some(file) => Ok((self.info, file)),
-            None => Err(StoreError::Corrupt {
-                msg: format!("skipped: {}", self.info.problem.unwrap_or_default()),
-                path: self.info.path,
-            }),
+    /// The file opened, or the error that says why it is skipped: the problem found when
+    /// the session was opened, or what went wrong opening it now.
+    fn open(&self) -> OpenedFile {
+        let skipped = |msg: String| StoreError::Corrupt {
+            msg,
+            path: self.info.path.clone(),
+        };
+        if let Some(problem) = &self.info.problem {
+            return Err(skipped(format!("skipped: {problem}")));
+        }
+        match open_chunk(&self.info.path, self.partial_hint.as_deref()) {
+            Ok(file) => Ok((self.info.clone(), file)),
+            Err(problem) => Err(skipped(problem)),
         }
     }
 }
@@ -89,9 +98,9 @@ impl ChunkEntry {
 /// or the error that says why it was skipped; `None` past the last file.
 fn next_file(files: &[ChunkEntry], pos: &mut usize) -> Option<(usize, OpenedFile)> {
     let fi = *pos;
-    let entry = files.get(fi)?.clone();
+    let entry = files.get(fi)?;
     *pos += 1;
-    Some((fi, entry.readable()))
+    Some((fi, entry.open()))
 }
 
 /// A chunk file whose tables could not be opened.
@@ -267,9 +276,10 @@ fn open_chunk(path: &Path, partial: Option<&str>) -> Result<hdf5::File, String> 
 }
 
 impl Session {
-    /// Opens a session directory: reads the manifest and opens every chunk file it can.
-    /// Fails only when the directory is not a session or its manifest is bad; per-file
-    /// problems are reported by [`Session::files`] and [`Session::problems`].
+    /// Opens a session directory: reads the manifest and checks that every chunk file opens
+    /// (the readers open each again when they reach it). Fails only when the directory is
+    /// not a session or its manifest is bad; per-file problems are reported by
+    /// [`Session::files`] and [`Session::problems`].
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         Self::open_files(dir, 0, true)
     }
@@ -311,17 +321,14 @@ impl Session {
         for (i, (index, partial, path)) in found.iter().enumerate() {
             let size_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
             let duplicate = i > 0 && found[i - 1].0 == *index;
-            let opened = if duplicate {
-                Err(format!(
+            let partial_hint = partial.then(|| hint.clone());
+            let problem = if duplicate {
+                Some(format!(
                     "{}: both a final and a partial file for chunk {index}; reading the final one",
                     path.display()
                 ))
             } else {
-                open_chunk(path, partial.then_some(hint.as_str()))
-            };
-            let (file, problem) = match opened {
-                Ok(f) => (Some(f), None),
-                Err(p) => (None, Some(p)),
+                open_chunk(path, partial_hint.as_deref()).err()
             };
             files.push(ChunkEntry {
                 info: ChunkFileInfo {
@@ -331,7 +338,7 @@ impl Session {
                     size_bytes,
                     problem,
                 },
-                file,
+                partial_hint,
             });
         }
         Ok(Session {
@@ -536,9 +543,9 @@ impl Session {
                 .max()
                 .unwrap_or(0);
             let in_file = entry
-                .file
-                .as_ref()
-                .and_then(|f| open_table(f, group, &[super::columns::T_MONO]).ok())
+                .open()
+                .ok()
+                .and_then(|(_, f)| open_table(&f, group, &[super::columns::T_MONO]).ok())
                 .map_or(0, |(_, len)| len as u64);
             let rows = end.saturating_sub(in_file.max(first));
             if rows > 0 {
@@ -553,8 +560,10 @@ impl Session {
     pub fn stream_summary(&self, group: &str) -> StreamSummary {
         let mut s = StreamSummary::default();
         for entry in &self.files {
-            let Some(file) = &entry.file else { continue };
-            match open_table(file, group, &[super::columns::T_MONO]) {
+            let Ok((_, file)) = entry.open() else {
+                continue;
+            };
+            match open_table(&file, group, &[super::columns::T_MONO]) {
                 Ok((ds, len)) => {
                     if len == 0 {
                         continue;
@@ -661,6 +670,8 @@ fn lower_bound(t: &Dataset, len: usize, x: i64) -> hdf5::Result<usize> {
 
 struct Cursor {
     file_index: usize,
+    /// Held while its datasets are read; the file closes when the cursor moves on.
+    file: hdf5::File,
     ds: Vec<Dataset>,
     next: usize,
     end: usize,
@@ -680,14 +691,15 @@ struct BlockIter<B> {
 }
 
 impl<B: Block> BlockIter<B> {
-    fn open_cursor(&self, file_index: usize, file: &hdf5::File) -> hdf5::Result<Option<Cursor>> {
+    fn open_cursor(&self, file_index: usize, file: hdf5::File) -> hdf5::Result<Option<Cursor>> {
         if self.optional && file.group(&self.group).is_err() {
             return Ok(None);
         }
-        let (ds, len) = open_table(file, &self.group, B::COLUMNS)?;
+        let (ds, len) = open_table(&file, &self.group, B::COLUMNS)?;
         let rows = self.range.rows(&ds[0], len)?;
         Ok(Some(Cursor {
             file_index,
+            file,
             ds,
             next: rows.start,
             end: rows.end,
@@ -717,7 +729,7 @@ impl<B: Block> BlockIter<B> {
                 Ok(opened) => opened,
                 Err(e) => return Some(Err(e)),
             };
-            match self.open_cursor(fi, &file) {
+            match self.open_cursor(fi, file) {
                 Ok(c) => self.cursor = c,
                 Err(e) => return Some(Err(file_error(info, &e))),
             }
@@ -790,6 +802,8 @@ const IMU_TEMP: usize = 5;
 /// The open datasets of one file for [`ImuColumnReader`].
 struct ColumnCursor {
     file_index: usize,
+    /// Held while its datasets are read; the file closes when the cursor moves on.
+    _file: hdf5::File,
     t_mono: ColumnReader,
     t_sensor: Option<ColumnReader>,
     gyro: Option<ColumnReader>,
@@ -838,7 +852,7 @@ impl ImuColumnReader {
                 Ok(opened) => opened,
                 Err(e) => return Some(Err(e)),
             };
-            match self.open_cursor(fi, &file, !info.partial) {
+            match self.open_cursor(fi, file, !info.partial) {
                 Ok(c) => self.cursor = Some(c),
                 Err(e) => return Some(Err(file_error(info, &e))),
             }
@@ -848,7 +862,7 @@ impl ImuColumnReader {
     fn open_cursor(
         &self,
         file_index: usize,
-        file: &hdf5::File,
+        file: hdf5::File,
         direct: bool,
     ) -> hdf5::Result<ColumnCursor> {
         let mut cols = vec![IMU_COLUMNS[0]];
@@ -864,7 +878,7 @@ impl ImuColumnReader {
                 .filter(|(on, _)| *on)
                 .map(|&(_, i)| IMU_COLUMNS[i]),
         );
-        let (ds, len) = open_table(file, &self.group, &cols)?;
+        let (ds, len) = open_table(&file, &self.group, &cols)?;
         let rows = self.range.rows(&ds[0], len)?;
         let mut ds = ds.into_iter();
         let mut next = |on: bool| -> hdf5::Result<Option<ColumnReader>> {
@@ -879,6 +893,7 @@ impl ImuColumnReader {
         let t_mono = next(true)?.ok_or_else(|| hdf5::Error::from("missing t_mono_ns"))?;
         Ok(ColumnCursor {
             file_index,
+            _file: file,
             t_mono,
             t_sensor: next(self.set.t_sensor)?,
             gyro: next(self.set.gyro)?,
@@ -958,9 +973,9 @@ impl Iterator for RawIter {
         };
         let start = usize::try_from(first).unwrap_or(usize::MAX);
         let end = usize::try_from(last.saturating_add(u64::from(last_len))).unwrap_or(usize::MAX);
-        let file = match &self.inner.files[fi].file {
-            Some(f) => f,
-            None => return Some(Err(corrupt("file not open".into()))),
+        let file = match &self.inner.cursor {
+            Some(c) if c.file_index == fi => &c.file,
+            _ => return Some(Err(corrupt("file not open".into()))),
         };
         let bytes = file
             .dataset(&format!("{}/{}", self.inner.group, RAW_BYTES.name))

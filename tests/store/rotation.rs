@@ -109,3 +109,36 @@ fn a_stop_event_at_the_rotation_time_goes_into_the_last_file() {
         files[1].display()
     );
 }
+
+/// The reader opens a chunk file when it reaches it: a file that vanishes after
+/// `Session::open` is one error naming it, and the other files still read whole.
+#[test]
+fn a_chunk_file_that_vanishes_after_open_is_one_error_naming_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    write_session(&dir, 12, 100, opts(4));
+    let files = chunk_files(&dir);
+    assert!(files.len() >= 3, "{files:?}");
+    let session = imulab::store::Session::open(&dir).unwrap();
+    assert!(session.problems().is_empty(), "{:?}", session.problems());
+    let gone = &files[1];
+    let gone_rows = times(gone, "imu/imu_a").len();
+    std::fs::remove_file(gone).unwrap();
+    let (mut rows, mut errors) = (0, Vec::new());
+    for block in session
+        .imu_blocks("imu_a", imulab::store::TimeRange::all(), 250)
+        .unwrap()
+    {
+        match block {
+            Ok(b) => rows += b.t_mono_ns.len(),
+            Err(e) => errors.push(e.to_string()),
+        }
+    }
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    assert!(
+        errors[0].contains(&*gone.to_string_lossy()),
+        "{}",
+        errors[0]
+    );
+    assert_eq!(rows + gone_rows, 12 * IMU_HZ as usize);
+}
