@@ -136,11 +136,9 @@ pub fn identify_alphas_fused(
             let value = if order < 2 {
                 low[order]
             } else {
-                // Orders 2 and 3: the decimated phase, gathered once.
-                let pair = *high.get_or_insert_with(|| {
-                    let z: Vec<f64> = x.iter().step_by(m).copied().collect();
-                    lag1_pair(&z, 2, simd)
-                });
+                // Orders 2 and 3: the decimated phase, read a block at a time (a copy of it
+                // would be as large as the phase itself at m = 1).
+                let pair = *high.get_or_insert_with(|| lag1_pair_of(&Decimated { x, m }, 2, simd));
                 pair[order - 2]
             };
             value.map_or(Lag1::Undefined, Lag1::Value)
@@ -679,23 +677,63 @@ impl Moments {
 /// the series `z` (the decimated phase, or for d = 1 its first difference), in one pass
 /// (`None` for an order with zero variance or fewer than two values).
 pub(super) fn lag1_pair(z: &[f64], d: usize, simd: Simd) -> [Option<f64>; 2] {
+    lag1_pair_of(&z, d, simd)
+}
+
+/// [`lag1_pair`] of any [`Series`]: the same sums, bit for bit, whether the series is a slice
+/// or read a block at a time.
+fn lag1_pair_of<S: Series>(z: &S, d: usize, simd: Simd) -> [Option<f64>; 2] {
     debug_assert!(d <= 2, "difference orders 0 to 3");
     // Monomorphised per pair so the difference cascade lives in registers.
     match d {
-        0 => dispatch(simd, Lag1Orders::<0, 3>(z)),
-        1 => dispatch(simd, Lag1Orders::<1, 4>(z)),
-        _ => dispatch(simd, Lag1Orders::<2, 5>(z)),
+        0 => dispatch(simd, Lag1Orders::<S, 0, 3>(z)),
+        1 => dispatch(simd, Lag1Orders::<S, 1, 4>(z)),
+        _ => dispatch(simd, Lag1Orders::<S, 2, 5>(z)),
+    }
+}
+
+/// A series the lag-1 sums read window by window: a slice lends its windows, a decimated
+/// phase gathers each into a buffer.
+trait Series {
+    fn len(&self) -> usize;
+    /// Values `start .. start + len` (within the series).
+    fn window<'a>(&'a self, start: usize, len: usize, buf: &'a mut Vec<f64>) -> &'a [f64];
+}
+
+impl Series for &[f64] {
+    fn len(&self) -> usize {
+        <[f64]>::len(self)
+    }
+    fn window<'a>(&'a self, start: usize, len: usize, _: &'a mut Vec<f64>) -> &'a [f64] {
+        &self[start..start + len]
+    }
+}
+
+/// Every `m`-th value of `x` from the first: the phase decimated by m, never copied whole.
+struct Decimated<'a> {
+    x: &'a [f64],
+    m: usize,
+}
+
+impl Series for Decimated<'_> {
+    fn len(&self) -> usize {
+        self.x.len().div_ceil(self.m)
+    }
+    fn window<'a>(&'a self, start: usize, len: usize, buf: &'a mut Vec<f64>) -> &'a [f64] {
+        buf.clear();
+        buf.extend(self.x[start * self.m..].iter().step_by(self.m).take(len));
+        buf
     }
 }
 
 /// [`lag1_orders`] as a [`Kernel`].
-struct Lag1Orders<'a, const D: usize, const K: usize>(&'a [f64]);
+struct Lag1Orders<'a, S, const D: usize, const K: usize>(&'a S);
 
-impl<const D: usize, const K: usize> Kernel for Lag1Orders<'_, D, K> {
+impl<S: Series, const D: usize, const K: usize> Kernel for Lag1Orders<'_, S, D, K> {
     type Output = [Option<f64>; 2];
     #[inline(always)]
     fn run(self) -> [Option<f64>; 2] {
-        lag1_orders::<D, K>(self.0)
+        lag1_orders::<S, D, K>(self.0)
     }
 }
 
@@ -705,19 +743,22 @@ impl<const D: usize, const K: usize> Kernel for Lag1Orders<'_, D, K> {
 /// vector operation), plain sums within blocks of 4096, compensated across blocks.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)] // one index walks the lane arrays in lock-step
-fn bulk_moments<const D: usize, const K: usize>(
-    z: &[f64],
+fn bulk_moments<S: Series, const D: usize, const K: usize>(
+    series: &S,
     bulk: usize,
     low_shift: f64,
     high_shift: f64,
 ) -> [f64; 6] {
     const BLOCK: usize = 4096;
     let mut totals = [CompensatedSum::new(); 6];
+    let mut buf = Vec::new();
     let mut start = 0;
     while start < bulk {
         let end = (start + BLOCK).min(bulk);
+        // This block's values and the K − 1 after them; indices below are from `start`.
+        let z = series.window(start, end - start + K - 1, &mut buf);
         let chunks: [&[[f64; LANES]]; K] =
-            std::array::from_fn(|s| z[start + s..end + s].as_chunks::<LANES>().0);
+            std::array::from_fn(|s| z[s..end - start + s].as_chunks::<LANES>().0);
         let full = (end - start) / LANES;
         let mut acc = [[0.0f64; LANES]; 6];
         for j in 0..full {
@@ -748,7 +789,7 @@ fn bulk_moments<const D: usize, const K: usize>(
         }
         // The few terms after the last full chunk, point by point.
         let mut tail = [0.0f64; 6];
-        for k in start + full * LANES..end {
+        for k in full * LANES..end - start {
             let a0 = difference_at(z, k, D) - low_shift;
             let a1 = difference_at(z, k + 1, D) - low_shift;
             let b0 = difference_at(z, k, D + 1) - high_shift;
@@ -786,33 +827,38 @@ fn difference_at(z: &[f64], k: usize, order: usize) -> f64 {
 
 /// [`lag1_pair`] for the orders `D` and `D + 1`, reading `K = D + 3` streams z[k…].
 #[inline(always)]
-fn lag1_orders<const D: usize, const K: usize>(z: &[f64]) -> [Option<f64>; 2] {
-    let len = z.len();
+fn lag1_orders<S: Series, const D: usize, const K: usize>(series: &S) -> [Option<f64>; 2] {
+    let len = series.len();
     if len <= D {
         return [None, None];
     }
-    // Shifts: the first value of each order, so u_0 = 0 exactly.
-    let low_shift = difference_at(z, 0, D);
+    let mut buf = Vec::new();
     if len < K {
         // Too short for the pair: order D alone, point by point.
+        let z = series.window(0, len, &mut buf);
+        // Shift: the first value of the order, so u_0 = 0 exactly.
+        let low_shift = difference_at(z, 0, D);
         let mut low = Moments::default();
         for k in 0..len - D {
             low.add(difference_at(z, k, D) - low_shift);
         }
         return [low.lag1(), None];
     }
-    let high_shift = difference_at(z, 0, D + 1);
+    // Shifts: the first value of each order, so u_0 = 0 exactly.
+    let head = series.window(0, D + 2, &mut buf);
+    let (low_shift, high_shift) = (difference_at(head, 0, D), difference_at(head, 0, D + 1));
     // Bulk, k = 0 … len − D − 3: order D at k (a_k, and its lag-1 product a_k·a_{k+1})
     // and order D + 1 at k (b_k and b_k·b_{k+1}), from z[k … k + D + 2].
     let bulk = len - K + 1;
     let [s_low, q_low, l_low, s_high, q_high, l_high] =
-        bulk_moments::<D, K>(z, bulk, low_shift, high_shift);
+        bulk_moments::<S, D, K>(series, bulk, low_shift, high_shift);
     // Order D has len − D values: its last two (k = len − D − 2, len − D − 1) and their
     // product are left. Order D + 1 has len − D − 1: its last value (k = len − D − 2) is
-    // left, its products are all in the bulk.
-    let a0 = difference_at(z, len - D - 2, D) - low_shift;
-    let a1 = difference_at(z, len - D - 1, D) - low_shift;
-    let b0 = difference_at(z, len - D - 2, D + 1) - high_shift;
+    // left, its products are all in the bulk. They read z[len − D − 2 …], the last D + 2.
+    let tail = series.window(len - D - 2, D + 2, &mut buf);
+    let a0 = difference_at(tail, 0, D) - low_shift;
+    let a1 = difference_at(tail, 1, D) - low_shift;
+    let b0 = difference_at(tail, 0, D + 1) - high_shift;
     let low = Moments {
         len: len - D,
         sum: s_low + a0 + a1,
@@ -975,6 +1021,29 @@ pub(crate) mod tests {
             identify_alphas_fused(&x, &many, 3, Simd::detected()),
             Some(identify_alphas_by_decimation(&x, &many, 3, Simd::Portable))
         );
+    }
+
+    /// The decimated phase read a block at a time gives the gathered copy's sums bit for
+    /// bit: across several of the kernel's 4096-value blocks, on both sides of the kernel's
+    /// shortest input, on every path.
+    #[test]
+    fn decimated_lag1_equals_the_gathered_copy() {
+        let walk = integrate(&white(20_011, 9));
+        for len in [3, 4, 5, 6, 7, 1_000, 20_011] {
+            let x = &walk[..len];
+            for m in [1, 2, 3, 5, 31] {
+                let z: Vec<f64> = x.iter().step_by(m).copied().collect();
+                for d in 0..=2 {
+                    for simd in [Simd::Portable, Simd::detected()] {
+                        assert_eq!(
+                            lag1_pair_of(&Decimated { x, m }, d, simd),
+                            lag1_pair(&z, d, simd),
+                            "len {len}, m {m}, d {d}, {simd:?}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]
