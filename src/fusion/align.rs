@@ -48,6 +48,8 @@ pub struct StaticLeveller {
     sum_w: Vector3<f64>,
     duration_s: f64,
     moved: bool,
+    /// Heading turned since the still period ended, rad (from the gyro less its still mean).
+    turned_rad: f64,
 }
 
 /// The tilt error that levelling leaves, as a function of the accelerometer bias error: the
@@ -79,29 +81,38 @@ pub struct StaticGyroBias {
 /// The gyro bias from a still period of `duration_s` whose mean angular rate was `mean_w`,
 /// combined with the filter's prior (zero mean, 1σ `sigma0`) per axis.
 ///
-/// The mean reads bias + C_bn ω_ie (earth rate). With roll and pitch known and heading not,
-/// the earth rate's vertical part (ω_ie sin φ at latitude φ) is subtracted and its horizontal
-/// part (ω_ie cos φ, direction unknown) bounds the error per axis; the white noise adds
+/// The mean reads bias + C_bn ω_ie (earth rate). With roll and pitch from levelling and the
+/// heading the body had while still, `heading` (1σ `heading_sigma`, rad), the whole earth
+/// rate is subtracted; what is left of it is the heading error's share: the earth rate's
+/// horizontal part (ω_ie cos φ at latitude φ) turned by `heading_sigma`. The white noise adds
 /// `arw`²/T. The result is the Bayesian combination of that measurement with the prior, so a
-/// gyro whose bias is already known better than the earth rate gains little.
+/// gyro whose bias is already known better than that gains little. A heading known to no
+/// better than a radian leaves the whole horizontal earth rate as the error bound.
+#[allow(clippy::too_many_arguments)]
 pub fn static_gyro_bias(
     mean_w: &Vector3<f64>,
     duration_s: f64,
     roll: f64,
     pitch: f64,
+    heading: f64,
+    heading_sigma: f64,
     lat_rad: f64,
     arw: &Axes,
     sigma0: &Axes,
 ) -> StaticGyroBias {
-    let c_nb = attitude(roll, pitch, 0.0).to_rotation_matrix();
-    let c_bn = c_nb.matrix().transpose();
+    let c_bn = attitude(roll, pitch, heading)
+        .to_rotation_matrix()
+        .matrix()
+        .transpose();
     let (sin, cos) = lat_rad.sin_cos();
-    let vertical = c_bn * Vector3::new(0.0, 0.0, -OMEGA_IE * sin);
-    let measured = mean_w - vertical;
+    let measured = mean_w - c_bn * Vector3::new(OMEGA_IE * cos, 0.0, -OMEGA_IE * sin);
+    // The horizontal earth rate turned by a heading error δψ moves by 2·sin(δψ/2) of itself.
+    let turned = 2.0 * (0.5 * heading_sigma.abs().min(1.0)).sin();
+    let turned = if turned.is_finite() { turned } else { 1.0 };
     let mut bias = Vector3::zeros();
     let mut sigma = Vector3::from(sigma0.0);
     for i in 0..3 {
-        let horizontal = OMEGA_IE * cos * c_bn[(i, 0)].hypot(c_bn[(i, 1)]);
+        let horizontal = OMEGA_IE * cos * c_bn[(i, 0)].hypot(c_bn[(i, 1)]) * turned;
         let r = horizontal.powi(2) + arw[i].powi(2) / duration_s;
         let p0 = sigma0[i].powi(2);
         if !(r.is_finite() && p0.is_finite() && p0 + r > 0.0) {
@@ -129,11 +140,17 @@ impl StaticLeveller {
         gyro_threshold: f64,
         accel_threshold: f64,
     ) {
-        if self.moved || dt_s.is_nan() || dt_s <= 0.0 {
+        let finite = f_b.iter().chain(w_b.iter()).all(|v| v.is_finite());
+        if !finite || dt_s.is_nan() || dt_s <= 0.0 {
             return;
         }
-        let finite = f_b.iter().chain(w_b.iter()).all(|v| v.is_finite());
-        if !finite {
+        if self.moved {
+            // The heading's rate: the rate less the still mean (bias and earth rate), turned
+            // level with the roll and pitch of the still period.
+            if let (Some(mean), Some((roll, pitch))) = (self.mean_gyro(), self.roll_pitch()) {
+                let level = attitude(roll, pitch, 0.0);
+                self.turned_rad += (level * (w_b - mean)).z * dt_s;
+            }
             return;
         }
         let (off, turning) = if self.duration_s > 0.0 {
@@ -150,6 +167,8 @@ impl StaticLeveller {
         };
         if turning > gyro_threshold || off > accel_threshold {
             self.moved = true;
+            // This sample's turn counts.
+            self.add(f_b, w_b, dt_s, gravity, gyro_threshold, accel_threshold);
             return;
         }
         self.sum_f += f_b * dt_s;
@@ -165,6 +184,12 @@ impl StaticLeveller {
     /// Seconds of static data collected.
     pub fn duration_s(&self) -> f64 {
         self.duration_s
+    }
+
+    /// Heading turned since the still period ended, rad: the heading now less the heading
+    /// while still (0 before motion).
+    pub fn turned_rad(&self) -> f64 {
+        self.turned_rad
     }
 
     /// Whether motion ended the static period.
@@ -241,41 +266,94 @@ mod tests {
     #[test]
     fn static_gyro_bias_removes_earth_rate_and_weighs_the_prior() {
         let lat = 0.8f64;
-        let (roll, pitch) = (0.02, -0.03);
-        let c_bn = attitude(roll, pitch, 0.0)
+        let (roll, pitch, heading) = (0.02, -0.03, 1.2);
+        let c_bn = attitude(roll, pitch, heading)
             .to_rotation_matrix()
             .into_inner()
             .transpose();
         let bias = Vector3::new(0.1, -0.05, 0.08);
-        let earth_vertical = c_bn * Vector3::new(0.0, 0.0, -OMEGA_IE * lat.sin());
-        let mean = bias + earth_vertical;
-        // A prior far wider than the measurement: the estimate is the measurement.
-        let b = static_gyro_bias(
-            &mean,
-            60.0,
-            roll,
-            pitch,
-            lat,
-            &Axes::all(1e-6),
-            &Axes::all(0.1),
-        );
-        assert!((b.bias - bias).norm() < 1e-6, "{:?}", b.bias);
+        let earth = c_bn * Vector3::new(OMEGA_IE * lat.cos(), 0.0, -OMEGA_IE * lat.sin());
+        let mean = bias + earth;
+        let arw = Axes::all(1e-6);
+        let wide = Axes::all(0.1);
         let horizontal = OMEGA_IE * lat.cos();
-        assert!(b.sigma.x > 0.99 * horizontal && b.sigma.x < 1.01 * horizontal);
-        // The vertical axis is free of the unknown horizontal earth rate (tilt aside).
-        assert!(b.sigma.z < 0.1 * horizontal, "{}", b.sigma.z);
-        // A prior tighter than the earth rate's horizontal part barely moves.
-        let tight = static_gyro_bias(
-            &mean,
-            60.0,
-            roll,
-            pitch,
-            lat,
-            &Axes::all(1e-4),
-            &Axes::all(1e-6),
+        // The heading known: the whole earth rate goes, and only the white noise is left.
+        let known = static_gyro_bias(&mean, 60.0, roll, pitch, heading, 0.0, lat, &arw, &wide);
+        assert!((known.bias - bias).norm() < 1e-9, "{:?}", known.bias);
+        assert!(
+            known.sigma.max() < 1e-6 / 60f64.sqrt() * 1.01,
+            "{}",
+            known.sigma
         );
-        assert!(tight.bias.x.abs() < 0.01 * bias.x, "{}", tight.bias.x);
-        assert!(tight.sigma.x > 0.99e-6 && tight.sigma.x <= 1e-6);
+        // Known to 5°: a horizontal axis keeps the earth rate turned by 5° as its error bound.
+        let five = 5f64.to_radians();
+        let b = static_gyro_bias(&mean, 60.0, roll, pitch, heading, five, lat, &arw, &wide);
+        assert!((b.bias - bias).norm() < 1e-6, "{:?}", b.bias);
+        assert!(
+            b.sigma.x > 0.98 * five * horizontal && b.sigma.x < 1.01 * five * horizontal,
+            "{} vs {}",
+            b.sigma.x,
+            five * horizontal
+        );
+        // Heading unknown: the earth rate's whole horizontal part bounds the error, and the
+        // vertical axis is free of it (tilt aside).
+        let lost = static_gyro_bias(&mean, 60.0, roll, pitch, 0.0, 10.0, lat, &arw, &wide);
+        assert!(lost.sigma.x > 0.95 * horizontal && lost.sigma.x < 1.01 * horizontal);
+        assert!(lost.sigma.z < 0.1 * horizontal, "{}", lost.sigma.z);
+        // A prior tighter than the earth rate's horizontal part barely moves.
+        let tight = Axes::all(1e-6);
+        let t = static_gyro_bias(&mean, 60.0, roll, pitch, 0.0, 10.0, lat, &arw, &tight);
+        assert!(t.bias.x.abs() < 0.01 * bias.x, "{}", t.bias.x);
+        assert!(t.sigma.x > 0.99e-6 && t.sigma.x <= 1e-6);
+    }
+
+    #[test]
+    fn leveller_follows_the_heading_turned_after_the_still_period() {
+        let g = 9.80665;
+        let bias = Vector3::new(0.01, -0.02, 0.03);
+        let f = Vector3::new(0.0, 0.0, -g);
+        let mut lev = StaticLeveller::default();
+        for _ in 0..1000 {
+            lev.add(
+                &f,
+                &bias,
+                0.01,
+                g,
+                LEVEL_GYRO_THRESHOLD,
+                LEVEL_ACCEL_THRESHOLD,
+            );
+        }
+        assert_eq!(lev.turned_rad(), 0.0);
+        // A quarter turn to the left at 0.5 rad/s, then a straight run: the bias is not a turn.
+        let left = bias + Vector3::new(0.0, 0.0, -0.5);
+        let steps = (std::f64::consts::FRAC_PI_2 / 0.5 / 0.01).round() as usize;
+        for _ in 0..steps {
+            lev.add(
+                &f,
+                &left,
+                0.01,
+                g,
+                LEVEL_GYRO_THRESHOLD,
+                LEVEL_ACCEL_THRESHOLD,
+            );
+        }
+        for _ in 0..500 {
+            lev.add(
+                &f,
+                &bias,
+                0.01,
+                g,
+                LEVEL_GYRO_THRESHOLD,
+                LEVEL_ACCEL_THRESHOLD,
+            );
+        }
+        assert!(lev.moved());
+        assert!(
+            (lev.turned_rad() + std::f64::consts::FRAC_PI_2).abs() < 1e-3,
+            "{}",
+            lev.turned_rad()
+        );
+        assert!((lev.mean_gyro().expect("still data") - bias).norm() < 1e-12);
     }
 
     #[test]

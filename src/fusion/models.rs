@@ -419,10 +419,13 @@ fn vehicle_velocity<const N: usize>(
 /// acceleration a = v·ω_z (from the filter's own speed and bias-corrected yaw rate), so the
 /// lateral velocity there is −v·tan(slip·a) (right-handed FRD: a right turn slips left).
 /// The gradient's own uncertainty, `slip_sigma_deg_per_mps2`, adds v·tan(σ_slip·|a|) to the
-/// lateral σ in quadrature.
+/// lateral σ in quadrature. `gyro_white_sigma` is the σ of the white noise in `gyro_b` per
+/// body axis (rad/s, one IMU sample's: ARW/√dt): the yaw rate of the expected slip and the
+/// lever arm's ω×l carry it into the measurement, and its covariance there is added to R.
 pub fn non_holonomic<const N: usize>(
     nav: &NavState,
     gyro_b: &Vector3<f64>,
+    gyro_white_sigma: &Vector3<f64>,
     vehicle: &VehicleOptions,
     options: &NhcOptions,
 ) -> Measurement<2, N> {
@@ -450,13 +453,17 @@ pub fn non_holonomic<const N: usize>(
         h.row_mut(0).copy_from(&row);
     }
     let lateral = options.lateral_sigma_mps.unwrap_or(options.sigma_mps);
+    // The measured rate's white noise enters where its bias error does (ω̂ = ω − δb).
+    let d_gyro = h.fixed_view::<2, 3>(0, BG);
+    let gyro_var = Matrix3::from_diagonal(&gyro_white_sigma.component_mul(gyro_white_sigma));
+    let gyro_noise = d_gyro * gyro_var * d_gyro.transpose();
     Measurement {
         z: SVector::<f64, 2>::new(v_v.y - slip, v_v.z),
         h,
         r: SMatrix::<f64, 2, 2>::from_diagonal(&SVector::<f64, 2>::new(
             lateral * lateral + slip_sigma * slip_sigma,
             options.sigma_mps * options.sigma_mps,
-        )),
+        )) + gyro_noise,
     }
 }
 
@@ -638,6 +645,7 @@ mod tests {
         let m0 = non_holonomic::<21>(
             &n,
             &gyro,
+            &Vector3::zeros(),
             &VehicleOptions::default(),
             &NhcOptions::default(),
         );
@@ -649,7 +657,13 @@ mod tests {
             slip_sigma_deg_per_mps2: 0.0,
             ..NhcOptions::default()
         };
-        let m = non_holonomic::<21>(&n, &gyro, &VehicleOptions::default(), &tight);
+        let m = non_holonomic::<21>(
+            &n,
+            &gyro,
+            &Vector3::zeros(),
+            &VehicleOptions::default(),
+            &tight,
+        );
         assert!((m.r[(0, 0)] - 1e-4).abs() < 1e-15 && (m.r[(1, 1)] - 0.01).abs() < 1e-15);
         let phi = Vector3::new(-2e-4, 1e-4, 2e-4);
         let dv = Vector3::new(0.01, -0.02, 0.005);
@@ -660,6 +674,7 @@ mod tests {
         let m1 = non_holonomic::<21>(
             &p,
             &(gyro - db),
+            &Vector3::zeros(),
             &VehicleOptions::default(),
             &NhcOptions::default(),
         );

@@ -295,7 +295,7 @@ impl<const N: usize> Navigator<N> {
         }
         ins.propagate(raw);
         self.zupt(gyro, accel, dt);
-        self.nhc();
+        self.nhc(dt);
         self.output();
     }
 
@@ -360,7 +360,9 @@ impl<const N: usize> Navigator<N> {
         }
     }
 
-    fn nhc(&mut self) {
+    /// `dt`: the interval of the IMU sample just mechanised, whose gyro noise the
+    /// constraint's expected slip carries.
+    fn nhc(&mut self, dt: f64) {
         let c = self.config.nhc;
         let Some(ins) = self.ins.as_mut() else { return };
         if !c.enabled
@@ -370,7 +372,19 @@ impl<const N: usize> Navigator<N> {
             return;
         }
         self.last_nhc_t = ins.nav.t_s;
-        let m = models::non_holonomic::<N>(&ins.nav, &ins.last_gyro(), &self.config.vehicle, &c);
+        let arw = self.config.imu.arw_rad_per_sqrt_s;
+        let gyro_sigma = if dt > 0.0 {
+            Vector3::from(arw.0) / dt.sqrt()
+        } else {
+            Vector3::zeros()
+        };
+        let m = models::non_holonomic::<N>(
+            &ins.nav,
+            &ins.last_gyro(),
+            &gyro_sigma,
+            &self.config.vehicle,
+            &c,
+        );
         if let UpdateOutcome::Applied { .. } = ins.update(&m, 0.0) {
             self.result.stats.nhc_updates += 1;
         }
@@ -588,11 +602,15 @@ impl<const N: usize> Navigator<N> {
         if self.leveller.duration_s() >= a.level_s {
             if let (Some(mean), Some(ins)) = (self.leveller.mean_gyro(), self.ins.as_mut()) {
                 let imu = &self.config.imu;
+                // The heading while still: now less the turn since (the gyro's, over seconds).
+                let heading_sigma = self.config.initial.heading_deg.to_radians();
                 let b = align::static_gyro_bias(
                     &mean,
                     self.leveller.duration_s(),
                     roll,
                     pitch,
+                    heading - self.leveller.turned_rad(),
+                    heading_sigma,
                     fix.lat_rad,
                     &imu.arw_rad_per_sqrt_s,
                     &Axes(std::array::from_fn(|i| imu.gyro_bias_sigma0(i))),
