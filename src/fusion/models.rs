@@ -665,6 +665,26 @@ mod tests {
             &tight,
         );
         assert!((m.r[(0, 0)] - 1e-4).abs() < 1e-15 && (m.r[(1, 1)] - 0.01).abs() < 1e-15);
+        // The yaw rate's white noise adds (∂z/∂ω_z)² σ² to the lateral variance, with the
+        // derivative taken here from the measurement itself by central differences.
+        let sigma = Vector3::new(0.0, 0.0, 2e-3);
+        let noisy = non_holonomic::<21>(&n, &gyro, &sigma, &VehicleOptions::default(), &tight);
+        let eps = Vector3::new(0.0, 0.0, 1e-6);
+        let lateral = |w: &Vector3<f64>| {
+            non_holonomic::<21>(&n, w, &Vector3::zeros(), &VehicleOptions::default(), &tight).z[0]
+        };
+        let slope = (lateral(&(gyro + eps)) - lateral(&(gyro - eps))) / 2e-6;
+        let added = noisy.r[(0, 0)] - m.r[(0, 0)];
+        assert!(
+            slope.abs() > 0.1,
+            "the turn's slip moves with the yaw rate: {slope}"
+        );
+        assert!(
+            (added - (slope * sigma.z).powi(2)).abs() < 1e-6 * added,
+            "{added} vs {}",
+            (slope * sigma.z).powi(2)
+        );
+        assert_eq!(noisy.r[(1, 1)], m.r[(1, 1)]);
         let phi = Vector3::new(-2e-4, 1e-4, 2e-4);
         let dv = Vector3::new(0.01, -0.02, 0.005);
         let db = Vector3::new(1e-4, -2e-4, 3e-4);
