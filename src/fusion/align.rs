@@ -312,41 +312,26 @@ mod tests {
         let g = 9.80665;
         let bias = Vector3::new(0.01, -0.02, 0.03);
         let f = Vector3::new(0.0, 0.0, -g);
+        let run = |lev: &mut StaticLeveller, rate: &Vector3<f64>, samples: usize| {
+            for _ in 0..samples {
+                lev.add(
+                    &f,
+                    rate,
+                    0.01,
+                    g,
+                    LEVEL_GYRO_THRESHOLD,
+                    LEVEL_ACCEL_THRESHOLD,
+                );
+            }
+        };
         let mut lev = StaticLeveller::default();
-        for _ in 0..1000 {
-            lev.add(
-                &f,
-                &bias,
-                0.01,
-                g,
-                LEVEL_GYRO_THRESHOLD,
-                LEVEL_ACCEL_THRESHOLD,
-            );
-        }
+        run(&mut lev, &bias, 1000);
         assert_eq!(lev.turned_rad(), 0.0);
         // A quarter turn to the left at 0.5 rad/s, then a straight run: the bias is not a turn.
         let left = bias + Vector3::new(0.0, 0.0, -0.5);
-        let steps = (std::f64::consts::FRAC_PI_2 / 0.5 / 0.01).round() as usize;
-        for _ in 0..steps {
-            lev.add(
-                &f,
-                &left,
-                0.01,
-                g,
-                LEVEL_GYRO_THRESHOLD,
-                LEVEL_ACCEL_THRESHOLD,
-            );
-        }
-        for _ in 0..500 {
-            lev.add(
-                &f,
-                &bias,
-                0.01,
-                g,
-                LEVEL_GYRO_THRESHOLD,
-                LEVEL_ACCEL_THRESHOLD,
-            );
-        }
+        let quarter = (std::f64::consts::FRAC_PI_2 / 0.5 / 0.01).round() as usize;
+        run(&mut lev, &left, quarter);
+        run(&mut lev, &bias, 500);
         assert!(lev.moved());
         assert!(
             (lev.turned_rad() + std::f64::consts::FRAC_PI_2).abs() < 1e-3,
