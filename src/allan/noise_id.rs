@@ -39,8 +39,11 @@ pub fn identify_alpha(phase: &[f64], m: usize, max_differences: u32) -> Option<A
     if m == 0 {
         return None;
     }
-    let decimated: Vec<f64> = phase.iter().step_by(m).copied().collect();
-    identify_alpha_decimated(&decimated, max_differences, Simd::detected())
+    identify_alpha_of(
+        &Decimated { x: phase, m },
+        max_differences,
+        Simd::detected(),
+    )
 }
 
 /// [`identify_alpha`] at every factor of `factors` (ascending): one tiled pass over the
@@ -478,6 +481,11 @@ fn add_chunks<const W: usize>(
 
 /// [`identify_alpha`] on the already decimated phase `z`.
 pub fn identify_alpha_decimated(z: &[f64], max_differences: u32, simd: Simd) -> Option<Alpha> {
+    identify_alpha_of(&z, max_differences, simd)
+}
+
+/// [`identify_alpha_decimated`] of any [`Series`].
+fn identify_alpha_of<S: Series>(z: &S, max_differences: u32, simd: Simd) -> Option<Alpha> {
     // Orders are evaluated two per pass, only as far as the decision reaches.
     let mut pair: Option<(usize, [Option<f64>; 2])> = None;
     decide_alpha(z.len(), max_differences, |order| {
@@ -485,7 +493,7 @@ pub fn identify_alpha_decimated(z: &[f64], max_differences: u32, simd: Simd) -> 
         let values = match pair {
             Some((held, values)) if held == d => values,
             _ => {
-                let values = lag1_pair(z, d, simd);
+                let values = lag1_pair_of(z, d, simd);
                 pair = Some((d, values));
                 values
             }
