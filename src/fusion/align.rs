@@ -48,8 +48,10 @@ pub struct StaticLeveller {
     sum_w: Vector3<f64>,
     duration_s: f64,
     moved: bool,
-    /// Heading turned since the still period ended, rad (from the gyro less its still mean).
-    turned_rad: f64,
+    /// Integral of the rate since the still period ended (rad, body) and its duration (s),
+    /// from which [`StaticLeveller::turned_rad`] is taken.
+    sum_w_moving: Vector3<f64>,
+    duration_moving_s: f64,
 }
 
 /// The tilt error that levelling leaves, as a function of the accelerometer bias error: the
@@ -107,8 +109,8 @@ pub fn static_gyro_bias(
     let (sin, cos) = lat_rad.sin_cos();
     let measured = mean_w - c_bn * Vector3::new(OMEGA_IE * cos, 0.0, -OMEGA_IE * sin);
     // The horizontal earth rate turned by a heading error δψ moves by 2·sin(δψ/2) of itself.
+    // (`min` also takes a NaN σ as a radian.)
     let turned = 2.0 * (0.5 * heading_sigma.abs().min(1.0)).sin();
-    let turned = if turned.is_finite() { turned } else { 1.0 };
     let mut bias = Vector3::zeros();
     let mut sigma = Vector3::from(sigma0.0);
     for i in 0..3 {
@@ -145,12 +147,8 @@ impl StaticLeveller {
             return;
         }
         if self.moved {
-            // The heading's rate: the rate less the still mean (bias and earth rate), turned
-            // level with the roll and pitch of the still period.
-            if let (Some(mean), Some((roll, pitch))) = (self.mean_gyro(), self.roll_pitch()) {
-                let level = attitude(roll, pitch, 0.0);
-                self.turned_rad += (level * (w_b - mean)).z * dt_s;
-            }
+            self.sum_w_moving += w_b * dt_s;
+            self.duration_moving_s += dt_s;
             return;
         }
         let (off, turning) = if self.duration_s > 0.0 {
@@ -189,7 +187,16 @@ impl StaticLeveller {
     /// Heading turned since the still period ended, rad: the heading now less the heading
     /// while still (0 before motion).
     pub fn turned_rad(&self) -> f64 {
-        self.turned_rad
+        // The heading's rate is the rate less the still mean (bias and earth rate), turned
+        // level with the roll and pitch of the still period; both are fixed once it ended,
+        // so the integral of the rate gives the turn.
+        match (self.mean_gyro(), self.roll_pitch()) {
+            (Some(mean), Some((roll, pitch))) => {
+                let turn_b = self.sum_w_moving - mean * self.duration_moving_s;
+                (attitude(roll, pitch, 0.0) * turn_b).z
+            }
+            _ => 0.0,
+        }
     }
 
     /// Whether motion ended the static period.
