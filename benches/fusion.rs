@@ -406,6 +406,11 @@ const NEES_RUNS: usize = 50;
 const NEES_SCENE: &str = "fixtures/scenes/drive_30min_open_sky.toml";
 const NEES_OUTAGE_EVERY_S: f64 = 180.0;
 const NEES_OUTAGE_S: f64 = 60.0;
+/// The bias consistency (`-- nees --biases`) is read from this second on, once the start's
+/// alignment and first updates are behind.
+const BIAS_SETTLED_S: usize = 300;
+/// The true bias of an epoch is its mean over this window, s ([`true_biases`]).
+const BIAS_TRUTH_WINDOW_S: f64 = 10.0;
 
 /// NEES of one epoch: the 9 navigation states together, then position, velocity and
 /// attitude (3 each) on their own blocks of the covariance.
@@ -423,14 +428,100 @@ fn block_nees(solution: &imulab::fusion::navigator::NavSolution, truth: &NavStat
     ]
 }
 
-/// Per-second NEES ([`block_nees`]) of one simulated run (index = whole second since the
-/// session start; NaN before the filter starts).
+/// The true sensor biases of `spec` (gyro x, y, z in rad/s, then accelerometer in m/s²) at
+/// each whole second of `drive` with seed `seed`, averaged over the [`BIAS_TRUTH_WINDOW_S`]
+/// centred on it: the records of the spec's bias terms alone less those of an error-free
+/// IMU. The simulator keys each term's random stream by its name, so the bias terms draw
+/// what they draw in the full spec. Its flicker has components down to 0.07 s, which act as
+/// noise and no filter estimates; the window leaves them out of the truth.
+fn true_biases(
+    drive: &imulab::study::grades::StudyDrive,
+    spec: &imulab::sim::imu_model::ImuSpec,
+    seed: u64,
+) -> Vec<[f64; 6]> {
+    use imulab::sim::imu_model::{AccelSpec, GyroSpec, ImuSpec};
+    let (g, a) = (&spec.gyro, &spec.accel);
+    let ideal = ImuSpec {
+        gyro: GyroSpec {
+            bias_instability_band_s: g.bias_instability_band_s,
+            ..GyroSpec::default()
+        },
+        accel: AccelSpec {
+            bias_instability_band_s: a.bias_instability_band_s,
+            ..AccelSpec::default()
+        },
+        ..spec.clone()
+    };
+    let biased = ImuSpec {
+        gyro: GyroSpec {
+            bias_instability_dph: g.bias_instability_dph,
+            rrw_dph_rth: g.rrw_dph_rth,
+            rate_ramp_dph_per_h: g.rate_ramp_dph_per_h,
+            bias_dph: g.bias_dph,
+            turn_on_bias_sigma_dph: g.turn_on_bias_sigma_dph,
+            g_sensitivity_dph_per_g: g.g_sensitivity_dph_per_g,
+            ..ideal.gyro.clone()
+        },
+        accel: AccelSpec {
+            bias_instability_mg: a.bias_instability_mg,
+            rrw_mg_rth: a.rrw_mg_rth,
+            rate_ramp_mg_per_h: a.rate_ramp_mg_per_h,
+            bias_mg: a.bias_mg,
+            turn_on_bias_sigma_mg: a.turn_on_bias_sigma_mg,
+            ..ideal.accel.clone()
+        },
+        ..ideal.clone()
+    };
+    // Running sums of the difference, with each sample's time.
+    let mut times = Vec::new();
+    let mut sums = vec![[0.0; 6]];
+    let records = drive.imu_records(&biased, seed).expect("imu");
+    for (b, i) in records.zip(drive.imu_records(&ideal, seed).expect("imu")) {
+        assert_eq!(
+            b.t_mono_ns, i.t_mono_ns,
+            "the two IMUs' samples differ in time"
+        );
+        times.push((b.t_mono_ns - imulab::sim::scene::START_MONO_NS) as f64 * 1e-9);
+        let last = sums[sums.len() - 1];
+        sums.push(std::array::from_fn(|j| {
+            last[j]
+                + if j < 3 {
+                    b.gyro[j] - i.gyro[j]
+                } else {
+                    b.accel[j - 3] - i.accel[j - 3]
+                }
+        }));
+    }
+    let half = 0.5 * BIAS_TRUTH_WINDOW_S;
+    (0..=drive.end_s() as usize)
+        .map(|k| {
+            let from = times.partition_point(|t| *t < k as f64 - half);
+            let to = times.partition_point(|t| *t <= k as f64 + half);
+            if to <= from {
+                return [f64::NAN; 6];
+            }
+            std::array::from_fn(|j| (sums[to][j] - sums[from][j]) / (to - from) as f64)
+        })
+        .collect()
+}
+
+/// One second of a consistency run: NEES of the navigation states ([`block_nees`]) and, when
+/// the true biases are given, e²/σ² of each bias estimate (gyro x, y, z, accelerometer x,
+/// y, z; NaN otherwise).
+struct NeesEpoch {
+    nees: [f64; 4],
+    bias: [f64; 6],
+}
+
+/// Per-second consistency of one simulated run (index = whole second since the session
+/// start; NaN before the filter starts).
 fn nees_run<const N: usize>(
     drive: &imulab::study::grades::StudyDrive,
     spec: &imulab::sim::imu_model::ImuSpec,
     config: &FusionConfig,
     seed: u64,
-) -> Vec<[f64; 4]> {
+    biases: Option<&[[f64; 6]]>,
+) -> Vec<NeesEpoch> {
     use imulab::fusion::navigator::Navigator;
     let end = drive.end_s();
     let outages: Vec<(f64, f64)> = (1..)
@@ -463,17 +554,33 @@ fn nees_run<const N: usize>(
     }
     let r = nav.finish();
     let truth = drive.truth_nav();
-    let mut nees = vec![[f64::NAN; 4]; end as usize + 1];
+    let mut epochs: Vec<NeesEpoch> = (0..=end as usize)
+        .map(|_| NeesEpoch {
+            nees: [f64::NAN; 4],
+            bias: [f64::NAN; 6],
+        })
+        .collect();
     for s in &r.filtered {
         let k = s.nav.t_s.round();
-        if (s.nav.t_s - k).abs() > 1e-6 || k < 0.0 || k as usize >= nees.len() {
+        if (s.nav.t_s - k).abs() > 1e-6 || k < 0.0 || k as usize >= epochs.len() {
             continue;
         }
+        let epoch = &mut epochs[k as usize];
         if let Some(t) = imulab::fusion::session::truth_at(truth, s.nav.t_s) {
-            nees[k as usize] = block_nees(s, &t);
+            epoch.nees = block_nees(s, &t);
+        }
+        if let Some(b) = biases.and_then(|b| b.get(k as usize)) {
+            epoch.bias = std::array::from_fn(|j| {
+                let (estimate, sigma) = if j < 3 {
+                    (s.sensors.gyro_bias[j], s.sigma_sensors[0][j])
+                } else {
+                    (s.sensors.accel_bias[j - 3], s.sigma_sensors[1][j - 3])
+                };
+                ((estimate - b[j]) / sigma).powi(2)
+            });
         }
     }
-    nees
+    epochs
 }
 
 /// ANEES over [`NEES_RUNS`] seeds per IMU preset and constraint set, with its 95 % band.
@@ -568,6 +675,9 @@ fn nees_table() {
         nhc_told.slip_deg_per_mps2,
         nhc_told.slip_sigma_deg_per_mps2
     );
+    // `--biases`: also e²/σ² of each bias estimate against the simulator's true bias.
+    let show_biases = args.iter().any(|a| a == "--biases");
+    let mut bias_rows = Vec::new();
     let mut cells = Vec::new();
     let all_grades = grades.len() == all.len();
     for grade in grades {
@@ -598,19 +708,44 @@ fn nees_table() {
                 config.gnss.position_error = e;
             }
             let seed0 = scene.seed;
-            let runs: Vec<Vec<[f64; 4]>> = (0..runs_per_row as u64)
+            let runs: Vec<Vec<NeesEpoch>> = (0..runs_per_row as u64)
                 .into_par_iter()
-                .map(|k| match config.filter_states() {
-                    24 => nees_run::<24>(&drive, &spec, &config, seed0 + k),
-                    18 => nees_run::<18>(&drive, &spec, &config, seed0 + k),
-                    _ => nees_run::<15>(&drive, &spec, &config, seed0 + k),
+                .map(|k| {
+                    let seed = seed0 + k;
+                    let truth = show_biases.then(|| true_biases(&drive, &spec, seed));
+                    let b = truth.as_deref();
+                    match config.filter_states() {
+                        24 => nees_run::<24>(&drive, &spec, &config, seed, b),
+                        18 => nees_run::<18>(&drive, &spec, &config, seed, b),
+                        _ => nees_run::<15>(&drive, &spec, &config, seed, b),
+                    }
                 })
                 .collect();
             let part = |i: usize| -> Vec<Vec<f64>> {
                 runs.iter()
-                    .map(|r| r.iter().map(|e| e[i]).collect())
+                    .map(|r| r.iter().map(|e| e.nees[i]).collect())
                     .collect()
             };
+            if show_biases {
+                // Mean e²/σ² per bias axis over the seeds, from [`BIAS_SETTLED_S`] on.
+                let mean = |j: usize| {
+                    let v: Vec<f64> = runs
+                        .iter()
+                        .flat_map(|r| r.iter().skip(BIAS_SETTLED_S).map(move |e| e.bias[j]))
+                        .filter(|v| v.is_finite())
+                        .collect();
+                    v.iter().sum::<f64>() / v.len().max(1) as f64
+                };
+                bias_rows.push(format!(
+                    "| {grade} | {name} | {:.2} / {:.2} / {:.2} | {:.2} / {:.2} / {:.2} |",
+                    mean(0),
+                    mean(1),
+                    mean(2),
+                    mean(3),
+                    mean(4),
+                    mean(5)
+                ));
+            }
             let blocks = [1, 2, 3].map(|i| anees(&part(i), 3).map_or(f64::NAN, |a| a.mean));
             let verdict = |a: &imulab::fusion::metrics::Anees| {
                 if a.mean < a.band.0 {
@@ -645,6 +780,14 @@ fn nees_table() {
                 }
                 None => println!("| {grade} | {name} | no common epochs | | | | | |"),
             }
+        }
+    }
+    if show_biases {
+        println!("\nBias consistency: e²/σ² of each bias estimate (1 expected) against the true bias's {BIAS_TRUTH_WINDOW_S:.0} s mean, mean over seeds and the seconds from {BIAS_SETTLED_S} s on\n");
+        println!("| IMU preset | constraints | gyro x / y / z | accelerometer x / y / z |");
+        println!("|---|---|---:|---:|");
+        for row in &bias_rows {
+            println!("{row}");
         }
     }
     nees_results(
