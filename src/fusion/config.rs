@@ -164,14 +164,16 @@ pub struct ImuModel {
     /// Initial 1σ of the accelerometer bias, m/s²; absent: `accel_bias.sigma`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accel_bias_initial_sigma: Option<Axes>,
-    /// Stationary 1σ of the in-run gyro bias alone, rad/s (e.g. a flicker bias's spread over
-    /// its band, above the Allan-peak GM's σ); absent: `gyro_bias.sigma`. Used with
-    /// `turn_on_states`, where the rest of the initial σ is the turn-on bias.
+    /// The in-run gyro bias's slow part beyond `gyro_bias`, rad/s: a flicker bias's periods
+    /// of minutes to hours, which the Gauss-Markov process fitted to the Allan peak leaves
+    /// out, as a slow Gauss-Markov process of its own; absent: none. With `turn_on_states` it
+    /// shares the turn-on state (both are nearly constant over a drive, see
+    /// [`ImuModel::gyro_turn_on_state`]); with one state per axis the initial σ carries it.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub gyro_bias_in_run_sigma: Option<Axes>,
-    /// Stationary 1σ of the in-run accelerometer bias alone, m/s²; absent: `accel_bias.sigma`.
+    pub gyro_bias_slow: Option<GaussMarkov<Axes>>,
+    /// The in-run accelerometer bias's slow part beyond `accel_bias`, m/s²; absent: none.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub accel_bias_in_run_sigma: Option<Axes>,
+    pub accel_bias_slow: Option<GaussMarkov<Axes>>,
     /// Gyro rate random walk (Allan K), rad/s/√s: white noise on the bias besides the
     /// Gauss-Markov driving noise.
     pub gyro_rrw_rad_per_s_sqrt_s: Axes,
@@ -216,25 +218,19 @@ impl ImuModel {
     }
 
     /// The process of the gyro bias state of body axis `axis` when the turn-on bias has
-    /// states of its own ([`FusionConfig::turn_on_states`]): the in-run GM's driving noise
-    /// with the in-run σ (`gyro_bias_in_run_sigma`, with the g-sensitivity part) as its
-    /// stationary σ, see [`bias_state_process`].
+    /// states of its own ([`FusionConfig::turn_on_states`]): the in-run Gauss-Markov process
+    /// with that axis's g-sensitivity part, as it is.
     pub fn gyro_in_run_state(&self, axis: usize) -> GaussMarkov {
-        let sigma = self.gyro_bias_in_run_sigma.unwrap_or(self.gyro_bias.sigma)[axis]
-            .hypot(self.gyro_bias_g_sensitivity_sigma[axis]);
-        bias_state_process(&self.gyro_bias_in_run(axis), sigma)
+        self.gyro_bias_in_run(axis)
     }
 
     /// The accelerometer's counterpart of [`ImuModel::gyro_in_run_state`].
     pub fn accel_in_run_state(&self, axis: usize) -> GaussMarkov {
-        let sigma = self
-            .accel_bias_in_run_sigma
-            .unwrap_or(self.accel_bias.sigma)[axis];
-        bias_state_process(&self.accel_bias.axis(axis), sigma)
+        self.accel_bias.axis(axis)
     }
 
-    /// 1σ of the gyro turn-on bias of body axis `axis`: the part of the initial σ the in-run
-    /// state does not hold, √(σ0² − σ²) (0 when it holds it all).
+    /// Initial 1σ of the gyro turn-on state of body axis `axis`: the part of the initial σ
+    /// the in-run state does not hold, √(σ0² − σ²) (0 when it holds it all).
     pub fn gyro_turn_on_sigma(&self, axis: usize) -> f64 {
         excess_sigma(
             self.gyro_bias_sigma0(axis),
@@ -242,13 +238,45 @@ impl ImuModel {
         )
     }
 
-    /// 1σ of the accelerometer turn-on bias of body axis `axis`, as
+    /// Initial 1σ of the accelerometer turn-on state of body axis `axis`, as
     /// [`ImuModel::gyro_turn_on_sigma`].
     pub fn accel_turn_on_sigma(&self, axis: usize) -> f64 {
         excess_sigma(
             self.accel_bias_sigma0(axis),
             self.accel_in_run_state(axis).sigma,
         )
+    }
+
+    /// The process of the gyro turn-on state of body axis `axis`: the turn-on bias, and
+    /// with it the in-run bias's slow part (`gyro_bias_slow`), which over a drive is
+    /// nearly as constant. Without a slow part a random constant of
+    /// [`ImuModel::gyro_turn_on_sigma`]; with one, that σ as stationary σ with the slow
+    /// part's driving noise ([`bias_state_process`]): the state is then forgotten only as
+    /// fast as the slow bias really changes.
+    pub fn gyro_turn_on_state(&self, axis: usize) -> GaussMarkov {
+        turn_on_process(
+            self.gyro_bias_slow.map(|s| s.axis(axis)),
+            self.gyro_turn_on_sigma(axis),
+        )
+    }
+
+    /// The accelerometer's counterpart of [`ImuModel::gyro_turn_on_state`].
+    pub fn accel_turn_on_state(&self, axis: usize) -> GaussMarkov {
+        turn_on_process(
+            self.accel_bias_slow.map(|s| s.axis(axis)),
+            self.accel_turn_on_sigma(axis),
+        )
+    }
+}
+
+/// The turn-on state's process for a slow in-run part `slow` and the state's initial σ.
+fn turn_on_process(slow: Option<GaussMarkov>, sigma0: f64) -> GaussMarkov {
+    match slow {
+        Some(slow) if slow.sigma > 0.0 => bias_state_process(&slow, sigma0),
+        _ => GaussMarkov {
+            sigma: sigma0,
+            tau_s: 0.0,
+        },
     }
 }
 
@@ -320,8 +348,8 @@ impl Default for ImuModel {
             },
             gyro_bias_initial_sigma: None,
             accel_bias_initial_sigma: None,
-            gyro_bias_in_run_sigma: None,
-            accel_bias_in_run_sigma: None,
+            gyro_bias_slow: None,
+            accel_bias_slow: None,
             gyro_rrw_rad_per_s_sqrt_s: Axes::all(0.0),
             accel_rrw_mps2_per_sqrt_s: Axes::all(0.0),
             gyro_bias_g_sensitivity_sigma: [0.0; 3],
@@ -767,7 +795,16 @@ impl FusionConfig {
             ("imu.accel_bias.sigma", imu.accel_bias),
             ("imu.gyro_scale.sigma", imu.gyro_scale),
             ("imu.accel_scale.sigma", imu.accel_scale),
-        ] {
+        ]
+        .into_iter()
+        .chain(
+            imu.gyro_bias_slow
+                .map(|gm| ("imu.gyro_bias_slow.sigma", gm)),
+        )
+        .chain(
+            imu.accel_bias_slow
+                .map(|gm| ("imu.accel_bias_slow.sigma", gm)),
+        ) {
             per_axis(key, gm.sigma)?;
             if gm.tau_s.is_nan() {
                 return Err(ConfigError::Invalid {
@@ -780,8 +817,6 @@ impl FusionConfig {
         for (key, v) in [
             ("imu.gyro_bias_initial_sigma", imu.gyro_bias_initial_sigma),
             ("imu.accel_bias_initial_sigma", imu.accel_bias_initial_sigma),
-            ("imu.gyro_bias_in_run_sigma", imu.gyro_bias_in_run_sigma),
-            ("imu.accel_bias_in_run_sigma", imu.accel_bias_in_run_sigma),
         ] {
             if let Some(v) = v {
                 per_axis(key, v)?;
@@ -1069,6 +1104,19 @@ mod tests {
         let e = FusionConfig::from_toml_str("[nhc]\nlateral_sigma_mps = -0.1\n", "x")
             .expect_err("negative");
         assert!(e.to_string().contains("nhc.lateral_sigma_mps"), "{e}");
+        let e = FusionConfig::from_toml_str(
+            "[imu]\naccel_bias_slow = { sigma = -1.0, tau_s = 100.0 }\n",
+            "x",
+        )
+        .expect_err("negative");
+        assert!(e.to_string().contains("imu.accel_bias_slow.sigma"), "{e}");
+        let c = FusionConfig::from_toml_str(
+            "[imu]\ngyro_bias_slow = { sigma = [1e-5, 2e-5, 3e-5], tau_s = 2645.0 }\n",
+            "x",
+        )
+        .expect("slow part");
+        let slow = c.imu.gyro_bias_slow.expect("read");
+        assert_eq!((slow.sigma[1], slow.tau_s), (2e-5, 2645.0));
     }
 
     /// The bias state keeps the initial σ as its stationary σ and the in-run driving noise;
@@ -1120,17 +1168,33 @@ mod tests {
         assert_eq!(sensitive.gyro_bias_state(1), model.gyro_bias_state(1));
         assert_eq!(sensitive.gyro_bias_state(2), model.gyro_bias_state(2));
         assert_eq!(model.accel_bias_state(1), model.accel_bias.axis(1));
-        // With the turn-on bias as states of its own, the bias state keeps the in-run driving
-        // noise within the in-run σ, and the turn-on state holds the rest of the initial σ.
+        // With the turn-on bias as states of its own, the bias state is the in-run process as
+        // it is and the turn-on state holds the rest of the initial σ: a random constant, or
+        // with a slow in-run part that part's driving noise.
+        assert_eq!(model.gyro_in_run_state(2), in_run);
+        assert!((model.gyro_turn_on_sigma(2).hypot(in_run.sigma) - 5.0).abs() < 1e-12);
+        assert_eq!(model.gyro_turn_on_state(2).decay(), 0.0);
+        let slow = GaussMarkov {
+            sigma: 2.0,
+            tau_s: 2000.0,
+        };
         let split = ImuModel {
-            gyro_bias_in_run_sigma: Some(Axes::all(2.0 * in_run.sigma)),
+            gyro_bias_slow: Some(GaussMarkov {
+                sigma: Axes::all(slow.sigma),
+                tau_s: slow.tau_s,
+            }),
             ..model
         };
-        let s = split.gyro_in_run_state(2);
-        assert!((s.sigma - 2.0 * in_run.sigma).abs() < 1e-12);
-        assert!((s.driving_psd() / in_run.driving_psd() - 1.0).abs() < 1e-12);
-        assert!((split.gyro_turn_on_sigma(2).hypot(s.sigma) - 5.0).abs() < 1e-12);
-        assert_eq!(model.gyro_in_run_state(2), in_run);
+        assert_eq!(split.gyro_in_run_state(2), in_run);
+        let s = split.gyro_turn_on_state(2);
+        assert!((s.sigma - split.gyro_turn_on_sigma(2)).abs() < 1e-12);
+        assert!((s.driving_psd() / slow.driving_psd() - 1.0).abs() < 1e-12);
+        // A slow part larger than the turn-on σ is its own process.
+        let large = ImuModel {
+            gyro_bias_initial_sigma: Some(Axes::all(1.5)),
+            ..split
+        };
+        assert_eq!(large.gyro_turn_on_state(0), slow);
         assert_eq!(sensitive.gyro_turn_on_sigma(1), model.gyro_turn_on_sigma(1));
     }
 }

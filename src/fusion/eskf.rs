@@ -7,7 +7,7 @@
 //! `N` is 15 to 30 (see [`crate::models::Layout`] for the state layout); all matrices are
 //! fixed-size, so the filter loop does not allocate (smoother records aside).
 
-use crate::config::FusionConfig;
+use crate::config::{FusionConfig, GaussMarkov};
 use crate::mechanisation::{ImuInput, Mechaniser, NavState};
 use crate::models::{self, Layout, Measurement, ATT, BA, BG, POS, SA, SG, VEL};
 use nalgebra::{Cholesky, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -361,15 +361,26 @@ impl<const N: usize> Ins<N> {
         }
         let dt = self.acc_dt;
         if self.layout.turn_on.is_some() {
-            // The in-run estimates follow their process's mean, as the error states do.
+            // Both parts of each estimate follow their process's mean, as the error states
+            // do: the in-run part and the turn-on part (the rest of the sum).
             let imu = &self.config.imu;
+            let keep = |gm: GaussMarkov| (-dt * gm.decay()).exp();
             for i in 0..3 {
-                let accel = (-dt * imu.accel_in_run_state(i).decay()).exp();
-                let gyro = (-dt * imu.gyro_in_run_state(i).decay()).exp();
-                self.sensors.gyro_bias[i] -= self.in_run_bias.0[i] * (1.0 - gyro);
-                self.in_run_bias.0[i] *= gyro;
-                self.sensors.accel_bias[i] -= self.in_run_bias.1[i] * (1.0 - accel);
-                self.in_run_bias.1[i] *= accel;
+                let (gyro, gyro_on) = (
+                    keep(imu.gyro_in_run_state(i)),
+                    keep(imu.gyro_turn_on_state(i)),
+                );
+                let (accel, accel_on) = (
+                    keep(imu.accel_in_run_state(i)),
+                    keep(imu.accel_turn_on_state(i)),
+                );
+                let (g, a) = (&mut self.in_run_bias.0[i], &mut self.in_run_bias.1[i]);
+                let b = &mut self.sensors.gyro_bias[i];
+                *b = *g * gyro + (*b - *g) * gyro_on;
+                *g *= gyro;
+                let b = &mut self.sensors.accel_bias[i];
+                *b = *a * accel + (*b - *a) * accel_on;
+                *a *= accel;
             }
         }
         if self.layout.gnss_error.is_some() {
@@ -523,6 +534,19 @@ pub fn corrected<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::Axes;
+
+    /// A level body at rest at 46° N.
+    fn still_nav() -> NavState {
+        NavState {
+            t_s: 0.0,
+            lat_rad: 0.8,
+            lon_rad: 0.2,
+            height_m: 100.0,
+            vel_ned: Vector3::zeros(),
+            quat_nb: UnitQuaternion::identity(),
+        }
+    }
 
     /// A measurement of the whole gyro bias leaves the sum of the in-run and turn-on states
     /// with the measured σ, shares the rest as a Kalman update of the sum would, and
@@ -534,14 +558,7 @@ mod tests {
             ..FusionConfig::default()
         };
         config.imu.gyro_bias_initial_sigma = Some(5.0 * config.imu.gyro_bias.sigma);
-        let nav = NavState {
-            t_s: 0.0,
-            lat_rad: 0.8,
-            lon_rad: 0.2,
-            height_m: 100.0,
-            vel_ned: Vector3::zeros(),
-            quat_nb: UnitQuaternion::identity(),
-        };
+        let nav = still_nav();
         let mut ins = Ins::<21>::new(nav, &config, false);
         let t = ins.layout().turn_on.expect("turn-on states");
         let sigma = Vector3::from((0.5 * config.imu.gyro_bias.sigma).0);
@@ -572,5 +589,55 @@ mod tests {
         let mut ins = Ins::<15>::new(nav, &one, false);
         ins.set_gyro_bias(bias, sigma);
         assert!((ins.p[(BG, BG)] - sigma.x.powi(2)).abs() < 1e-30);
+    }
+
+    /// With a slow in-run part the turn-on state decays too: each part of the bias estimate
+    /// follows the mean of its own process between updates, and the two decay apart.
+    #[test]
+    fn each_part_of_the_bias_estimate_decays_as_its_process() {
+        let mut config = FusionConfig {
+            turn_on_states: true,
+            ..FusionConfig::default()
+        };
+        let in_run = config.imu.gyro_bias.sigma;
+        config.imu.gyro_bias_initial_sigma = Some(Axes::all(5.0 * in_run[0]));
+        config.imu.gyro_bias_slow = Some(GaussMarkov {
+            sigma: Axes::all(2.0 * in_run[0]),
+            tau_s: 1000.0,
+        });
+        let nav = still_nav();
+        let mut ins = Ins::<21>::new(nav, &config, false);
+        let bias = Vector3::new(1e-4, -2e-4, 3e-4);
+        ins.set_gyro_bias(bias, Vector3::from((0.5 * in_run).0));
+        let (fast0, slow0) = (ins.in_run_bias.0, bias - ins.in_run_bias.0);
+        assert!(fast0
+            .iter()
+            .zip(slow0.iter())
+            .all(|(f, s)| *f != 0.0 && *s != 0.0));
+        for k in 0..=1000 {
+            ins.propagate(&ImuInput::Rates {
+                t_s: k as f64 * 0.01,
+                gyro: Vector3::zeros(),
+                accel: Vector3::new(0.0, 0.0, -9.8),
+            });
+        }
+        ins.propagate_covariance();
+        let imu = &config.imu;
+        let (tau, tau_on) = (
+            imu.gyro_in_run_state(0).tau_s,
+            imu.gyro_turn_on_state(0).tau_s,
+        );
+        assert!(tau_on > 10.0 * tau && tau_on.is_finite(), "{tau} {tau_on}");
+        for i in 0..3 {
+            let fast = fast0[i] * (-10.0 / tau).exp();
+            let slow = slow0[i] * (-10.0 / tau_on).exp();
+            assert!((ins.in_run_bias.0[i] - fast).abs() < 1e-12 * fast.abs());
+            let b = ins.sensors.gyro_bias[i];
+            assert!(
+                (b - fast - slow).abs() < 1e-12 * b.abs(),
+                "{b} vs {}",
+                fast + slow
+            );
+        }
     }
 }

@@ -4,8 +4,9 @@
 //! `δr` NED position error (m) 0..3, `δv` NED velocity error 3..6, `φ` attitude error 6..9
 //! defined by C_b^n(est) = (I − [φ×]) C_b^n(true), gyro bias error 9..12 (rad/s), accel bias
 //! error 12..15 (m/s²), and with 21 states gyro 15..18 and accel 18..21 scale-factor errors.
-//! With `turn_on_states` six random-constant turn-on bias errors follow (gyro, then accel):
-//! the sensor's bias is the bias state plus its turn-on state. With the GNSS position error
+//! With `turn_on_states` six turn-on bias errors follow (gyro, then accel): the sensor's bias
+//! is the bias state plus its turn-on state, which also carries the in-run bias's slow part
+//! where the model has one (a random constant otherwise). With the GNSS position error
 //! modelled (`config::GnssPositionError`) three more states come last: the error of the
 //! receiver's correlated position-error estimate (estimate minus truth, NED, m).
 //! The sensors are modelled as ω̃ = (I + diag s_g) ω + b_g + noise, f̃ likewise.
@@ -159,12 +160,15 @@ pub fn dynamics_matrix<const N: usize>(
     }
     let layout = Layout::of(config);
     if let Some(t) = layout.turn_on {
-        // Random constants: their rows stay zero; they enter as the in-run biases do.
+        // They enter as the in-run biases do, and decay only as the slow bias they carry
+        // changes (random constants without one).
         f.fixed_view_mut::<3, 3>(ATT, t).copy_from(&c_bn);
         f.fixed_view_mut::<3, 3>(VEL, t + 3).copy_from(&(-c_bn));
         for i in 0..3 {
             f[(BG + i, BG + i)] = -imu.gyro_in_run_state(i).decay();
             f[(BA + i, BA + i)] = -imu.accel_in_run_state(i).decay();
+            f[(t + i, t + i)] = -imu.gyro_turn_on_state(i).decay();
+            f[(t + 3 + i, t + 3 + i)] = -imu.accel_turn_on_state(i).decay();
         }
     }
     if layout.scale_factors {
@@ -199,6 +203,10 @@ pub fn process_noise_psd<const N: usize>(config: &FusionConfig) -> SVector<f64, 
         };
         q[BG + i] = gyro.driving_psd() + imu.gyro_rrw_rad_per_s_sqrt_s[i].powi(2);
         q[BA + i] = accel.driving_psd() + imu.accel_rrw_mps2_per_sqrt_s[i].powi(2);
+        if let Some(t) = layout.turn_on {
+            q[t + i] = imu.gyro_turn_on_state(i).driving_psd();
+            q[t + 3 + i] = imu.accel_turn_on_state(i).driving_psd();
+        }
         if layout.scale_factors {
             q[SG + i] = imu.gyro_scale.axis(i).driving_psd();
             q[SA + i] = imu.accel_scale.axis(i).driving_psd();

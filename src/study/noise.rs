@@ -19,10 +19,11 @@
 //!   2.5·F for 1–5000 s); for an Allan fit, the GM σ (an Allan curve says nothing about the
 //!   turn-on bias). The filter keeps this σ as its bias state's stationary σ and keeps the
 //!   GM's driving noise (`config::bias_state_process`): the turn-on bias and the flicker's
-//!   slow part are constants over a drive, which a GM of τ_c ≈ 37 s would forget. σ_in-run
-//!   is kept too (`*_bias_in_run_sigma`): with the turn-on bias as states of its own
-//!   (`turn_on_states`), the bias state wanders within it and the turn-on state holds the
-//!   rest of the initial σ.
+//!   slow part are constants over a drive, which a GM of τ_c ≈ 37 s would forget. The
+//!   slow part, √(σ_in-run² − σ_GM²), is kept too (`*_bias_slow`) as a GM whose Allan
+//!   deviation peaks at the band's upper end (τ_c = τ₂ / 1.89): with the turn-on bias as
+//!   states of its own (`turn_on_states`), the bias state is the GM alone and the turn-on
+//!   state holds the rest of the initial σ, forgotten as slowly as the slow part changes.
 //! - scale factors (21 states): the preset's scale-factor error as a random constant (100 ppm
 //!   when the preset gives none); an Allan fit does not identify them, so they fall back.
 //! - gyro g-sensitivity G (a preset's `g_sensitivity_dph_per_g`), which the 15/21-state
@@ -94,30 +95,55 @@ pub fn flicker_band_sigma(floor: f64, band_s: [f64; 2]) -> f64 {
     floor * (ratio.ln() / (2.0 * std::f64::consts::LN_2)).sqrt()
 }
 
-/// Per body axis: the in-run bias GM, the stationary σ of the in-run bias, the initial σ and
-/// the random walk. The GM's τ comes from the band, the same on every axis.
-fn triad_bias(t: &TriadErrors) -> (GaussMarkov<Axes>, Axes, Axes, Axes) {
+/// The in-run bias of a flat Allan floor over a band, split in two first-order Gauss-Markov
+/// processes per body axis: `fast`, the one whose Allan deviation peaks at the floor at the
+/// band's geometric centre ([`gauss_markov_from_floor`]), and `slow`, the rest of the
+/// flicker's spread over the band ([`flicker_band_sigma`]) as a process whose Allan deviation
+/// peaks at the band's upper end: the flicker's periods of minutes to hours, which the fast
+/// process leaves out and which over one drive are nearly a constant bias.
+struct InRunBias {
+    fast: GaussMarkov<Axes>,
+    slow: Option<GaussMarkov<Axes>>,
+    /// The stationary σ of the two together: the larger of the fast σ and the band's.
+    sigma: Axes,
+}
+
+fn in_run_bias(t: &TriadErrors) -> InRunBias {
     let band = t.bias_instability_band_s;
-    let tau_min = (band[0] * band[1]).sqrt();
     let floor = t.instability_floor.map(f64::abs);
     // No in-run instability on any axis: a random constant (τ = 0 means constant).
-    let tau_s = if floor.iter().any(|f| *f > 0.0) {
-        gauss_markov_from_floor(1.0, tau_min).tau_s
-    } else {
-        0.0
+    let at = |tau_peak: f64| {
+        if floor.iter().any(|f| *f > 0.0) {
+            gauss_markov_from_floor(1.0, tau_peak).tau_s
+        } else {
+            0.0
+        }
     };
-    let gm = GaussMarkov {
-        sigma: Axes(floor.map(|f| gauss_markov_from_floor(f, tau_min).sigma)),
-        tau_s,
+    let fast = GaussMarkov {
+        sigma: Axes(floor.map(|f| gauss_markov_from_floor(f, (band[0] * band[1]).sqrt()).sigma)),
+        tau_s: at((band[0] * band[1]).sqrt()),
     };
-    // The in-run bias's spread: the GM's σ, or the flicker's over its band when larger.
-    let in_run = Axes(std::array::from_fn(|i| {
-        gm.sigma[i].max(flicker_band_sigma(floor[i], band))
+    let sigma = Axes(std::array::from_fn(|i| {
+        fast.sigma[i].max(flicker_band_sigma(floor[i], band))
     }));
+    let slow_sigma = Axes(std::array::from_fn(|i| {
+        (sigma[i].powi(2) - fast.sigma[i].powi(2)).max(0.0).sqrt()
+    }));
+    let slow = (slow_sigma.max() > 0.0).then_some(GaussMarkov {
+        sigma: slow_sigma,
+        tau_s: at(band[1]),
+    });
+    InRunBias { fast, slow, sigma }
+}
+
+/// Per body axis: the in-run bias, the initial σ (in-run, turn-on and constant bias) and the
+/// random walk.
+fn triad_bias(t: &TriadErrors) -> (InRunBias, Axes, Axes) {
+    let in_run = in_run_bias(t);
     let initial = Axes(std::array::from_fn(|i| {
-        (in_run[i].powi(2) + t.turn_on_sigma[i].powi(2) + t.bias[i].powi(2)).sqrt()
+        (in_run.sigma[i].powi(2) + t.turn_on_sigma[i].powi(2) + t.bias[i].powi(2)).sqrt()
     }));
-    (gm, in_run, initial, Axes(t.random_walk.map(f64::abs)))
+    (in_run, initial, Axes(t.random_walk.map(f64::abs)))
 }
 
 fn scale(t: &TriadErrors) -> GaussMarkov<Axes> {
@@ -143,8 +169,9 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
         .accel
         .to_si()
         .map_err(|e| anyhow::anyhow!("{origin}: accel: {e}"))?;
-    let (mut gyro_bias, gyro_in_run, mut gyro_b0, gyro_rrw) = triad_bias(&gyro);
-    let (accel_bias, accel_in_run, accel_b0, accel_rrw) = triad_bias(&accel);
+    let (gyro_in_run, mut gyro_b0, gyro_rrw) = triad_bias(&gyro);
+    let (accel_in_run, accel_b0, accel_rrw) = triad_bias(&accel);
+    let mut gyro_bias = gyro_in_run.fast;
     let mut gyro_bias_g_sensitivity_sigma = [0.0; 3];
     if let Some(g) = spec.gyro.g_sensitivity_si() {
         // The bias each axis gets per m/s² of specific force in any direction, at 1 g.
@@ -177,13 +204,13 @@ pub fn model_from_spec(spec: &ImuSpec, origin: &str) -> anyhow::Result<NoiseMode
             arw_rad_per_sqrt_s: Axes(gyro.white_density.map(f64::abs)),
             vrw_mps_per_sqrt_s: Axes(accel.white_density.map(f64::abs)),
             gyro_bias,
-            accel_bias,
+            accel_bias: accel_in_run.fast,
             gyro_scale: scale(&gyro),
             accel_scale: scale(&accel),
             gyro_bias_initial_sigma: Some(gyro_b0),
             accel_bias_initial_sigma: Some(accel_b0),
-            gyro_bias_in_run_sigma: Some(gyro_in_run),
-            accel_bias_in_run_sigma: Some(accel_in_run),
+            gyro_bias_slow: gyro_in_run.slow,
+            accel_bias_slow: accel_in_run.slow,
             gyro_rrw_rad_per_s_sqrt_s: gyro_rrw,
             accel_rrw_mps2_per_sqrt_s: accel_rrw,
             gyro_bias_g_sensitivity_sigma,
@@ -544,6 +571,19 @@ mod tests {
         assert!((band / floor - 2.48).abs() < 0.01, "{}", band / floor);
         let turn_on = 4f64.to_radians() / 3600.0;
         assert!((m.gyro_bias_sigma0(1) - band.hypot(turn_on)).abs() < 1e-12);
+        // The band's spread beyond the Allan-peak GM is the slow part, a GM whose Allan
+        // deviation peaks at the band's upper end (5000 s).
+        let slow = m.gyro_bias_slow.expect("slow part");
+        let fast = floor / GM_ADEV_PEAK;
+        assert!((slow.sigma[0].hypot(fast) - band).abs() < 1e-15);
+        assert!((slow.tau_s - 5000.0 / GM_ADEV_PEAK_TAU).abs() < 1e-9);
+        // With turn-on states the bias state is the fast GM and the turn-on state holds the
+        // rest, forgotten at the slow part's driving noise.
+        assert_eq!(m.gyro_in_run_state(0), m.gyro_bias.axis(0));
+        let on = m.gyro_turn_on_state(0);
+        let rest = (band.powi(2) + turn_on.powi(2) - fast.powi(2)).sqrt();
+        assert!((on.sigma - rest).abs() < 1e-9 * rest);
+        assert!((on.driving_psd() / slow.axis(0).driving_psd() - 1.0).abs() < 1e-12);
         // Without a turn-on bias the initial σ is the band's, above the Allan-peak GM's.
         let i = model_from_preset("industrial").expect("preset").model;
         let floor = BIAS_INSTABILITY_FACTOR * 10f64.to_radians() / 3600.0;
