@@ -119,9 +119,10 @@ fn in_run_bias(t: &TriadErrors) -> InRunBias {
             0.0
         }
     };
+    let centre = (band[0] * band[1]).sqrt();
     let fast = GaussMarkov {
-        sigma: Axes(floor.map(|f| gauss_markov_from_floor(f, (band[0] * band[1]).sqrt()).sigma)),
-        tau_s: at((band[0] * band[1]).sqrt()),
+        sigma: Axes(floor.map(|f| gauss_markov_from_floor(f, centre).sigma)),
+        tau_s: at(centre),
     };
     let sigma = Axes(std::array::from_fn(|i| {
         fast.sigma[i].max(flicker_band_sigma(floor[i], band))
