@@ -146,32 +146,31 @@ impl StaticLeveller {
         if !finite || dt_s.is_nan() || dt_s <= 0.0 {
             return;
         }
+        if !self.moved {
+            let (off, turning) = if self.duration_s > 0.0 {
+                (
+                    (f_b - self.sum_f / self.duration_s).norm(),
+                    (w_b - self.sum_w / self.duration_s).norm(),
+                )
+            } else {
+                // Gravity's magnitude against the reading's, within a MEMS part's zero-g
+                // offset.
+                (
+                    ((f_b.norm() - gravity).abs() - LEVEL_GRAVITY_TOLERANCE).max(0.0),
+                    0.0,
+                )
+            };
+            self.moved = turning > gyro_threshold || off > accel_threshold;
+        }
         if self.moved {
+            // The first moving sample's turn counts too.
             self.sum_w_moving += w_b * dt_s;
             self.duration_moving_s += dt_s;
-            return;
-        }
-        let (off, turning) = if self.duration_s > 0.0 {
-            (
-                (f_b - self.sum_f / self.duration_s).norm(),
-                (w_b - self.sum_w / self.duration_s).norm(),
-            )
         } else {
-            // Gravity's magnitude against the reading's, within a MEMS part's zero-g offset.
-            (
-                ((f_b.norm() - gravity).abs() - LEVEL_GRAVITY_TOLERANCE).max(0.0),
-                0.0,
-            )
-        };
-        if turning > gyro_threshold || off > accel_threshold {
-            self.moved = true;
-            // This sample's turn counts.
-            self.add(f_b, w_b, dt_s, gravity, gyro_threshold, accel_threshold);
-            return;
+            self.sum_f += f_b * dt_s;
+            self.sum_w += w_b * dt_s;
+            self.duration_s += dt_s;
         }
-        self.sum_f += f_b * dt_s;
-        self.sum_w += w_b * dt_s;
-        self.duration_s += dt_s;
     }
 
     /// Ends the static period (the GNSS says the vehicle moves).
