@@ -7,7 +7,7 @@
 //! `N` is 15 to 30 (see [`crate::models::Layout`] for the state layout); all matrices are
 //! fixed-size, so the filter loop does not allocate (smoother records aside).
 
-use crate::config::{FusionConfig, GaussMarkov};
+use crate::config::FusionConfig;
 use crate::mechanisation::{ImuInput, Mechaniser, NavState};
 use crate::models::{self, Layout, Measurement, ATT, BA, BG, POS, SA, SG, VEL};
 use nalgebra::{Cholesky, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -360,29 +360,6 @@ impl<const N: usize> Ins<N> {
             return;
         }
         let dt = self.acc_dt;
-        if self.layout.turn_on.is_some() {
-            // Both parts of each estimate follow their process's mean, as the error states
-            // do: the in-run part and the turn-on part (the rest of the sum).
-            let imu = &self.config.imu;
-            let keep = |gm: GaussMarkov| (-dt * gm.decay()).exp();
-            for i in 0..3 {
-                let (gyro, gyro_on) = (
-                    keep(imu.gyro_in_run_state(i)),
-                    keep(imu.gyro_turn_on_state(i)),
-                );
-                let (accel, accel_on) = (
-                    keep(imu.accel_in_run_state(i)),
-                    keep(imu.accel_turn_on_state(i)),
-                );
-                let (g, a) = (&mut self.in_run_bias.0[i], &mut self.in_run_bias.1[i]);
-                let b = &mut self.sensors.gyro_bias[i];
-                *b = *g * gyro + (*b - *g) * gyro_on;
-                *g *= gyro;
-                let b = &mut self.sensors.accel_bias[i];
-                *b = *a * accel + (*b - *a) * accel_on;
-                *a *= accel;
-            }
-        }
         if self.layout.gnss_error.is_some() {
             // The estimate follows the process's mean, so that F's decay holds for the
             // error state too.
@@ -391,6 +368,23 @@ impl<const N: usize> Ins<N> {
         let gyro = self.acc_dtheta / dt;
         let accel = self.acc_dvel / dt;
         let f = models::dynamics_matrix::<N>(&self.nav, &gyro, &accel, &self.config);
+        if let Some(t) = self.layout.turn_on {
+            // Both parts of each bias estimate follow their process's mean, as the error
+            // states do (F's diagonal): the in-run part and the turn-on part, the rest of the
+            // sum.
+            let keep = |k: usize| (f[(k, k)] * dt).exp();
+            for i in 0..3 {
+                let (gyro, accel) = (&mut self.sensors.gyro_bias, &mut self.sensors.accel_bias);
+                let in_run = &mut self.in_run_bias;
+                decay_parts(&mut gyro[i], &mut in_run.0[i], keep(BG + i), keep(t + i));
+                decay_parts(
+                    &mut accel[i],
+                    &mut in_run.1[i],
+                    keep(BA + i),
+                    keep(t + 3 + i),
+                );
+            }
+        }
         let (phi, qd) = models::discretise_sparse(&f, &self.q_psd, dt);
         let p_prev = self.p;
         let mut p = models::propagate_covariance_sparse(&phi, &self.p) + qd;
@@ -500,6 +494,13 @@ impl<const N: usize> Ins<N> {
     }
 }
 
+/// Decays a bias estimate `total`, the sum of an in-run part `in_run` and a turn-on part, by
+/// each part's own factor over one interval.
+fn decay_parts(total: &mut f64, in_run: &mut f64, keep_in_run: f64, keep_turn_on: f64) {
+    *total = *in_run * keep_in_run + (*total - *in_run) * keep_turn_on;
+    *in_run *= keep_in_run;
+}
+
 /// The nominal state and sensor errors after removing the estimated error `dx`
 /// (estimate minus truth) of a filter laid out as `layout`.
 pub fn corrected<const N: usize>(
@@ -534,7 +535,7 @@ pub fn corrected<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Axes;
+    use crate::config::{Axes, GaussMarkov};
 
     /// A level body at rest at 46° N.
     fn still_nav() -> NavState {
