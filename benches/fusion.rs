@@ -482,15 +482,9 @@ fn true_biases(
             "the two IMUs' samples differ in time"
         );
         times.push((b.t_mono_ns - imulab::sim::scene::START_MONO_NS) as f64 * 1e-9);
-        let last = sums[sums.len() - 1];
-        sums.push(std::array::from_fn(|j| {
-            last[j]
-                + if j < 3 {
-                    b.gyro[j] - i.gyro[j]
-                } else {
-                    b.accel[j - 3] - i.accel[j - 3]
-                }
-        }));
+        let (last, now) = (sums[sums.len() - 1], gyro_accel(b.gyro, b.accel));
+        let ideal = gyro_accel(i.gyro, i.accel);
+        sums.push(std::array::from_fn(|j| last[j] + (now[j] - ideal[j])));
     }
     let half = 0.5 * BIAS_TRUTH_WINDOW_S;
     (0..=drive.end_s() as usize)
@@ -503,6 +497,11 @@ fn true_biases(
             std::array::from_fn(|j| (sums[to][j] - sums[from][j]) / (to - from) as f64)
         })
         .collect()
+}
+
+/// A gyro triad then an accelerometer triad, as one row of six.
+fn gyro_accel(gyro: [f64; 3], accel: [f64; 3]) -> [f64; 6] {
+    std::array::from_fn(|j| if j < 3 { gyro[j] } else { accel[j - 3] })
 }
 
 /// One second of a consistency run: NEES of the navigation states ([`block_nees`]) and, when
@@ -570,14 +569,9 @@ fn nees_run<const N: usize>(
             epoch.nees = block_nees(s, &t);
         }
         if let Some(b) = biases.and_then(|b| b.get(k as usize)) {
-            epoch.bias = std::array::from_fn(|j| {
-                let (estimate, sigma) = if j < 3 {
-                    (s.sensors.gyro_bias[j], s.sigma_sensors[0][j])
-                } else {
-                    (s.sensors.accel_bias[j - 3], s.sigma_sensors[1][j - 3])
-                };
-                ((estimate - b[j]) / sigma).powi(2)
-            });
+            let estimate = gyro_accel(s.sensors.gyro_bias.into(), s.sensors.accel_bias.into());
+            let sigma = gyro_accel(s.sigma_sensors[0].into(), s.sigma_sensors[1].into());
+            epoch.bias = std::array::from_fn(|j| ((estimate[j] - b[j]) / sigma[j]).powi(2));
         }
     }
     epochs
